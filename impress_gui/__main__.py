@@ -1,0 +1,3 @@
+from impress_gui.cli import main
+
+raise SystemExit(main())

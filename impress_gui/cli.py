@@ -1,0 +1,77 @@
+"""The ``impress`` console command.
+
+Subcommands are registered by name with the module that implements them; a module is
+imported only when its subcommand runs (or its ``--help`` is asked for), so ``impress --help``
+never loads Qt, open3d or the video stack. Each command module provides
+``add_arguments(parser)`` and ``run(args) -> int``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from impress_gui import __version__
+
+#: name -> (module implementing it, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "gui": ("impress_gui.commands.gui", "open the workstation window (the default)"),
+    "simulate": ("impress_gui.commands.simulate", "render a scan video with exact ground truth"),
+    "calibrate-camera": (
+        "impress_gui.commands.calibrate_camera",
+        "camera intrinsics from checkerboard views",
+    ),
+    "calibrate": ("impress_gui.commands.calibrate", "scene calibration from the L-target picks"),
+    "process": ("impress_gui.commands.process", "reconstruct heightmap, texture and point cloud"),
+    "motor": ("impress_gui.commands.motor", "drive the Cool Muscle rail motor (or its emulator)"),
+    "demo": ("impress_gui.commands.demo", "make (or reuse) the cached sample scan and process it"),
+}
+
+
+class _LazyCommand(argparse.Action):
+    """Placeholder; real sub-parsers are filled in on demand in :func:`build_parser`."""
+
+
+def _load(name: str):
+    module_name, _ = COMMANDS[name]
+    return importlib.import_module(module_name)
+
+
+def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="impress",
+        description="IMPREsS workstation: 3D scanning of forensic footwear and tire-track "
+        "impressions. Without a subcommand, opens the workstation window.",
+    )
+    parser.add_argument("--version", action="version", version=f"impress {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (_, help_text) in COMMANDS.items():
+        sp = sub.add_parser(name, help=help_text, description=help_text)
+        if name == selected:
+            _load(name).add_arguments(sp)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    selected = next((a for a in argv if not a.startswith("-")), None)
+    if selected not in COMMANDS:
+        selected = None if not argv or argv[0].startswith("-") else selected
+    parser = build_parser(selected)
+    args = parser.parse_args(argv)
+    command = args.command or "gui"
+    if args.command is None:
+        # no subcommand: the GUI, with its own defaults
+        parser = build_parser("gui")
+        args = parser.parse_args(["gui", *argv])
+    from impress_gui.core.errors import ImpressError
+
+    try:
+        return int(_load(command).run(args) or 0)
+    except ImpressError as exc:
+        print(f"impress {command}: error [{exc.code}]: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"impress {command}: interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,151 @@
+"""Atomic writes, hashing and versioned JSON documents.
+
+Every JSON document the product writes has a ``format`` name and an integer ``version``.
+Readers check both and turn every failure (missing file, bad JSON, wrong kind, NaN, unknown
+version) into a :class:`~impress_gui.core.errors.FormatError` naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from impress_gui.core.errors import FormatError
+
+MAX_JSON_BYTES = 50 * 1024 * 1024
+
+
+def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
+    """SHA-256 hex digest of a file, read (never written) in chunks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike, mode: str = "wb") -> Iterator[Any]:
+    """Open a temporary file beside ``path``; on success fsync and rename it into place.
+
+    On any exception the temporary file is removed and ``path`` keeps its previous content.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    try:
+        with os.fdopen(fd, mode) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    with atomic_output(path, "wb") as fh:
+        fh.write(data)
+
+
+def _check_finite(obj: Any, where: str = "$") -> None:
+    if isinstance(obj, float) and not math.isfinite(obj):
+        raise FormatError(f"non-finite number at {where}")
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            _check_finite(v, f"{where}.{k}")
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            _check_finite(v, f"{where}[{i}]")
+
+
+def dumps_json(doc: dict) -> str:
+    _check_finite(doc)
+    return json.dumps(doc, indent=2, sort_keys=False, allow_nan=False) + "\n"
+
+
+def write_json(path: str | os.PathLike, doc: dict) -> None:
+    """Write a JSON document atomically (finite numbers only)."""
+    atomic_write_bytes(path, dumps_json(doc).encode("utf-8"))
+
+
+def _reject_constant(name: str) -> None:
+    raise ValueError(f"{name} is not allowed")
+
+
+def read_json(path: str | os.PathLike, fmt: str, versions: tuple[int, ...] = (1,)) -> dict:
+    """Read a versioned JSON document of kind ``fmt``; raise FormatError on any problem."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise FormatError(f"{path}: file not found", code="E-FILE-MISSING") from None
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+    if size > MAX_JSON_BYTES:
+        raise FormatError(f"{path}: {size} bytes is too large for a {fmt} file")
+    try:
+        text = path.read_bytes().decode("utf-8")
+        doc = json.loads(text, parse_constant=_reject_constant)
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise FormatError(f"{path}: not valid JSON ({exc})", code="E-JSON") from None
+    if not isinstance(doc, dict):
+        raise FormatError(f"{path}: expected a JSON object for a {fmt} file")
+    got = doc.get("format")
+    if got != fmt:
+        raise FormatError(
+            f"{path}: this is not a {fmt} file (its format field is {got!r})",
+            code="E-WRONG-FORMAT",
+        )
+    version = doc.get("version")
+    if version not in versions:
+        raise FormatError(
+            f"{path}: {fmt} version {version!r} is not supported (this software reads "
+            f"{', '.join(map(str, versions))})",
+            code="E-VERSION",
+        )
+    try:
+        _check_finite(doc)
+    except FormatError as exc:
+        raise FormatError(f"{path}: {exc}") from None
+    return doc
+
+
+def require(doc: dict, key: str, kind: type | tuple[type, ...], where: str = "") -> Any:
+    """Fetch ``doc[key]`` checking its type; raise FormatError naming the key otherwise."""
+    if key not in doc:
+        raise FormatError(f"{where}missing field {key!r}")
+    value = doc[key]
+    if kind is float:
+        kind = (int, float)
+    if isinstance(value, bool) and kind is not bool:
+        raise FormatError(f"{where}field {key!r} must be {getattr(kind, '__name__', kind)}")
+    if not isinstance(value, kind):
+        raise FormatError(f"{where}field {key!r} has the wrong type ({type(value).__name__})")
+    return value
+
+
+def float_array(value: Any, shape: tuple[int, ...], name: str) -> "Any":
+    """Convert a JSON list to a float64 array of exactly ``shape`` with finite values."""
+    import numpy as np
+
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise FormatError(f"{name} must be numbers of shape {shape}") from None
+    if arr.shape != shape:
+        raise FormatError(f"{name} must have shape {shape}, not {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise FormatError(f"{name} contains NaN or infinity")
+    if np.any(np.abs(arr) > 1e9):
+        raise FormatError(f"{name} contains absurdly large values")
+    return arr

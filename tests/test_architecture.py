@@ -1,0 +1,69 @@
+"""The Qt-free core stays Qt-free, and the command line stays light."""
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_import_linter_contract_holds():
+    lint = Path(sys.executable).with_name("lint-imports")
+    res = subprocess.run([str(lint)], cwd=ROOT, capture_output=True, text=True)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "KEPT" in res.stdout
+
+
+BLOCK_QT = """
+import sys, importlib, pkgutil
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in ('PySide6', 'pyqtgraph', 'shiboken6'):
+            raise ImportError('Qt is blocked in this test: ' + name)
+sys.meta_path.insert(0, Block())
+import impress_gui
+for pkg in ('core', 'sim', 'hardware', 'commands'):
+    mod = importlib.import_module('impress_gui.' + pkg)
+    for info in pkgutil.walk_packages(mod.__path__, mod.__name__ + '.'):
+        if info.name in ('impress_gui.commands.gui',):
+            continue
+        importlib.import_module(info.name)
+print('ok')
+"""
+
+
+def test_core_imports_with_qt_unimportable():
+    res = subprocess.run([sys.executable, "-c", BLOCK_QT], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip().endswith("ok")
+
+
+def test_help_is_fast_and_loads_no_heavy_modules():
+    code = (
+        "import sys, contextlib, io\n"
+        "from impress_gui.cli import main\n"
+        "buf = io.StringIO()\n"
+        "with contextlib.redirect_stdout(buf):\n"
+        "    try:\n"
+        "        main(['--help'])\n"
+        "    except SystemExit:\n"
+        "        pass\n"
+        "heavy = [m for m in ('PySide6', 'open3d', 'cv2', 'av', 'pyqtgraph') if m in sys.modules]\n"
+        "print(heavy)\n"
+        "assert 'simulate' in buf.getvalue()\n"
+    )
+    t0 = time.perf_counter()
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    elapsed = time.perf_counter() - t0
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]"
+    assert elapsed < 1.0, f"impress --help took {elapsed:.2f} s"
+
+
+def test_python_dash_m_entry_point():
+    res = subprocess.run(
+        [sys.executable, "-m", "impress_gui", "--version"], capture_output=True, text=True
+    )
+    assert res.returncode == 0
+    assert res.stdout.startswith("impress ")
