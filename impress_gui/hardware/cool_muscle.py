@@ -524,10 +524,10 @@ class CoolMuscle:
             return abs(self.units.units_to_speed_mm_s(self._query_int("?97", "Sx")))
 
     def poll(self) -> MotorSnapshot:
-        """Position and status in one go."""
+        """Status, then position (so a finished move reports its final position)."""
         with self._guard():
-            pulses = self._query_int("?96", "Px")
             status = MotorStatus(self._query_int("?99", "Ux"))
+            pulses = self._query_int("?96", "Px")
             self.last_status = status
             return MotorSnapshot(pulses, self.units.pulses_to_mm(pulses), status)
 

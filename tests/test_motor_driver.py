@@ -1,0 +1,475 @@
+"""The Cool Muscle driver against the emulator: every operation, echo on/off, timing, faults."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+import serial
+
+from impress_gui.core.errors import Cancelled, ImpressError, InputError
+from impress_gui.core.progress import CancelToken
+from impress_gui.hardware.cool_muscle import (
+    CoolMuscle,
+    MotorAlarm,
+    MotorConfig,
+    MotorDisconnected,
+    MotorGarbage,
+    MotorNotConnected,
+    MotorPortError,
+    MotorRangeError,
+    MotorStatus,
+    MotorTimeout,
+    scanner_program,
+)
+from impress_gui.hardware.emulator import (
+    CM1Emulator,
+    EmulatedSerial,
+    EmulatorConfig,
+    emulated_port,
+    register_url_handler,
+)
+from impress_gui.hardware.units import (
+    MotorUnits,
+    move_duration_s,
+    pulses_per_mm_from_measurement,
+    speed_from_video_mm_s,
+    speed_unit_from_measurement,
+)
+
+TIME_SCALE = 50.0  # emulated seconds per wall second
+
+
+@pytest.fixture(autouse=True)
+def no_stray_threads():
+    before = set(threading.enumerate())
+    yield
+    assert set(threading.enumerate()) - before == set()
+
+
+@pytest.fixture
+def rig():
+    made: list[CoolMuscle] = []
+
+    def make(*, echo=True, events=False, time_scale=TIME_SCALE, emulator=None, **config):
+        emu = CM1Emulator(
+            EmulatorConfig(
+                echo=echo, report_events=events, time_scale=time_scale, **(emulator or {})
+            )
+        )
+        config = {"poll_interval_s": 0.005, "reply_timeout_s": 0.3, **config}
+        driver = CoolMuscle(emulated_port(emu), MotorConfig(**config))
+        made.append(driver)
+        driver.connect()
+        return emu, driver
+
+    yield make
+    for driver in made:
+        driver.close()
+
+
+def assert_stopped(emu: CM1Emulator, short_of_mm: float | None = None) -> None:
+    """The emulated motor stands still (and, if given, short of a target it was sent to)."""
+    assert not emu.moving
+    if short_of_mm is not None:
+        assert abs(emu.position_pulses / 78.0) < short_of_mm - 1.0
+    here = emu.position_pulses
+    emu.wait_output(0.02)  # let emulated time pass
+    assert emu.position_pulses == here
+
+
+# ----------------------------------------------------------------- units and status
+
+
+def test_units_round_trip_and_speed_units():
+    u = MotorUnits(pulses_per_mm=80.0, speed_unit_pulses_s=10.0, direction=-1)
+    assert u.mm_to_pulses(500.0) == -40000
+    assert u.pulses_to_mm(-40000) == pytest.approx(500.0)
+    assert u.speed_to_units(5.0) == 40
+    assert u.units_to_speed_mm_s(40) == pytest.approx(5.0)
+    assert MotorUnits(pulses_per_mm=78.0).speed_to_units(0.01) == 1  # never zero
+    with pytest.raises(InputError):
+        u.speed_to_units(0.0)
+    with pytest.raises(InputError):
+        MotorUnits(pulses_per_mm=0.0)
+    with pytest.raises(InputError):
+        MotorUnits(direction=0)
+
+
+def test_calibration_helpers():
+    # the thesis' short run: 39 000 pulses measured as 500 mm on a ruler
+    assert pulses_per_mm_from_measurement(-39000, 500.0) == pytest.approx(78.0)
+    # marks 100 mm apart, line passes them in 150 frames at 30 fps -> 5 s -> 20 mm/s
+    assert speed_from_video_mm_s(100.0, 150, 30.0) == pytest.approx(20.0)
+    # S = 4 measured at 5.2 mm/s with 78 pulses/mm -> one speed unit is 101.4 pulses/s
+    assert speed_unit_from_measurement(4, 5.2, 78.0) == pytest.approx(101.4)
+    for bad in [(0, 1.0), (100, 0.0), (100, float("nan"))]:
+        with pytest.raises(InputError):
+            pulses_per_mm_from_measurement(*bad)
+    with pytest.raises(InputError):
+        speed_from_video_mm_s(100.0, 0, 30.0)
+
+
+def test_move_duration_trapezoid_and_triangle():
+    # 1000 pulses at 100 p/s with 100 p/s^2: 1 s up, 1 s down, 900 pulses at full speed
+    assert move_duration_s(1000, 100, 100) == pytest.approx(11.0)
+    # 100 pulses cannot reach full speed: two halves of sqrt(50/100*2)... = 2*sqrt(1)
+    assert move_duration_s(-100, 100, 100) == pytest.approx(2.0)
+    assert move_duration_s(0, 100, 100) == 0.0
+
+
+@pytest.mark.parametrize(
+    ("bits", "state", "alarms", "flags"),
+    [
+        (0, "moving", (), ()),
+        (8, "in position", (), ("in position",)),
+        (40, "in position", (), ("in position", "push-mode torque limit")),
+        (16, "free", (), ("motor free",)),
+        (4, "alarm", ("overload / over-current",), ()),
+        (1 + 128, "alarm", ("position error overflow", "over temperature"), ()),
+        (512, "emergency stop", ("emergency stop",), ()),
+    ],
+)
+def test_status_bits_decode(bits, state, alarms, flags):
+    status = MotorStatus(bits)
+    assert status.state == state
+    assert status.alarms == alarms
+    assert status.flags == flags
+    assert status.moving == (state == "moving")
+
+
+# ----------------------------------------------------------------- operations
+
+
+@pytest.mark.parametrize("echo", [True, False])
+def test_connect_reads_version_with_and_without_echo(rig, echo):
+    emu, driver = rig(echo=echo)
+    assert driver.connected
+    assert "CM1" in driver.version
+    assert driver.status().in_position
+    assert driver.position_pulses() == 0
+    assert emu.received[0] == "?85.1"
+
+
+@pytest.mark.parametrize("echo", [True, False])
+def test_move_to_and_by_mm(rig, echo):
+    emu, driver = rig(echo=echo)
+    snap = driver.move_to_mm(10.0, 5.0)
+    assert snap.status.in_position
+    assert snap.position_mm == pytest.approx(10.0, abs=0.02)
+    assert emu.position_pulses == driver.units.mm_to_pulses(10.0)
+    snap = driver.move_by_mm(-4.0, 5.0)
+    assert snap.position_mm == pytest.approx(6.0, abs=0.02)
+    assert "P.1=-780" in emu.received  # 10 mm at 78 pulses/mm, negative direction
+    assert_stopped(emu)
+
+
+def test_move_duration_matches_speed(rig):
+    units = MotorUnits(pulses_per_mm=80.0, speed_unit_pulses_s=10.0)
+    # the emulated motor's true speed unit is the calibrated one; 10 000 pulses/s^2 ramps
+    emu, driver = rig(
+        units=units, accel_units=10, time_scale=20.0, emulator={"speed_unit_pulses_s": 10.0}
+    )
+    # 60 mm at 8 mm/s (640 pulses/s) takes 7.5 s, plus one ramp time for the two ramps
+    expected_s = 7.5 + 640 / 10_000
+    t0_before = emu.clock()
+    watch = driver.start_move_mm(60.0, 8.0)
+    t0_after = emu.clock()
+    samples: list[tuple[float, float]] = []
+    last_moving_s = t0_before
+    while True:
+        before = emu.clock()
+        done, snap = driver.check(watch)
+        after = emu.clock()
+        samples.append(((before + after) / 2, snap.position_mm))
+        if done:
+            break
+        last_moving_s = before
+    # the move ended after the last poll that saw it moving and before the first that did not,
+    # whatever the load on the machine running the test
+    shortest_s, longest_s = last_moving_s - t0_after, after - t0_before
+    assert shortest_s <= expected_s <= longest_s
+    assert longest_s - shortest_s < 3.0
+    t, x = np.array(samples).T
+    cruise = (x > 5.0) & (x < 55.0)
+    assert cruise.sum() > 10
+    assert np.polyfit(t[cruise], x[cruise], 1)[0] == pytest.approx(8.0, rel=0.02)
+    assert np.all(np.diff(x) >= 0)  # position updates during the move, never backwards
+    assert snap.position_mm == pytest.approx(60.0, abs=0.02)
+
+
+def test_positions_are_reported_during_a_move(rig):
+    emu, driver = rig(time_scale=10.0)
+    seen: list[float] = []
+    driver.move_to_mm(20.0, 10.0, on_update=lambda s: seen.append(s.position_mm))
+    inside = [p for p in seen if 0.5 < p < 19.5]
+    assert len(inside) >= 3
+
+
+def test_stop_mid_move_from_another_thread(rig):
+    emu, driver = rig()
+    watch = driver.start_move_mm(1000.0, 5.0)
+    done, snap = driver.check(watch)
+    assert not done and snap.status.moving
+    stopper = threading.Thread(target=driver.stop)
+    stopper.start()
+    stopper.join()
+    final = driver.wait(watch)  # the move ends at once, short of its target
+    assert final.position_mm < 999.0
+    assert_stopped(emu, short_of_mm=1000.0)
+
+
+def test_enable_disable_zero_and_speed(rig):
+    emu, driver = rig()
+    driver.disable()
+    assert driver.status().free
+    driver.enable()
+    assert driver.status().in_position
+    driver.move_to_mm(5.0, 5.0)
+    driver.set_zero()
+    assert driver.position_pulses() == 0
+    watch = driver.start_move_mm(50.0, 5.0)
+    driver.check(watch)
+    assert driver.speed_mm_s() == pytest.approx(driver.units.units_to_speed_mm_s(4), rel=0.05)
+    driver.stop()
+    assert driver.speed_mm_s() == 0.0
+
+
+def test_home_returns_to_the_switch_and_zeroes(rig):
+    emu, driver = rig()
+    driver.move_to_mm(30.0, 10.0)
+    driver.set_zero()  # the position counter no longer matches the switch
+    snap = driver.home()
+    assert snap.position_pulses == 0
+    assert "|.1" in emu.received
+    assert_stopped(emu)
+
+
+def test_emergency_stop_and_release(rig):
+    emu, driver = rig()
+    driver.start_move_mm(100.0, 5.0)
+    driver.emergency_stop()
+    status = driver.status()
+    assert status.emergency_stop and status.state == "emergency stop"
+    assert_stopped(emu, short_of_mm=100.0)
+    with pytest.raises(MotorAlarm):
+        driver.move_to_mm(0.0, 5.0)  # refused while the emergency stop is active
+    driver.release_emergency_stop()
+    assert driver.move_to_mm(0.0, 10.0).position_pulses == 0
+
+
+def test_write_program_and_run_banks(rig):
+    emu, driver = rig(events=True)
+    driver.write_program(scanner_program(home_pulses=-100, short_end_pulses=-1000,
+                                         long_end_pulses=-2000, speed_units=10))  # fmt: skip
+    assert emu.saved == 1
+    assert sorted(emu.banks) == [1, 2, 3, 4]
+    assert driver.run_bank(1).position_pulses == -100  # home: zero here, go to P1
+    assert driver.run_bank(3).position_pulses == -1000  # short run
+    watch = driver.start_bank(4)  # long run, stopped by bank 2
+    driver.check(watch)
+    driver.start_bank(2)
+    snap = driver.wait(watch)
+    assert -2000 < snap.position_pulses < -1000
+    assert_stopped(emu)
+    with pytest.raises(MotorRangeError):
+        driver.start_bank(0)
+
+
+def test_thesis_program_has_the_thesis_values():
+    lines = scanner_program()
+    for expected in ["P1.1=-1000", "P2.1=-40000", "P3.1=-130000", "S1.1=4", "A1.1=100"]:
+        assert expected in lines
+    assert lines.count("END.1") == 4
+
+
+def test_unsolicited_status_lines_do_not_confuse_queries(rig):
+    emu, driver = rig(events=True, echo=False)
+    for target in (3.0, 6.0, 9.0):
+        driver.move_to_mm(target, 10.0)  # each end of move emits an unsolicited Ux.1=8
+        assert driver.position_mm() == pytest.approx(target, abs=0.02)
+
+
+def test_url_handler_and_motor_id():
+    register_url_handler()
+    port = serial.serial_for_url("cm1emu://?echo=0&id=2&time_scale=100", timeout=0.02)
+    assert isinstance(port, EmulatedSerial)
+    driver = CoolMuscle(port, MotorConfig(motor_id=2, reply_timeout_s=0.3, poll_interval_s=0.005))
+    try:
+        driver.connect()
+        assert driver.move_to_mm(2.0, 5.0).position_mm == pytest.approx(2.0, abs=0.02)
+        assert all(line.endswith(".2") or "=" in line for line in port.motor.received)
+    finally:
+        driver.close()
+    with pytest.raises(serial.SerialException, match="colour"):
+        serial.serial_for_url("cm1emu://?colour=red")
+
+
+def test_open_by_name_sim_and_bad_port():
+    driver = CoolMuscle.open("sim", MotorConfig(reply_timeout_s=0.3))
+    try:
+        assert driver.connect()
+    finally:
+        driver.close()
+    with pytest.raises(MotorPortError) as info:
+        CoolMuscle.open("/dev/does-not-exist-impress")
+    assert info.value.code == "E-MOTOR-PORT"
+
+
+def test_wrong_motor_id_times_out():
+    emu = CM1Emulator(EmulatorConfig(motor_id=3))
+    driver = CoolMuscle(emulated_port(emu), MotorConfig(motor_id=1, reply_timeout_s=0.1))
+    with pytest.raises(MotorTimeout):
+        driver.connect()
+    driver.close()
+
+
+def test_traffic_is_reported(rig):
+    emu = CM1Emulator(EmulatorConfig(time_scale=TIME_SCALE))
+    log: list[str] = []
+    driver = CoolMuscle(emulated_port(emu), on_traffic=lambda d, t: log.append(d + t))
+    driver.connect()
+    driver.close()
+    assert log[:2] == [">?85.1", "<?85.1"]
+    assert any(line.startswith("<ID1") for line in log)
+
+
+# ----------------------------------------------------------------- faults
+
+
+def test_alarm_mid_move_raises_and_leaves_motor_stopped(rig):
+    emu, driver = rig()
+    emu.inject_alarm(bits=4, at_fraction=0.4)
+    with pytest.raises(MotorAlarm) as info:
+        driver.move_to_mm(20.0, 10.0)
+    assert info.value.code == "E-MOTOR-ALARM"
+    assert info.value.status.alarms == ("overload / over-current",)
+    assert 6.0 < driver.position_mm() < 10.0
+    assert_stopped(emu, short_of_mm=20.0)
+    last_start = max(i for i, line in enumerate(emu.received) if line == "^.1")
+    assert "].1" in emu.received[last_start:]  # the driver sent stop after the alarm
+    with pytest.raises(MotorAlarm):
+        driver.move_to_mm(0.0, 10.0)  # refused until the alarm is reset
+    driver.reset_alarm()
+    assert driver.move_to_mm(0.0, 10.0).position_pulses == 0
+
+
+def test_no_reply_raises_timeout_and_motor_is_stopped(rig):
+    emu, driver = rig(reply_timeout_s=0.1)
+    driver.start_move_mm(1000.0, 5.0)
+    emu.set_no_reply()
+    with pytest.raises(MotorTimeout) as info:
+        driver.position_mm()
+    assert info.value.code == "E-MOTOR-TIMEOUT"
+    assert_stopped(emu, short_of_mm=1000.0)  # the stop sent after the error got through
+
+
+def test_garbage_raises_and_motor_is_stopped(rig):
+    emu, driver = rig()
+    watch = driver.start_move_mm(1000.0, 5.0)
+    emu.inject_garbage()
+    with pytest.raises(MotorGarbage) as info:
+        driver.wait(watch)
+    assert info.value.code == "E-MOTOR-GARBAGE"
+    assert_stopped(emu, short_of_mm=1000.0)
+    assert driver.status().in_position  # the link works again afterwards
+
+
+def test_disconnect_raises_and_reconnecting_stops_the_motor(rig):
+    emu, driver = rig()
+    watch = driver.start_move_mm(1000.0, 5.0)
+    emu.disconnect()
+    with pytest.raises(MotorDisconnected) as info:
+        driver.wait(watch)
+    assert info.value.code == "E-MOTOR-DISCONNECTED"
+    assert not driver.connected
+    with pytest.raises(MotorNotConnected) as info2:
+        driver.stop()
+    assert info2.value.code == "E-MOTOR-NOT-CONNECTED"
+    # nothing can reach a motor whose cable is out; connecting again stops it first
+    emu.reconnect()
+    again = CoolMuscle(emulated_port(emu), MotorConfig(reply_timeout_s=0.3))
+    again.connect()
+    assert_stopped(emu, short_of_mm=1000.0)
+    again.close()
+
+
+def test_move_that_does_not_finish_in_time(rig):
+    emu, driver = rig(move_timeout_factor=0.1, move_timeout_margin_s=0.0, time_scale=1.0)
+    with pytest.raises(MotorTimeout):
+        driver.move_to_mm(10.0, 5.0)
+    assert_stopped(emu, short_of_mm=10.0)
+
+
+def test_cancel_stops_the_motor(rig):
+    emu, driver = rig()
+    token = CancelToken()
+    calls = []
+
+    def on_update(snap):
+        calls.append(snap)
+        if len(calls) == 3:
+            token.cancel()
+
+    with pytest.raises(Cancelled):
+        driver.move_to_mm(1000.0, 5.0, on_update=on_update, cancel=token)
+    assert_stopped(emu, short_of_mm=1000.0)
+
+
+def test_operations_need_a_connection():
+    emu = CM1Emulator()
+    driver = CoolMuscle(emulated_port(emu))
+    with pytest.raises(MotorNotConnected):
+        driver.position_mm()
+    driver.close()
+    with pytest.raises(MotorNotConnected):
+        driver.connect()
+
+
+def test_bad_speed_is_a_range_error(rig):
+    emu, driver = rig()
+    with pytest.raises(MotorRangeError) as info:
+        driver.start_move_mm(10.0, 0.0)
+    assert isinstance(info.value, ImpressError)
+    assert_stopped(emu)
+
+
+class ScriptedPort:
+    """A serial-like object that answers each write with canned bytes."""
+
+    def __init__(self, answers: dict[bytes, bytes]) -> None:
+        self.answers, self.out, self.written = answers, bytearray(), []
+        self.timeout = 0.0
+
+    def write(self, data: bytes) -> int:
+        self.written.append(data)
+        self.out += self.answers.get(data, b"")
+        return len(data)
+
+    def read(self, size: int = 1) -> bytes:
+        data, self.out = bytes(self.out[:size]), self.out[size:]
+        return data
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.out)
+
+    def close(self) -> None:
+        pass
+
+
+def test_line_endings_stray_lines_and_bad_values():
+    port = ScriptedPort(
+        {
+            b"?85.1\r": b"?85.1\rID1 :CM1v2\n",
+            b"?99.1\r": b"Ux.2=4\r\nhello\rUx.1=8\r\n",  # other motor, noise, then ours
+            b"?96.1\r": b"Px.1=12x\r\n",
+        }
+    )
+    driver = CoolMuscle(port, MotorConfig(reply_timeout_s=0.05))
+    assert driver.connect() == "ID1 :CM1v2"
+    assert driver.status().bits == 8
+    with pytest.raises(MotorGarbage):
+        driver.position_pulses()
+    assert port.written[-1] == b"].1\r"  # stop sent after the error
