@@ -20,6 +20,8 @@ from typing import Any
 from impress_gui.core.errors import FormatError
 
 MAX_JSON_BYTES = 50 * 1024 * 1024
+_UMASK = os.umask(0)
+os.umask(_UMASK)
 
 
 def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
@@ -45,6 +47,7 @@ def atomic_output(path: str | os.PathLike, mode: str = "wb") -> Iterator[Any]:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
+        os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -149,3 +152,25 @@ def float_array(value: Any, shape: tuple[int, ...], name: str) -> "Any":
     if np.any(np.abs(arr) > 1e9):
         raise FormatError(f"{name} contains absurdly large values")
     return arr
+
+
+def atomic_write_tiff(path: str | os.PathLike, array, **kwargs) -> None:
+    """Write a TIFF atomically (rendered in memory, then renamed into place)."""
+    import io
+
+    import tifffile
+
+    buf = io.BytesIO()
+    tifffile.imwrite(buf, array, **kwargs)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def atomic_write_png(path: str | os.PathLike, rgb_or_gray) -> None:
+    """Write an 8/16-bit PNG atomically; colour input is RGB (converted for OpenCV)."""
+    import cv2
+
+    img = rgb_or_gray[..., ::-1] if getattr(rgb_or_gray, "ndim", 2) == 3 else rgb_or_gray
+    ok, data = cv2.imencode(".png", img)
+    if not ok:
+        raise OSError(f"cannot encode {path} as PNG")
+    atomic_write_bytes(path, data.tobytes())

@@ -125,14 +125,28 @@ class Intrinsics:
         Iterates to convergence (OpenCV's default five iterations leave errors of a tenth of
         a pixel at the image corners of a wide lens).
         """
-        import cv2
-
-        pts = np.asarray(pts_px, dtype=np.float64).reshape(-1, 1, 2)
-        if pts.shape[0] == 0:
-            return np.zeros((0, 2))
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-        out = cv2.undistortPointsIter(pts, self.camera_matrix, self.dist_coeffs, None, None, crit)
-        return out.reshape(-1, 2)
+        pts = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2)
+        k = self.camera_matrix
+        yd = (pts[:, 1] - k[1, 2]) / k[1, 1]
+        xd = (pts[:, 0] - k[0, 2] - k[0, 1] * yd) / k[0, 0]
+        x, y = xd.copy(), yd.copy()
+        k1, k2, p1, p2, k3 = self.dist_coeffs[:5]
+        rat = self.dist_coeffs.size == 8
+        for _ in range(100):
+            r2 = x * x + y * y
+            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            if rat:
+                k4, k5, k6 = self.dist_coeffs[5:8]
+                radial = radial / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+            dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+            dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+            xn, yn = (xd - dx) / radial, (yd - dy) / radial
+            delta = max(float(np.max(np.abs(xn - x), initial=0)),
+                        float(np.max(np.abs(yn - y), initial=0)))
+            x, y = xn, yn
+            if delta < 1e-13:
+                break
+        return np.column_stack([x, y])
 
     def rays(self, pts_px: np.ndarray) -> np.ndarray:
         """Camera-frame ray directions ``(N, 3)`` (z = 1) through distorted pixels."""

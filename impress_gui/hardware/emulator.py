@@ -54,6 +54,7 @@ class EmulatorConfig:
     home_speed_units: int = 50
     home_switch_pulses: int = 0
     start_position_pulses: int = 0
+    preload_program: bool = True
     version: str = "CM1v2.39.5 emulator"
 
     @classmethod
@@ -146,6 +147,13 @@ class CM1Emulator:
         self._garbage = 0
         self._link_up = True
         self._alarm_plan: tuple[int, float] | None = None
+        if self.config.preload_program:  # the thesis' four banks, as on the rig's motor
+            from impress_gui.hardware.cool_muscle import scanner_program
+
+            for line in scanner_program(self.config.motor_id):
+                self._line(line, 0.0)
+            self._out.clear()
+            self.received.clear()
 
     # ----------------------------------------------------------------- faults
 

@@ -1,0 +1,207 @@
+"""``impress motor``: drive the Cool Muscle rail motor (or its emulator) from the command line.
+
+Examples::
+
+    impress motor ports
+    impress motor --port /dev/ttyUSB0 status
+    impress motor --port sim move --to 500 --speed 5
+    impress motor --port COM3 run-bank 3
+    impress motor emulate-pty            # a simulated motor behind a terminal device path
+    impress motor calibrate --commanded-pulses 39000 --measured-mm 498.5
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from typing import Any
+
+PORT_ENV = "IMPRESS_MOTOR_PORT"
+_NO_PORT_ACTIONS = {"ports", "emulate-pty", "calibrate", "speed-check"}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    link = parser.add_argument_group("link and units")
+    link.add_argument(
+        "--port",
+        default=os.environ.get(PORT_ENV),
+        help=f"device path, pyserial URL, or 'sim' for the simulated motor (default: ${PORT_ENV})",
+    )
+    link.add_argument("--id", type=int, default=1, dest="motor_id", help="motor id (default 1)")
+    link.add_argument("--baud", type=int, default=38400, help="baud rate (default 38400)")
+    link.add_argument("--pulses-per-mm", type=float, default=78.0, help="default 78")
+    link.add_argument(
+        "--speed-unit", type=float, default=100.0, help="pulses/s of one S unit (default 100)"
+    )
+    link.add_argument("--accel", type=int, default=100, help="acceleration A value (default 100)")
+    link.add_argument("--timeout", type=float, default=1.0, help="reply timeout, s (default 1)")
+    link.add_argument(
+        "--sim-time-scale", type=float, default=1.0, help="speed-up of the simulated motor"
+    )
+    link.add_argument("-v", "--verbose", action="store_true", help="print serial traffic")
+
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    sub.add_parser("ports", help="list serial ports")
+    sub.add_parser("status", help="version, position, state and alarms")
+    sub.add_parser("home", help="origin search (homing)")
+    move = sub.add_parser("move", help="move to a position or by a distance")
+    where = move.add_mutually_exclusive_group(required=True)
+    where.add_argument("--to", type=float, dest="to_mm", help="absolute position, mm")
+    where.add_argument("--by", "--mm", type=float, dest="by_mm", help="distance, mm")
+    move.add_argument("--speed", type=float, default=5.0, dest="speed_mm_s", help="mm/s")
+    for name, text in [
+        ("stop", "stop motion and any running bank"),
+        ("estop", "emergency stop"),
+        ("release", "release the emergency stop"),
+        ("enable", "servo on"),
+        ("disable", "servo off (motor free)"),
+        ("reset-alarm", "clear a latched alarm (disable, then enable)"),
+        ("zero", "make the current position zero"),
+    ]:
+        sub.add_parser(name, help=text)
+    bank = sub.add_parser("run-bank", help="run a stored program bank (1 home .. 4 long scan)")
+    bank.add_argument("bank", type=int)
+    prog = sub.add_parser("write-program", help="store the thesis' four-button program")
+    prog.add_argument("--no-save", action="store_true", help="do not save to EEPROM")
+    emu = sub.add_parser("emulate-pty", help="serve a simulated motor on a pseudo-terminal")
+    emu.add_argument("--no-echo", action="store_true")
+    emu.add_argument("--events", action="store_true", help="send Ux status at the end of moves")
+    emu.add_argument("--seconds", type=float, default=None, help="stop after this long")
+    cal = sub.add_parser("calibrate", help="pulses per mm from a commanded and a measured move")
+    cal.add_argument("--commanded-pulses", type=float, required=True)
+    cal.add_argument("--measured-mm", type=float, required=True)
+    chk = sub.add_parser("speed-check", help="speed from frames counted between two marks")
+    chk.add_argument("--distance-mm", type=float, required=True)
+    chk.add_argument("--frames", type=float, required=True)
+    chk.add_argument("--fps", type=float, required=True)
+
+
+def _config(args: argparse.Namespace) -> Any:
+    from impress_gui.hardware.cool_muscle import MotorConfig
+    from impress_gui.hardware.units import MotorUnits
+
+    units = MotorUnits(pulses_per_mm=args.pulses_per_mm, speed_unit_pulses_s=args.speed_unit)
+    return MotorConfig(
+        motor_id=args.motor_id,
+        baudrate=args.baud,
+        units=units,
+        accel_units=args.accel,
+        reply_timeout_s=args.timeout,
+        stop_on_connect=args.action != "status",  # looking must not stop a running scan
+    )
+
+
+def _port_url(args: argparse.Namespace) -> str:
+    from impress_gui.core.errors import InputError
+    from impress_gui.hardware.cool_muscle import EMULATOR_SCHEME, resolve_port_url
+
+    if not args.port:
+        raise InputError(f"no motor port: give --port (or set {PORT_ENV}); 'sim' simulates one")
+    url = resolve_port_url(args.port)
+    if url == EMULATOR_SCHEME:
+        url += f"?id={args.motor_id}&time_scale={args.sim_time_scale}&speed_unit={args.speed_unit}"
+    return url
+
+
+def _print_snapshot(snap: Any) -> None:
+    print(f"position: {snap.position_mm:.2f} mm ({snap.position_pulses} pulses)")
+    print(f"state: {snap.status.state} (Ux={snap.status.bits})")
+    if snap.status.alarms:
+        print(f"alarms: {', '.join(snap.status.alarms)}")
+
+
+def _emulate(args: argparse.Namespace) -> int:
+    import time
+
+    from impress_gui.hardware.emulator import CM1Emulator, EmulatorConfig, PtyServer
+
+    config = EmulatorConfig(
+        motor_id=args.motor_id,
+        echo=not args.no_echo,
+        report_events=args.events,
+        time_scale=args.sim_time_scale,
+        speed_unit_pulses_s=args.speed_unit,
+    )
+    with PtyServer(CM1Emulator(config)) as server:
+        print(f"simulated Cool Muscle on {server.path} (Ctrl-C to stop)", flush=True)
+        deadline = None if args.seconds is None else time.monotonic() + args.seconds
+        try:
+            while deadline is None or time.monotonic() < deadline:
+                time.sleep(0.1)
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    action = args.action
+    if action == "ports":
+        from impress_gui.hardware.cool_muscle import list_serial_ports
+
+        ports = list_serial_ports()
+        for device, description in ports:
+            print(f"{device}\t{description}")
+        print("sim\tSimulated motor")
+        return 0
+    if action == "calibrate":
+        from impress_gui.hardware.units import pulses_per_mm_from_measurement
+
+        ppm = pulses_per_mm_from_measurement(args.commanded_pulses, args.measured_mm)
+        print(f"pulses per mm: {ppm:.4f}")
+        return 0
+    if action == "speed-check":
+        from impress_gui.hardware.units import speed_from_video_mm_s
+
+        print(f"speed: {speed_from_video_mm_s(args.distance_mm, args.frames, args.fps):.3f} mm/s")
+        return 0
+    if action == "emulate-pty":
+        return _emulate(args)
+
+    from impress_gui.hardware.cool_muscle import CoolMuscle, scanner_program
+
+    def traffic(direction: str, text: str) -> None:
+        print(f"{direction} {text}", file=sys.stderr)
+
+    config = _config(args)
+    driver = CoolMuscle.open(_port_url(args), config, on_traffic=traffic if args.verbose else None)
+    try:
+        version = driver.connect()
+        if action == "status":
+            print(f"motor: {version}")
+            _print_snapshot(driver.poll())
+            print(f"speed: {driver.speed_mm_s():.2f} mm/s")
+        elif action == "home":
+            _print_snapshot(driver.home())
+        elif action == "move":
+            speed = args.speed_mm_s
+            actual = config.units.units_to_speed_mm_s(config.units.speed_to_units(speed))
+            if abs(actual - speed) > 1e-9:
+                print(f"speed {speed:g} mm/s rounds to {actual:.3f} mm/s (S units)")
+            if args.to_mm is not None:
+                snap = driver.move_to_mm(args.to_mm, speed)
+            else:
+                snap = driver.move_by_mm(args.by_mm, speed)
+            _print_snapshot(snap)
+        elif action == "run-bank":
+            _print_snapshot(driver.run_bank(args.bank))
+        elif action == "write-program":
+            driver.write_program(scanner_program(args.motor_id), save=not args.no_save)
+            print("program written" + ("" if args.no_save else " and saved"))
+        else:
+            simple = {
+                "stop": driver.stop,
+                "estop": driver.emergency_stop,
+                "release": driver.release_emergency_stop,
+                "enable": driver.enable,
+                "disable": driver.disable,
+                "reset-alarm": driver.reset_alarm,
+                "zero": driver.set_zero,
+            }
+            simple[action]()
+            _print_snapshot(driver.poll())
+    finally:
+        # Leave the motor as the command left it: a finished move needs no stop, and
+        # "release"/"enable" must not be undone. Errors already stopped it inside the driver.
+        driver.close(stop=False)
+    return 0

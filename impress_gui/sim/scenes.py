@@ -1,0 +1,277 @@
+"""Procedural scenes for the simulator: a heightfield (mm, up = towards the camera, 0 = the
+undisturbed ground) and a matching albedo texture on a regular grid in the rail frame.
+
+Grid convention: cell ``[i, j]`` is centred at ``x = x0_mm + j * pixel_mm``,
+``y = y0_mm + i * pixel_mm``; arrays are row-major ``(row = y, col = x)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from impress_gui.core.target import TargetModel
+
+PRESETS = ("shoe", "tire", "blocks", "flat", "spheres")
+DEFAULT_LENGTH_MM = {"shoe": 480.0, "tire": 1750.0, "blocks": 480.0, "flat": 260.0, "spheres": 300.0}
+#: where the impression region starts along the scan (the L target lies before it)
+FEATURES_START_Y_MM = 110.0
+SCENE_HALF_WIDTH_MM = 185.0
+
+
+@dataclass
+class Scene:
+    x0_mm: float
+    y0_mm: float
+    pixel_mm: float
+    height_mm: np.ndarray  # (H, W) float32
+    albedo: np.ndarray  # (H, W, 3) uint8 RGB
+    features: list[dict] = field(default_factory=list)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.height_mm.shape
+
+    def xs(self) -> np.ndarray:
+        return self.x0_mm + self.pixel_mm * np.arange(self.shape[1])
+
+    def ys(self) -> np.ndarray:
+        return self.y0_mm + self.pixel_mm * np.arange(self.shape[0])
+
+
+def _value_noise(rng: np.random.Generator, shape, cell_px: float, octaves: int = 4) -> np.ndarray:
+    """Smooth multi-octave noise in [-1, 1] (cubic upsampling of random grids)."""
+    import cv2
+
+    h, w = shape
+    out = np.zeros(shape, np.float32)
+    amp, total = 1.0, 0.0
+    cell = cell_px
+    for _ in range(octaves):
+        gh, gw = max(2, int(h / cell) + 3), max(2, int(w / cell) + 3)
+        grid = rng.uniform(-1, 1, (gh, gw)).astype(np.float32)
+        up = cv2.resize(grid, (int((gw - 1) * cell) + 1, int((gh - 1) * cell) + 1),
+                        interpolation=cv2.INTER_CUBIC)
+        out += amp * up[:h, :w]
+        total += amp
+        amp *= 0.5
+        cell = max(cell / 2.0, 1.5)
+    return out / total
+
+
+def soil_albedo(rng: np.random.Generator, shape, pixel_mm: float, kind: str = "soil") -> np.ndarray:
+    """Soil/sand texture with reddish and greenish patches, RGB uint8."""
+    base = {"soil": (0.42, 0.33, 0.24), "sand": (0.62, 0.55, 0.42), "stone": (0.72, 0.70, 0.66)}[kind]
+    n1 = _value_noise(rng, shape, 12.0 / pixel_mm, 5)
+    grain = _value_noise(rng, shape, 0.6 / pixel_mm, 2)
+    patches_r = np.clip(_value_noise(rng, shape, 40.0 / pixel_mm, 2) * 2.2 - 0.6, 0, 1)
+    patches_g = np.clip(_value_noise(rng, shape, 45.0 / pixel_mm, 2) * 2.2 - 0.6, 0, 1)
+    lum = 1.0 + 0.25 * n1 + 0.12 * grain
+    rgb = np.empty((*shape, 3), np.float32)
+    for c in range(3):
+        rgb[..., c] = base[c] * lum
+    # reddish clay and greenish moss patches: clearly coloured, never as bright as a laser
+    rgb[..., 0] += 0.22 * patches_r
+    rgb[..., 1] -= 0.08 * patches_r
+    rgb[..., 2] -= 0.08 * patches_r
+    rgb[..., 1] += 0.16 * patches_g
+    rgb[..., 0] -= 0.10 * patches_g
+    rgb[..., 2] -= 0.04 * patches_g
+    return np.clip(rgb * 255.0, 0, 255).astype(np.uint8)
+
+
+def _grid(length_mm: float, pixel_mm: float):
+    x0 = -SCENE_HALF_WIDTH_MM
+    y0 = -90.0
+    w = int(round(2 * SCENE_HALF_WIDTH_MM / pixel_mm)) + 1
+    h = int(round((length_mm + 180.0) / pixel_mm)) + 1
+    xs = (x0 + pixel_mm * np.arange(w)).astype(np.float32)
+    ys = (y0 + pixel_mm * np.arange(h)).astype(np.float32)
+    return x0, y0, xs, ys
+
+
+def _rect(X, Y, cx, cy, w, h):
+    return (np.abs(X - cx) <= w / 2) & (np.abs(Y - cy) <= h / 2)
+
+
+def _smooth(height: np.ndarray, sigma_mm: float, pixel_mm: float) -> np.ndarray:
+    import cv2
+
+    s = sigma_mm / pixel_mm
+    if s < 0.3:
+        return height
+    return cv2.GaussianBlur(height, (0, 0), s)
+
+
+def _shoe(X, Y, rng, length_mm, features):
+    L = 290.0
+    v0 = FEATURES_START_Y_MM + 20.0
+    ang = np.radians(4.0)
+    u = (X - 0.0) * np.cos(ang) + (Y - v0 - L / 2) * np.sin(ang)
+    v = -(X - 0.0) * np.sin(ang) + (Y - v0 - L / 2) * np.cos(ang) + L / 2
+    fore = (u / 52.0) ** 2 + ((v - 205.0) / 85.0) ** 2 <= 1
+    heel = (u / 41.0) ** 2 + ((v - 52.0) / 52.0) ** 2 <= 1
+    waist = (np.abs(u) <= 33.0) & (v > 50) & (v < 200)
+    sole = fore | heel | waist
+    # the sole presses 3-5 mm, deeper at heel and ball
+    base = 3.0 + 1.2 * np.exp(-((v - 52) / 40) ** 2) + 1.0 * np.exp(-((v - 215) / 45) ** 2)
+    h = np.zeros_like(X)
+    h = np.where(sole, -base, h)
+    # tread lugs (shoe rubber pushes deeper): 12 x 8 mm blocks with 4 mm grooves in the forefoot
+    lug = (np.mod(u + 200.0, 16.0) < 12.0) & (np.mod(v, 12.0) < 8.0) & fore & ~heel
+    h = np.where(lug, h - 4.0, h)
+    # heel bars, 6 mm wide, 4 mm apart
+    bars = (np.mod(v, 10.0) < 6.0) & heel & ((u / 36.0) ** 2 + ((v - 52.0) / 46.0) ** 2 <= 1)
+    h = np.where(bars, h - 3.5, h)
+    # logo in the waist: a ring with a bar (shallower relief)
+    r = np.hypot(u, v - 135.0)
+    logo = ((r > 11) & (r < 15)) | (_rect(u, v, 0.0, 135.0, 18.0, 3.0))
+    h = np.where(logo & sole, h - 2.0, h)
+    features.append({"kind": "shoe", "length_mm": L, "heel_y_mm": v0})
+    # randomly acquired characteristics: small cuts in the sole (0.5-2 mm), soil fills them
+    for k in range(6):
+        cu = rng.uniform(-35, 35)
+        cv_ = rng.uniform(170, 260) if k % 2 == 0 else rng.uniform(20, 85)
+        size = rng.uniform(0.5, 2.0)
+        mark = ((u - cu) ** 2 + (v - cv_) ** 2 <= (size / 2) ** 2) | (
+            _rect(u, v, cu + 3 * size, cv_, 0.5, 2.5 * size)
+        )
+        h = np.where(mark & sole, h + 1.0, h)
+        xw = cu * np.cos(ang) - (cv_ - L / 2) * np.sin(ang)
+        yw = cu * np.sin(ang) + (cv_ - L / 2) * np.cos(ang) + v0 + L / 2
+        features.append({"kind": "nick", "x_mm": float(xw), "y_mm": float(yw),
+                         "size_mm": float(size)})
+    # a clean 2-10 mm depth range
+    return np.clip(h, -10.0, 0.0)
+
+
+def _tire(X, Y, rng, length_mm, features):
+    y_a, y_b = FEATURES_START_Y_MM, length_mm + 60.0
+    inside = (np.abs(X) <= 92.5) & (Y >= y_a) & (Y <= y_b)
+    h = np.where(inside, -5.0, 0.0)
+    # ribs along the track separated by 4 circumferential grooves, lateral chevron sipes
+    grooves = np.zeros_like(inside)
+    for gx in (-55.0, -18.0, 18.0, 55.0):
+        grooves |= np.abs(X - gx) <= 5.0
+    chevron = np.mod(Y + 0.35 * np.abs(X), 28.0) < 6.0
+    tread = inside & ~grooves & ~(chevron & (np.abs(X) > 60.0))
+    h = np.where(tread, h - 8.5, h)  # tread blocks press 8.5 mm deeper than the grooves
+    # wear bars in the grooves every 250 mm: 1.6 mm high, 10 mm long
+    wear = inside & grooves & (np.mod(Y - y_a, 250.0) < 10.0)
+    h = np.where(wear, h - 1.6, h)
+    features.append({"kind": "tire", "width_mm": 185.0, "tread_depth_mm": 8.5})
+    return h
+
+
+STEP_MM = 6.35
+SLOT_WIDTHS_MM = (6.35, 4.76, 3.18, 2.38, 1.59, 0.83)
+
+
+def _blocks(X, Y, rng, length_mm, features, rotate90=False, lift_b_mm=0.0, tilt_deg=0.0,
+            order="AB"):
+    h = np.zeros_like(X)
+    centres = {"A": FEATURES_START_Y_MM + 80.0, "B": FEATURES_START_Y_MM + 240.0}
+    if order == "BA":
+        centres = {"A": centres["B"], "B": centres["A"]}
+    plate_h = 12.0
+    for name, cy in centres.items():
+        lift = lift_b_mm if name == "B" else 0.0
+        # local coordinates: a along the features, b across; rotate90 swaps them
+        a, b = (Y - cy, X) if rotate90 else (X, Y - cy)
+        plate = (np.abs(a) <= 80.0) & (np.abs(b) <= 60.0)
+        local = np.where(plate, plate_h, 0.0)
+        if name == "A":
+            # slotted target: 20 mm high block with slots 6.35 deep, walls 6.35 apart
+            top = 20.0
+            width = sum(SLOT_WIDTHS_MM) + STEP_MM * (len(SLOT_WIDTHS_MM) + 1)
+            a0 = -width / 2
+            block = (np.abs(b) <= 22.0) & (a >= a0) & (a <= a0 + width)
+            local = np.where(block, plate_h + top, local)
+            pos = a0 + STEP_MM
+            for w in SLOT_WIDTHS_MM:
+                slot = block & (a >= pos) & (a < pos + w)
+                local = np.where(slot, plate_h + top - STEP_MM, local)
+                features.append({"kind": "slot", "plate": name, "width_mm": w,
+                                 "depth_mm": STEP_MM, "centre_a_mm": pos + w / 2,
+                                 "plate_centre_y_mm": cy, "rotated90": rotate90})
+                pos += w + STEP_MM
+        else:
+            # stepped target: four steps 6.35 wide and 6.35 high
+            a0 = -2 * STEP_MM
+            for k in range(4):
+                step = (np.abs(b) <= 22.0) & (a >= a0 + k * STEP_MM)
+                local = np.where(plate & step & (a <= a0 + 4 * STEP_MM), plate_h + (k + 1) * STEP_MM,
+                                 local)
+            features.append({"kind": "steps", "plate": name, "step_width_mm": STEP_MM,
+                             "step_height_mm": STEP_MM, "n_steps": 4, "start_a_mm": a0,
+                             "plate_centre_y_mm": cy, "rotated90": rotate90})
+        if tilt_deg:
+            # tilt about the plate's own x axis (a shear: xy widths and vertical steps keep size)
+            local = np.where(plate, local + np.tan(np.radians(tilt_deg)) * (Y - cy), local)
+        local = np.where(plate, local + lift, local)
+        h = np.where(plate, local, h)
+    features.append({"kind": "blocks", "order": order, "rotated90": rotate90,
+                     "lift_b_mm": lift_b_mm, "tilt_deg": tilt_deg, "plate_height_mm": plate_h})
+    return h
+
+
+def _spheres(X, Y, rng, length_mm, features, radius=12.7, spacing=50.0):
+    h = np.zeros_like(X)
+    ys = np.arange(FEATURES_START_Y_MM + 40.0, length_mm + 40.0, spacing)
+    for cy in ys:
+        for cx in (-spacing, 0.0, spacing):
+            rho2 = (X - cx) ** 2 + (Y - cy) ** 2
+            cap = np.sqrt(np.clip(radius**2 - rho2, 0, None))
+            h = np.maximum(h, np.where(rho2 < radius**2, cap, 0.0))
+            features.append({"kind": "sphere", "x_mm": float(cx), "y_mm": float(cy),
+                             "z_mm": 0.0, "radius_mm": radius})
+    return h
+
+
+def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
+                target: TargetModel | None, target_pose: tuple[float, float, float],
+                **options) -> Scene:
+    """Make the heightfield and albedo for ``preset`` over a scan of ``length_mm``.
+
+    ``target_pose`` = (x_mm, y_mm, yaw_deg) of the target's object origin in the rail frame.
+    """
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}")
+    rng = np.random.default_rng(seed)
+    x0, y0, xs, ys = _grid(length_mm, pixel_mm)
+    X, Y = np.meshgrid(xs, ys)
+    features: list[dict] = []
+    kind = "soil"
+    if preset == "shoe":
+        h = _shoe(X, Y, rng, length_mm, features)
+        h = _smooth(h.astype(np.float32), 0.25, pixel_mm)
+    elif preset == "tire":
+        h = _smooth(_tire(X, Y, rng, length_mm, features).astype(np.float32), 0.3, pixel_mm)
+        kind = "sand"
+    elif preset == "blocks":
+        h = _blocks(X, Y, rng, length_mm, features, **options)
+        kind = "stone"
+    elif preset == "spheres":
+        h = _spheres(X, Y, rng, length_mm, features)
+        kind = "stone"
+    else:
+        h = np.zeros_like(X)
+        features.append({"kind": "plane", "height_mm": 0.0})
+    del X
+    h = np.asarray(h, dtype=np.float32)
+    albedo = soil_albedo(rng, h.shape, pixel_mm, kind)
+    if target is not None:
+        tx, ty, yaw = target_pose
+        c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
+        Xg, Yg = np.meshgrid(xs, ys)
+        # object coordinates of every cell (inverse of the pose)
+        ox = c * (Xg - tx) + s * (Yg - ty)
+        oy = -s * (Xg - tx) + c * (Yg - ty)
+        th = target.heightfield(ox, oy)
+        on = np.isfinite(th)
+        h = np.where(on, th, h).astype(np.float32)
+        # painted wood: light grey with a matte finish
+        albedo[on] = (np.array([178, 170, 160]) * (1 + 0.03 * rng.standard_normal((on.sum(), 1))))\
+            .clip(0, 255).astype(np.uint8)
+    return Scene(x0, y0, pixel_mm, h, albedo, features)

@@ -1,0 +1,306 @@
+"""``impress simulate``: render a scan and write its exact ground truth beside it."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from impress_gui import __version__
+from impress_gui.core.errors import InputError
+from impress_gui.core.fileio import atomic_write_png, atomic_write_tiff, sha256_file, write_json
+from impress_gui.core.picks import Picks
+from impress_gui.core.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
+from impress_gui.sim.rig import Motion, Rig, default_rig
+from impress_gui.sim.scenes import DEFAULT_LENGTH_MM, PRESETS, build_scene
+
+TRUTH_FORMAT = "impress.sim-truth"
+SPEED_NAMES = {"slow": 1.3138, "medium": 5.2552, "fast": 13.138}
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    preset: str = "shoe"
+    length_mm: float | None = None
+    speed_mm_s: float = 13.138
+    fps: float = 30.0
+    width: int = 640
+    height: int = 360
+    roll_deg: float = 1.2
+    tilt_deg: float = -1.8
+    standoff_mm: float = 300.0
+    seed: int = 1
+    video_format: str = "mp4"  # mp4 | mov | mts | frames
+    bitrate_mbit: float | None = None
+    speckle: float = 0.3
+    noise_dn: float = 2.0
+    grid_mm: float = 0.1
+    ramp_s: float = 0.4
+    click_noise_px: float = 0.0
+    target_yaw_deg: float = 3.0
+    blocks: dict = field(default_factory=dict)  # rotate90, lift_b_mm, tilt_deg, order
+
+    def validate(self) -> None:
+        def bad(msg: str) -> None:
+            raise InputError(msg, code="E-SIM-OPTION")
+
+        if self.preset not in PRESETS:
+            bad(f"unknown preset {self.preset!r}; choose one of {', '.join(PRESETS)}")
+        if self.length_mm is not None and not 60.0 <= self.length_mm <= 1770.0:
+            bad("--length-mm must be between 60 and 1770 mm (the rail is 1.77 m)")
+        if not 0.05 <= self.speed_mm_s <= 100.0:
+            bad("--speed must be between 0.05 and 100 mm/s")
+        if not 1.0 <= self.fps <= 240.0:
+            bad("--fps must be between 1 and 240")
+        if not (64 <= self.width <= 4096 and 36 <= self.height <= 2304):
+            bad("--resolution must be between 64x36 and 4096x2304")
+        if self.width % 2 or self.height % 2:
+            bad("--resolution needs even width and height (4:2:0 video)")
+        if abs(self.roll_deg) > 10 or abs(self.tilt_deg) > 10:
+            bad("--roll and --tilt must be within 10 degrees")
+        if not 200.0 <= self.standoff_mm <= 400.0:
+            bad("--standoff-mm must be between 200 and 400 mm")
+        if self.video_format not in ("mp4", "mov", "mts", "frames"):
+            bad("--format must be mp4, mov, mts or frames")
+        if not 0 <= self.speckle <= 1 or not 0 <= self.noise_dn <= 50:
+            bad("--speckle must be in [0, 1] and --noise in [0, 50] DN")
+        if not 0.02 <= self.grid_mm <= 1.0:
+            bad("--grid-mm must be between 0.02 and 1 mm")
+        if not 0 <= self.click_noise_px <= 20:
+            bad("--click-noise-px must be between 0 and 20")
+        if self.blocks and self.preset != "blocks":
+            bad("placement options (--rotate90, --lift-b-mm, --tilt-plates, --order) need "
+                "--preset blocks")
+
+    @property
+    def scan_length_mm(self) -> float:
+        return float(self.length_mm or DEFAULT_LENGTH_MM[self.preset])
+
+
+def make_rig(cfg: SimConfig) -> Rig:
+    return default_rig(cfg.width, cfg.height, cfg.roll_deg, cfg.tilt_deg, cfg.standoff_mm)
+
+
+def make_motion(cfg: SimConfig) -> Motion:
+    return Motion(cfg.speed_mm_s, cfg.fps, cfg.scan_length_mm, cfg.ramp_s)
+
+
+TARGET_POSE = (-40.0, 0.0)  # object origin of the L target in the rail frame (mm)
+
+
+def target_pose(cfg: SimConfig) -> tuple[float, float, float]:
+    return (TARGET_POSE[0], TARGET_POSE[1], cfg.target_yaw_deg)
+
+
+def target_world_corners(target: TargetModel, pose, standoff_mm: float) -> np.ndarray:
+    """Target corners A-F in the rail frame (X', Y', Z' = depth), ``(6, 3)``."""
+    tx, ty, yaw = pose
+    c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
+    obj = target.corner_array()
+    x = tx + c * obj[:, 0] - s * obj[:, 1]
+    y = ty + s * obj[:, 0] + c * obj[:, 1]
+    return np.column_stack([x, y, standoff_mm - obj[:, 2]])
+
+
+def project_rail(rig: Rig, pts_rail: np.ndarray, travel_mm: float) -> np.ndarray:
+    rel = np.asarray(pts_rail, float) - np.array([0.0, travel_mm, 0.0])
+    return rig.intrinsics.project(rel @ rig.rotation)
+
+
+def _stripe_on_faces(rig: Rig, laser_name: str, target: TargetModel, pose, travel: float,
+                     margin_mm: float = 6.0) -> bool:
+    """Does the laser's stripe cross every top face of the target well inside its ends?"""
+    laser = rig.laser(laser_name)
+    n, d = laser.plane.normal, laser.plane.offset_mm
+    tx, ty, yaw = pose
+    c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
+    for face in target.top_faces():
+        v = face.vertices_mm
+        cx_o, z = v[:, 0].mean(), v[0, 2]
+        depth = rig.standoff_mm - z
+        ys = np.linspace(v[:, 1].min(), v[:, 1].max(), 400)
+        # object-frame line through the face centre along y, in the rail frame
+        X = tx + c * cx_o - s * ys
+        Y = ty + s * cx_o + c * ys
+        val = n[0] * X + n[1] * (Y - travel) + n[2] * depth - d
+        cross = np.flatnonzero(np.diff(np.sign(val)) != 0)
+        if cross.size != 1:
+            return False
+        yc = ys[cross[0]]
+        if yc - v[:, 1].min() < margin_mm or v[:, 1].max() - yc < margin_mm:
+            return False
+    return True
+
+
+def calibration_frames(cfg: SimConfig, rig: Rig, motion: Motion, target: TargetModel) -> tuple[int, int]:
+    """t1: first frame with the green stripe on both target tops, t2: the last with the red
+    one, both at constant speed with all six corners well inside the image."""
+    corners = target_world_corners(target, target_pose(cfg), cfg.standoff_mm)
+    w, h = cfg.width, cfg.height
+    margin = 0.03 * w
+    ok_green, ok_red = [], []
+    times = motion.times_s()
+    for k, t in enumerate(times):
+        if not motion.constant_speed(t):
+            continue
+        s = float(motion.travel_mm(t))
+        uv = project_rail(rig, corners, s)
+        if not (np.all(uv[:, 0] > margin) and np.all(uv[:, 0] < w - margin)
+                and np.all(uv[:, 1] > margin) and np.all(uv[:, 1] < h - margin)):
+            continue
+        if _stripe_on_faces(rig, "green", target, target_pose(cfg), s):
+            ok_green.append(k)
+        if _stripe_on_faces(rig, "red", target, target_pose(cfg), s):
+            ok_red.append(k)
+    if not ok_green or not ok_red:
+        raise InputError("the calibration target never shows both stripes with all corners in "
+                         "view; use a longer scan or a smaller tilt", code="E-SIM-OPTION")
+    return ok_green[0], ok_red[-1]
+
+
+# ----- rendering workers ---------------------------------------------------------------
+_WORKER: dict = {}
+
+
+def _make_renderer(cfg: SimConfig):
+    from impress_gui.sim.render import Renderer, RenderOptions
+
+    rig, motion, target = make_rig(cfg), make_motion(cfg), default_target()
+    scene = build_scene(cfg.preset, cfg.scan_length_mm, cfg.grid_mm, cfg.seed, target,
+                        target_pose(cfg), **cfg.blocks)
+    opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle, seed=cfg.seed)
+    return Renderer(scene, rig, motion, opts), scene
+
+
+def _worker_init(cfg_json: str) -> None:
+    cfg = SimConfig(**json.loads(cfg_json))
+    _WORKER["renderer"] = _make_renderer(cfg)[0]
+
+
+def _worker_render(k: int) -> np.ndarray:
+    return _WORKER["renderer"].render(k)[0]
+
+
+def render_frames(cfg: SimConfig, frames, workers: int = 1):
+    """Yield rendered RGB frames in order; with ``workers > 1`` render in spawned processes."""
+    if workers <= 1:
+        renderer, _ = _make_renderer(cfg)
+        for k in frames:
+            yield renderer.render(k)[0]
+        return
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    cfg_json = json.dumps(dataclasses.asdict(cfg))
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"),
+                             initializer=_worker_init, initargs=(cfg_json,)) as pool:
+        pending = []
+        it = iter(frames)
+        for k in it:
+            pending.append(pool.submit(_worker_render, k))
+            if len(pending) >= 4 * workers:
+                yield pending.pop(0).result()
+        for fut in pending:
+            yield fut.result()
+
+
+def simulate(cfg: SimConfig, out_dir: Path, workers: int = 1,
+             progress: ProgressCallback | None = None, cancel: CancelToken | None = None) -> dict:
+    """Render the scan into ``out_dir`` and write the ground truth; return a summary dict."""
+    cfg.validate()
+    cancel = cancel or CancelToken()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rig, motion, target = make_rig(cfg), make_motion(cfg), default_target()
+    t1, t2 = calibration_frames(cfg, rig, motion, target)
+    report(progress, 0.0, "building the scene")
+    renderer, scene = _make_renderer(cfg)
+    n = motion.frame_count
+    from impress_gui.sim.video_out import FrameFolderSink, VideoSink
+
+    if cfg.video_format == "frames":
+        video_path = out_dir / "frames"
+        sink = FrameFolderSink(video_path)
+    else:
+        video_path = out_dir / f"scan.{cfg.video_format}"
+        sink = VideoSink(video_path, cfg.width, cfg.height, cfg.fps, cfg.bitrate_mbit)
+    try:
+        if workers > 1:
+            del renderer
+            frames = render_frames(cfg, range(n), workers)
+        else:
+            frames = (renderer.render(k)[0] for k in range(n))
+        for k, rgb in enumerate(frames):
+            cancel.check()
+            sink.write(rgb)
+            report(progress, 0.05 + 0.9 * (k + 1) / n, f"rendered frame {k + 1}/{n}")
+        sink.close()
+    except BaseException:
+        sink.abort()
+        raise
+
+    # ----- ground truth -------------------------------------------------------------------
+    intr = rig.intrinsics
+    intr.save(out_dir / "intrinsics.json")
+    target.save(out_dir / "target.json")
+    times = motion.times_s()
+    travel = motion.travel_mm(times)
+    corners_rail = target_world_corners(target, target_pose(cfg), cfg.standoff_mm)
+    rng = np.random.default_rng([cfg.seed, 7])
+    picks_doc = {}
+    for key, k in (("t1", t1), ("t2", t2)):
+        uv = project_rail(rig, corners_rail, float(travel[k]))
+        if cfg.click_noise_px > 0:
+            uv = uv + rng.normal(0, cfg.click_noise_px, uv.shape)
+        picks_doc[key] = (k, {c: uv[i].tolist() for i, c in enumerate(CORNER_NAMES)})
+    video_sha = None if cfg.video_format == "frames" else sha256_file(video_path)
+    picks = Picks(video=video_path.name, video_sha256=video_sha,
+                  t1=picks_doc["t1"][0], t2=picks_doc["t2"][0],
+                  corners_t1={c: tuple(v) for c, v in picks_doc["t1"][1].items()},
+                  corners_t2={c: tuple(v) for c, v in picks_doc["t2"][1].items()},
+                  note=f"simulator picks (click noise {cfg.click_noise_px} px)")
+    picks.save(out_dir / "picks.json")
+    atomic_write_tiff(out_dir / "truth_height.tif", scene.height_mm.astype(np.float32),
+                      compression="zlib")
+    atomic_write_png(out_dir / "truth_texture.png", scene.albedo)
+    truth = {
+        "format": TRUTH_FORMAT,
+        "version": 1,
+        "software": f"impress {__version__}",
+        "config": dataclasses.asdict(cfg),
+        "video": video_path.name,
+        "video_sha256": video_sha,
+        "image_size": [cfg.width, cfg.height],
+        "fps": cfg.fps,
+        "frame_count": n,
+        "speed_mm_s": cfg.speed_mm_s,
+        "ramp_s": cfg.ramp_s,
+        "length_mm": cfg.scan_length_mm,
+        "standoff_mm": cfg.standoff_mm,
+        "roll_deg": cfg.roll_deg,
+        "tilt_deg": cfg.tilt_deg,
+        "rotation_camera_to_ideal": rig.rotation.tolist(),
+        "lasers": {la.name: {"plane": la.plane.to_json(), "source_mm": la.source_mm.tolist()}
+                   for la in rig.lasers},
+        "target": {"x_mm": target_pose(cfg)[0], "y_mm": target_pose(cfg)[1],
+                   "yaw_deg": target_pose(cfg)[2],
+                   "corners_rail_mm": {c: corners_rail[i].tolist()
+                                       for i, c in enumerate(CORNER_NAMES)}},
+        "calibration_frames": {"t1": t1, "t2": t2},
+        "frame_times_s": times.tolist(),
+        "travel_mm": travel.tolist(),
+        "heightmap": {"file": "truth_height.tif", "texture": "truth_texture.png",
+                      "x0_mm": scene.x0_mm, "y0_mm": scene.y0_mm, "pixel_mm": scene.pixel_mm,
+                      "shape": list(scene.shape),
+                      "convention": "height in mm, up = towards the camera, 0 = undisturbed "
+                                    "ground at depth standoff_mm; cell [i, j] centred at "
+                                    "(x0 + j*pixel, y0 + i*pixel) in the rail frame whose "
+                                    "origin is the optical centre at frame 0"},
+        "features": scene.features,
+    }
+    write_json(out_dir / "truth.json", truth)
+    return {"video": str(video_path), "frames": n, "t1": t1, "t2": t2, "out_dir": str(out_dir)}
