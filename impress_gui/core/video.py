@@ -1,0 +1,232 @@
+"""Video input: H.264 in MP4/MOV and camcorder AVCHD (.MTS/.M2TS) through PyAV, or a folder of
+frames. Frame counts and times come from the demuxed packets (every packet of the video stream
+is indexed when the file is opened), never from container metadata alone.
+
+Files are opened read-only; nothing here ever writes to an evidence file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from impress_gui.core.errors import VideoError
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mts", ".m2ts", ".ts", ".avi", ".mkv")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+
+
+class VideoSource:
+    """Common interface. ``size`` is the displayed ``(width, height)`` (1088-line codings are
+    cropped to 1080); frames are RGB ``uint8`` arrays ``(H, W, 3)``."""
+
+    path: Path
+    size: tuple[int, int]
+    fps: float
+    times_s: np.ndarray
+
+    @property
+    def frame_count(self) -> int:
+        return len(self.times_s)
+
+    def read(self, k: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def iter_frames(self, start: int = 0, stop: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        raise NotImplementedError
+
+    def check_index(self, k: int) -> int:
+        if not isinstance(k, (int, np.integer)) or not 0 <= k < self.frame_count:
+            raise VideoError(f"frame {k} is outside the video (0..{self.frame_count - 1})",
+                             code="E-FRAME-RANGE")
+        return int(k)
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class AVVideo(VideoSource):
+    def __init__(self, path: Path, threads: int = 2) -> None:
+        import av
+
+        self.path = Path(path)
+        self._threads = threads
+        try:
+            self._container = av.open(str(self.path), "r")
+        except (av.error.FFmpegError, OSError, ValueError) as exc:
+            raise VideoError(f"{self.path}: not a readable video ({exc})",
+                             code="E-VIDEO-OPEN") from None
+        streams = self._container.streams.video
+        if not streams:
+            self._container.close()
+            raise VideoError(f"{self.path}: the file has no video stream", code="E-VIDEO-OPEN")
+        st = streams[0]
+        st.codec_context.thread_type = "AUTO"
+        st.codec_context.thread_count = threads
+        self._stream = st
+        self._tb = float(st.time_base) if st.time_base else 1.0 / 90000
+        cc = st.codec_context
+        w, h = cc.width, cc.height
+        if not w or not h:
+            raise VideoError(f"{self.path}: the video stream has no frame size", code="E-VIDEO-OPEN")
+        self._coded_h = h
+        self.size = (w, 1080 if h == 1088 else h)
+        pts, keys = [], []
+        try:
+            for pkt in self._container.demux(st):
+                if pkt.pts is None or pkt.size == 0:
+                    continue
+                pts.append(pkt.pts)
+                if pkt.is_keyframe:
+                    keys.append(pkt.pts)
+        except av.error.FFmpegError as exc:
+            raise VideoError(f"{self.path}: damaged after {len(pts)} frames ({exc})",
+                             code="E-VIDEO-TRUNCATED") from None
+        if not pts:
+            raise VideoError(f"{self.path}: the video has no frames", code="E-VIDEO-EMPTY")
+        self._pts = np.array(sorted(pts), dtype=np.int64)
+        self._keys = np.array(sorted(keys), dtype=np.int64)
+        t = (self._pts - self._pts[0]) * self._tb
+        self.times_s = t
+        rate = st.average_rate or st.guessed_rate
+        if len(t) > 1:
+            self.fps = float((len(t) - 1) / (t[-1] - t[0])) if t[-1] > t[0] else float(rate or 30)
+        else:
+            self.fps = float(rate or 30.0)
+        if rate:
+            # prefer the nominal rate when the stamps agree with it (it is exact, e.g. 30000/1001)
+            if abs(float(rate) - self.fps) / float(rate) < 0.002:
+                self.fps = float(rate)
+        self._decoder = None
+        self._next = None
+
+    def _open_decoder(self, k: int):
+        import av
+
+        target_pts = int(self._pts[k])
+        key = self._keys[self._keys <= target_pts]
+        seek_pts = int(key[-1]) if key.size else int(self._pts[0])
+        self._container.seek(seek_pts, stream=self._stream, backward=True, any_frame=False)
+        self._decoder = self._container.decode(self._stream)
+        self._next = None
+        return av
+
+    def _frames_from(self, k: int):
+        """Decoded frames (PyAV objects) from frame ``k`` on, in order."""
+        import av
+
+        self._open_decoder(k)
+        want = k
+        try:
+            for frame in self._decoder:
+                if frame.pts is None:
+                    continue
+                idx = int(np.searchsorted(self._pts, frame.pts))
+                if idx >= len(self._pts) or self._pts[idx] != frame.pts or idx < want:
+                    continue
+                if idx > want:
+                    raise VideoError(f"{self.path}: frame {want} cannot be decoded",
+                                     code="E-VIDEO-TRUNCATED")
+                yield idx, frame
+                want = idx + 1
+        except av.error.FFmpegError as exc:
+            raise VideoError(f"{self.path}: decoding failed at frame {want} ({exc})",
+                             code="E-VIDEO-TRUNCATED") from None
+        if want < len(self._pts):
+            raise VideoError(f"{self.path}: the video ends at frame {want} although "
+                             f"{len(self._pts)} frames were indexed (truncated?)",
+                             code="E-VIDEO-TRUNCATED")
+
+    def _to_rgb(self, frame) -> np.ndarray:
+        rgb = frame.to_ndarray(format="rgb24")
+        return rgb[: self.size[1]]
+
+    def read(self, k: int) -> np.ndarray:
+        k = self.check_index(k)
+        gen = self._frames_from(k)
+        try:
+            idx, frame = next(gen)
+        except StopIteration:
+            raise VideoError(f"{self.path}: frame {k} cannot be decoded",
+                             code="E-VIDEO-TRUNCATED") from None
+        finally:
+            gen.close()
+        return self._to_rgb(frame)
+
+    def iter_frames(self, start: int = 0, stop: int | None = None, raw: bool = False):
+        """Yield ``(index, frame)`` for ``start <= index < stop``; ``raw=True`` yields the
+        PyAV frame (for consumers that take the YUV planes themselves)."""
+        stop = self.frame_count if stop is None else min(stop, self.frame_count)
+        if start >= stop:
+            return
+        self.check_index(start)
+        gen = self._frames_from(start)
+        try:
+            for idx, frame in gen:
+                if idx >= stop:
+                    break
+                yield idx, (frame if raw else self._to_rgb(frame))
+        finally:
+            gen.close()
+
+    def close(self) -> None:
+        self._container.close()
+
+
+class FrameFolder(VideoSource):
+    def __init__(self, path: Path, fps: float = 30.0) -> None:
+        import cv2
+
+        self.path = Path(path)
+        self._files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not self._files:
+            raise VideoError(f"{self.path}: the folder holds no frames (.png, .jpg, .tif)",
+                             code="E-VIDEO-EMPTY")
+        first = cv2.imread(str(self._files[0]), cv2.IMREAD_COLOR)
+        if first is None:
+            raise VideoError(f"{self._files[0]}: not a readable image", code="E-VIDEO-OPEN")
+        self.size = (first.shape[1], first.shape[0])
+        self.fps = float(fps)
+        self.times_s = np.arange(len(self._files)) / self.fps
+
+    def read(self, k: int) -> np.ndarray:
+        import cv2
+
+        k = self.check_index(k)
+        img = cv2.imread(str(self._files[k]), cv2.IMREAD_COLOR)
+        if img is None:
+            raise VideoError(f"{self._files[k]}: frame {k} is not a readable image",
+                             code="E-VIDEO-TRUNCATED")
+        if (img.shape[1], img.shape[0]) != self.size:
+            raise VideoError(f"{self._files[k]}: frame {k} has a different size",
+                             code="E-VIDEO-TRUNCATED")
+        return np.ascontiguousarray(img[..., ::-1])
+
+    def iter_frames(self, start: int = 0, stop: int | None = None, raw: bool = False):
+        stop = self.frame_count if stop is None else min(stop, self.frame_count)
+        for k in range(start, stop):
+            yield k, self.read(k)
+
+
+def open_video(path: str | Path, fps: float | None = None) -> VideoSource:
+    """Open a video file or a frame folder; raise :class:`VideoError` with a clear reason."""
+    path = Path(path)
+    if not path.exists():
+        raise VideoError(f"{path}: no such file or folder", code="E-FILE-MISSING")
+    if path.is_dir():
+        return FrameFolder(path, fps or 30.0)
+    if path.stat().st_size == 0:
+        raise VideoError(f"{path}: the file is empty", code="E-VIDEO-EMPTY")
+    src = AVVideo(path)
+    if fps:
+        src.fps = float(fps)
+        src.times_s = np.arange(src.frame_count) / src.fps
+    return src
