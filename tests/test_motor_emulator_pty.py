@@ -127,7 +127,7 @@ def test_banks_define_run_and_preloaded_program():
     assert emu.saved == 1
     talk(emu, "[7.1")
     clock.t = 0.15  # the first move (100 pulses) ended at 0.11 s, the second (200) runs
-    assert talk(emu, "?96.1", "?99.1") == ["Px.1=130", "Ux.1=0"]
+    assert talk(emu, "?96.1", "?99.1") == ["Px.1=135", "Ux.1=0"]
     clock.t = 2.0
     assert talk(emu, "?96.1", "?99.1") == ["Px.1=300", "Ux.1=8"]
     talk(emu, "[3.1")  # short run of the thesis program: to P2 = -40000 at S1 = 4
