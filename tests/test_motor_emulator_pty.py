@@ -195,6 +195,7 @@ def test_driver_through_a_pseudo_terminal(pty_motor, echo):
         assert driver.run_bank(1).position_pulses == -1000  # preloaded thesis bank
         driver.start_move_mm(1000.0, 5.0)
         driver.stop()
+        assert driver.status().in_position  # answered after the emulator handled the stop
         assert not emu.moving
     finally:
         driver.close()

@@ -94,13 +94,13 @@ def _config(args: argparse.Namespace) -> Any:
 
 def _port_url(args: argparse.Namespace) -> str:
     from impress_gui.core.errors import InputError
-    from impress_gui.hardware.cool_muscle import EMULATOR_SCHEME, resolve_port_url
+    from impress_gui.hardware.cool_muscle import EMULATOR_SCHEME, emulator_url, resolve_port_url
 
     if not args.port:
         raise InputError(f"no motor port: give --port (or set {PORT_ENV}); 'sim' simulates one")
     url = resolve_port_url(args.port)
     if url == EMULATOR_SCHEME:
-        url += f"?id={args.motor_id}&time_scale={args.sim_time_scale}&speed_unit={args.speed_unit}"
+        url = emulator_url(_config(args), args.sim_time_scale)
     return url
 
 

@@ -1,0 +1,551 @@
+"""The motor panel: port, connection, live position and state, Home / scans / jog, a big Stop.
+
+The Cool Muscle driver lives in a :class:`MotorWorker` on its own ``QThread``; the panel talks to
+it only through queued signals, so no serial I/O ever runs on the GUI thread. Moves are polled by
+a timer on the worker thread (never a blocking wait), which keeps the worker's event loop free:
+a Stop request is handled between two polls, i.e. within one query round trip.
+
+The window that hosts the panel must call :meth:`MotorPanel.shutdown` before it goes away
+(closing the panel itself does it too); it stops the motor and joins the worker thread.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from PySide6.QtCore import QCoreApplication, QObject, QThread, QTimer, Signal, Slot
+from PySide6.QtGui import QCloseEvent, QFont, QFontDatabase
+from PySide6.QtWidgets import (
+    QCheckBox,
+    QComboBox,
+    QDoubleSpinBox,
+    QFormLayout,
+    QGridLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QPlainTextEdit,
+    QPushButton,
+    QSizePolicy,
+    QVBoxLayout,
+    QWidget,
+)
+
+from impress_gui.core.errors import ImpressError
+from impress_gui.hardware.cool_muscle import (
+    EMULATOR_SCHEME,
+    CoolMuscle,
+    MotorConfig,
+    MotorDisconnected,
+    MotorSnapshot,
+    MoveWatch,
+    TrafficCallback,
+    emulator_url,
+    list_serial_ports,
+    resolve_port_url,
+)
+
+SIMULATED_LABEL = "Simulated motor"
+DriverFactory = Callable[[str, MotorConfig, TrafficCallback], CoolMuscle]
+PortLister = Callable[[], list[tuple[str, str]]]
+#: one step of a plan: ("move", position_mm, speed_mm_s), ("by", distance_mm, speed_mm_s),
+#: ("home",) or ("bank", n)
+Step = tuple[Any, ...]
+
+
+@dataclass(frozen=True)
+class MotorPanelSettings:
+    """What the panel starts with. Distances in mm, speeds in mm/s, times in s."""
+
+    motor: MotorConfig = field(default_factory=MotorConfig)
+    speed_mm_s: float = 5.0
+    travel_speed_mm_s: float = 20.0
+    start_mm: float = 0.0
+    short_scan_mm: float = 500.0
+    long_scan_mm: float = 1700.0
+    jog_step_mm: float = 10.0
+    idle_poll_s: float = 0.5
+    sim_time_scale: float = 1.0
+    log_lines: int = 500
+
+
+def default_driver_factory(sim_time_scale: float = 1.0) -> DriverFactory:
+    """Open a real port, a pyserial URL, or (for ``sim``) a fresh emulated motor."""
+
+    def factory(port: str, config: MotorConfig, on_traffic: TrafficCallback) -> CoolMuscle:
+        url = resolve_port_url(port)
+        if url == EMULATOR_SCHEME:
+            url = emulator_url(config, sim_time_scale)
+        return CoolMuscle.open(url, config, on_traffic=on_traffic)
+
+    return factory
+
+
+class MotorWorker(QObject):
+    """Owns the driver. Lives in the worker thread; every slot runs there."""
+
+    connected = Signal(str)  # motor version
+    disconnected = Signal(str)  # reason, empty when asked for
+    snapshot = Signal(object)  # MotorSnapshot
+    busy_changed = Signal(bool, str)  # busy, what
+    failed = Signal(str, str)  # error code, message
+    traffic = Signal(str, str)  # direction, line
+
+    def __init__(self, factory: DriverFactory, config: MotorConfig, idle_poll_s: float) -> None:
+        super().__init__()
+        self._factory, self._config = factory, config
+        self._busy_ms = max(1, int(config.poll_interval_s * 1000))
+        self._idle_ms = max(1, int(idle_poll_s * 1000))
+        self._driver: CoolMuscle | None = None
+        self._plan: list[Step] = []
+        self._watch: MoveWatch | None = None
+        self._timer = QTimer(self)
+        self._timer.timeout.connect(self._tick)
+
+    def _on_traffic(self, direction: str, text: str) -> None:
+        self.traffic.emit(direction, text)
+
+    @Slot(str)
+    def open_port(self, port: str) -> None:
+        self.close_port()
+        try:
+            driver = self._factory(port, self._config, self._on_traffic)
+        except ImpressError as exc:
+            self.failed.emit(exc.code, str(exc))
+            self.disconnected.emit(str(exc))
+            return
+        try:
+            version = driver.connect()
+        except ImpressError as exc:
+            driver.close()
+            self.failed.emit(exc.code, str(exc))
+            self.disconnected.emit(str(exc))
+            return
+        self._driver = driver
+        self.connected.emit(version)
+        self._timer.start(self._idle_ms)
+        self._tick()
+
+    @Slot()
+    def close_port(self) -> None:
+        self._timer.stop()
+        self._set_idle()
+        if self._driver is not None:
+            driver, self._driver = self._driver, None
+            driver.close()
+            self.disconnected.emit("")
+
+    @Slot()
+    def stop(self) -> None:
+        self._plan.clear()
+        self._watch = None
+        if self._driver is None:
+            return
+        try:
+            self._driver.stop()
+        except ImpressError as exc:
+            self._fail(exc)
+            return
+        self._set_idle()
+        self._tick()
+
+    @Slot(object)
+    def run_plan(self, steps: list[Step]) -> None:
+        if self._driver is None:
+            self.failed.emit("E-MOTOR-NOT-CONNECTED", "the motor is not connected: connect first")
+            return
+        self._plan = list(steps)
+        self._watch = None
+        self._next_step()
+
+    @Slot()
+    def reset_alarm(self) -> None:
+        if self._driver is not None:
+            try:
+                self._driver.reset_alarm()
+            except ImpressError as exc:
+                self._fail(exc)
+            self._tick()
+
+    @Slot()
+    def shutdown(self) -> None:
+        """Stop the motor, close the port, and end the worker thread."""
+        self.close_port()
+        thread = self.thread()
+        if thread is not None:
+            thread.quit()
+
+    def _set_idle(self) -> None:
+        self._plan.clear()
+        self._watch = None
+        if self._timer.isActive():
+            self._timer.setInterval(self._idle_ms)
+        self.busy_changed.emit(False, "")
+
+    def _next_step(self) -> None:
+        assert self._driver is not None
+        if not self._plan:
+            self._set_idle()
+            return
+        step = self._plan.pop(0)
+        try:
+            kind = step[0]
+            if kind == "move":
+                self._watch = self._driver.start_move_mm(step[1], step[2])
+            elif kind == "by":
+                here = self._driver.position_mm()
+                self._watch = self._driver.start_move_mm(here + step[1], step[2])
+            elif kind == "home":
+                self._watch = self._driver.start_home()
+            elif kind == "bank":
+                self._watch = self._driver.start_bank(int(step[1]))
+            else:
+                raise ValueError(f"unknown step {step!r}")
+        except ImpressError as exc:
+            self._fail(exc)
+            return
+        self.busy_changed.emit(True, self._watch.description)
+        self._timer.start(self._busy_ms)
+
+    def _tick(self) -> None:
+        if self._driver is None:
+            return
+        try:
+            if self._watch is not None:
+                done, snap = self._driver.check(self._watch)
+                self.snapshot.emit(snap)
+                if done:
+                    self._watch = None
+                    self._next_step()
+            else:
+                self.snapshot.emit(self._driver.poll())
+        except ImpressError as exc:
+            self._fail(exc)
+
+    def _fail(self, exc: ImpressError) -> None:
+        """The driver already stopped the motor; forget the plan and tell the panel."""
+        self._set_idle()
+        self.failed.emit(exc.code, str(exc))
+        if isinstance(exc, MotorDisconnected) or (
+            self._driver is not None and not self._driver.connected
+        ):
+            self._timer.stop()
+            if self._driver is not None:
+                self._driver.close(stop=False)
+            self._driver = None
+            self.disconnected.emit(str(exc))
+        elif self._driver is not None:
+            try:
+                self.snapshot.emit(self._driver.poll())
+            except ImpressError:
+                pass
+
+
+class MotorPanel(QWidget):
+    """Self-contained motor control widget; see the module docstring."""
+
+    position_changed = Signal(float)  # mm
+    state_changed = Signal(str)
+    connection_changed = Signal(bool)
+    error = Signal(str, str)  # code, message
+
+    _open_requested = Signal(str)
+    _close_requested = Signal()
+    _stop_requested = Signal()
+    _plan_requested = Signal(object)
+    _reset_requested = Signal()
+    _shutdown_requested = Signal()
+
+    def __init__(
+        self,
+        parent: QWidget | None = None,
+        *,
+        settings: MotorPanelSettings | None = None,
+        driver_factory: DriverFactory | None = None,
+        port_lister: PortLister | None = None,
+    ) -> None:
+        super().__init__(parent)
+        self.settings = s = settings or MotorPanelSettings()
+        self._units = s.motor.units
+        self._port_lister = port_lister or list_serial_ports
+        self.is_connected = False
+        self.is_busy = False
+        self.last_snapshot: MotorSnapshot | None = None
+        self._build_ui()
+        self.refresh_ports()
+
+        self._thread = QThread(self)
+        self._thread.setObjectName("motor-worker")
+        factory = driver_factory or default_driver_factory(s.sim_time_scale)
+        self._worker = MotorWorker(factory, s.motor, s.idle_poll_s)
+        self._worker.moveToThread(self._thread)
+        self._thread.finished.connect(self._worker.deleteLater)
+        self._open_requested.connect(self._worker.open_port)
+        self._close_requested.connect(self._worker.close_port)
+        self._stop_requested.connect(self._worker.stop)
+        self._plan_requested.connect(self._worker.run_plan)
+        self._reset_requested.connect(self._worker.reset_alarm)
+        self._shutdown_requested.connect(self._worker.shutdown)
+        self._worker.connected.connect(self._on_connected)
+        self._worker.disconnected.connect(self._on_disconnected)
+        self._worker.snapshot.connect(self._on_snapshot)
+        self._worker.busy_changed.connect(self._on_busy)
+        self._worker.failed.connect(self._on_failed)
+        self._worker.traffic.connect(self._on_traffic)
+        self._thread.start()
+        app = QCoreApplication.instance()
+        if app is not None:
+            app.aboutToQuit.connect(self.shutdown)
+        self._update_enabled()
+
+    # ----------------------------------------------------------------- layout
+
+    def _build_ui(self) -> None:
+        s = self.settings
+        root = QVBoxLayout(self)
+
+        link = QHBoxLayout()
+        self.port_combo = QComboBox(editable=True)
+        self.port_combo.setToolTip("A listed port, a typed device path or pyserial URL")
+        self.port_combo.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
+        self.refresh_button = QPushButton("Refresh")
+        self.connect_button = QPushButton("Connect")
+        for w in (self.port_combo, self.refresh_button, self.connect_button):
+            link.addWidget(w)
+        root.addLayout(link)
+
+        self.stop_button = QPushButton("STOP")
+        font = QFont(self.stop_button.font())
+        font.setPointSize(max(font.pointSize(), 9) * 2)
+        font.setBold(True)
+        self.stop_button.setFont(font)
+        self.stop_button.setMinimumHeight(64)
+        self.stop_button.setStyleSheet("QPushButton { background: #c62828; color: white; }")
+        self.stop_button.setToolTip("Stop the carriage now (always available)")
+        root.addWidget(self.stop_button)
+
+        status = QGroupBox("Motor")
+        form = QFormLayout(status)
+        self.position_label = QLabel("-")
+        big = QFont(self.position_label.font())
+        big.setPointSize(max(big.pointSize(), 9) + 6)
+        self.position_label.setFont(big)
+        self.state_label = QLabel("not connected")
+        self.alarm_label = QLabel("")
+        self.alarm_label.setStyleSheet("QLabel { color: #c62828; font-weight: bold; }")
+        self.alarm_label.setWordWrap(True)
+        self.version_label = QLabel("")
+        form.addRow("Position", self.position_label)
+        form.addRow("State", self.state_label)
+        form.addRow("Alarm", self.alarm_label)
+        form.addRow("Motor", self.version_label)
+        root.addWidget(status)
+
+        params = QGroupBox("Scan")
+        pform = QFormLayout(params)
+        self.speed_spin = self._spin(0.1, 200.0, s.speed_mm_s, " mm/s")
+        self.speed_note = QLabel("")
+        self.start_spin = self._spin(-5000.0, 5000.0, s.start_mm, " mm")
+        self.jog_spin = self._spin(0.1, 1000.0, s.jog_step_mm, " mm")
+        pform.addRow("Scan speed", self.speed_spin)
+        pform.addRow("", self.speed_note)
+        pform.addRow("Start position", self.start_spin)
+        pform.addRow("Jog step", self.jog_spin)
+        root.addWidget(params)
+
+        grid = QGridLayout()
+        self.home_button = QPushButton("Home")
+        self.short_button = QPushButton(f"Short scan ({s.short_scan_mm / 10:g} cm)")
+        self.long_button = QPushButton(f"Long scan ({s.long_scan_mm / 10:g} cm)")
+        self.jog_minus_button = QPushButton("\u25c0 Jog \u2212")
+        self.jog_plus_button = QPushButton("Jog + \u25b6")
+        self.reset_button = QPushButton("Reset alarm")
+        for i, b in enumerate(
+            [
+                self.home_button,
+                self.reset_button,
+                self.short_button,
+                self.long_button,
+                self.jog_minus_button,
+                self.jog_plus_button,
+            ]
+        ):
+            grid.addWidget(b, i // 2, i % 2)
+        root.addLayout(grid)
+
+        self.log_polls_check = QCheckBox("Log status polls")
+        self.log_view = QPlainTextEdit(readOnly=True)
+        self.log_view.setMaximumBlockCount(s.log_lines)
+        self.log_view.setFont(QFontDatabase.systemFont(QFontDatabase.SystemFont.FixedFont))
+        root.addWidget(self.log_polls_check)
+        root.addWidget(self.log_view, 1)
+
+        self.refresh_button.clicked.connect(self.refresh_ports)
+        self.connect_button.clicked.connect(self._toggle_connection)
+        self.stop_button.clicked.connect(self.stop)
+        self.home_button.clicked.connect(self.home)
+        self.short_button.clicked.connect(lambda: self.scan(s.short_scan_mm))
+        self.long_button.clicked.connect(lambda: self.scan(s.long_scan_mm))
+        self.jog_minus_button.clicked.connect(lambda: self.jog(-self.jog_spin.value()))
+        self.jog_plus_button.clicked.connect(lambda: self.jog(self.jog_spin.value()))
+        self.reset_button.clicked.connect(lambda: self._reset_requested.emit())
+        self.speed_spin.valueChanged.connect(self._show_actual_speed)
+        self._show_actual_speed()
+
+    @staticmethod
+    def _spin(low: float, high: float, value: float, suffix: str) -> QDoubleSpinBox:
+        spin = QDoubleSpinBox(minimum=low, maximum=high, decimals=2, suffix=suffix)
+        spin.setValue(value)
+        return spin
+
+    # ----------------------------------------------------------------- actions
+
+    def refresh_ports(self) -> None:
+        typed = self.port_combo.currentText()
+        self.port_combo.clear()
+        self.port_combo.addItem(SIMULATED_LABEL, "sim")
+        try:
+            ports = self._port_lister()
+        except Exception as exc:  # noqa: BLE001 - a broken enumeration must not break the panel
+            ports = []
+            self._log(f"! cannot list ports: {exc}")
+        for device, description in ports:
+            label = device if description in ("", "n/a", device) else f"{device} ({description})"
+            self.port_combo.addItem(label, device)
+        if typed:
+            self.port_combo.setCurrentText(typed)
+
+    def selected_port(self) -> str:
+        """The chosen port: a listed entry's device, or the typed path / URL."""
+        text = self.port_combo.currentText().strip()
+        index = self.port_combo.findText(text)
+        return str(self.port_combo.itemData(index)) if index >= 0 else text
+
+    def connect_motor(self, port: str | None = None) -> None:
+        if port is not None:
+            self.port_combo.setCurrentText(port)
+        self._log(f"# connecting to {self.selected_port()}")
+        self.connect_button.setEnabled(False)
+        self._open_requested.emit(self.selected_port())
+
+    def disconnect_motor(self) -> None:
+        self._close_requested.emit()
+
+    def stop(self) -> None:
+        self._log("# STOP")
+        self._stop_requested.emit()
+
+    def home(self) -> None:
+        self._plan_requested.emit([("home",)])
+
+    def scan(self, length_mm: float) -> None:
+        """Go to the start position at travel speed, then run ``length_mm`` at scan speed."""
+        start = self.start_spin.value()
+        self._plan_requested.emit(
+            [
+                ("move", start, self.settings.travel_speed_mm_s),
+                ("move", start + length_mm, self.speed_spin.value()),
+            ]
+        )
+
+    def jog(self, distance_mm: float) -> None:
+        self._plan_requested.emit([("by", distance_mm, self.speed_spin.value())])
+
+    def move_to(self, position_mm: float, speed_mm_s: float | None = None) -> None:
+        speed = self.speed_spin.value() if speed_mm_s is None else speed_mm_s
+        self._plan_requested.emit([("move", position_mm, speed)])
+
+    def run_bank(self, bank: int) -> None:
+        self._plan_requested.emit([("bank", bank)])
+
+    def shutdown(self) -> None:
+        """Stop the motor, close the port and join the worker thread. Safe to call twice."""
+        if self._thread.isRunning():
+            self._shutdown_requested.emit()
+            if not self._thread.wait(10_000):
+                self._thread.quit()
+                self._thread.wait()
+
+    def closeEvent(self, event: QCloseEvent) -> None:  # noqa: N802 - Qt override
+        self.shutdown()
+        super().closeEvent(event)
+
+    # ----------------------------------------------------------------- worker -> panel
+
+    def _toggle_connection(self) -> None:
+        if self.is_connected:
+            self.disconnect_motor()
+        else:
+            self.connect_motor()
+
+    def _on_connected(self, version: str) -> None:
+        self.is_connected = True
+        self.version_label.setText(version)
+        self.alarm_label.setText("")
+        self._log(f"# connected: {version}")
+        self.connection_changed.emit(True)
+        self._update_enabled()
+
+    def _on_disconnected(self, reason: str) -> None:
+        self.is_connected = False
+        self.is_busy = False
+        self.state_label.setText("not connected")
+        self._log("# disconnected" + (f": {reason}" if reason else ""))
+        self.connection_changed.emit(False)
+        self._update_enabled()
+
+    def _on_snapshot(self, snap: MotorSnapshot) -> None:
+        self.last_snapshot = snap
+        self.position_label.setText(f"{snap.position_mm:.2f} mm")
+        self.state_label.setText(snap.status.state)
+        self.alarm_label.setText(", ".join(snap.status.alarms))
+        self.position_changed.emit(snap.position_mm)
+        self.state_changed.emit(snap.status.state)
+
+    def _on_busy(self, busy: bool, what: str) -> None:
+        self.is_busy = busy
+        if busy:
+            self._log(f"# {what}")
+        self._update_enabled()
+
+    def _on_failed(self, code: str, message: str) -> None:
+        self.alarm_label.setText(f"[{code}] {message}")
+        self._log(f"! [{code}] {message}")
+        self.error.emit(code, message)
+        self._update_enabled()
+
+    def _on_traffic(self, direction: str, text: str) -> None:
+        if not self.log_polls_check.isChecked() and text.startswith(("?96", "?99", "Px.", "Ux.")):
+            return
+        self._log(f"{direction} {text}")
+
+    def _log(self, line: str) -> None:
+        self.log_view.appendPlainText(line)
+
+    def _show_actual_speed(self) -> None:
+        try:
+            units = self._units.speed_to_units(self.speed_spin.value())
+        except ImpressError:
+            self.speed_note.setText("")
+            return
+        actual = self._units.units_to_speed_mm_s(units)
+        self.speed_note.setText(f"motor runs at {actual:.2f} mm/s (S = {units})")
+
+    def _update_enabled(self) -> None:
+        self.connect_button.setEnabled(True)
+        self.connect_button.setText("Disconnect" if self.is_connected else "Connect")
+        self.port_combo.setEnabled(not self.is_connected)
+        self.refresh_button.setEnabled(not self.is_connected)
+        can_move = self.is_connected and not self.is_busy
+        for b in (
+            self.home_button,
+            self.short_button,
+            self.long_button,
+            self.jog_minus_button,
+            self.jog_plus_button,
+        ):
+            b.setEnabled(can_move)
+        self.reset_button.setEnabled(self.is_connected)
+        self.stop_button.setEnabled(True)  # always

@@ -1,0 +1,187 @@
+"""The motor panel driven with pytest-qt against the emulated motor."""
+
+from __future__ import annotations
+
+import os
+import threading
+
+import pytest
+from PySide6.QtCore import Qt
+
+from impress_gui.hardware.cool_muscle import CoolMuscle, MotorConfig
+from impress_gui.hardware.emulator import CM1Emulator, EmulatorConfig, PtyServer, emulated_port
+from impress_gui.ui.motor_panel import SIMULATED_LABEL, MotorPanel, MotorPanelSettings
+
+TIME_SCALE = 20.0
+FAST = MotorConfig(poll_interval_s=0.01, reply_timeout_s=0.3)
+
+
+@pytest.fixture(autouse=True)
+def no_stray_threads():
+    before = set(threading.enumerate())
+    yield
+    assert set(threading.enumerate()) - before == set()
+
+
+class Rig:
+    """Panels made for one test, with the emulated motors their connections created."""
+
+    def __init__(self, qtbot) -> None:
+        self.qtbot = qtbot
+        self.panels: list[MotorPanel] = []
+        self.motors: list[CM1Emulator] = []
+        self.ports: list[str] = []
+
+    def factory(self, port, config, on_traffic):
+        self.ports.append(port)
+        motor = CM1Emulator(EmulatorConfig(time_scale=TIME_SCALE))
+        self.motors.append(motor)
+        return CoolMuscle(emulated_port(motor), config, on_traffic=on_traffic)
+
+    def panel(self, *, default_factory: bool = False, **settings) -> MotorPanel:
+        settings = {"motor": FAST, "idle_poll_s": 0.05, **settings}
+        panel = MotorPanel(
+            settings=MotorPanelSettings(**settings),
+            driver_factory=None if default_factory else self.factory,
+            port_lister=lambda: [("/dev/ttyFAKE0", "USB-Serial Controller")],
+        )
+        self.qtbot.addWidget(panel)
+        self.panels.append(panel)
+        return panel
+
+    def connected_panel(self, port: str = SIMULATED_LABEL, **settings) -> MotorPanel:
+        panel = self.panel(**settings)
+        panel.port_combo.setCurrentText(port)
+        with self.qtbot.waitSignal(panel.connection_changed, timeout=5000) as blocker:
+            panel.connect_button.click()
+        assert blocker.args == [True]
+        self.qtbot.waitUntil(lambda: panel.state_label.text() == "in position", timeout=3000)
+        return panel
+
+
+@pytest.fixture
+def rig(qtbot):
+    r = Rig(qtbot)
+    yield r
+    for panel in r.panels:
+        panel.shutdown()
+        assert panel._thread.isFinished()
+    for motor in r.motors:
+        assert not motor.moving  # no test leaves a carriage moving
+
+
+def test_ports_listed_typed_and_simulated(rig):
+    panel = rig.panel()
+    items = [panel.port_combo.itemText(i) for i in range(panel.port_combo.count())]
+    assert items == [SIMULATED_LABEL, "/dev/ttyFAKE0 (USB-Serial Controller)"]
+    panel.port_combo.setCurrentIndex(1)
+    assert panel.selected_port() == "/dev/ttyFAKE0"
+    panel.port_combo.setCurrentText("socket://rig-laptop:7000")
+    assert panel.selected_port() == "socket://rig-laptop:7000"
+    panel.port_combo.setCurrentIndex(0)
+    assert panel.selected_port() == "sim"
+    assert panel.stop_button.isEnabled()  # even when not connected
+    assert not panel.home_button.isEnabled()
+
+
+def test_connect_shows_version_state_and_position(rig):
+    panel = rig.connected_panel()
+    assert rig.ports == ["sim"]
+    assert "CM1" in panel.version_label.text()
+    assert panel.position_label.text() == "0.00 mm"
+    assert panel.connect_button.text() == "Disconnect"
+    assert not panel.port_combo.isEnabled()
+    with rig.qtbot.waitSignal(panel.connection_changed, timeout=3000) as blocker:
+        panel.connect_button.click()
+    assert blocker.args == [False]
+    assert panel.state_label.text() == "not connected"
+
+
+def test_scan_shows_positions_during_the_move_and_stops_on_stop(rig, qtbot):
+    panel = rig.connected_panel(short_scan_mm=500.0, speed_mm_s=5.0)
+    motor = rig.motors[0]
+    positions: list[float] = []
+    panel.position_changed.connect(positions.append)
+    panel.short_button.click()
+    qtbot.waitUntil(lambda: len({round(p, 1) for p in positions if 0.5 < p < 499.0}) >= 5)
+    assert panel.is_busy and panel.state_label.text() == "moving"
+    assert not panel.short_button.isEnabled() and panel.stop_button.isEnabled()
+    assert positions == sorted(positions)  # the carriage advances
+    qtbot.mouseClick(panel.stop_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: not panel.is_busy and panel.state_label.text() == "in position")
+    assert not motor.moving
+    assert 0.5 < motor.position_pulses / -78.0 < 499.0  # stopped part way
+    assert panel.short_button.isEnabled()
+    assert "# STOP" in panel.log_view.toPlainText()
+
+
+def test_home_and_jog(rig, qtbot):
+    panel = rig.connected_panel(jog_step_mm=4.0, speed_mm_s=10.0)
+    motor = rig.motors[0]
+    panel.jog_plus_button.click()
+    qtbot.waitUntil(lambda: not panel.is_busy and motor.position_pulses == -312)
+    qtbot.waitUntil(lambda: panel.position_label.text() == "4.00 mm")
+    panel.jog_minus_button.click()
+    qtbot.waitUntil(lambda: not panel.is_busy and motor.position_pulses == 0)
+    panel.move_to(8.0)
+    qtbot.waitUntil(lambda: not panel.is_busy and motor.position_pulses == -624)
+    panel.home_button.click()
+    qtbot.waitUntil(lambda: not panel.is_busy and panel.position_label.text() == "0.00 mm")
+    assert "|.1" in motor.received
+
+
+def test_alarm_is_shown_and_motor_stopped(rig, qtbot):
+    panel = rig.connected_panel(jog_step_mm=20.0, speed_mm_s=5.0)
+    motor = rig.motors[0]
+    motor.inject_alarm(bits=4, at_fraction=0.5)
+    with qtbot.waitSignal(panel.error, timeout=5000) as blocker:
+        panel.jog_plus_button.click()
+    assert blocker.args[0] == "E-MOTOR-ALARM"
+    assert "over-current" in panel.alarm_label.text()
+    assert not motor.moving and not panel.is_busy
+    qtbot.waitUntil(lambda: panel.state_label.text() == "alarm")
+    panel.reset_button.click()
+    qtbot.waitUntil(lambda: panel.state_label.text() == "in position")
+    assert panel.alarm_label.text() == ""
+
+
+def test_vanished_port_disconnects_the_panel(rig, qtbot):
+    panel = rig.connected_panel()
+    with qtbot.waitSignal(panel.connection_changed, timeout=3000) as blocker:
+        rig.motors[0].disconnect()
+    assert blocker.args == [False]
+    assert "E-MOTOR-DISCONNECTED" in panel.alarm_label.text()
+    assert panel.connect_button.text() == "Connect" and panel.connect_button.isEnabled()
+    assert panel.stop_button.isEnabled()
+    panel.stop_button.click()  # harmless without a motor
+
+
+def test_bad_port_reports_an_error(rig, qtbot):
+    panel = rig.panel(default_factory=True)
+    panel.port_combo.setCurrentText("/dev/no-such-port-impress")
+    with qtbot.waitSignal(panel.error, timeout=3000) as blocker:
+        panel.connect_button.click()
+    assert blocker.args[0] == "E-MOTOR-PORT"
+    qtbot.waitUntil(panel.connect_button.isEnabled)
+    assert not panel.is_connected
+
+
+def test_default_factory_simulated_motor(rig, qtbot):
+    panel = rig.panel(default_factory=True, sim_time_scale=50.0, jog_step_mm=5.0)
+    with qtbot.waitSignal(panel.connection_changed, timeout=5000):
+        panel.connect_button.click()  # "Simulated motor" is the first entry
+    panel.jog_plus_button.click()
+    qtbot.waitUntil(lambda: not panel.is_busy and panel.position_label.text() == "5.00 mm")
+
+
+@pytest.mark.skipif(os.name != "posix", reason="pseudo-terminals are POSIX only")
+def test_typed_pseudo_terminal_path(rig, qtbot):
+    motor = CM1Emulator(EmulatorConfig(time_scale=50.0, echo=False))
+    with PtyServer(motor) as server:
+        panel = rig.panel(default_factory=True, jog_step_mm=3.0)
+        panel.port_combo.setCurrentText(server.path)
+        with qtbot.waitSignal(panel.connection_changed, timeout=5000):
+            panel.connect_button.click()
+        panel.jog_plus_button.click()
+        qtbot.waitUntil(lambda: not panel.is_busy and motor.position_pulses == -234)
+        panel.shutdown()
