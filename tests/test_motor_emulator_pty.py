@@ -253,6 +253,9 @@ def test_cli_simulated_motor_and_helpers(capsys):
         == 0
     )
     assert "20.000 mm/s" in capsys.readouterr().out
+    check = ["--pulses-per-mm", "78", "speed-check", "--distance-mm", "100", "--frames", "150"]
+    assert main(["motor", *check, "--fps", "30", "--commanded-s", "20"]) == 0
+    assert "one speed unit: 78.000 pulses/s" in capsys.readouterr().out
     assert main(["motor", "ports"]) == 0
     assert "Simulated motor" in capsys.readouterr().out
     assert main(["motor", "--port", "/dev/no-such-port-impress", "status"]) == 2

@@ -75,6 +75,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     chk.add_argument("--distance-mm", type=float, required=True)
     chk.add_argument("--frames", type=float, required=True)
     chk.add_argument("--fps", type=float, required=True)
+    chk.add_argument(
+        "--commanded-s", type=float, help="the S value the move ran at: also derive the speed unit"
+    )
 
 
 def _config(args: argparse.Namespace) -> Any:
@@ -151,9 +154,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"pulses per mm: {ppm:.4f}")
         return 0
     if action == "speed-check":
-        from impress_gui.hardware.units import speed_from_video_mm_s
+        from impress_gui.hardware.units import speed_from_video_mm_s, speed_unit_from_measurement
 
-        print(f"speed: {speed_from_video_mm_s(args.distance_mm, args.frames, args.fps):.3f} mm/s")
+        speed = speed_from_video_mm_s(args.distance_mm, args.frames, args.fps)
+        print(f"speed: {speed:.3f} mm/s")
+        if args.commanded_s:
+            unit = speed_unit_from_measurement(args.commanded_s, speed, args.pulses_per_mm)
+            print(f"one speed unit: {unit:.3f} pulses/s (at {args.pulses_per_mm:g} pulses/mm)")
         return 0
     if action == "emulate-pty":
         return _emulate(args)
