@@ -137,12 +137,16 @@ def test_alarm_is_shown_and_motor_stopped(rig, qtbot):
     with qtbot.waitSignal(panel.error, timeout=5000) as blocker:
         panel.jog_plus_button.click()
     assert blocker.args[0] == "E-MOTOR-ALARM"
-    assert "over-current" in panel.alarm_label.text()
+    assert "E-MOTOR-ALARM" in panel.error_label.text()
+    qtbot.waitUntil(lambda: panel.alarm_label.text() == "overload / over-current")
     assert not motor.moving and not panel.is_busy
     qtbot.waitUntil(lambda: panel.state_label.text() == "alarm")
     panel.reset_button.click()
     qtbot.waitUntil(lambda: panel.state_label.text() == "in position")
     assert panel.alarm_label.text() == ""
+    panel.jog_minus_button.click()  # moves again after the reset; the old error is cleared
+    assert panel.error_label.text() == ""
+    qtbot.waitUntil(lambda: not panel.is_busy and motor.position_pulses == 780)  # -10 mm
 
 
 def test_vanished_port_disconnects_the_panel(rig, qtbot):
@@ -150,7 +154,7 @@ def test_vanished_port_disconnects_the_panel(rig, qtbot):
     with qtbot.waitSignal(panel.connection_changed, timeout=3000) as blocker:
         rig.motors[0].disconnect()
     assert blocker.args == [False]
-    assert "E-MOTOR-DISCONNECTED" in panel.alarm_label.text()
+    assert "E-MOTOR-DISCONNECTED" in panel.error_label.text()
     assert panel.connect_button.text() == "Connect" and panel.connect_button.isEnabled()
     assert panel.stop_button.isEnabled()
     panel.stop_button.click()  # harmless without a motor

@@ -336,10 +336,14 @@ class MotorPanel(QWidget):
         self.alarm_label = QLabel("")
         self.alarm_label.setStyleSheet("QLabel { color: #c62828; font-weight: bold; }")
         self.alarm_label.setWordWrap(True)
+        self.error_label = QLabel("")
+        self.error_label.setStyleSheet("QLabel { color: #c62828; }")
+        self.error_label.setWordWrap(True)
         self.version_label = QLabel("")
         form.addRow("Position", self.position_label)
         form.addRow("State", self.state_label)
         form.addRow("Alarm", self.alarm_label)
+        form.addRow("Last error", self.error_label)
         form.addRow("Motor", self.version_label)
         root.addWidget(status)
 
@@ -427,6 +431,7 @@ class MotorPanel(QWidget):
         if port is not None:
             self.port_combo.setCurrentText(port)
         self._log(f"# connecting to {self.selected_port()}")
+        self.error_label.setText("")
         self.connect_button.setEnabled(False)
         self._open_requested.emit(self.selected_port())
 
@@ -437,13 +442,18 @@ class MotorPanel(QWidget):
         self._log("# STOP")
         self._stop_requested.emit()
 
+    def run_plan(self, steps: list[Step]) -> None:
+        """Hand a list of steps (see :data:`Step`) to the worker; clears the last error."""
+        self.error_label.setText("")
+        self._plan_requested.emit(steps)
+
     def home(self) -> None:
-        self._plan_requested.emit([("home",)])
+        self.run_plan([("home",)])
 
     def scan(self, length_mm: float) -> None:
         """Go to the start position at travel speed, then run ``length_mm`` at scan speed."""
         start = self.start_spin.value()
-        self._plan_requested.emit(
+        self.run_plan(
             [
                 ("move", start, self.settings.travel_speed_mm_s),
                 ("move", start + length_mm, self.speed_spin.value()),
@@ -451,14 +461,14 @@ class MotorPanel(QWidget):
         )
 
     def jog(self, distance_mm: float) -> None:
-        self._plan_requested.emit([("by", distance_mm, self.speed_spin.value())])
+        self.run_plan([("by", distance_mm, self.speed_spin.value())])
 
     def move_to(self, position_mm: float, speed_mm_s: float | None = None) -> None:
         speed = self.speed_spin.value() if speed_mm_s is None else speed_mm_s
-        self._plan_requested.emit([("move", position_mm, speed)])
+        self.run_plan([("move", position_mm, speed)])
 
     def run_bank(self, bank: int) -> None:
-        self._plan_requested.emit([("bank", bank)])
+        self.run_plan([("bank", bank)])
 
     def shutdown(self) -> None:
         """Stop the motor, close the port and join the worker thread. Safe to call twice."""
@@ -511,7 +521,7 @@ class MotorPanel(QWidget):
         self._update_enabled()
 
     def _on_failed(self, code: str, message: str) -> None:
-        self.alarm_label.setText(f"[{code}] {message}")
+        self.error_label.setText(f"[{code}] {message}")
         self._log(f"! [{code}] {message}")
         self.error.emit(code, message)
         self._update_enabled()
