@@ -74,9 +74,9 @@ def default_rig(width: int = 1920, height: int = 1080, roll_deg: float = 1.2,
     """Green laser behind the camera lighting the leading (lower) half of the image, red
     laser ahead lighting the trailing (upper) half: they cross and fill each other's shadows."""
     green = Laser.aimed("green", (8.0, -laser_offset_mm, 5.0), stripe_offset_mm, standoff_mm, 1.5,
-                        (0.45, 1.0, 0.40))
+                        (0.25, 1.0, 0.22))
     red = Laser.aimed("red", (-6.0, laser_offset_mm, 4.0), -stripe_offset_mm, standoff_mm, -2.0,
-                      (1.0, 0.33, 0.30))
+                      (1.0, 0.2, 0.16))
     return Rig(default_intrinsics(width, height), roll_deg, tilt_deg, standoff_mm, (green, red))
 
 

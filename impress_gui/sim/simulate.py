@@ -172,7 +172,8 @@ def _make_renderer(cfg: SimConfig):
     rig, motion, target = make_rig(cfg), make_motion(cfg), default_target()
     scene = build_scene(cfg.preset, cfg.scan_length_mm, cfg.grid_mm, cfg.seed, target,
                         target_pose(cfg), **cfg.blocks)
-    opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle, seed=cfg.seed)
+    opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle, seed=cfg.seed,
+                         stripe_sigma_px=max(1.2, 1.6 * cfg.width / 1920.0), laser_peak=3.5)
     return Renderer(scene, rig, motion, opts), scene
 
 
