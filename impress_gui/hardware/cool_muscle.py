@@ -236,8 +236,8 @@ def resolve_port_url(port: str) -> str:
 def emulator_url(config: MotorConfig | None = None, time_scale: float = 1.0) -> str:
     """The ``cm1emu://`` URL of a simulated motor matching ``config`` (id and speed unit)."""
     cfg = config or MotorConfig()
-    speed_unit = cfg.units.speed_unit_pulses_s
-    return f"{EMULATOR_SCHEME}?id={cfg.motor_id}&time_scale={time_scale:g}&speed_unit={speed_unit:g}"
+    unit = cfg.units.speed_unit_pulses_s
+    return f"{EMULATOR_SCHEME}?id={cfg.motor_id}&time_scale={time_scale:g}&speed_unit={unit:g}"
 
 
 def open_port(port: str, config: MotorConfig | None = None) -> Any:

@@ -484,22 +484,6 @@ class EmulatedSerial(SerialBase):
     def _update_break_state(self) -> None:
         pass
 
-    @property
-    def cts(self) -> bool:
-        return True
-
-    @property
-    def dsr(self) -> bool:
-        return True
-
-    @property
-    def ri(self) -> bool:
-        return False
-
-    @property
-    def cd(self) -> bool:
-        return True
-
 
 def emulated_port(motor: CM1Emulator, *, timeout_s: float = 0.02) -> EmulatedSerial:
     """An open port wired to ``motor`` (keep the motor to inject faults)."""
