@@ -189,3 +189,13 @@ def test_typed_pseudo_terminal_path(rig, qtbot):
         panel.jog_plus_button.click()
         qtbot.waitUntil(lambda: not panel.is_busy and motor.position_pulses == -234)
         panel.shutdown()
+
+
+def test_closing_the_panel_mid_scan_stops_the_motor(rig, qtbot):
+    panel = rig.connected_panel(long_scan_mm=1700.0)
+    motor = rig.motors[0]
+    panel.long_button.click()
+    qtbot.waitUntil(lambda: panel.is_busy and motor.moving)
+    panel.close()  # as when the window closes: stops the carriage, joins the worker thread
+    assert panel._thread.isFinished()
+    assert not motor.moving
