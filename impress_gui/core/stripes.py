@@ -44,6 +44,7 @@ class StripeParams:
     min_saturation: int = 60
     min_value: int = 120
     lut_margin: int = 6
+    min_tint: int = 12
     max_width_px: int = 20
 
     def validate(self, height: int | None = None) -> None:
@@ -106,6 +107,16 @@ def hue_mask(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
     return m
 
 
+def tint_mask(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
+    """Bright pixels tinted towards the laser's colour: the halo of a stripe that saturates
+    to white on a bright surface, where hue and saturation tests fail."""
+    c = _CH[name]
+    o1, o2 = _OTHERS[name]
+    ch = rgb[..., c].astype(np.int16)
+    excess = ch - np.maximum(rgb[..., o1], rgb[..., o2]).astype(np.int16)
+    return (excess >= params.min_tint) & (ch >= params.min_value)
+
+
 @dataclass
 class StripeResult:
     """Per column: sub-pixel row (NaN where no stripe) and a confidence (peak above
@@ -136,9 +147,9 @@ def detect_band(name: str, rgb_band: np.ndarray, y_band: np.ndarray | None, row0
         raise InputError("the lookup-table method needs a learned background", code="E-PARAM")
     if method in ("hue", "combined"):
         m = hue_mask(name, rgb_band, params)
+        if method == "combined":
+            m |= tint_mask(name, rgb_band, params)
         m = _dilate_rows(m, 3)  # join the white core to its coloured halo
-        core = rgb_band.min(axis=2) > 235
-        m &= ~core | _dilate_rows(hue_mask(name, rgb_band, params), 3)
     else:
         m = np.zeros((h, w), bool)
     if method in ("lut", "combined") and lut is not None:

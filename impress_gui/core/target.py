@@ -136,7 +136,7 @@ def default_target() -> TargetModel:
     return TargetModel.load(resources_dir() / "targets" / "l_target_v1.json")
 
 
-def make_l_target(low_h=15.0, high_h=35.0, low_w=40.0, high_w=40.0, length=70.0) -> TargetModel:
+def make_l_target(low_h=10.0, high_h=40.0, low_w=40.0, high_w=40.0, length=70.0) -> TargetModel:
     """The default L target: a low step beside a high step, ``length`` mm along the scan."""
     x1, x2, L = low_w, low_w + high_w, length
     corners = {

@@ -265,9 +265,10 @@ def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
         tx, ty, yaw = target_pose
         c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
         Xg, Yg = np.meshgrid(xs, ys)
-        # object coordinates of every cell (inverse of the pose)
+        # object coordinates of every cell: the inverse of rail = T + Rz(yaw) (x, -y) (object z
+        # is up while the rail frame's Z' is depth, so the object's y axis points backwards)
         ox = c * (Xg - tx) + s * (Yg - ty)
-        oy = -s * (Xg - tx) + c * (Yg - ty)
+        oy = s * (Xg - tx) - c * (Yg - ty)
         th = target.heightfield(ox, oy)
         on = np.isfinite(th)
         h = np.where(on, th, h).astype(np.float32)

@@ -89,21 +89,28 @@ def make_motion(cfg: SimConfig) -> Motion:
     return Motion(cfg.speed_mm_s, cfg.fps, cfg.scan_length_mm, cfg.ramp_s)
 
 
-TARGET_POSE = (-40.0, 0.0)  # object origin of the L target in the rail frame (mm)
+TARGET_POSE = (-40.0, 70.0)  # object origin of the L target in the rail frame (mm)
 
 
 def target_pose(cfg: SimConfig) -> tuple[float, float, float]:
     return (TARGET_POSE[0], TARGET_POSE[1], cfg.target_yaw_deg)
 
 
-def target_world_corners(target: TargetModel, pose, standoff_mm: float) -> np.ndarray:
-    """Target corners A-F in the rail frame (X', Y', Z' = depth), ``(6, 3)``."""
+def target_to_rail(obj_pts: np.ndarray, pose, standoff_mm: float) -> np.ndarray:
+    """Object-frame points (x across, y along, z up) to the rail frame (X', Y', Z' = depth).
+
+    The placement is a proper rotation: ``(X', Y') = T + Rz(yaw) (x, -y)``, ``Z' = standoff - z``.
+    """
     tx, ty, yaw = pose
     c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
-    obj = target.corner_array()
-    x = tx + c * obj[:, 0] - s * obj[:, 1]
-    y = ty + s * obj[:, 0] + c * obj[:, 1]
-    return np.column_stack([x, y, standoff_mm - obj[:, 2]])
+    obj = np.asarray(obj_pts, float)
+    x, y = obj[..., 0], -obj[..., 1]
+    return np.stack([tx + c * x - s * y, ty + s * x + c * y, standoff_mm - obj[..., 2]], axis=-1)
+
+
+def target_world_corners(target: TargetModel, pose, standoff_mm: float) -> np.ndarray:
+    """Target corners A-F in the rail frame (X', Y', Z' = depth), ``(6, 3)``."""
+    return target_to_rail(target.corner_array(), pose, standoff_mm)
 
 
 def project_rail(rig: Rig, pts_rail: np.ndarray, travel_mm: float) -> np.ndarray:
@@ -116,17 +123,12 @@ def _stripe_on_faces(rig: Rig, laser_name: str, target: TargetModel, pose, trave
     """Does the laser's stripe cross every top face of the target well inside its ends?"""
     laser = rig.laser(laser_name)
     n, d = laser.plane.normal, laser.plane.offset_mm
-    tx, ty, yaw = pose
-    c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
     for face in target.top_faces():
         v = face.vertices_mm
-        cx_o, z = v[:, 0].mean(), v[0, 2]
-        depth = rig.standoff_mm - z
         ys = np.linspace(v[:, 1].min(), v[:, 1].max(), 400)
-        # object-frame line through the face centre along y, in the rail frame
-        X = tx + c * cx_o - s * ys
-        Y = ty + s * cx_o + c * ys
-        val = n[0] * X + n[1] * (Y - travel) + n[2] * depth - d
+        line = np.column_stack([np.full_like(ys, v[:, 0].mean()), ys, np.full_like(ys, v[0, 2])])
+        P = target_to_rail(line, pose, rig.standoff_mm)
+        val = n[0] * P[:, 0] + n[1] * (P[:, 1] - travel) + n[2] * P[:, 2] - d
         cross = np.flatnonzero(np.diff(np.sign(val)) != 0)
         if cross.size != 1:
             return False

@@ -1,0 +1,511 @@
+"""Scene calibration from the scan itself (the seed's self-calibration, made better).
+
+From the six L-target corners marked in frames t1 and t2 this recovers the motion direction
+(least-squares vanishing point of all six corner tracks, valid at infinity), roll and tilt, the
+metric corners by motion parallax, a rigid fit of the target model (per-corner residuals, and
+the speed implied by the target's known size), then refines everything by minimising the
+reprojection error of all twelve picks. Each laser plane is fitted to every stripe pixel that
+falls on a known target face, in several frames around its calibration frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from impress_gui import __version__
+from impress_gui.core.errors import CalibrationError, FormatError
+from impress_gui.core.fileio import float_array, read_json, require, write_json
+from impress_gui.core.geometry import Intrinsics, Plane, fit_plane, ideal_rotation, roll_tilt_from_direction
+from impress_gui.core.picks import Picks
+from impress_gui.core.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.target import CORNER_NAMES, TargetModel, _inside_convex
+
+CALIBRATION_FORMAT = "impress.calibration"
+SPEED_WARN_FRACTION = 0.01
+
+
+@dataclass(frozen=True)
+class LaserPlaneFit:
+    name: str
+    plane: Plane  # camera-fixed ideal frame, mm
+    rms_mm: float
+    n_points: int
+    frames: tuple[int, ...]
+    heights_mm: tuple[float, ...]  # target-face heights the stripe was measured on
+    method: str = "stripe-fit"
+
+
+@dataclass(frozen=True)
+class SceneCalibration:
+    intrinsics: Intrinsics
+    speed_mm_s: float  # as entered; travel of frame k is speed * (t_k - t_ref)
+    fps: float
+    t1: int
+    t2: int
+    t_ref_s: float  # time of frame t1: the rail frame's origin is the optical centre then
+    motion_dir_cam: np.ndarray
+    vanishing_point_px: np.ndarray  # homogeneous, undistorted pixels; [x, y, 0] at infinity
+    roll_deg: float
+    tilt_deg: float
+    rotation: np.ndarray  # camera -> ideal
+    corners_parallax_mm: np.ndarray  # (6, 3) rail frame, by motion parallax with the entered speed
+    corner_residuals_mm: np.ndarray  # (6,) after the rigid fit of the target model
+    target_rotation: np.ndarray  # object -> rail
+    target_translation_mm: np.ndarray
+    implied_speed_mm_s: float
+    reprojection_rms_px: float
+    planes: dict[str, LaserPlaneFit]
+    warnings: tuple[str, ...] = ()
+    inputs: dict = field(default_factory=dict)
+
+    # ----- derived -------------------------------------------------------------------------
+    def corners_fit_mm(self, target: TargetModel) -> np.ndarray:
+        return target.corner_array() @ self.target_rotation.T + self.target_translation_mm
+
+    @property
+    def up_rail(self) -> np.ndarray:
+        """Unit 'up' of the target's base (towards the camera) in the rail frame."""
+        return self.target_rotation @ np.array([0.0, 0.0, 1.0])
+
+    def reference_depth(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        """Depth Z' of the target's base plane (the height reference) at rail (X', Y')."""
+        n = -self.up_rail  # pointing away from the camera, n_z > 0
+        p0 = self.target_translation_mm
+        return p0[2] - (n[0] * (x_mm - p0[0]) + n[1] * (y_mm - p0[1])) / n[2]
+
+    def travel_mm(self, times_s: np.ndarray) -> np.ndarray:
+        return self.speed_mm_s * (np.asarray(times_s, float) - self.t_ref_s)
+
+    # ----- file format ------------------------------------------------------------------------
+    def to_json(self) -> dict:
+        return {
+            "format": CALIBRATION_FORMAT,
+            "version": 1,
+            "software": f"impress {__version__}",
+            "intrinsics": self.intrinsics.to_json(),
+            "speed_mm_s": self.speed_mm_s,
+            "fps": self.fps,
+            "t1": self.t1,
+            "t2": self.t2,
+            "t_ref_s": self.t_ref_s,
+            "frames": "rail frame: axes of the ideal frame (camera rotated so the motion is +Y), "
+                      "origin at the optical centre at frame t1; Z' = depth; planes are in the "
+                      "camera-fixed ideal frame",
+            "motion_direction_camera": self.motion_dir_cam.tolist(),
+            "vanishing_point_px": self.vanishing_point_px.tolist(),
+            "roll_deg": self.roll_deg,
+            "tilt_deg": self.tilt_deg,
+            "rotation_camera_to_ideal": self.rotation.tolist(),
+            "corners_parallax_mm": {c: self.corners_parallax_mm[i].tolist()
+                                    for i, c in enumerate(CORNER_NAMES)},
+            "corner_residuals_mm": {c: float(self.corner_residuals_mm[i])
+                                    for i, c in enumerate(CORNER_NAMES)},
+            "target_pose": {"rotation": self.target_rotation.tolist(),
+                            "translation_mm": self.target_translation_mm.tolist()},
+            "implied_speed_mm_s": self.implied_speed_mm_s,
+            "reprojection_rms_px": self.reprojection_rms_px,
+            "laser_planes": {
+                n: {"normal": f.plane.normal.tolist(), "offset_mm": f.plane.offset_mm,
+                    "rms_mm": f.rms_mm, "n_points": f.n_points, "frames": list(f.frames),
+                    "heights_mm": list(f.heights_mm), "method": f.method}
+                for n, f in self.planes.items()},
+            "warnings": list(self.warnings),
+            "inputs": self.inputs,
+        }
+
+    @classmethod
+    def from_json(cls, doc: dict, where: str = "") -> SceneCalibration:
+        try:
+            intr = Intrinsics.from_json(require(doc, "intrinsics", dict, where), where)
+            planes = {}
+            for name, pd in require(doc, "laser_planes", dict, where).items():
+                plane = Plane.from_json(pd, f"{where}laser_planes.{name}")
+                planes[name] = LaserPlaneFit(
+                    name, plane, float(require(pd, "rms_mm", float, where)),
+                    int(require(pd, "n_points", int, where)),
+                    tuple(int(v) for v in pd.get("frames", [])),
+                    tuple(float(v) for v in pd.get("heights_mm", [])),
+                    str(pd.get("method", "stripe-fit")))
+            for name in ("green", "red"):
+                if name not in planes:
+                    raise FormatError(f"{where}the {name} laser plane is missing")
+            pose = require(doc, "target_pose", dict, where)
+            cp = require(doc, "corners_parallax_mm", dict, where)
+            cr = require(doc, "corner_residuals_mm", dict, where)
+            speed = float(require(doc, "speed_mm_s", float, where))
+            fps = float(require(doc, "fps", float, where))
+            if speed <= 0 or fps <= 0:
+                raise FormatError(f"{where}speed and fps must be positive")
+            return cls(
+                intrinsics=intr, speed_mm_s=speed, fps=fps,
+                t1=int(require(doc, "t1", int, where)), t2=int(require(doc, "t2", int, where)),
+                t_ref_s=float(require(doc, "t_ref_s", float, where)),
+                motion_dir_cam=float_array(doc.get("motion_direction_camera"), (3,), "motion"),
+                vanishing_point_px=float_array(doc.get("vanishing_point_px"), (3,), "vp"),
+                roll_deg=float(require(doc, "roll_deg", float, where)),
+                tilt_deg=float(require(doc, "tilt_deg", float, where)),
+                rotation=float_array(doc.get("rotation_camera_to_ideal"), (3, 3), "rotation"),
+                corners_parallax_mm=np.array([float_array(cp.get(c), (3,), f"corner {c}")
+                                              for c in CORNER_NAMES]),
+                corner_residuals_mm=np.array([float(cr.get(c, np.nan)) for c in CORNER_NAMES]),
+                target_rotation=float_array(pose.get("rotation"), (3, 3), "target rotation"),
+                target_translation_mm=float_array(pose.get("translation_mm"), (3,), "target t"),
+                implied_speed_mm_s=float(require(doc, "implied_speed_mm_s", float, where)),
+                reprojection_rms_px=float(require(doc, "reprojection_rms_px", float, where)),
+                planes=planes, warnings=tuple(str(w) for w in doc.get("warnings", [])),
+                inputs=dict(doc.get("inputs", {})),
+            )
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise FormatError(f"{where}damaged calibration ({exc})") from None
+
+    def save(self, path) -> None:
+        write_json(path, self.to_json())
+
+    @classmethod
+    def load(cls, path) -> SceneCalibration:
+        return cls.from_json(read_json(path, CALIBRATION_FORMAT), f"{path}: ")
+
+
+# ----- building blocks ---------------------------------------------------------------------
+def vanishing_point(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
+    """Least-squares intersection of the corner tracks ``n1[i] -> n2[i]`` (normalized image
+    coordinates) in homogeneous coordinates: the unit 3-vector ``v`` minimising
+    ``sum (l_i . v)^2`` over the unit-normalised track lines ``l_i``. Valid at infinity."""
+    h1 = np.column_stack([n1, np.ones(len(n1))])
+    h2 = np.column_stack([n2, np.ones(len(n2))])
+    lines = np.cross(h1, h2)
+    lines /= np.linalg.norm(lines[:, :2], axis=1, keepdims=True)
+    _, _, vt = np.linalg.svd(lines)
+    return vt[-1] / np.linalg.norm(vt[-1])
+
+
+def triangulate_parallax(a1, b1, a2, b2, travel_mm: float) -> np.ndarray:
+    """Rail-frame points from ideal normalized coordinates in two frames separated by a pure
+    +Y travel: least squares of ``X = a1 Z = a2 Z``, ``Y = b1 Z``, ``Y - d = b2 Z``."""
+    pts = []
+    for i in range(len(a1)):
+        A = np.array([[-1, 0, a1[i]], [0, -1, b1[i]], [-1, 0, a2[i]], [0, -1, b2[i]]], float)
+        rhs = np.array([0.0, 0.0, 0.0, -travel_mm])
+        pts.append(np.linalg.lstsq(A, rhs, rcond=None)[0])
+    return np.array(pts)
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool):
+    """Similarity (or rigid) transform minimising ``|dst - (s R src + t)|``."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    u, d, vt = np.linalg.svd(cov)
+    sgn = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        sgn[2, 2] = -1
+    rot = u @ sgn @ vt
+    scale = float(np.trace(np.diag(d) @ sgn) / (xs**2).sum(1).mean()) if with_scale else 1.0
+    t = mu_d - scale * rot @ mu_s
+    return scale, rot, t
+
+
+def _rodrigues(v: np.ndarray) -> np.ndarray:
+    theta = np.linalg.norm(v)
+    if theta < 1e-15:
+        return np.eye(3)
+    k = v / theta
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
+
+
+def _rot_to_vec(r: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(r).as_rotvec()
+
+
+def check_picks(picks: Picks, intrinsics: Intrinsics, frame_count: int) -> None:
+    """Each problem with the picks is a clear error naming it (never a silent NaN)."""
+    w, h = intrinsics.image_size
+    for key, t in (("t1", picks.t1), ("t2", picks.t2)):
+        if not 0 <= t < frame_count:
+            raise CalibrationError(f"frame {key} = {t} is outside the video (0..{frame_count - 1})",
+                                   code="E-FRAME-RANGE")
+    if picks.t1 == picks.t2:
+        raise CalibrationError("t1 and t2 are the same frame: the corners need two frames "
+                               "with travel between them", code="E-PICKS")
+    for key in ("t1", "t2"):
+        d = picks.corners_t1 if key == "t1" else picks.corners_t2
+        missing = [c for c in CORNER_NAMES if c not in d]
+        if missing:
+            raise CalibrationError(f"corners {', '.join(missing)} are not marked in frame {key}; "
+                                   "all six corners A-F are needed in both frames",
+                                   code="E-PICKS-INCOMPLETE")
+        arr = picks.array(key)
+        for c, (u, v) in zip(CORNER_NAMES, arr):
+            if not (-0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5):
+                raise CalibrationError(f"corner {c} in frame {key} ({u:.1f}, {v:.1f}) is outside "
+                                       f"the {w}x{h} image", code="E-PICKS")
+        dist = np.linalg.norm(arr[:, None] - arr[None], axis=2) + np.eye(6) * 1e9
+        i, j = np.unravel_index(np.argmin(dist), dist.shape)
+        if dist[i, j] < 2.0:
+            raise CalibrationError(f"corners {CORNER_NAMES[i]} and {CORNER_NAMES[j]} in frame "
+                                   f"{key} are at the same place", code="E-PICKS")
+        centred = arr - arr.mean(0)
+        s = np.linalg.svd(centred, compute_uv=False)
+        if s[1] < 0.02 * s[0] or s[1] < 3.0:
+            raise CalibrationError(f"the corners in frame {key} are (nearly) collinear; check "
+                                   "the order A-F against the target diagram", code="E-PICKS")
+    shift = np.linalg.norm(picks.array("t2") - picks.array("t1"), axis=1)
+    if np.median(shift) < 5.0:
+        raise CalibrationError("the corners barely move between t1 and t2; choose frames "
+                               "further apart", code="E-PICKS")
+
+
+def _project(intr: Intrinsics, rot: np.ndarray, pts_rail: np.ndarray, travel: float) -> np.ndarray:
+    rel = pts_rail - np.array([0.0, travel, 0.0])
+    return intr.project(rel @ rot)  # rows: R^T (P - C)
+
+
+def _bundle(intr, target, picks, init, d0):
+    """Refine roll, tilt, target pose and travel by the reprojection error of all 12 picks."""
+    from scipy.optimize import least_squares
+
+    obj = target.corner_array()
+    uv1, uv2 = picks.array("t1"), picks.array("t2")
+
+    def unpack(p):
+        return ideal_rotation(p[0], p[1]), _rodrigues(p[2:5]), p[5:8], p[8]
+
+    def resid(p):
+        rot, r_o, t_o, d = unpack(p)
+        pts = obj @ r_o.T + t_o
+        return np.concatenate([(_project(intr, rot, pts, 0.0) - uv1).ravel(),
+                               (_project(intr, rot, pts, d) - uv2).ravel()])
+
+    roll, tilt, r_o, t_o = init
+    p0 = np.concatenate([[roll, tilt], _rot_to_vec(r_o), t_o, [d0]])
+    sol = least_squares(resid, p0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=4000)
+    rot, r_o, t_o, d = unpack(sol.x)
+    rms = float(np.sqrt(np.mean(sol.fun**2)))
+    return sol.x[0], sol.x[1], r_o, t_o, float(d), rms
+
+
+def _face_polygons(calib_pose, target: TargetModel):
+    """Top faces as (height, polygon in rail frame (N, 3), outward up-normal, depth plane)."""
+    r_o, t_o = calib_pose
+    out = []
+    for face in target.top_faces():
+        v = face.vertices_mm
+        # shrink by 1 mm towards the centroid so edge pixels are not attributed to a face
+        c = v.mean(0)
+        d = v - c
+        scale = np.maximum(0.0, 1.0 - 1.0 / np.maximum(np.abs(d[:, :2]).max(1), 1e-9))
+        vs = c + d * scale[:, None]
+        out.append((float(v[0, 2]), vs @ r_o.T + t_o, v @ r_o.T + t_o))
+    return out
+
+
+def stripe_points_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
+                            pose, target: TargetModel, travel_mm: float, params=None):
+    """3D points (camera-fixed ideal frame) of the laser stripe where it falls on the target's
+    top faces in one frame, and the face height of each point."""
+    from impress_gui.core.stripes import StripeParams, detect_band
+
+    faces = _face_polygons(pose, target)
+    h, w = rgb.shape[:2]
+    all_uv = np.concatenate([_project(intr, rot, f[2], travel_mm) for f in faces])
+    r0 = int(max(0, np.floor(all_uv[:, 1].min()) - 8))
+    r1 = int(min(h, np.ceil(all_uv[:, 1].max()) + 8))
+    c0 = int(max(0, np.floor(all_uv[:, 0].min())))
+    c1 = int(min(w, np.ceil(all_uv[:, 0].max()) + 1))
+    if r1 - r0 < 10 or c1 - c0 < 10:
+        return np.zeros((0, 3)), np.zeros(0)
+    p = params or StripeParams(method="combined")
+    res = detect_band(laser, rgb[r0:r1, c0:c1], None, r0, p, None)
+    cols = np.flatnonzero(res.found)
+    if cols.size == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    uv = np.column_stack([cols + c0, res.rows[cols]])
+    rays = intr.rays(uv) @ rot.T  # ideal frame
+    best_t = np.full(len(rays), np.inf)
+    best_h = np.full(len(rays), np.nan)
+    for height, poly_in, poly in faces:
+        n = np.cross(poly[1] - poly[0], poly[2] - poly[0])
+        n /= np.linalg.norm(n)
+        p0 = poly[0] - np.array([0.0, travel_mm, 0.0])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (p0 @ n) / (rays @ n)
+        hit = rays * t[:, None] + np.array([0.0, travel_mm, 0.0])  # rail frame
+        # inside test in the face's own 2D frame
+        e1 = poly[1] - poly[0]
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        q = poly_in - poly[0]
+        poly2 = np.column_stack([q @ e1, q @ e2])
+        hq = hit - poly[0]
+        inside = _inside_convex(poly2, hq @ e1, hq @ e2) & (t > 0)
+        better = inside & (t < best_t)
+        best_t[better] = t[better]
+        best_h[better] = height
+    ok = np.isfinite(best_t)
+    return rays[ok] * best_t[ok, None], best_h[ok]
+
+
+def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames) -> LaserPlaneFit:
+    """SVD plane through the stripe points with outlier rejection; refuse when the stripe did
+    not cross faces at two different heights (the plane would be undetermined)."""
+    levels = sorted({round(float(h), 3) for h in np.unique(heights)
+                     if np.sum(heights == h) >= 10})
+    if len(levels) < 2:
+        raise CalibrationError(
+            f"the {name} stripe does not cross target faces at two different heights "
+            f"(found {', '.join(f'{v:g} mm' for v in levels) or 'none'}); its plane is "
+            "undetermined - choose a frame where it crosses both the low and the high face",
+            code="E-PLANE-UNDETERMINED")
+    keep = np.ones(len(points), bool)
+    for _ in range(4):
+        plane, rms, _ = fit_plane(points[keep])
+        res = np.abs(plane.distance(points))
+        mad = np.median(res[keep]) * 1.4826 + 1e-6
+        new = res < max(4 * mad, 0.02)
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    plane, rms, _ = fit_plane(points[keep])
+    if plane.normal[2] < 0:  # orient consistently: normal with positive depth component
+        plane = Plane(-plane.normal, -plane.offset_mm)
+    return LaserPlaneFit(name, plane, rms, int(keep.sum()), tuple(frames), tuple(levels))
+
+
+def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: Picks,
+                    speed_mm_s: float, fps: float | None = None, plane_frames: int = 15,
+                    plane_span: int = 30, progress: ProgressCallback | None = None,
+                    cancel: CancelToken | None = None, inputs: dict | None = None
+                    ) -> SceneCalibration:
+    """Calibrate the rig from one scan. ``video`` is an open :class:`VideoSource`."""
+    cancel = cancel or CancelToken()
+    if not np.isfinite(speed_mm_s) or not 0.01 <= speed_mm_s <= 1000:
+        raise CalibrationError(f"rail speed {speed_mm_s} mm/s is not plausible", code="E-SPEED")
+    w, h = video.size
+    intrinsics.check_image_size(w, h)
+    check_picks(picks, intrinsics, video.frame_count)
+    fps = float(fps or video.fps)
+    times = video.times_s if fps == video.fps else np.arange(video.frame_count) / fps
+    dt = float(times[picks.t2] - times[picks.t1])
+    d = speed_mm_s * dt
+    report(progress, 0.05, "motion direction")
+    n1 = intrinsics.undistort_points(picks.array("t1"))
+    n2 = intrinsics.undistort_points(picks.array("t2"))
+    m = vanishing_point(n1, n2)
+    roll, tilt = roll_tilt_from_direction(m)
+    rot = ideal_rotation(roll, tilt)
+
+    def ideal(n):
+        x = np.column_stack([n, np.ones(len(n))]) @ rot.T
+        return x[:, 0] / x[:, 2], x[:, 1] / x[:, 2]
+
+    a1, b1 = ideal(n1)
+    a2, b2 = ideal(n2)
+    corners = triangulate_parallax(a1, b1, a2, b2, d)
+    if np.median(corners[:, 2]) < 0:  # the sign of the vanishing point: depths must be positive
+        m = -m
+        roll, tilt = roll_tilt_from_direction(m)
+        rot = ideal_rotation(roll, tilt)
+        a1, b1 = ideal(n1)
+        a2, b2 = ideal(n2)
+        corners = triangulate_parallax(a1, b1, a2, b2, d)
+    if np.any(corners[:, 2] <= 0):
+        raise CalibrationError("the picks give corners behind the camera; check that t1/t2 and "
+                               "the corner order match the target diagram", code="E-PICKS")
+    obj = target.corner_array()
+    _, r_rigid, t_rigid = umeyama(obj, corners, with_scale=False)
+    fitted = obj @ r_rigid.T + t_rigid
+    residuals = np.linalg.norm(corners - fitted, axis=1)
+    scale, r_s, t_s = umeyama(obj, corners, with_scale=True)
+    if np.max(residuals) > 0.25 * target.size_mm():
+        raise CalibrationError(
+            f"the target model does not match the picks (corner residuals up to "
+            f"{np.max(residuals):.1f} mm); check the corner order and the target model",
+            code="E-TARGET-MISMATCH")
+    report(progress, 0.15, "refining pose")
+    roll_b, tilt_b, r_o, t_o, d_fit, rms_px = _bundle(
+        intrinsics, target, picks, (roll, tilt, r_s, t_s / scale), d / scale)
+    rot_b = ideal_rotation(roll_b, tilt_b)
+    m_b = rot_b.T @ np.array([0.0, 1.0, 0.0])
+    implied = d_fit / dt
+    warnings = []
+    if abs(implied - speed_mm_s) > SPEED_WARN_FRACTION * speed_mm_s:
+        warnings.append(
+            f"the target's size implies a rail speed of {implied:.4f} mm/s but "
+            f"{speed_mm_s:.4f} mm/s was entered ({100 * (implied / speed_mm_s - 1):+.1f} %); "
+            "check the speed setting (heights and lengths along the scan scale with it)")
+    if rms_px > 2.0:
+        warnings.append(f"the corner picks fit the target poorly (reprojection RMS {rms_px:.2f} px)")
+    # the corners in the rail frame with the entered speed (what the reconstruction uses)
+    corners_entered = triangulate_parallax(*ideal_pair(intrinsics, rot_b, n1, n2), d)
+    _, r_e, t_e = umeyama(obj, corners_entered, with_scale=False)
+    residuals = np.linalg.norm(corners_entered - (obj @ r_e.T + t_e), axis=1)
+
+    # ----- laser planes from the stripes on the target --------------------------------------
+    planes = {}
+    v_true = implied  # the travel between frames that matches the target's pose
+    for i, (name, t_c) in enumerate((("green", picks.t1), ("red", picks.t2))):
+        cancel.check()
+        report(progress, 0.2 + 0.35 * i, f"{name} laser plane")
+        lo = max(0, t_c - plane_span)
+        hi = min(video.frame_count, t_c + plane_span + 1)
+        step = max(1, (hi - lo) // max(1, plane_frames))
+        wanted = set(range(t_c % step + (lo - lo % step), hi, step)) | {t_c}
+        pts, hts, used = [], [], []
+        for k, rgb in video.iter_frames(lo, hi):
+            cancel.check()
+            if k not in wanted:
+                continue
+            travel = v_true * float(times[k] - times[picks.t1])
+            p, hh = stripe_points_on_target(rgb, name, intrinsics, rot_b, (r_o, t_o), target,
+                                            travel)
+            if len(np.unique(hh)) >= 2 and min(np.sum(hh == v) for v in np.unique(hh)) >= 10:
+                pts.append(p)
+                hts.append(hh)
+                used.append(k)
+        if not pts:
+            raise CalibrationError(
+                f"the {name} stripe was not found on two target faces in frames {lo}..{hi - 1} "
+                f"around frame {t_c}; choose a frame where it crosses the target",
+                code="E-PLANE-UNDETERMINED")
+        # frames whose points disagree with the others (acceleration ramp, a passing shadow)
+        # are dropped: their travel does not follow the constant speed
+        if len(used) >= 4:
+            first = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
+            err = np.array([np.median(np.abs(first.plane.distance(p))) for p in pts])
+            good = err <= max(3 * np.median(err), 0.02)
+            pts = [p for p, g in zip(pts, good) if g]
+            hts = [h for h, g in zip(hts, good) if g]
+            used = [k for k, g in zip(used, good) if g]
+        planes[name] = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
+    report(progress, 1.0, "calibrated")
+    return SceneCalibration(
+        intrinsics=intrinsics, speed_mm_s=float(speed_mm_s), fps=fps, t1=picks.t1, t2=picks.t2,
+        t_ref_s=float(times[picks.t1]), motion_dir_cam=m_b,
+        vanishing_point_px=_vp_pixels(intrinsics, m_b), roll_deg=float(np.degrees(roll_b)),
+        tilt_deg=float(np.degrees(tilt_b)), rotation=rot_b, corners_parallax_mm=corners_entered,
+        corner_residuals_mm=residuals, target_rotation=r_o, target_translation_mm=t_o,
+        implied_speed_mm_s=float(implied), reprojection_rms_px=rms_px, planes=planes,
+        warnings=tuple(warnings), inputs=dict(inputs or {}),
+    )
+
+
+def ideal_pair(intr, rot, n1, n2):
+    def ideal(n):
+        x = np.column_stack([n, np.ones(len(n))]) @ rot.T
+        return x[:, 0] / x[:, 2], x[:, 1] / x[:, 2]
+
+    a1, b1 = ideal(n1)
+    a2, b2 = ideal(n2)
+    return a1, b1, a2, b2
+
+
+def _vp_pixels(intr: Intrinsics, m: np.ndarray) -> np.ndarray:
+    v = intr.camera_matrix @ m
+    if abs(v[2]) < 1e-12 * np.linalg.norm(v):
+        return np.array([v[0], v[1], 0.0])
+    return v / v[2]
