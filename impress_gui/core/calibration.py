@@ -76,7 +76,13 @@ class SceneCalibration:
         return p0[2] - (n[0] * (x_mm - p0[0]) + n[1] * (y_mm - p0[1])) / n[2]
 
     def travel_mm(self, times_s: np.ndarray) -> np.ndarray:
+        """Camera travel (mm) at the given frame times, relative to frame t1."""
         return self.speed_mm_s * (np.asarray(times_s, float) - self.t_ref_s)
+
+    def project_rail(self, pts_rail_mm: np.ndarray, travel_mm: float) -> np.ndarray:
+        """Distorted pixel positions ``(N, 2)`` of rail-frame points seen from a frame whose
+        camera has travelled ``travel_mm`` (e.g. the fitted target corners for an overlay)."""
+        return _project(self.intrinsics, self.rotation, np.asarray(pts_rail_mm, float), travel_mm)
 
     # ----- file format ------------------------------------------------------------------------
     def to_json(self) -> dict:

@@ -1,0 +1,65 @@
+"""``impress calibrate``: scene calibration from the L-target corner picks."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from impress_gui.commands.simulate import _speed
+
+    p.add_argument("video", type=Path, help="scan video (or frame folder)")
+    p.add_argument("--intrinsics", type=Path, required=True, help="intrinsics JSON")
+    p.add_argument("--picks", type=Path, required=True, help="corner picks JSON")
+    p.add_argument("--target", type=Path, default=None,
+                   help="target model JSON (default: the IMPREsS L target v1)")
+    p.add_argument("--speed", type=_speed, required=True,
+                   help="rail speed in mm/s (or slow, medium, fast)")
+    p.add_argument("--fps", type=float, default=None, help="frame rate (default: from the video)")
+    p.add_argument("--plane-frames", type=int, default=15,
+                   help="frames used per laser plane around t1/t2 (1 = the seed's single frame)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="calibration JSON to write")
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from impress_gui.core.calibration import calibrate_scene
+    from impress_gui.core.fileio import sha256_file
+    from impress_gui.core.geometry import Intrinsics
+    from impress_gui.core.picks import Picks
+    from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
+    from impress_gui.core.video import open_video
+
+    intr = Intrinsics.load(args.intrinsics)
+    picks = Picks.load(args.picks)
+    target = TargetModel.load(args.target) if args.target else default_target()
+    inputs = {"intrinsics": {"path": str(args.intrinsics), "sha256": sha256_file(args.intrinsics)},
+              "picks": {"path": str(args.picks), "sha256": sha256_file(args.picks)},
+              "target": {"name": target.name}}
+    if args.video.is_file():
+        inputs["video"] = {"path": str(args.video), "sha256": sha256_file(args.video)}
+        if picks.video_sha256 and picks.video_sha256 != inputs["video"]["sha256"]:
+            print("warning: the picks were made on a different video (SHA-256 differs)")
+    with open_video(args.video, fps=args.fps) as video:
+        cal = calibrate_scene(video, intr, target, picks, args.speed, args.fps,
+                              plane_frames=args.plane_frames, inputs=inputs)
+    cal.save(args.output)
+    vp = cal.vanishing_point_px
+    print(f"calibration written to {args.output}")
+    print(f"  roll {cal.roll_deg:+.4f} deg, tilt {cal.tilt_deg:+.4f} deg; vanishing point "
+          + (f"({vp[0]:.1f}, {vp[1]:.1f}) px" if vp[2] else "at infinity"))
+    print(f"  reprojection RMS of the 12 picks: {cal.reprojection_rms_px:.3f} px")
+    print("  corner residuals (mm): " + ", ".join(
+        f"{c} {r:.3f}" for c, r in zip(CORNER_NAMES, cal.corner_residuals_mm)))
+    print(f"  speed entered {cal.speed_mm_s:.4f} mm/s, implied by the target "
+          f"{cal.implied_speed_mm_s:.4f} mm/s")
+    for name, f in cal.planes.items():
+        n = f.plane.normal
+        print(f"  {name} plane: normal ({n[0]:+.5f}, {n[1]:+.5f}, {n[2]:+.5f}), offset "
+              f"{f.plane.offset_mm:.3f} mm, RMS {f.rms_mm:.4f} mm over {f.n_points} points in "
+              f"{len(f.frames)} frames")
+    for w in cal.warnings:
+        print(f"  WARNING: {w}")
+    return 0 if np.all(np.isfinite(cal.corner_residuals_mm)) else 1
