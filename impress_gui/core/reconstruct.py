@@ -1,0 +1,328 @@
+"""Reconstruction: scan video + scene calibration -> per-laser and fused heightmaps, registered
+texture and point cloud on one rail-frame grid.
+
+Streaming: a decoder thread feeds a bounded queue; each frame is reduced at once to two stripe
+profiles and one texture row, so memory does not grow with the video's length (only the output
+grids, which grow with the scanned area).
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from impress_gui.core.calibration import SceneCalibration
+from impress_gui.core.errors import InputError, ReconstructionError
+from impress_gui.core.grid import ColorAccumulator, GridSpec, HeightAccumulator, fuse, upsample_profile
+from impress_gui.core.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.stripes import LASERS, METHODS, BackgroundLUT, StripeParams, detect_band
+
+
+@dataclass(frozen=True)
+class ProcessParams:
+    """Processing parameters (all recorded in the output's metadata)."""
+
+    method: str = "combined"
+    frame_start: int | None = None  # first frame (default: after the start ramp)
+    frame_stop: int | None = None  # one past the last frame
+    grid_mm: float = 0.1
+    height_range_mm: tuple[float, float] = (-40.0, 60.0)  # for automatic regions of interest
+    rois: dict[str, tuple[int, int]] = field(default_factory=dict)  # rows; empty = automatic
+    min_peak: float = 25.0
+    fuse_tolerance_mm: float = 0.5
+    max_step_mm: float = 0.8  # larger jumps between neighbours are edges, not slopes
+    texture: bool = True
+    lut_frames: int = 12
+
+    def validate(self) -> None:
+        if self.method not in METHODS:
+            raise InputError(f"unknown detection method {self.method!r} (use one of "
+                             f"{', '.join(METHODS)})", code="E-PARAM")
+        if not 0.01 <= self.grid_mm <= 5.0:
+            raise InputError("grid resolution must be between 0.01 and 5 mm", code="E-PARAM")
+        lo, hi = self.height_range_mm
+        if not lo < hi:
+            raise InputError("height range must be (low, high) with low < high", code="E-PARAM")
+        if self.frame_start is not None and self.frame_start < 0:
+            raise InputError("the first frame must not be negative", code="E-PARAM")
+        if (self.frame_start is not None and self.frame_stop is not None
+                and self.frame_stop <= self.frame_start):
+            raise InputError("the frame range is empty", code="E-PARAM")
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["height_range_mm"] = list(self.height_range_mm)
+        d["rois"] = {k: list(v) for k, v in self.rois.items()}
+        return d
+
+
+@dataclass
+class Reconstruction:
+    spec: GridSpec
+    height_mm: np.ndarray  # fused, float32, NaN = no data
+    per_laser_mm: dict[str, np.ndarray]
+    difference_mm: np.ndarray
+    contribution: np.ndarray  # uint8 codes, see grid.fuse
+    texture_rgb: np.ndarray | None
+    frames: tuple[int, int]
+    rois: dict[str, tuple[int, int]]
+    stats: dict
+    warnings: list[str]
+
+
+def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) -> dict:
+    """Rows where each laser's stripe can appear for surfaces within the height range."""
+    w, h = size
+    rot = cal.rotation
+    out = {}
+    us = np.linspace(0, w - 1, 33)
+    for name in LASERS:
+        plane = cal.planes[name].plane
+        rows = []
+        for hgt in height_range_mm:
+            # points of the plane at this height below the camera, across the image
+            z = float(cal.reference_depth(np.array(0.0), np.array(0.0))) - hgt
+            # ideal-frame line: plane n.X = d with Z = z -> sample X across the view
+            xs = np.linspace(-z * w / cal.intrinsics.fx, z * w / cal.intrinsics.fx, 65)
+            n, d = plane.normal, plane.offset_mm
+            ys = (d - n[0] * xs - n[2] * z) / n[1]
+            pts = np.column_stack([xs, ys, np.full_like(xs, z)])
+            uv = cal.intrinsics.project(pts @ rot)
+            ok = (uv[:, 0] >= 0) & (uv[:, 0] < w)
+            rows.extend(uv[ok, 1].tolist())
+        if not rows:
+            raise ReconstructionError(f"the {name} laser's stripe falls outside the image",
+                                      code="E-NO-STRIPE")
+        a = int(np.floor(min(rows))) - 8
+        b = int(np.ceil(max(rows))) + 9
+        out[name] = (max(0, a - a % 2), min(h, b + b % 2))
+    del us
+    g, r = out["green"], out["red"]
+    if g[0] < r[1] and r[0] < g[1]:  # overlapping bands: split between the two stripes
+        lo, hi = sorted(LASERS, key=lambda n: sum(out[n]))
+        cut = (out[lo][1] + out[hi][0]) // 2
+        cut -= cut % 2
+        out[lo] = (out[lo][0], cut)
+        out[hi] = (cut, out[hi][1])
+    return out
+
+
+class _Frames:
+    """Decoded frames as (index, rgb band getter, luma) in a background thread."""
+
+    def __init__(self, video, start: int, stop: int, cancel: CancelToken, depth: int = 6):
+        self.q: queue.Queue = queue.Queue(maxsize=depth)
+        self.video, self.start, self.stop, self.cancel = video, start, stop, cancel
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, name="impress-decode", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        try:
+            for k, frame in self.video.iter_frames(self.start, self.stop):
+                if self.cancel.cancelled:
+                    break
+                self.q.put((k, frame))
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
+            self.error = exc
+        finally:
+            self.q.put(None)
+
+    def __iter__(self):
+        while True:
+            item = self.q.get()
+            if item is None:
+                if self.error is not None:
+                    raise self.error
+                return
+            yield item
+
+    def close(self) -> None:
+        self.cancel_local = True
+        while self.thread.is_alive():
+            try:
+                self.q.get(timeout=0.1)
+            except queue.Empty:
+                pass
+        self.thread.join()
+
+
+def _default_range(video, cal: SceneCalibration, params: ProcessParams) -> tuple[int, int]:
+    n = video.frame_count
+    start = params.frame_start if params.frame_start is not None else min(n - 1, int(round(0.5 * video.fps)))
+    stop = params.frame_stop if params.frame_stop is not None else max(start + 1, n - int(round(0.5 * video.fps)))
+    if start >= n:
+        raise InputError(f"the first frame {start} is beyond the video's {n} frames",
+                         code="E-FRAME-RANGE")
+    return start, min(stop, n)
+
+
+def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessParams(),
+                progress: ProgressCallback | None = None, cancel: CancelToken | None = None
+                ) -> Reconstruction:
+    """Run the whole reconstruction on an open video."""
+    params.validate()
+    cancel = cancel or CancelToken()
+    t_start = time.perf_counter()
+    w, h = video.size
+    cal.intrinsics.check_image_size(w, h)
+    start, stop = _default_range(video, cal, params)
+    rois = dict(params.rois) or laser_rois(cal, (w, h), params.height_range_mm)
+    sp = StripeParams(method=params.method, rois=rois, min_peak=params.min_peak)
+    sp.validate(h)
+    times = video.times_s
+    travel = cal.travel_mm(times)
+    intr, rot = cal.intrinsics, cal.rotation
+
+    # ----- background tables (the seed's LUT method) from frames spread over the range -------
+    lut = None
+    if params.method in ("lut", "combined"):
+        lut = BackgroundLUT()
+        for k in np.linspace(start, stop - 1, min(params.lut_frames, stop - start)).astype(int):
+            cancel.check()
+            lut.learn(video.read(int(k)), list(rois.values()))
+    report(progress, 0.03, "background learned")
+
+    # ----- per-column rays of each band, precomputed once ----------------------------------
+    cols = np.arange(w, dtype=np.float64)
+    per_frame_travel = float(np.median(np.abs(np.diff(travel[start:stop])))) if stop - start > 1 else 0.1
+    z_ref0 = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
+    footprint = z_ref0 / intr.fx
+    k_up = max(1, int(np.ceil(footprint / (0.7 * params.grid_mm))))
+    # grid extent from the bands' rays at the height range
+    xs_all, ys_all = [], []
+    for name in LASERS:
+        a, b = rois[name]
+        uv = np.array([[u, v] for u in (0, w - 1, w // 2) for v in (a, b - 1)], float)
+        rays = intr.rays(uv) @ rot.T
+        pts = cal.planes[name].plane.intersect_rays(rays)
+        xs_all.extend(pts[:, 0])
+        ys_all.extend(pts[:, 1])
+    x_rng = (min(xs_all) - 2, max(xs_all) + 2)
+    t0, t1 = travel[start], travel[stop - 1]
+    y_rng = (min(t0, t1) + min(ys_all) - 2, max(t0, t1) + max(ys_all) + 2)
+    spec = GridSpec.covering(x_rng, y_rng, params.grid_mm)
+    if spec.shape[0] * spec.shape[1] > 400e6:
+        raise InputError("the output grid would exceed 400 million cells; use a coarser grid",
+                         code="E-PARAM")
+    max_gap = 2.5 * per_frame_travel + 2 * params.grid_mm + 0.1
+    acc = {n: HeightAccumulator(spec, max_gap, params.max_step_mm) for n in LASERS}
+    found_frames = dict.fromkeys(LASERS, 0)
+
+    # texture: the row through the principal point after undistortion
+    tex_acc = ColorAccumulator(spec, max_gap) if params.texture else None
+    tex_rows: list = []
+    if params.texture:
+        xn = np.linspace(-(intr.cx) / intr.fx, (w - 1 - intr.cx) / intr.fx, w)
+        tu, tv = intr.distort_normalized(xn, np.zeros_like(xn))
+        tex_ok = (tu >= 0) & (tu <= w - 1) & (tv >= 0) & (tv <= h - 1)
+        tex_uv = np.column_stack([tu, tv])[tex_ok]
+        tex_rays = (np.column_stack([xn, np.zeros_like(xn), np.ones_like(xn)]) @ rot.T)[tex_ok]
+        tex_r0 = int(max(0, np.floor(tex_uv[:, 1].min())))
+        tex_r1 = int(min(h, np.ceil(tex_uv[:, 1].max()) + 2))
+
+    frames = _Frames(video, start, stop, cancel)
+    n_total = stop - start
+    t_loop = time.perf_counter()
+    try:
+        for k, rgb in frames:
+            cancel.check()
+            s_k = float(travel[k])
+            for name in LASERS:
+                a, b = rois[name]
+                res = detect_band(name, rgb[a:b], None, a, sp, lut)
+                valid = res.found
+                if valid.sum() < 2:
+                    acc[name].reset_chain()
+                    continue
+                found_frames[name] += 1
+                uv = np.column_stack([cols[valid], res.rows[valid]])
+                rays = intr.rays(uv) @ rot.T
+                p = cal.planes[name].plane.intersect_rays(rays)
+                x = np.full(w, np.nan)
+                y = np.full(w, np.nan)
+                z = np.full(w, np.nan)
+                x[valid], y[valid], z[valid] = p[:, 0], p[:, 1] + s_k, p[:, 2]
+                hgt = cal.reference_depth(x, y) - z
+                ok = valid & np.isfinite(hgt)
+                xu, yu, hu, vu = upsample_profile(np.nan_to_num(x), np.nan_to_num(y),
+                                                  np.nan_to_num(hgt), ok, params.grid_mm, k_up,
+                                                  params.max_step_mm)
+                acc[name].add_profile(xu, yu, hu, vu)
+            if params.texture:
+                band = rgb[tex_r0:tex_r1].astype(np.float32)
+                tex_rows.append((k, _bilinear(band, tex_uv[:, 0], tex_uv[:, 1] - tex_r0)))
+            i = k - start + 1
+            if i % 25 == 0 or i == n_total:
+                el = time.perf_counter() - t_loop
+                report(progress, 0.05 + 0.85 * i / n_total,
+                       f"frame {i}/{n_total} ({i / max(el, 1e-9):.1f} frames/s)")
+    finally:
+        frames.close()
+    loop_s = time.perf_counter() - t_loop
+    warnings = []
+    for name in LASERS:
+        if found_frames[name] == 0:
+            raise ReconstructionError(f"the {name} laser's stripe was never found in frames "
+                                      f"{start}..{stop - 1} (rows {rois[name]})",
+                                      code="E-NO-STRIPE")
+        if found_frames[name] < 0.5 * n_total:
+            warnings.append(f"the {name} stripe was found in only {found_frames[name]} of "
+                            f"{n_total} frames")
+    per = {n: acc[n].mean() for n in LASERS}
+    fused, diff, contrib = fuse(per["green"], per["red"], params.fuse_tolerance_mm)
+    report(progress, 0.93, "mapping the texture")
+    texture = None
+    if params.texture:
+        texture = _map_texture(tex_rows, tex_rays, travel, fused, spec, cal, tex_acc)
+    total_s = time.perf_counter() - t_start
+    stats = {
+        "frames_processed": n_total,
+        "stripe_frames": found_frames,
+        "cells": int(fused.size),
+        "cells_fused": int(np.isfinite(fused).sum()),
+        "cells_green": int(np.isfinite(per["green"]).sum()),
+        "cells_red": int(np.isfinite(per["red"]).sum()),
+        "seconds_total": round(total_s, 3),
+        "seconds_frame_loop": round(loop_s, 3),
+        "frames_per_second": round(n_total / max(loop_s, 1e-9), 2),
+    }
+    report(progress, 1.0, "done")
+    return Reconstruction(spec, fused, per, diff, contrib, texture, (start, stop), rois, stats,
+                          warnings)
+
+
+def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    u0 = np.clip(np.floor(u).astype(np.int64), 0, img.shape[1] - 2)
+    v0 = np.clip(np.floor(v).astype(np.int64), 0, img.shape[0] - 2)
+    fu, fv = (u - u0)[:, None], (v - v0)[:, None]
+    a = img[v0, u0] * (1 - fu) + img[v0, u0 + 1] * fu
+    b = img[v0 + 1, u0] * (1 - fu) + img[v0 + 1, u0 + 1] * fu
+    return a * (1 - fv) + b * fv
+
+
+def _map_texture(rows, rays, travel, height, spec: GridSpec, cal: SceneCalibration,
+                 acc: ColorAccumulator) -> np.ndarray:
+    """Each texture row's rays meet the reconstructed surface (fixed-point iteration on the
+    fused heightmap, missing cells taken at the reference); colours are splatted there."""
+    import cv2
+
+    filled = np.where(np.isfinite(height), height, 0.0).astype(np.float32)
+    ax = rays[:, 0] / rays[:, 2]
+    ay = rays[:, 1] / rays[:, 2]
+    for k, colours in rows:
+        s = float(travel[k])
+        z = np.full(len(ax), float(cal.reference_depth(np.array(0.0), np.array(s))))
+        for _ in range(4):
+            x, y = ax * z, s + ay * z
+            mx = ((x - spec.x0_mm) / spec.pixel_mm).astype(np.float32)[None, :]
+            my = ((y - spec.y0_mm) / spec.pixel_mm).astype(np.float32)[None, :]
+            hh = cv2.remap(filled, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
+            z = cal.reference_depth(x, y) - hh
+        x, y = ax * z, s + ay * z
+        acc.add_row(x, y, colours, np.ones(len(x), bool))
+    return acc.mean()
