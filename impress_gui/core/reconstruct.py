@@ -217,7 +217,7 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
     tex_acc = ColorAccumulator(spec, max_gap) if params.texture else None
     tex_rows: list = []
     if params.texture:
-        xn = np.linspace(-(intr.cx) / intr.fx, (w - 1 - intr.cx) / intr.fx, w)
+        xn = np.linspace(-(intr.cx) / intr.fx, (w - 1 - intr.cx) / intr.fx, w * k_up)
         tu, tv = intr.distort_normalized(xn, np.zeros_like(xn))
         tex_ok = (tu >= 0) & (tu <= w - 1) & (tv >= 0) & (tv <= h - 1)
         tex_uv = np.column_stack([tu, tv])[tex_ok]

@@ -1,0 +1,107 @@
+"""``impress process``: reconstruct heightmaps, texture and point cloud from a scan video."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+
+def _frames(text: str) -> tuple[int | None, int | None]:
+    try:
+        a, b = text.split(":")
+        return (int(a) if a else None, int(b) if b else None)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not START:STOP (e.g. 30:900)") from None
+
+
+def _roi(text: str) -> tuple[str, int, int]:
+    try:
+        name, rng = text.split("=")
+        a, b = rng.split(":")
+        return name, int(a), int(b)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not LASER=FIRST:STOP rows") from None
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("video", type=Path, help="scan video (MP4/MOV/MTS/M2TS) or frame folder")
+    p.add_argument("--calibration", type=Path, required=True, help="scene calibration JSON")
+    p.add_argument("-o", "--output", type=Path, required=True,
+                   help="output folder (replaced atomically when the run completes)")
+    p.add_argument("--method", choices=["combined", "hue", "lut"], default="combined",
+                   help="stripe detection method (default combined)")
+    p.add_argument("--frames", type=_frames, default=(None, None),
+                   help="frame range START:STOP (default: skip 0.5 s at each end)")
+    p.add_argument("--grid-mm", type=float, default=0.1, help="grid resolution (default 0.1)")
+    p.add_argument("--roi", type=_roi, action="append", default=[],
+                   help="region of interest rows, e.g. green=600:800 (default automatic)")
+    p.add_argument("--min-peak", type=float, default=25.0,
+                   help="minimum stripe peak above background, grey levels")
+    p.add_argument("--no-texture", action="store_true", help="skip the texture")
+    p.add_argument("--fps", type=float, default=None, help="override the frame rate")
+
+
+def process_files(video_path: Path, calibration_path: Path, out_dir: Path, params,
+                  fps: float | None = None, progress=None, cancel=None) -> dict:
+    """Core entry shared by the CLI and the GUI: read, reconstruct, write; return metadata."""
+    from datetime import datetime, timezone
+    import platform
+
+    from impress_gui.core.calibration import SceneCalibration
+    from impress_gui.core.fileio import sha256_file
+    from impress_gui.core.outputs import build_metadata, write_reconstruction
+    from impress_gui.core.reconstruct import reconstruct
+    from impress_gui.core.video import open_video
+
+    cal = SceneCalibration.load(calibration_path)
+    inputs = {"calibration": {"path": str(calibration_path),
+                              "sha256": sha256_file(calibration_path)}}
+    video_sha = sha256_file(video_path) if Path(video_path).is_file() else None
+    inputs["video"] = {"path": str(video_path), "sha256": video_sha}
+    warnings = []
+    recorded = cal.inputs.get("video", {}).get("sha256") if cal.inputs else None
+    if recorded and video_sha and recorded != video_sha:
+        warnings.append("the video differs from the one the calibration was made on "
+                        "(SHA-256 mismatch)")
+    t0 = time.perf_counter()
+    with open_video(video_path, fps=fps) as video:
+        rec = reconstruct(video, cal, params, progress=progress, cancel=cancel)
+    rec.warnings[:0] = warnings
+    meta = build_metadata(rec, cal, params, inputs)
+    run = {"date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+           "host": platform.node(), "python": platform.python_version(),
+           "timings": {k: v for k, v in rec.stats.items() if k.startswith("seconds")
+                       or k == "frames_per_second"},
+           "wall_seconds": round(time.perf_counter() - t0, 3)}
+    write_reconstruction(rec, out_dir, meta, run)
+    return meta | {"run": run}
+
+
+def run(args: argparse.Namespace) -> int:
+    from impress_gui.core.reconstruct import ProcessParams
+
+    rois = {name: (a, b) for name, a, b in args.roi}
+    params = ProcessParams(method=args.method, frame_start=args.frames[0],
+                           frame_stop=args.frames[1], grid_mm=args.grid_mm, rois=rois,
+                           min_peak=args.min_peak, texture=not args.no_texture)
+    last = [0.0]
+
+    def progress(frac: float, msg: str) -> None:
+        now = time.monotonic()
+        if now - last[0] > 2.0 or frac >= 1.0:
+            last[0] = now
+            print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
+
+    meta = process_files(args.video, args.calibration, args.output, params, args.fps, progress)
+    st = meta["stats"]
+    print(f"reconstruction written to {args.output}")
+    print(f"  frames {meta['frames']['start']}..{meta['frames']['stop'] - 1}, grid "
+          f"{meta['grid']['shape'][1]} x {meta['grid']['shape'][0]} cells of "
+          f"{meta['grid']['pixel_mm']} mm; {meta['run']['timings']['frames_per_second']} frames/s")
+    print(f"  cells with data: fused {st['cells_fused']}, green {st['cells_green']}, "
+          f"red {st['cells_red']}")
+    for w in meta["warnings"]:
+        print(f"  WARNING: {w}")
+    return 0

@@ -1,0 +1,252 @@
+"""Writing a reconstruction: one folder per scan, replaced atomically.
+
+All files are first written into a hidden sibling folder, which is renamed into place only
+when everything is complete, so an interrupted or failed run never leaves a half-written
+result that looks whole. Every file except ``run.json`` (timings, date) and the X3P's creation
+date is byte-identical for identical inputs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import shutil
+import zipfile
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from impress_gui import __version__
+from impress_gui.core.fileio import atomic_write_bytes, dumps_json, sha256_file
+
+RECON_FORMAT = "impress.reconstruction"
+HEIGHT_CONVENTION = (
+    "height in mm, up = towards the camera, relative to the calibration target's base plane "
+    "(the ground the target stands on); NaN = no data"
+)
+GREY_OFFSET = 128  # thesis 8-bit convention: one grey level = 0.1 mm, 128 = reference height
+CONTRIB_CODES = {0: "no data", 1: "green only", 2: "red only", 3: "both (mean)",
+                 4: "both disagree (nearer the local consensus)"}
+
+
+def _tiff_bytes(arr: np.ndarray) -> bytes:
+    import tifffile
+
+    buf = io.BytesIO()
+    tifffile.imwrite(buf, arr, compression="zlib", metadata=None, software=None)
+    return buf.getvalue()
+
+
+def _png_bytes(img: np.ndarray) -> bytes:
+    import cv2
+
+    data = img[..., ::-1] if img.ndim == 3 else img
+    ok, enc = cv2.imencode(".png", np.ascontiguousarray(data))
+    if not ok:
+        raise OSError("PNG encoding failed")
+    return enc.tobytes()
+
+
+def grey8(height: np.ndarray, step_mm: float = 0.1) -> np.ndarray:
+    """The seed's 8-bit heightmap: one grey level per 0.1 mm, 128 = reference, 0 = no data."""
+    g = np.rint(np.nan_to_num(height, nan=-1e9) / step_mm) + GREY_OFFSET
+    return np.clip(g, 0, 255).astype(np.uint8)
+
+
+def color_range(height: np.ndarray) -> tuple[float, float]:
+    v = height[np.isfinite(height)]
+    if v.size == 0:
+        return (-1.0, 1.0)
+    lo, hi = np.percentile(v, [0.5, 99.5])
+    if hi - lo < 0.1:
+        lo, hi = lo - 0.05, hi + 0.05
+    return float(lo), float(hi)
+
+
+def pseudo_colour(height: np.ndarray, vrange=None, bar: bool = True) -> np.ndarray:
+    """Turbo-coloured heightmap (RGB) with a labelled colour bar in mm on the right."""
+    import cv2
+
+    lo, hi = vrange or color_range(height)
+    t = np.clip((np.nan_to_num(height, nan=lo) - lo) / (hi - lo), 0, 1)
+    rgb = cv2.applyColorMap((t * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1].copy()
+    rgb[~np.isfinite(height)] = 0
+    if not bar:
+        return rgb
+    h = rgb.shape[0]
+    bw = max(60, h // 12)
+    panel = np.full((h, bw * 3, 3), 255, np.uint8)
+    ramp = np.linspace(1, 0, h)[:, None]
+    col = cv2.applyColorMap((ramp * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1]
+    panel[:, 4:bw] = np.repeat(col, bw - 4, axis=1)
+    scale = max(0.4, h / 1400)
+    for i in range(6):
+        f = i / 5
+        y = int(round((1 - f) * (h - 1)))
+        cv2.line(panel, (bw, y), (bw + 8, y), (0, 0, 0), max(1, int(scale * 2)))
+        cv2.putText(panel, f"{lo + f * (hi - lo):.2f}", (bw + 12, min(h - 4, max(int(20 * scale), y + 8))),
+                    cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), max(1, int(scale * 2)))
+    cv2.putText(panel, "mm", (bw + 12, h // 2), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0),
+                max(1, int(scale * 2)))
+    return np.concatenate([rgb, panel], axis=1)
+
+
+def ply_bytes(spec, height: np.ndarray, texture: np.ndarray | None, step: int = 1) -> bytes:
+    """Binary little-endian PLY: float32 x, y, z (mm; z = height) and uchar RGB."""
+    hh = height[::step, ::step]
+    ok = np.isfinite(hh)
+    ii, jj = np.nonzero(ok)
+    n = len(ii)
+    pts = np.empty(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                             ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    pts["x"] = spec.x0_mm + jj * step * spec.pixel_mm
+    pts["y"] = spec.y0_mm + ii * step * spec.pixel_mm
+    pts["z"] = hh[ok]
+    if texture is not None:
+        tex = texture[::step, ::step][ok]
+        pts["red"], pts["green"], pts["blue"] = tex[:, 0], tex[:, 1], tex[:, 2]
+    else:
+        pts["red"] = pts["green"] = pts["blue"] = 200
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"comment IMPREsS workstation {__version__}; units mm; z = height up\n"
+              f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    return header.encode("ascii") + pts.tobytes()
+
+
+def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "") -> bytes:
+    """ISO 25178-72 (XML 3D surface profile) container: an areal surface, x/y incremental
+    axes in metres, z as float64 metres with NaN for invalid points."""
+    ny, nx = height.shape
+    data = (height.astype(np.float64) * 1e-3).astype("<f8").tobytes()  # row by row: x fastest
+    md5_data = hashlib.md5(data).hexdigest()
+    xml = f"""<?xml version="1.0" encoding="UTF-8"?>
+<p:ISO5436_2 xmlns:p="http://www.opengps.eu/2008/ISO5436_2" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:schemaLocation="http://www.opengps.eu/2008/ISO5436_2 http://www.opengps.eu/2008/ISO5436_2/ISO5436_2_XML.xsd">
+  <Record1>
+    <Revision>ISO5436 - 2000</Revision>
+    <FeatureType>SUR</FeatureType>
+    <Axes>
+      <CX><AxisType>I</AxisType><DataType>D</DataType><Increment>{spec.pixel_mm * 1e-3:.12g}</Increment><Offset>{spec.x0_mm * 1e-3:.12g}</Offset></CX>
+      <CY><AxisType>I</AxisType><DataType>D</DataType><Increment>{spec.pixel_mm * 1e-3:.12g}</Increment><Offset>{spec.y0_mm * 1e-3:.12g}</Offset></CY>
+      <CZ><AxisType>A</AxisType><DataType>D</DataType></CZ>
+    </Axes>
+  </Record1>
+  <Record2>
+    <Date>{created}</Date>
+    <Creator>IMPREsS workstation</Creator>
+    <Instrument>
+      <Manufacturer>IMPREsS</Manufacturer>
+      <Model>laser line scanner (camcorder, green and red line lasers)</Model>
+      <Serial>not available</Serial>
+      <Version>{__version__}</Version>
+    </Instrument>
+    <CalibrationDate>{created}</CalibrationDate>
+    <ProbingSystem><Type>NonContacting</Type><Identification>laser triangulation</Identification></ProbingSystem>
+    <Comment>{comment}</Comment>
+  </Record2>
+  <Record3>
+    <MatrixDimension><SizeX>{nx}</SizeX><SizeY>{ny}</SizeY><SizeZ>1</SizeZ></MatrixDimension>
+    <DataLink><PointDataLink>bindata/data.bin</PointDataLink><MD5ChecksumPointData>{md5_data}</MD5ChecksumPointData></DataLink>
+  </Record3>
+  <Record4><ChecksumFile>md5checksum.hex</ChecksumFile></Record4>
+</p:ISO5436_2>
+"""
+    xml_b = xml.encode("utf-8")
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, payload in (("main.xml", xml_b),
+                              ("md5checksum.hex", f"{hashlib.md5(xml_b).hexdigest()} *main.xml\n".encode()),
+                              ("bindata/data.bin", data)):
+            info = zipfile.ZipInfo(name, date_time=(2000, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            zf.writestr(info, payload)
+    return buf.getvalue()
+
+
+def contribution_png(contrib: np.ndarray) -> np.ndarray:
+    lut = np.array([[0, 0, 0], [40, 200, 40], [220, 40, 40], [230, 230, 230], [240, 160, 0]],
+                   np.uint8)
+    return lut[np.clip(contrib, 0, 4)]
+
+
+def write_reconstruction(rec, out_dir: Path, metadata: dict, run_info: dict,
+                         ply_step: int = 1) -> dict[str, str]:
+    """Write every output into ``out_dir`` atomically; return {file: sha256}."""
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    created = run_info.get("date_utc") or datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    files: dict[str, bytes] = {
+        "heightmap.tif": _tiff_bytes(rec.height_mm.astype(np.float32)),
+        "height_green.tif": _tiff_bytes(rec.per_laser_mm["green"].astype(np.float32)),
+        "height_red.tif": _tiff_bytes(rec.per_laser_mm["red"].astype(np.float32)),
+        "difference.tif": _tiff_bytes(rec.difference_mm.astype(np.float32)),
+        "contribution.tif": _tiff_bytes(rec.contribution.astype(np.uint8)),
+        "contribution.png": _png_bytes(contribution_png(rec.contribution)),
+        "heightmap_8bit.png": _png_bytes(grey8(rec.height_mm)),
+        "heightmap_color.png": _png_bytes(pseudo_colour(rec.height_mm)),
+        "pointcloud.ply": ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step),
+        "heightmap.x3p": x3p_bytes(rec.spec, rec.height_mm, created,
+                                   "IMPREsS reconstruction; see metadata.json"),
+    }
+    if rec.texture_rgb is not None:
+        files["texture.png"] = _png_bytes(rec.texture_rgb)
+    digests = {}
+    try:
+        for name, payload in files.items():
+            (tmp / name).write_bytes(payload)
+            digests[name] = hashlib.sha256(payload).hexdigest()
+        meta = dict(metadata)
+        meta["files"] = digests
+        (tmp / "metadata.json").write_text(dumps_json(meta))
+        (tmp / "run.json").write_text(dumps_json(run_info))
+        for p in tmp.iterdir():
+            with open(p, "rb") as fh:
+                os.fsync(fh.fileno())
+        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
+        if out_dir.exists():
+            out_dir.rename(old)
+        tmp.rename(out_dir)
+        if old.exists():
+            shutil.rmtree(old)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return digests
+
+
+def build_metadata(rec, cal, params, inputs: dict) -> dict:
+    return {
+        "format": RECON_FORMAT,
+        "version": 1,
+        "software": f"impress {__version__}",
+        "inputs": inputs,
+        "parameters": params.to_json(),
+        "frames": {"start": rec.frames[0], "stop": rec.frames[1]},
+        "regions_of_interest": {k: list(v) for k, v in rec.rois.items()},
+        "grid": rec.spec.to_json() | {
+            "convention": "cell [i, j] centred at rail (x0 + j*pixel, y0 + i*pixel) mm; rail "
+                          "frame origin = optical centre at calibration frame t1; +Y = motion"},
+        "height": HEIGHT_CONVENTION,
+        "grey8": {"file": "heightmap_8bit.png", "mm_per_level": 0.1, "reference_level":
+                  GREY_OFFSET, "no_data_level": 0},
+        "contribution_codes": {str(k): v for k, v in CONTRIB_CODES.items()},
+        "calibration": {"roll_deg": cal.roll_deg, "tilt_deg": cal.tilt_deg,
+                        "speed_mm_s": cal.speed_mm_s,
+                        "implied_speed_mm_s": cal.implied_speed_mm_s},
+        "stats": {k: v for k, v in rec.stats.items() if not k.startswith("seconds")
+                  and k != "frames_per_second"},
+        "warnings": list(rec.warnings),
+    }
+
+
+def file_sha256(path) -> str:
+    return sha256_file(path)
+
+
+__all__ = ["write_reconstruction", "build_metadata", "atomic_write_bytes"]
