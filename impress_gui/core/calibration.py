@@ -271,15 +271,17 @@ def _project(intr: Intrinsics, rot: np.ndarray, pts_rail: np.ndarray, travel: fl
     return intr.project(rel @ rot)  # rows: R^T (P - C)
 
 
-def _bundle(intr, target, picks, init, d0):
-    """Refine roll, tilt, target pose and travel by the reprojection error of all 12 picks."""
+def _bundle(intr, target, picks, init, d0, fixed_travel: bool = False):
+    """Refine roll, tilt, target pose (and the travel unless ``fixed_travel``) by the
+    reprojection error of all 12 picks."""
     from scipy.optimize import least_squares
 
     obj = target.corner_array()
     uv1, uv2 = picks.array("t1"), picks.array("t2")
 
     def unpack(p):
-        return ideal_rotation(p[0], p[1]), _rodrigues(p[2:5]), p[5:8], p[8]
+        d = d0 if fixed_travel else p[8]
+        return ideal_rotation(p[0], p[1]), _rodrigues(p[2:5]), p[5:8], d
 
     def resid(p):
         rot, r_o, t_o, d = unpack(p)
@@ -288,7 +290,7 @@ def _bundle(intr, target, picks, init, d0):
                                (_project(intr, rot, pts, d) - uv2).ravel()])
 
     roll, tilt, r_o, t_o = init
-    p0 = np.concatenate([[roll, tilt], _rot_to_vec(r_o), t_o, [d0]])
+    p0 = np.concatenate([[roll, tilt], _rot_to_vec(r_o), t_o] + ([] if fixed_travel else [[d0]]))
     sol = least_squares(resid, p0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=4000)
     rot, r_o, t_o, d = unpack(sol.x)
     rms = float(np.sqrt(np.mean(sol.fun**2)))
@@ -382,23 +384,31 @@ def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames) 
     return LaserPlaneFit(name, plane, rms, int(keep.sum()), tuple(frames), tuple(levels))
 
 
-def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: Picks,
-                    speed_mm_s: float, fps: float | None = None, plane_frames: int = 15,
-                    plane_span: int = 30, progress: ProgressCallback | None = None,
-                    cancel: CancelToken | None = None, inputs: dict | None = None
-                    ) -> SceneCalibration:
-    """Calibrate the rig from one scan. ``video`` is an open :class:`VideoSource`."""
-    cancel = cancel or CancelToken()
-    if not np.isfinite(speed_mm_s) or not 0.01 <= speed_mm_s <= 1000:
-        raise CalibrationError(f"rail speed {speed_mm_s} mm/s is not plausible", code="E-SPEED")
-    w, h = video.size
-    intrinsics.check_image_size(w, h)
-    check_picks(picks, intrinsics, video.frame_count)
-    fps = float(fps or video.fps)
-    times = video.times_s if fps == video.fps else np.arange(video.frame_count) / fps
-    dt = float(times[picks.t2] - times[picks.t1])
-    d = speed_mm_s * dt
-    report(progress, 0.05, "motion direction")
+@dataclass(frozen=True)
+class PoseSolution:
+    """The geometric part of the calibration (no laser planes)."""
+
+    motion_dir_cam: np.ndarray
+    roll_rad: float
+    tilt_rad: float
+    rotation: np.ndarray
+    corners_parallax_mm: np.ndarray
+    corner_residuals_mm: np.ndarray
+    target_rotation: np.ndarray
+    target_translation_mm: np.ndarray
+    implied_speed_mm_s: float
+    reprojection_rms_px: float
+    warnings: tuple[str, ...]
+    initial_roll_rad: float
+    initial_tilt_rad: float
+
+
+def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_mm_s: float,
+               dt_s: float) -> PoseSolution:
+    """Motion direction, roll, tilt, metric corners and target pose from the picks alone.
+
+    ``dt_s`` is the time between frames t1 and t2."""
+    d = speed_mm_s * dt_s
     n1 = intrinsics.undistort_points(picks.array("t1"))
     n2 = intrinsics.undistort_points(picks.array("t2"))
     m = vanishing_point(n1, n2)
@@ -432,13 +442,16 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
             f"the target model does not match the picks (corner residuals up to "
             f"{np.max(residuals):.1f} mm); check the corner order and the target model",
             code="E-TARGET-MISMATCH")
-    report(progress, 0.15, "refining pose")
     roll_b, tilt_b, r_o, t_o, d_fit, rms_px = _bundle(
         intrinsics, target, picks, (roll, tilt, r_s, t_s / scale), d / scale)
+    implied = d_fit / dt_s
+    warnings = []
+    if abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s:
+        # the entered speed is confirmed: the known travel constrains the pose better
+        roll_b, tilt_b, r_o, t_o, _, rms_px = _bundle(
+            intrinsics, target, picks, (roll_b, tilt_b, r_o, t_o), d, fixed_travel=True)
     rot_b = ideal_rotation(roll_b, tilt_b)
     m_b = rot_b.T @ np.array([0.0, 1.0, 0.0])
-    implied = d_fit / dt
-    warnings = []
     if abs(implied - speed_mm_s) > SPEED_WARN_FRACTION * speed_mm_s:
         warnings.append(
             f"the target's size implies a rail speed of {implied:.4f} mm/s but "
@@ -451,6 +464,30 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
     _, r_e, t_e = umeyama(obj, corners_entered, with_scale=False)
     residuals = np.linalg.norm(corners_entered - (obj @ r_e.T + t_e), axis=1)
 
+    return PoseSolution(m_b, roll_b, tilt_b, rot_b, corners_entered, residuals, r_o, t_o,
+                        float(implied), rms_px, tuple(warnings), roll, tilt)
+
+
+def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: Picks,
+                    speed_mm_s: float, fps: float | None = None, plane_frames: int = 15,
+                    plane_span: int = 30, progress: ProgressCallback | None = None,
+                    cancel: CancelToken | None = None, inputs: dict | None = None
+                    ) -> SceneCalibration:
+    """Calibrate the rig from one scan. ``video`` is an open :class:`VideoSource`."""
+    cancel = cancel or CancelToken()
+    if not np.isfinite(speed_mm_s) or not 0.01 <= speed_mm_s <= 1000:
+        raise CalibrationError(f"rail speed {speed_mm_s} mm/s is not plausible", code="E-SPEED")
+    w, h = video.size
+    intrinsics.check_image_size(w, h)
+    check_picks(picks, intrinsics, video.frame_count)
+    fps = float(fps or video.fps)
+    times = video.times_s if fps == video.fps else np.arange(video.frame_count) / fps
+    dt = float(times[picks.t2] - times[picks.t1])
+    d = speed_mm_s * dt
+    report(progress, 0.05, "motion direction and pose")
+    pose = solve_pose(intrinsics, target, picks, speed_mm_s, dt)
+    rot_b, r_o, t_o = pose.rotation, pose.target_rotation, pose.target_translation_mm
+    implied, warnings = pose.implied_speed_mm_s, list(pose.warnings)
     # ----- laser planes from the stripes on the target --------------------------------------
     planes = {}
     v_true = implied  # the travel between frames that matches the target's pose
@@ -491,11 +528,13 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
     report(progress, 1.0, "calibrated")
     return SceneCalibration(
         intrinsics=intrinsics, speed_mm_s=float(speed_mm_s), fps=fps, t1=picks.t1, t2=picks.t2,
-        t_ref_s=float(times[picks.t1]), motion_dir_cam=m_b,
-        vanishing_point_px=_vp_pixels(intrinsics, m_b), roll_deg=float(np.degrees(roll_b)),
-        tilt_deg=float(np.degrees(tilt_b)), rotation=rot_b, corners_parallax_mm=corners_entered,
-        corner_residuals_mm=residuals, target_rotation=r_o, target_translation_mm=t_o,
-        implied_speed_mm_s=float(implied), reprojection_rms_px=rms_px, planes=planes,
+        t_ref_s=float(times[picks.t1]), motion_dir_cam=pose.motion_dir_cam,
+        vanishing_point_px=_vp_pixels(intrinsics, pose.motion_dir_cam),
+        roll_deg=float(np.degrees(pose.roll_rad)), tilt_deg=float(np.degrees(pose.tilt_rad)),
+        rotation=rot_b, corners_parallax_mm=pose.corners_parallax_mm,
+        corner_residuals_mm=pose.corner_residuals_mm, target_rotation=r_o,
+        target_translation_mm=t_o, implied_speed_mm_s=float(implied),
+        reprojection_rms_px=pose.reprojection_rms_px, planes=planes,
         warnings=tuple(warnings), inputs=dict(inputs or {}),
     )
 
