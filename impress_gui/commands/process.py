@@ -43,42 +43,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fps", type=float, default=None, help="override the frame rate")
 
 
-def process_files(video_path: Path, calibration_path: Path, out_dir: Path, params,
-                  fps: float | None = None, progress=None, cancel=None) -> dict:
-    """Core entry shared by the CLI and the GUI: read, reconstruct, write; return metadata."""
-    from datetime import datetime, timezone
-    import platform
-
-    from impress_gui.core.calibration import SceneCalibration
-    from impress_gui.core.fileio import sha256_file
-    from impress_gui.core.outputs import build_metadata, write_reconstruction
-    from impress_gui.core.reconstruct import reconstruct
-    from impress_gui.core.video import open_video
-
-    cal = SceneCalibration.load(calibration_path)
-    inputs = {"calibration": {"path": str(calibration_path),
-                              "sha256": sha256_file(calibration_path)}}
-    video_sha = sha256_file(video_path) if Path(video_path).is_file() else None
-    inputs["video"] = {"path": str(video_path), "sha256": video_sha}
-    warnings = []
-    recorded = cal.inputs.get("video", {}).get("sha256") if cal.inputs else None
-    if recorded and video_sha and recorded != video_sha:
-        warnings.append("the video differs from the one the calibration was made on "
-                        "(SHA-256 mismatch)")
-    t0 = time.perf_counter()
-    with open_video(video_path, fps=fps) as video:
-        rec = reconstruct(video, cal, params, progress=progress, cancel=cancel)
-    rec.warnings[:0] = warnings
-    meta = build_metadata(rec, cal, params, inputs)
-    run = {"date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-           "host": platform.node(), "python": platform.python_version(),
-           "timings": {k: v for k, v in rec.stats.items() if k.startswith("seconds")
-                       or k == "frames_per_second"},
-           "wall_seconds": round(time.perf_counter() - t0, 3)}
-    write_reconstruction(rec, out_dir, meta, run)
-    return meta | {"run": run}
-
-
 def run(args: argparse.Namespace) -> int:
     from impress_gui.core.reconstruct import ProcessParams
 
@@ -93,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
         if now - last[0] > 2.0 or frac >= 1.0:
             last[0] = now
             print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
+
+    from impress_gui.core.pipeline import process_files
 
     meta = process_files(args.video, args.calibration, args.output, params, args.fps, progress)
     st = meta["stats"]

@@ -17,7 +17,13 @@ import numpy as np
 
 from impress_gui.core.calibration import SceneCalibration
 from impress_gui.core.errors import InputError, ReconstructionError
-from impress_gui.core.grid import ColorAccumulator, GridSpec, HeightAccumulator, fuse, upsample_profile
+from impress_gui.core.grid import (
+    ColorAccumulator,
+    GridSpec,
+    HeightAccumulator,
+    fuse,
+    upsample_profile,
+)
 from impress_gui.core.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.stripes import LASERS, METHODS, BackgroundLUT, StripeParams, detect_band
 
