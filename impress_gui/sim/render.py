@@ -4,6 +4,13 @@ Every pixel's ray is intersected with the heightfield (camera occlusion); each l
 cast from its source (laser shadows), the lit points are kept only where the camera sees them,
 and their exact projections are the stripe centres, which the renderer draws as a Gaussian
 profile with speckle, saturating to white at the core.
+
+Speed: before marching, each ray's depth interval is narrowed with a pyramid of min/max depths
+over squares of 2 mm tiles (:class:`DepthBounds`): the first hit lies between the shallowest and
+the deepest surface under the ray's footprint, and the footprint shrinks with the interval. On
+open ground the interval collapses to a few micrometres and a ray costs three surface samples;
+only rays that pass close to steps are marched in steps. The bracket is then refined by the
+Illinois variant of false position until the surface residual is below a tolerance.
 """
 
 from __future__ import annotations
@@ -15,6 +22,8 @@ import numpy as np
 
 from impress_gui.sim.rig import Laser, Motion, Rig
 from impress_gui.sim.scenes import Scene
+
+_REMAP_COLS = 1024  # cv2.remap takes at most 32767 destination columns: fold long lists
 
 
 @dataclass(frozen=True)
@@ -36,6 +45,102 @@ class StripeTruth:
     points_rail_mm: np.ndarray
 
 
+def remap_points(img: np.ndarray, mx: np.ndarray, my: np.ndarray,
+                 interp: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """Sample ``img`` (H, W[, C]) at map coordinates ``(mx, my)`` (1-D float32, in cells) with
+    replicated borders; return ``(N[, C])``."""
+    n = mx.shape[0]
+    q = n // _REMAP_COLS * _REMAP_COLS
+    parts = []
+    if q:
+        parts.append(cv2.remap(img, mx[:q].reshape(-1, _REMAP_COLS),
+                               my[:q].reshape(-1, _REMAP_COLS), interp,
+                               borderMode=cv2.BORDER_REPLICATE))
+    if n > q:
+        parts.append(cv2.remap(img, mx[q:].reshape(1, -1), my[q:].reshape(1, -1), interp,
+                               borderMode=cv2.BORDER_REPLICATE))
+    if not parts:
+        return np.zeros((0, *img.shape[2:]), img.dtype)
+    out = parts[0].reshape(-1, *img.shape[2:])
+    if len(parts) == 2:
+        out = np.concatenate([out, parts[1].reshape(-1, *img.shape[2:])])
+    return out
+
+
+class DepthBounds:
+    """Min/max pyramid of the depth map. :meth:`query` bounds the surface (bilinear
+    interpolation included) under every point within ``reach`` cells of a map position.
+
+    Level ``j`` has tiles of ``base * 2**j`` cells holding the min/max over the tile and its eight
+    neighbours, so a query at a point covers everything within one tile size of it. The last
+    level is the global min/max.
+    """
+
+    def __init__(self, depth: np.ndarray, base_cells: int = 4, max_reach_cells: float = 1e9):
+        t = max(1, int(base_cells))
+        h, w = depth.shape
+        hh, ww = -(-h // t) * t, -(-w // t) * t
+        pad = np.pad(depth, ((0, hh - h), (0, ww - w)), mode="edge").reshape(hh // t, t, ww // t, t)
+        cur_min = np.ascontiguousarray(pad.min(axis=(1, 3)), dtype=np.float32)
+        cur_max = np.ascontiguousarray(pad.max(axis=(1, 3)), dtype=np.float32)
+        del pad
+        k3 = np.ones((3, 3), np.uint8)
+        mins, maxs, shapes, tiles = [], [], [], []
+        tile = t
+        while True:
+            mins.append(cv2.erode(cur_min, k3, borderType=cv2.BORDER_REPLICATE).ravel())
+            maxs.append(cv2.dilate(cur_max, k3, borderType=cv2.BORDER_REPLICATE).ravel())
+            shapes.append(cur_min.shape)
+            tiles.append(float(tile))
+            if tile >= max_reach_cells or max(cur_min.shape) <= 3:
+                break
+            cur_min, cur_max = _pool2(cur_min, np.minimum), _pool2(cur_max, np.maximum)
+            tile *= 2
+        mins.append(np.array([min(float(v.min()) for v in mins)], np.float32))
+        maxs.append(np.array([max(float(v.max()) for v in maxs)], np.float32))
+        shapes.append((1, 1))
+        tiles.append(1e30)
+        self._min = np.concatenate(mins)
+        self._max = np.concatenate(maxs)
+        self._offset = np.cumsum([0] + [a * b for a, b in shapes[:-1]]).astype(np.int64)
+        self._nx = np.array([s[1] for s in shapes], np.int64)
+        self._xmax = np.array([s[1] - 1 for s in shapes], np.float32)
+        self._ymax = np.array([s[0] - 1 for s in shapes], np.float32)
+        self._tile = np.array(tiles, np.float32)
+        self._inv_tile = np.array([1.0 / v for v in tiles], np.float32)
+        self.base = t
+        self.levels = len(tiles)
+        self.zmin, self.zmax = float(self._min[-1]), float(self._max[-1])
+
+    def query(self, mx: np.ndarray, my: np.ndarray, reach_cells: np.ndarray):
+        """``(min, max)`` of the surface depth within ``reach_cells`` of ``(mx, my)``."""
+        lev = np.searchsorted(self._tile, np.asarray(reach_cells, np.float32))
+        inv = self._inv_tile[lev]
+        # clipping to >= 0 first makes truncation a floor
+        tx = np.minimum(np.maximum(mx * inv, 0), self._xmax[lev]).astype(np.int64)
+        ty = np.minimum(np.maximum(my * inv, 0), self._ymax[lev]).astype(np.int64)
+        flat = self._offset[lev] + ty * self._nx[lev] + tx
+        return self._min[flat], self._max[flat]
+
+
+def _pool2(a: np.ndarray, op) -> np.ndarray:
+    h, w = a.shape
+    if h % 2:
+        a = np.vstack([a, a[-1:]])
+    if w % 2:
+        a = np.hstack([a, a[:, -1:]])
+    return np.ascontiguousarray(op(op(a[0::2, 0::2], a[1::2, 0::2]), op(a[0::2, 1::2], a[1::2, 1::2])))
+
+
+def _at(b, d, z):
+    return b + z * d
+
+
+def _take(rays: tuple, sel: np.ndarray) -> tuple:
+    """Subset of a ray tuple; scalar members are shared."""
+    return tuple(v if np.ndim(v) == 0 else v[sel] for v in rays)
+
+
 class Renderer:
     def __init__(self, scene: Scene, rig: Rig, motion: Motion, options: RenderOptions):
         self.scene, self.rig, self.motion, self.opt = scene, rig, motion, options
@@ -46,42 +151,45 @@ class Renderer:
         rays = intr.rays(np.column_stack([uu.ravel(), vv.ravel()])) @ rig.rotation.T
         self.ax = (rays[:, 0] / rays[:, 2]).astype(np.float32).reshape(h, w)
         self.ay = (rays[:, 1] / rays[:, 2]).astype(np.float32).reshape(h, w)
+        del rays, uu, vv
+        pix = scene.pixel_mm
         hm = scene.height_mm
-        self.depth = (rig.standoff_mm - hm).astype(np.float32)  # Z' of the surface
-        gy, gx = np.gradient(hm.astype(np.float32), scene.pixel_mm)
-        nz = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
+        self.depth = np.ascontiguousarray(rig.standoff_mm - hm, dtype=np.float32)  # Z' of surface
+        gy, gx = np.gradient(hm.astype(np.float32), pix)
         light = np.array([0.3, -0.35, 1.0])
         light /= np.linalg.norm(light)
-        shade = np.clip((-gx * light[0] - gy * light[1] + light[2]) * nz, 0, 1)
-        alb = scene.albedo.astype(np.float32) / 255.0
-        self.base = np.ascontiguousarray(
-            alb * (options.ambient + (1 - options.ambient) * shade)[..., None]
-        )
-        self.albedo_ch = [np.ascontiguousarray(alb[..., c]) for c in range(3)]
-        self.nx, self.ny, self.nz = (-gx * nz).astype(np.float32), (-gy * nz).astype(np.float32), nz
+        shade = (-gx * light[0] - gy * light[1] + light[2]) / np.sqrt(1.0 + gx * gx + gy * gy)
+        del gx, gy
+        amb = options.ambient
+        factor = (amb + (1 - amb) * np.clip(shade, 0, 1)).astype(np.float32)
+        del shade
+        self.albedo = np.ascontiguousarray(scene.albedo)
+        #: the albedo under ambient + diffuse light, grey levels (RGB uint8 on the scene grid)
+        self.shaded = np.empty_like(self.albedo)
+        for c in range(3):
+            self.shaded[..., c] = np.round(self.albedo[..., c] * factor)
+        del factor
         self.row_max = self.depth.max(axis=1)  # deepest (lowest) surface of each grid row
         self.row_min = self.depth.min(axis=1)  # shallowest (highest)
         self.sigma_px = options.stripe_sigma_px or max(0.9, 1.4 * w / 1920.0)
-        self._prepare_tiles()
+        # camera rays in map units (cells per mm of depth); the origin moves along y only
+        self._cam_dx = (self.ax / np.float32(pix)).ravel()
+        self._cam_dy = (self.ay / np.float32(pix)).ravel()
+        span = float(self.depth.max() - self.depth.min()) + 2.0
+        self.bounds = DepthBounds(self.depth, 4, 2.0 * span / pix)
 
     # ----- sampling helpers ------------------------------------------------------------
     def _maps(self, x, y):
         s = self.scene
-        return ((x - s.x0_mm) / s.pixel_mm).astype(np.float32), (
-            (y - s.y0_mm) / s.pixel_mm
-        ).astype(np.float32)
+        return ((np.asarray(x) - s.x0_mm) / s.pixel_mm).astype(np.float32).ravel(), (
+            (np.asarray(y) - s.y0_mm) / s.pixel_mm
+        ).astype(np.float32).ravel()
 
     def _sample(self, img, x, y, interp=cv2.INTER_LINEAR):
+        """Sample a scene-grid image at rail positions ``x, y`` (mm, any equal shapes)."""
+        shape = np.shape(x)
         mx, my = self._maps(x, y)
-        shape = mx.shape
-        mx, my = mx.reshape(1, -1), my.reshape(1, -1)
-        out = []
-        # cv2.remap handles at most 32767 destination columns per call
-        for i in range(0, mx.shape[1], 32000):
-            out.append(cv2.remap(img, mx[:, i : i + 32000], my[:, i : i + 32000], interp,
-                                 borderMode=cv2.BORDER_REPLICATE))
-        res = np.concatenate(out, axis=1)
-        return res.reshape(*shape, *img.shape[2:])
+        return remap_points(img, mx, my, interp).reshape(*shape, *img.shape[2:])
 
     def _depth_range(self, y_lo: float, y_hi: float) -> tuple[float, float]:
         s = self.scene
@@ -89,109 +197,167 @@ class Renderer:
         i1 = int(np.clip((y_hi - s.y0_mm) / s.pixel_mm + 2, i0 + 1, len(self.row_min)))
         return float(self.row_min[i0:i1].min()), float(self.row_max[i0:i1].max())
 
-    def march(self, ox, oy, oz, ax, ay, z_lo, z_hi, step=0.8, refine=8):
-        """First depth ``Z`` in ``[z_lo, z_hi]`` where the ray ``(ox + (Z-oz) ax, oy + (Z-oz) ay)``
-        meets the surface; NaN where it does not. Arrays are 1-D of equal length; ``z_lo`` and
-        ``z_hi`` may be per-ray arrays. The bracket found by marching is refined by the
-        Illinois variant of false position."""
-        n = ox.shape[0]
-        z_lo = np.broadcast_to(np.asarray(z_lo, np.float64), (n,))
-        z_hi = np.broadcast_to(np.asarray(z_hi, np.float64), (n,))
-        lo = np.full(n, np.nan)
-        hi = np.full(n, np.nan)
-        f_lo = np.full(n, np.nan)
-        f_hi = np.full(n, np.nan)
+    # ----- ray casting -------------------------------------------------------------------
+    def _residual(self, rays, z):
+        """``z - depth`` of the surface under the rays' points at depth ``z`` (``(N,)`` or
+        ``(N, K)`` for K samples per ray)."""
+        bx, by, dx, dy, _ = rays
+        if z.ndim == 2:
+            bx, by, dx, dy = (v if np.ndim(v) == 0 else v[:, None] for v in (bx, by, dx, dy))
+        mx = np.asarray(bx + z * dx, np.float32).ravel()
+        my = np.asarray(by + z * dy, np.float32).ravel()
+        d = remap_points(self.depth, mx, my).reshape(z.shape)
+        return z - d.astype(z.dtype, copy=False)
 
-        def f(idx, z):
-            x = ox[idx] + (z - oz[idx]) * ax[idx]
-            y = oy[idx] + (z - oz[idx]) * ay[idx]
-            return z - self._sample(self.depth, x, y)
+    def _cast(self, bx, by, dx, dy, zl, zh, refine: int, ftol: float, ztol: float = 0.0,
+              step_cells: float = 0.5, leaf_cells: float = 8.0,
+              pad: float = 1e-3) -> np.ndarray:
+        """First depth in ``[zl, zh]`` where each ray meets the surface, NaN where none.
 
-        idx = np.arange(n)
-        prev_z = z_lo.copy()
-        prev_f = f(idx, prev_z)
-        inside = prev_f >= 0  # already below the surface at the start: hit at z_lo
-        lo[inside] = hi[inside] = z_lo[inside]
-        f_lo[inside] = f_hi[inside] = 0.0
-        idx = idx[~inside]
-        pz, pf = prev_z[~inside], prev_f[~inside]
-        while idx.size:
-            z = np.minimum(pz + step, z_hi[idx])
-            fz = f(idx, z)
-            below = fz >= 0
-            hit = idx[below]
-            lo[hit], hi[hit], f_lo[hit], f_hi[hit] = pz[below], z[below], pf[below], fz[below]
-            going = ~below & (z < z_hi[idx])
-            idx, pz, pf = idx[going], z[going], fz[going]
-        ok = np.flatnonzero(np.isfinite(lo) & (hi > lo))
-        a, b, fa, fb = lo[ok], hi[ok], f_lo[ok], f_hi[ok]
-        side = np.zeros(ok.size, np.int8)
+        A ray's point at depth ``z`` has map position ``(bx + z dx, by + z dy)`` in cells;
+        ``bx``/``by`` are scalars or arrays, the rest arrays of one dtype. The interval is
+        walked front to back: a piece whose footprint's surface lies entirely below it is
+        skipped, a piece that may hold the hit is clipped to the surface's depth range there
+        (a range of at most ``2 ztol`` gives the hit directly) and halved until its footprint
+        spans at most ``leaf_cells``; leaves are sampled every ``step_cells`` (no surface
+        sliver wider than that is stepped over) and the first sign change is refined by
+        Illinois false position to ``|z - depth| <= ftol`` mm.
+        """
+        dt = zl.dtype.type
+        n = dx.shape[0]
+        out = np.full(n, np.nan, zl.dtype)
+        br = np.full((4, n), np.nan, zl.dtype)  # brackets: a, b, f(a), f(b)
+        am = np.maximum(np.abs(dx), np.abs(dy)) + dt(1e-9)  # footprint cells per mm of depth
+        rays = (bx, by, dx, dy, am)
+        act = np.arange(n)
+        z0, zend = zl.copy(), zh.copy()
+        ln = zend - z0
+        while act.size:
+            zb = np.minimum(z0 + ln, zend)
+            zm = dt(0.5) * (z0 + zb)
+            m, mm = self.bounds.query(_at(rays[0], rays[2], zm), _at(rays[1], rays[3], zm),
+                                      rays[4] * (dt(0.5) * (zb - z0)) + 1.0)
+            lo, hi = (m - dt(pad)).astype(zl.dtype), (mm + dt(pad)).astype(zl.dtype)
+            miss = lo > zb  # the surface is below this whole piece: skip it
+            z0n = np.where(miss, zb, np.maximum(z0, lo))
+            zbn = np.where(miss, zb, np.minimum(zb, hi))
+            # f(hi) > 0 where hi lies in the piece: the hit is in [z0n, hi]
+            sure = ~miss & (hi <= zb)
+            zend = np.where(sure, hi, zend)
+            found = sure & (zbn - z0n <= dt(2 * ztol))
+            out[act[found]] = dt(0.5) * (z0n[found] + zbn[found])
+            leaf = ~miss & ~found & (rays[4] * (zbn - z0n) <= leaf_cells)
+            li = np.flatnonzero(leaf)
+            if li.size:
+                found[li] = self._leaf(_take(rays, li), act[li], z0n[li], zbn[li], step_cells,
+                                       pad, out, br)
+            # next piece: after a miss or an empty leaf continue behind it with a doubled
+            # length; otherwise look again at the clipped piece, halved unless it shrank
+            shrunk = (zbn - z0n) < dt(0.75) * (zb - z0)
+            nxt = np.where(miss | leaf, zbn, z0n)
+            ln = np.where(miss | leaf, dt(2) * np.maximum(zb - z0, dt(1e-3)),
+                          np.where(shrunk, zbn - z0n, dt(0.5) * (zbn - z0n)))
+            keep = np.flatnonzero(~found & (nxt < zend))
+            act, z0, zend, ln = act[keep], nxt[keep], zend[keep], ln[keep]
+            rays = _take(rays, keep)
+        self._refine(bx, by, dx, dy, am, out, br, refine, ftol)
+        return out
+
+    def _leaf(self, rays, idx, z0, z1, step_cells, pad, out, br) -> np.ndarray:
+        """Sample rays across short pieces ``[z0, z1]`` at once, at most ``step_cells`` apart
+        sideways, plus just below ``z0`` (which is often a flat top's depth less ``pad``: a ray
+        clipping such a top near its edge is caught however thin the sliver); store hits
+        (``out``) or brackets (``br``) at ``idx``; return which rays found one."""
+        dt = z0.dtype.type
+        found = np.zeros(idx.size, bool)
+        need = np.ceil(rays[4] * (z1 - z0) / dt(step_cells)).astype(np.int64) + 1
+        lo_k = 0
+        for k in (2, 5, 17, None):
+            sel = np.flatnonzero((need > lo_k) & (need <= k) if k else need > lo_k)
+            lo_k = k
+            if not sel.size:
+                continue
+            kk = max(2, int(need[sel].max()))
+            a, b = z0[sel], z1[sel]
+            a2 = np.minimum(a + dt(2 * pad), b)
+            zz = np.empty((sel.size, kk + 1), z0.dtype)
+            zz[:, 0] = a
+            zz[:, 1:] = a2[:, None] + (b - a2)[:, None] * np.linspace(0.0, 1.0, kk, dtype=z0.dtype)
+            f = self._residual(_take(rays, sel), zz)
+            pos = f >= 0
+            first = np.argmax(pos, axis=1)
+            hit = pos[np.arange(sel.size), first]
+            found[sel[hit]] = True
+            at0 = hit & (first == 0)  # z0 itself is the hit (a face reached exactly)
+            out[idx[sel[at0]]] = a[at0]
+            r = np.flatnonzero(hit & (first > 0))
+            j = first[r]
+            br[:, idx[sel[r]]] = zz[r, j - 1], zz[r, j], f[r, j - 1], f[r, j]
+        return found
+
+    def _refine(self, bx, by, dx, dy, am, out, br, refine: int, ftol: float) -> None:
+        """Illinois false position on the brackets, dropping rays as they converge."""
+        act = np.flatnonzero(np.isfinite(br[0]))
+        a, b, fa, fb = br[:, act]
+        rays = _take((bx, by, dx, dy, am), act)
+        side = np.zeros(act.size, np.int8)
         for _ in range(refine):
-            c = b - fb * (b - a) / np.where(fb - fa != 0, fb - fa, 1.0)
-            c = np.clip(c, np.minimum(a, b), np.maximum(a, b))
-            fc = f(ok, c)
+            if not act.size:
+                break
+            c = np.clip(b - fb * (b - a) / (fb - fa), a, b)  # fa < 0 <= fb
+            fc = self._residual(rays, c)
+            done = np.abs(fc) <= ftol
+            out[act[done]] = c[done]
             pos = fc >= 0
-            # Illinois: halve the stale end's value when the same side is kept twice
             fa = np.where(pos & (side == 1), fa * 0.5, fa)
             fb = np.where(~pos & (side == -1), fb * 0.5, fb)
             b, fb = np.where(pos, c, b), np.where(pos, fc, fb)
             a, fa = np.where(pos, a, c), np.where(pos, fa, fc)
             side = np.where(pos, 1, -1).astype(np.int8)
-        out = np.where(np.isfinite(lo) & (hi == lo), lo, np.nan)
-        out[ok] = b - fb * (b - a) / np.where(fb - fa != 0, fb - fa, 1.0)
-        out[ok] = np.clip(out[ok], a, b)
-        return out
+            keep = np.flatnonzero(~done)
+            if keep.size < act.size:
+                act, a, b, fa, fb, side = (act[keep], a[keep], b[keep], fa[keep], fb[keep],
+                                           side[keep])
+                rays = _take(rays, keep)
+        if act.size:
+            out[act] = np.clip(b - fb * (b - a) / (fb - fa), a, b)
 
-    def _ray_bounds(self, s: float):
-        """Per-pixel conservative depth bounds from a coarse min/max map dilated by the
-        rays' largest sideways excursion over the scene's depth range."""
-        x = self.ax * np.float32(self.rig.standoff_mm)
-        y = np.float32(s) + self.ay * np.float32(self.rig.standoff_mm)
-        t = self._tile_mm
-        tx = ((x - self._tile_x0) / t).astype(np.float32)
-        ty = ((y - self._tile_y0) / t).astype(np.float32)
-        zlo = cv2.remap(self._tile_min, tx, ty, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-        zhi = cv2.remap(self._tile_max, tx, ty, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-        return zlo - 0.3, zhi + 0.3
-
-    def _prepare_tiles(self) -> None:
+    def march(self, ox, oy, oz, ax, ay, z_lo, z_hi, refine=16, ftol=1e-6):
+        """First depth ``Z`` in ``[z_lo, z_hi]`` where the ray ``(ox + (Z-oz) ax, oy + (Z-oz) ay)``
+        meets the surface; NaN where it does not. Arrays are 1-D of equal length (``ox``, ``oy``,
+        ``oz`` may be scalars); ``z_lo`` and ``z_hi`` may be per-ray arrays. Float64 throughout."""
         s = self.scene
-        cells = max(1, int(round(2.0 / s.pixel_mm)))
-        h, w = self.depth.shape
-        hh, ww = (h + cells - 1) // cells * cells, (w + cells - 1) // cells * cells
-        pad = np.pad(self.depth, ((0, hh - h), (0, ww - w)), mode="edge")
-        blocks = pad.reshape(hh // cells, cells, ww // cells, cells)
-        tmin, tmax = blocks.min(axis=(1, 3)), blocks.max(axis=(1, 3))
-        self._tile_mm = cells * s.pixel_mm
-        self._tile_x0 = s.x0_mm + 0.5 * (cells - 1) * s.pixel_mm - 0.5 * s.pixel_mm
-        self._tile_y0 = s.y0_mm + 0.5 * (cells - 1) * s.pixel_mm - 0.5 * s.pixel_mm
-        self._tile_x0 = s.x0_mm
-        self._tile_y0 = s.y0_mm
-        span = float(self.depth.max() - self.depth.min()) + 1.0
-        slope = float(max(np.abs(self.ax).max(), np.abs(self.ay).max()))
-        r = int(np.ceil(slope * span / self._tile_mm)) + 2
-        k = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
-        self._tile_min = cv2.erode(tmin.astype(np.float32), k, borderType=cv2.BORDER_REPLICATE)
-        self._tile_max = cv2.dilate(tmax.astype(np.float32), k, borderType=cv2.BORDER_REPLICATE)
-        # tile (i, j) covers cells [i*cells, (i+1)*cells): map coordinates use tile index floor
-        self._tile_x0 -= 0.5 * self._tile_mm - 0.5 * s.pixel_mm
-        self._tile_y0 -= 0.5 * self._tile_mm - 0.5 * s.pixel_mm
+        ax = np.asarray(ax, np.float64)
+        ay = np.asarray(ay, np.float64)
+        n = ax.shape[0]
+        inv = 1.0 / s.pixel_mm
+        bx = (np.asarray(ox, np.float64) - np.asarray(oz, np.float64) * ax - s.x0_mm) * inv
+        by = (np.asarray(oy, np.float64) - np.asarray(oz, np.float64) * ay - s.y0_mm) * inv
+        zl = np.array(np.broadcast_to(np.asarray(z_lo, np.float64), (n,)))
+        zh = np.array(np.broadcast_to(np.asarray(z_hi, np.float64), (n,)))
+        return self._cast(bx, by, ax * inv, ay * inv, zl, zh, refine, ftol)
 
     # ----- one frame -------------------------------------------------------------------
     def travel(self, k: int) -> float:
         return float(self.motion.travel_mm(k / self.motion.fps))
 
+    def _camera_depth(self, s: float) -> np.ndarray:
+        """Depth of the surface seen by every pixel, ``(H*W,)`` float32."""
+        sc = self.scene
+        n = self._cam_dx.shape[0]
+        bx = np.float32(-sc.x0_mm / sc.pixel_mm)
+        by = np.float32((s - sc.y0_mm) / sc.pixel_mm)
+        zl = np.full(n, self.bounds.zmin - 0.01, np.float32)
+        zh = np.full(n, self.bounds.zmax + 0.01, np.float32)
+        z = self._cast(bx, by, self._cam_dx, self._cam_dy, zl, zh, refine=8, ftol=2e-3,
+                       ztol=2e-3)
+        return np.where(np.isfinite(z), z, zh)
+
     def camera_surface(self, k: int):
         """Rail-frame surface point seen by every pixel of frame ``k`` (X, Y, Z) as (H, W)."""
         s = self.travel(k)
-        h, w = self.height, self.width
-        zlo, zhi = self._ray_bounds(s)
-        n = h * w
-        zero = np.zeros(n, np.float32)
-        zh = self.march(zero, zero + np.float32(s), zero, self.ax.ravel(), self.ay.ravel(),
-                        zlo.ravel(), zhi.ravel(), step=1.5, refine=6)
-        zh = np.where(np.isfinite(zh), zh, zhi.ravel()).reshape(h, w)
-        return self.ax * zh, s + self.ay * zh, zh
+        zh = self._camera_depth(s).reshape(self.height, self.width)
+        return self.ax * zh, np.float32(s) + self.ay * zh, zh
 
     def laser_points(self, laser: Laser, k: int) -> StripeTruth:
         """Cast the laser's fan from its source; keep lit points the camera can see."""
@@ -206,9 +372,7 @@ class Renderer:
         src = laser.source_mm + np.array([0.0, s, 0.0])
         ax, ay = dirs[:, 0] / dirs[:, 2], dirs[:, 1] / dirs[:, 2]
         zmin, zmax = self._depth_range(s - 250.0, s + 250.0)
-        m = len(dirs)
-        ox = np.full(m, src[0]); oy = np.full(m, src[1]); oz = np.full(m, src[2])
-        zh = self.march(ox, oy, oz, ax, ay, zmin - 0.5, zmax + 0.5, step=0.7, refine=12)
+        zh = self.march(src[0], src[1], src[2], ax, ay, zmin - 0.5, zmax + 0.5)
         good = np.isfinite(zh)
         p = np.column_stack([src[0] + (zh - src[2]) * ax, src[1] + (zh - src[2]) * ay, zh])
         # camera visibility: the camera ray towards p must not meet the surface before p
@@ -218,24 +382,36 @@ class Renderer:
             cax, cay = rel[:, 0] / rel[:, 2], rel[:, 1] / rel[:, 2]
         vis = good.copy()
         g = np.flatnonzero(good)
-        zc = self.march(np.zeros(g.size), np.full(g.size, s), np.zeros(g.size), cax[g], cay[g],
-                        zmin - 0.5, float(np.nanmax(zh)) + 0.5, step=0.7, refine=10)
+        zc = self.march(0.0, s, 0.0, cax[g], cay[g], zmin - 0.5, p[g, 2] + 0.5, refine=10,
+                        ftol=1e-5)
         vis[g] = np.isfinite(zc) & (zc >= p[g, 2] - 0.08)
         pc = (rel[vis]) @ self.rig.rotation  # ideal -> camera frame (R^T applied to rows)
         uv = self.rig.intrinsics.project(pc)
         inside = (uv[:, 0] > -2) & (uv[:, 0] < self.width + 1) & (uv[:, 1] > -2) & (
             uv[:, 1] < self.height + 1)
         keep = np.flatnonzero(vis)[inside]
-        order_pts = p[keep]
-        return StripeTruth(uv[inside], order_pts)
+        return StripeTruth(uv[inside], p[keep])
 
-    def _stripe_image(self, laser: Laser, truth: StripeTruth, rng: np.random.Generator):
-        """Laser signal per pixel (multiples of full scale) for one laser."""
+    def _surface_normals(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Unit normals (x, y, up) of the height surface at rail points, ``(N, 3)``."""
+        d = self.scene.pixel_mm
+        xs = np.concatenate([x + d, x - d, x, x])
+        ys = np.concatenate([y, y, y + d, y - d])
+        dep = self._sample(self.depth, xs, ys).astype(np.float64).reshape(4, -1)
+        gx = -(dep[0] - dep[1]) / (2 * d)  # slope of the height (up = -depth)
+        gy = -(dep[2] - dep[3]) / (2 * d)
+        nz = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
+        return np.column_stack([-gx * nz, -gy * nz, nz])
+
+    def _stripe_band(self, laser: Laser, truth: StripeTruth, s: float,
+                     rng: np.random.Generator) -> tuple[int, np.ndarray]:
+        """Laser signal (multiples of full scale) of one laser in a band of rows: ``(r0, band)``
+        with ``band`` float32 ``(rows, W)``, zero outside it."""
         h, w = self.height, self.width
         uv, pts = truth.uv_px, truth.points_rail_mm
-        img = np.zeros(h * w, np.float64)
+        empty = (0, np.zeros((0, w), np.float32))
         if len(uv) < 2:
-            return img.reshape(h, w)
+            return empty
         # consecutive samples along the fan that lie on one continuous surface piece
         step3d = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         cont = step3d < 1.5
@@ -250,44 +426,55 @@ class Renderer:
         # irradiance: incidence angle on the surface and surface albedo in the laser's colour
         p = pts[:-1][seg] + t[:, None] * (pts[1:][seg] - pts[:-1][seg])
         ch = int(np.argmax(laser.rgb_response))
-        alb = self._sample(self.albedo_ch[ch], p[:, 0], p[:, 1])
-        nx = self._sample(self.nx, p[:, 0], p[:, 1])
-        ny = self._sample(self.ny, p[:, 0], p[:, 1])
-        nz = self._sample(self.nz, p[:, 0], p[:, 1])
-        d = p - (laser.source_mm + np.array([0, self.travel_cache, 0]))
+        alb = self._sample(self.albedo, p[:, 0], p[:, 1])[:, ch].astype(np.float64) / 255.0
+        nrm = self._surface_normals(p[:, 0], p[:, 1])
+        d = p - (laser.source_mm + np.array([0, s, 0]))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        cos_inc = np.clip(-(nx * d[:, 0] + ny * d[:, 1]) + nz * d[:, 2], 0.05, 1.0)
+        cos_inc = np.clip(-(nrm[:, 0] * d[:, 0] + nrm[:, 1] * d[:, 1]) + nrm[:, 2] * d[:, 2],
+                          0.05, 1.0)
         amp = self.opt.laser_peak * (alb / 0.4) * (0.3 + 0.7 * cos_inc)
         kk = int(np.ceil(4 * self.sigma_px))
         rows = np.floor(vc).astype(np.int64)[:, None] + np.arange(-kk, kk + 1)[None, :]
         wgt = amp[:, None] * np.exp(-0.5 * ((rows - vc[:, None]) / self.sigma_px) ** 2)
         cols = np.broadcast_to(col.astype(np.int64)[:, None], rows.shape)
         ok = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
-        img += np.bincount((rows[ok] * w + cols[ok]), weights=wgt[ok], minlength=h * w)
-        img = img.reshape(h, w)
+        rows, cols, wgt = rows[ok], cols[ok], wgt[ok]
+        if not rows.size:
+            return empty
+        r0, r1 = int(rows.min()), int(rows.max()) + 1
+        band = np.bincount((rows - r0) * w + cols, weights=wgt, minlength=(r1 - r0) * w)
+        band = band.reshape(r1 - r0, w).astype(np.float32)
         c = self.opt.speckle_contrast
-        if c > 0 and rows[ok].size:
+        if c > 0:
             # granular multiplicative speckle (gamma-distributed, grain ~1 px), in the band only
-            r0, r1 = int(rows[ok].min()), int(rows[ok].max()) + 1
             shape_k = 1.0 / (c * c)
             sp = rng.gamma(shape_k, 1.0 / shape_k, (r1 - r0, w)).astype(np.float32)
             sp = cv2.GaussianBlur(sp, (0, 0), 0.6)
             sp /= sp.mean()
-            img[r0:r1] *= sp
-        return img
+            band *= sp
+        return r0, band
 
     def render(self, k: int) -> tuple[np.ndarray, dict[str, StripeTruth]]:
         """Frame ``k`` as RGB uint8 ``(H, W, 3)`` and the exact stripe centres of each laser."""
         rng = np.random.default_rng([self.opt.seed, k])
-        self.travel_cache = self.travel(k)
-        X, Y, _ = self.camera_surface(k)
-        rgb = self._sample(self.base, X, Y) * 255.0  # (H, W, 3)
+        s = self.travel(k)
+        h, w = self.height, self.width
+        sc = self.scene
+        z = self._camera_depth(s)
+        mx = np.float32(-sc.x0_mm / sc.pixel_mm) + z * self._cam_dx
+        my = np.float32((s - sc.y0_mm) / sc.pixel_mm) + z * self._cam_dy
+        rgb = remap_points(self.shaded, mx, my).reshape(h, w, 3).astype(np.float32)
         truths = {}
         for laser in self.rig.lasers:
             tr = self.laser_points(laser, k)
             truths[laser.name] = tr
-            sig = self._stripe_image(laser, tr, rng)
-            for c in range(3):
-                rgb[..., c] += 255.0 * laser.rgb_response[c] * sig
-        rgb += rng.normal(0.0, self.opt.noise_sigma_dn, rgb.shape)
-        return np.clip(rgb + 0.5, 0, 255).astype(np.uint8), truths
+            r0, band = self._stripe_band(laser, tr, s, rng)
+            if band.size:
+                gain = 255.0 * np.asarray(laser.rgb_response, np.float32)
+                rgb[r0 : r0 + band.shape[0]] += band[..., None] * gain
+        noise = np.empty_like(rgb)
+        sd = float(self.opt.noise_sigma_dn)
+        cv2.setRNGSeed(int(rng.integers(1, 2**31 - 1)))
+        cv2.randn(noise, (0.0, 0.0, 0.0), (sd, sd, sd))
+        # sum, round to nearest and saturate to 0..255 in one pass
+        return cv2.add(rgb, noise, dtype=cv2.CV_8U), truths
