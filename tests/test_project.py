@@ -59,6 +59,7 @@ def test_round_trip_keeps_everything(tmp_path, evidence):
     proj.set_target(default_target())
     proj.set_picks(_picks(str(evidence)))
     proj.set_processing({"method": "combined", "grid_mm": 0.1})
+    proj.set_calibration_settings({"speed_mm_s": 13.138})
     out = tmp_path / "case1" / "height.tif"
     out.write_bytes(b"tiff")
     proj.add_output(out, "heightmap")
@@ -81,6 +82,7 @@ def test_round_trip_keeps_everything(tmp_path, evidence):
     assert again.target.name == default_target().name
     assert again.picks == proj.picks
     assert again.processing == {"method": "combined", "grid_mm": 0.1}
+    assert again.calibration_settings == {"speed_mm_s": 13.138}
     assert (
         again.outputs[0]["kind"] == "heightmap"
         and again.outputs[0]["relative_path"] == "height.tif"

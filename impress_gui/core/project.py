@@ -11,7 +11,7 @@ from the project folder, ``video.sha256`` and ``video.size_bytes`` recorded when
 the evidence file is never copied, moved or written), and the work products as embedded
 documents in their own formats: ``intrinsics`` (impress.intrinsics), ``target``
 (impress.target), ``picks`` (impress.picks), ``calibration`` (impress.calibration), plus
-free-form ``processing`` parameters, ``outputs`` (files written, with their SHA-256) and
+``calibration_settings`` (e.g. the rail speed entered), free-form ``processing`` parameters, ``outputs`` (files written, with their SHA-256) and
 ``measurements``. ``log_head`` records how many log entries existed at the last save and the
 hash of the last one, so a truncated log is detected too.
 
@@ -220,6 +220,7 @@ class Project:
     target: TargetModel | None = None
     picks: Picks | None = None
     calibration: SceneCalibration | None = None
+    calibration_settings: dict = field(default_factory=dict)
     processing: dict = field(default_factory=dict)
     outputs: list[dict] = field(default_factory=list)
     measurements: list[dict] = field(default_factory=list)
@@ -355,6 +356,14 @@ class Project:
             },
         )
 
+    def set_calibration_settings(self, settings: dict) -> None:
+        """Inputs of the calibration kept between sessions (e.g. the entered rail speed)."""
+        dumps_json(settings)
+        if settings != self.calibration_settings:
+            self.calibration_settings = dict(settings)
+            self.dirty = True
+            self.log("calibration settings set", dict(settings))
+
     def set_processing(self, params: dict) -> None:
         dumps_json(params)  # JSON-able, finite numbers only
         self.processing = dict(params)
@@ -406,6 +415,7 @@ class Project:
             "target": self.target.to_json() if self.target else None,
             "picks": self.picks.to_json() if self.picks else None,
             "calibration": self.calibration.to_json() if self.calibration else None,
+            "calibration_settings": self.calibration_settings,
             "processing": self.processing,
             "outputs": self.outputs,
             "measurements": self.measurements,
@@ -482,6 +492,7 @@ class Project:
                 if not isinstance(sub, dict):
                     raise FormatError(f"{where}{key} must be an object")
                 setattr(proj, key, kind.from_json(sub, f"{where}{key}: "))
+            proj.calibration_settings = _typed(doc, "calibration_settings", dict, where)
             proj.processing = _typed(doc, "processing", dict, where)
             proj.outputs = _typed(doc, "outputs", list, where)
             proj.measurements = _typed(doc, "measurements", list, where)

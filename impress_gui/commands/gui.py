@@ -1,0 +1,75 @@
+"""``impress gui [PROJECT_OR_VIDEO]`` (and plain ``impress``): open the workstation window."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT, e.g. 1920x1080") from None
+    if not (320 <= w <= 10000 and 240 <= h <= 10000):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a sensible window size")
+    return w, h
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "path",
+        nargs="?",
+        type=Path,
+        default=None,
+        help="a project folder (or its project.json), or a scan video to start a new project with",
+    )
+    p.add_argument(
+        "--screenshot",
+        type=Path,
+        default=None,
+        metavar="PNG",
+        help="save a picture of the window once it has opened the path",
+    )
+    p.add_argument(
+        "--quit-after",
+        type=float,
+        nargs="?",
+        const=1.0,
+        default=None,
+        metavar="SECONDS",
+        help="close the window this many seconds after start-up (default 1; after "
+        "the screenshot). With QT_QPA_PLATFORM=offscreen no display is needed.",
+    )
+    p.add_argument(
+        "--size",
+        type=_size,
+        default=(1920, 1080),
+        metavar="WxH",
+        help="window size (default 1920x1080)",
+    )
+    p.add_argument(
+        "--settings",
+        type=Path,
+        default=None,
+        help="settings file (INI) instead of the user's configuration",
+    )
+    p.add_argument("--no-motor", action="store_true", help="no motor panel")
+
+
+def run(args: argparse.Namespace) -> int:
+    from impress_gui.ui.app import run_gui
+
+    path = getattr(args, "path", None)
+    if path is not None and not path.exists():
+        from impress_gui.core.errors import InputError
+
+        raise InputError(f"{path}: no such project folder or video", code="E-FILE-MISSING")
+    return run_gui(
+        path,
+        screenshot=args.screenshot,
+        quit_after_s=args.quit_after,
+        size=args.size,
+        settings_path=args.settings,
+        with_motor=not args.no_motor,
+    )

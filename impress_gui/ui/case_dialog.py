@@ -1,0 +1,54 @@
+"""The case details of a project: case and evidence identifiers, examiner, notes."""
+
+from __future__ import annotations
+
+from PySide6.QtWidgets import (
+    QDialog,
+    QDialogButtonBox,
+    QFormLayout,
+    QLineEdit,
+    QPlainTextEdit,
+    QWidget,
+)
+
+from impress_gui.core.project import Project, current_user
+
+
+class CaseDialog(QDialog):
+    def __init__(
+        self,
+        project: Project | None = None,
+        parent: QWidget | None = None,
+        title: str = "Case details",
+    ) -> None:
+        super().__init__(parent)
+        self.setWindowTitle(title)
+        form = QFormLayout(self)
+        self.case_id = QLineEdit(project.case_id if project else "")
+        self.case_id.setPlaceholderText("e.g. 2024-00117")
+        self.evidence_id = QLineEdit(project.evidence_id if project else "")
+        self.evidence_id.setPlaceholderText("item number of the impression")
+        self.examiner = QLineEdit(
+            project.examiner if project and project.examiner else current_user()
+        )
+        self.notes = QPlainTextEdit(project.notes if project else "")
+        self.notes.setPlaceholderText("scene, substrate, conditions...")
+        form.addRow("Case", self.case_id)
+        form.addRow("Evidence item", self.evidence_id)
+        form.addRow("Examiner", self.examiner)
+        form.addRow("Notes", self.notes)
+        buttons = QDialogButtonBox(
+            QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
+        )
+        buttons.accepted.connect(self.accept)
+        buttons.rejected.connect(self.reject)
+        form.addRow(buttons)
+        self.resize(460, 320)
+
+    def values(self) -> dict[str, str]:
+        return {
+            "case_id": self.case_id.text().strip(),
+            "evidence_id": self.evidence_id.text().strip(),
+            "examiner": self.examiner.text().strip(),
+            "notes": self.notes.toPlainText().strip(),
+        }

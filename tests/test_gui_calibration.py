@@ -1,0 +1,330 @@
+"""The calibration tab driven through its real widgets (pytest-qt, offscreen) on a simulated scan:
+corners clicked with mouse events at their true pixel positions, calibration compared with the
+simulator's truth, snapping and undo, cancel, and bad input that must change nothing."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PySide6.QtCore import QEvent, QPoint, QPointF, Qt
+from PySide6.QtGui import QMouseEvent
+from PySide6.QtTest import QTest
+from PySide6.QtWidgets import QApplication
+
+from impress_gui.core.target import CORNER_NAMES
+from impress_gui.ui import pyside_fix
+from impress_gui.ui.calibration_tab import CalibrationTab
+from impress_gui.ui.messages import Messenger
+
+pyside_fix.guard()
+pytestmark = pytest.mark.qt_log_ignore("propagateSizeHints")
+_SCANS: dict[str, Path] = {}
+
+
+def render_scan(factory) -> Path:
+    """A 320x180, 15 frames/s simulated scan of the flat preset (made once per session)."""
+    if "flat" not in _SCANS or not (_SCANS["flat"] / "scan.mp4").exists():
+        out = factory.mktemp("sim") / "flat"
+        cmd = [
+            sys.executable,
+            "-m",
+            "impress_gui",
+            "simulate",
+            str(out),
+            "--preset",
+            "flat",
+            "--length-mm",
+            "100",
+            "--resolution",
+            "320x180",
+            "--fps",
+            "15",
+            "--grid-mm",
+            "0.5",
+        ]
+        subprocess.run(cmd, check=True, capture_output=True, timeout=120)
+        _SCANS["flat"] = out
+    return _SCANS["flat"]
+
+
+@pytest.fixture(scope="session")
+def scan(tmp_path_factory) -> Path:
+    return render_scan(tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
+def truth(scan) -> dict:
+    return json.loads((scan / "truth.json").read_text())
+
+
+@pytest.fixture(scope="session")
+def true_picks(scan) -> dict:
+    return json.loads((scan / "picks.json").read_text())
+
+
+@pytest.fixture(autouse=True)
+def no_stray_threads():
+    before = set(threading.enumerate())
+    yield
+    assert set(threading.enumerate()) - before == set()
+
+
+class FakeDialogs:
+    """File choosers answered by the test: set ``answer`` before the action."""
+
+    def __init__(self) -> None:
+        self.answer = ""
+        self.asked: list[str] = []
+
+    def open_file(self, title, filters, start=""):
+        self.asked.append(title)
+        return self.answer
+
+    save_file = open_file
+
+    def directory(self, title, start=""):
+        self.asked.append(title)
+        return self.answer
+
+
+@pytest.fixture
+def tab(qtbot):
+    messenger = Messenger(None)
+    widget = CalibrationTab(messenger, FakeDialogs())
+    qtbot.addWidget(widget)
+    widget.resize(1600, 900)
+    widget.show()
+    qtbot.waitExposed(widget)
+    yield widget
+    widget.shutdown()
+    messenger.close_all()
+
+
+# ----- helpers (also used by test_gui_window) ----------------------------------------------------
+def load_video(qtbot, tab, path, timeout=15000) -> None:
+    with qtbot.waitSignal(tab.video_changed, timeout=timeout, check_params_cb=lambda p: p != ""):
+        tab.load_video(path)
+
+
+def click_image(qtbot, tab, u: float, v: float, button=Qt.MouseButton.LeftButton) -> None:
+    """A real mouse click on the view's viewport where image pixel (u, v) is drawn."""
+    pt = tab.view.map_to_viewport(u, v)
+    QTest.mouseClick(tab.view.viewport(), button, Qt.KeyboardModifier.NoModifier, pt)
+
+
+def drag(widget, start: QPoint, end: QPoint, steps: int = 6) -> None:
+    """Press, move with the button held, release (QTest.mouseMove carries no buttons). The
+    moves come faster than a hand's, so pyqtgraph's mouse-rate limit is lifted meanwhile."""
+    import pyqtgraph as pg
+
+    rate = pg.getConfigOption("mouseRateLimit")
+    pg.setConfigOption("mouseRateLimit", -1)
+    left, none = Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier
+
+    def send(kind, pos, button, buttons):
+        p = QPointF(pos)
+        ev = QMouseEvent(kind, p, QPointF(widget.mapToGlobal(pos)), button, buttons, none)
+        QApplication.sendEvent(widget, ev)
+
+    send(QEvent.Type.MouseButtonPress, start, left, left)
+    for f in np.linspace(0, 1, steps + 1)[1:]:
+        pos = start + QPoint(round(f * (end.x() - start.x())), round(f * (end.y() - start.y())))
+        send(QEvent.Type.MouseMove, pos, Qt.MouseButton.NoButton, left)
+    send(QEvent.Type.MouseButtonRelease, end, left, Qt.MouseButton.NoButton)
+    pg.setConfigOption("mouseRateLimit", rate)
+
+
+def mark_corners(qtbot, tab, picks: dict, which: str, names=CORNER_NAMES, zoom=True) -> None:
+    """Click the corners at their true positions, zoomed in on each as a careful user does."""
+    tab.go_to_frame(picks[which])
+    for name in names:
+        uv = picks[f"corners_{which}"][name]
+        if zoom:
+            tab.view.zoom_around(*uv, span_px=16)
+        click_image(qtbot, tab, *uv)
+    tab.view.fit()
+
+
+def set_inputs(tab, scan: Path, speed: float) -> None:
+    assert tab.setup.load_intrinsics_file(str(scan / "intrinsics.json"))
+    assert tab.setup.load_target_file(str(scan / "target.json"))
+    tab.setup.speed_spin.setValue(speed)
+
+
+def calibrate(qtbot, tab, timeout=20000):
+    with qtbot.waitSignal(tab.calibrated, timeout=timeout) as blocker:
+        QTest.mouseClick(tab.calibrate_button, Qt.MouseButton.LeftButton)
+    return blocker.args[0]
+
+
+# ----- tests -------------------------------------------------------------------------------------
+def test_click_corners_and_calibrate_matches_truth(qtbot, tab, scan, truth, true_picks):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    assert tab.video.frame_count == truth["frame_count"]
+    tab.corners.snap_check.setChecked(False)  # the clicks themselves must land right
+    tab.view.zoom_around(100, 100, span_px=16)
+    resolution = 0.5 / tab.view.pixels_per_image_pixel()
+    assert resolution < 0.02
+    mark_corners(qtbot, tab, true_picks, "t1")
+    mark_corners(qtbot, tab, true_picks, "t2")
+    s = tab.editor.state
+    assert (s.t1, s.t2) == (true_picks["t1"], true_picks["t2"])
+    for which in ("t1", "t2"):
+        got = np.array([s.corners(which)[c] for c in CORNER_NAMES])
+        want = np.array([true_picks[f"corners_{which}"][c] for c in CORNER_NAMES])
+        assert np.abs(got - want).max() < resolution + 1e-6
+    set_inputs(tab, scan, truth["speed_mm_s"])
+    cal = calibrate(qtbot, tab)
+    assert abs(cal.roll_deg - truth["roll_deg"]) < 0.1
+    assert abs(cal.tilt_deg - truth["tilt_deg"]) < 0.1
+    assert abs(cal.implied_speed_mm_s / truth["speed_mm_s"] - 1) < 0.01
+    # the numbers are on screen, and the project holds them
+    shown = tab.results.summary()
+    assert f"{cal.roll_deg:+.3f} deg" == shown["roll"]
+    assert f"{cal.tilt_deg:+.3f} deg" == shown["tilt"]
+    assert "implied by the target" in shown["speed"] and "RMS" in shown["green"]
+    assert tab.results.table.item(0, 0).text() == f"{cal.corner_residuals_mm[0]:.3f}"
+    assert tab.project.calibration is cal and tab.project.picks.t1 == true_picks["t1"]
+    # the fitted target is drawn where the corners are, in this frame (t2)
+    x, y = tab.view.reproj_points.getData()
+    want = np.array([true_picks["corners_t2"][c] for c in CORNER_NAMES])
+    assert np.abs(np.column_stack([x, y]) - want).max() < 1.0
+    assert tab.export_cal_button.isEnabled()
+
+
+def test_snap_is_visible_and_undoable_and_drag_moves_a_corner(qtbot, tab, scan, true_picks):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    t1 = true_picks["t1"]
+    tab.go_to_frame(t1)
+    true_a = np.array(true_picks["corners_t1"]["A"])
+    rough = true_a + (1.6, -1.2)
+    click_image(qtbot, tab, *rough)
+    s = tab.editor.state
+    assert s.t1 == t1
+    snapped, raw = np.array(s.corners_t1["A"]), np.array(s.raw_t1["A"])
+    assert np.linalg.norm(snapped - true_a) < np.linalg.norm(raw - true_a)
+    assert np.linalg.norm(snapped - true_a) < 1.5  # the core's accuracy at 320x180
+    # the click is shown beside the snapped corner, and the snap can be undone
+    assert len(tab.view.raw_points.getData()[0]) == 1
+    assert tab.corners.undo_snap_button.isEnabled()
+    QTest.mouseClick(tab.corners.undo_snap_button, Qt.MouseButton.LeftButton)
+    assert np.allclose(tab.editor.state.corners_t1["A"], raw)
+    assert len(tab.view.raw_points.getData()[0]) == 0
+    QTest.mouseClick(tab.corners.redo_button, Qt.MouseButton.LeftButton)
+    assert np.allclose(tab.editor.state.corners_t1["A"], snapped)
+    # drag the marker to a new place with the mouse
+    start = tab.view.map_to_viewport(*snapped)
+    end = tab.view.map_to_viewport(snapped[0] + 6, snapped[1] + 4)
+    drag(tab.view.viewport(), start, end)
+    moved = np.array(tab.editor.state.corners_t1["A"])
+    assert np.allclose(moved, snapped + (6, 4), atol=0.5)
+    assert tab.editor.undo_label == "move A in t1"
+    # clear the frame, then undo brings the corner back
+    QTest.mouseClick(tab.corners.clear_button, Qt.MouseButton.LeftButton)
+    assert tab.editor.count("t1") == 0 and not tab.view.markers
+    tab.editor.undo()
+    assert np.allclose(tab.editor.state.corners_t1["A"], moved)
+
+
+def test_cancel_a_running_operation_changes_nothing(qtbot, tab, scan):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    before = tab.editor.state
+    with qtbot.waitSignal(tab.tasks.worker.progress, timeout=10000):
+        QTest.mouseClick(tab.frames.find_button, Qt.MouseButton.LeftButton)
+    assert tab.is_busy() and tab.tasks.cancel_button.isVisible()
+    assert not tab.calibrate_button.isEnabled()
+    with qtbot.waitSignal(tab.tasks.done, timeout=10000) as blocker:
+        QTest.mouseClick(tab.tasks.cancel_button, Qt.MouseButton.LeftButton)
+    assert blocker.args[1] == "cancelled"
+    assert not tab.is_busy() and not tab.tasks.isVisible()
+    assert tab.proposal is None and tab.editor.state == before
+    assert tab.messenger.last_box is None
+    # and it runs to the end when left alone: t1/t2 are proposed and the view jumps to t1
+    with qtbot.waitSignal(tab.tasks.done, timeout=15000) as blocker:
+        tab.propose_frames()
+    assert blocker.args[1] == "finished"
+    assert tab.editor.state.t1 == tab.proposal["t1"] == tab.current_frame
+    assert tab.editor.state.t2 == tab.proposal["t2"]
+
+
+def test_frames_can_be_scrubbed_with_the_slider_and_number(qtbot, tab, scan):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    tab.nav.spin.setValue(17)
+    qtbot.waitUntil(lambda: tab.current_frame == 17, timeout=3000)
+    tab.nav.slider.setValue(100)
+    qtbot.waitUntil(lambda: tab.current_frame == 100, timeout=3000)
+    assert tab.nav.spin.value() == 100
+    assert tab.nav.time_label.text().startswith(f"{tab.video.times_s[100]:.2f} s")
+
+
+@pytest.mark.parametrize(
+    "kind, needle", [("text", "not a readable video"), ("empty", "the file is empty")]
+)
+def test_a_bad_video_shows_a_message_and_keeps_the_loaded_one(
+    qtbot, tab, scan, tmp_path, kind, needle
+):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    tab.go_to_frame(40)
+    click_image(qtbot, tab, 100.0, 100.0)
+    state, path = tab.editor.state, tab.video_path
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(b"" if kind == "empty" else b"this is a text file, not a video\n" * 50)
+    with qtbot.waitSignal(tab.tasks.done, timeout=10000):
+        tab.load_video(bad)
+    assert needle in tab.messenger.last_text
+    assert "[E-VIDEO-" in tab.messenger.last_text
+    assert tab.video_path == path and tab.video is not None
+    assert tab.editor.state == state and tab.current_frame == 40
+    assert tab.project.video.path == str(path)
+
+
+def test_a_click_outside_the_image_shows_a_message_and_marks_nothing(qtbot, tab, scan):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    tab.go_to_frame(30)
+    assert tab.view.viewport().rect().contains(tab.view.map_to_viewport(100.0, -8.0))
+    click_image(qtbot, tab, 100.0, -8.0)
+    assert "outside the 320x180 image" in tab.messenger.last_text
+    assert tab.editor.state.t1 is None and tab.editor.count("t1") == 0
+    assert not tab.editor.can_undo()
+
+
+def test_calibrating_with_five_corners_explains_what_is_missing(
+    qtbot, tab, scan, truth, true_picks
+):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    tab.corners.snap_check.setChecked(False)
+    mark_corners(qtbot, tab, true_picks, "t1")
+    mark_corners(qtbot, tab, true_picks, "t2", names=CORNER_NAMES[:5])
+    set_inputs(tab, scan, truth["speed_mm_s"])
+    QTest.mouseClick(tab.calibrate_button, Qt.MouseButton.LeftButton)
+    text = tab.messenger.last_text
+    assert "corners F are not marked in frame t2" in text and "E-PICKS-INCOMPLETE" in text
+    assert not tab.is_busy()
+    assert tab.calibration is None and tab.project.calibration is None
+    assert "Not calibrated yet" in tab.results.empty_label.text()
+    assert tab.results.empty_label.isVisible()
+
+
+def test_calibrating_without_speed_or_video_says_so(qtbot, tab, scan):
+    QTest.mouseClick(tab.calibrate_button, Qt.MouseButton.LeftButton)  # disabled: no video
+    assert tab.messenger.last_box is None
+    assert tab.calibrate() is False
+    assert "Load the scan video first" in tab.messenger.last_text
+    load_video(qtbot, tab, scan / "scan.mp4")
+    tab.setup.load_intrinsics_file(str(scan / "intrinsics.json"))
+    assert tab.calibrate() is False
+    assert "Enter the rail speed" in tab.messenger.last_text
+
+
+def test_a_bad_intrinsics_file_is_refused_with_its_reason(qtbot, tab, tmp_path):
+    bad = tmp_path / "intr.json"
+    bad.write_text('{"format": "impress.intrinsics", "version": 1, "image_size": [0, 5]}')
+    assert not tab.setup.load_intrinsics_file(str(bad))
+    assert "image_size must be [width, height]" in tab.messenger.last_text
+    assert tab.setup.intrinsics is None
