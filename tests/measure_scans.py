@@ -1,0 +1,123 @@
+"""The simulated `blocks` scan shared by the measuring tests (core, processing tab, viewer).
+
+640x360, 200 mm of travel at three times the "fast" rail speed (the slotted block A lies at
+world y 168..212 mm and is swept by the green laser near the end of the scan). Rendering takes
+tens of seconds, so the scan and its calibration are made once per session and kept in
+pytest's cache folder between runs, under a key made from the simulator's source (a changed
+simulator renders again). Reconstructions are always made afresh, once per session.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEED_MM_S = 39.414
+ARGS = [
+    "--preset",
+    "blocks",
+    "--length-mm",
+    "200",
+    "--speed",
+    str(SPEED_MM_S),
+    "--resolution",
+    "640x360",
+]
+_SESSION: dict[str, Path] = {}
+
+
+def _source_key() -> str:
+    h = hashlib.sha256(" ".join(ARGS).encode())
+    files = sorted((ROOT / "impress_gui" / "sim").glob("*.py"))
+    files += [
+        ROOT / "impress_gui" / "core" / n
+        for n in ("target.py", "geometry.py", "calibration.py", "picks.py")
+    ]
+    for f in files:
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _run(*args: str) -> None:
+    subprocess.run(
+        [sys.executable, "-m", "impress_gui", *args],
+        check=True,
+        capture_output=True,
+        timeout=240,
+        cwd=ROOT,
+    )
+
+
+def blocks_scan(config, factory) -> Path:
+    """Folder with scan.mp4, truth.json, intrinsics.json, picks.json and cal.json."""
+    if "scan" in _SESSION:
+        return _SESSION["scan"]
+    cache = Path(config.cache.mkdir("impress-blocks-scan"))
+    final = cache / _source_key()
+    if not (final / "complete").exists():
+        work = factory.mktemp("blocks-render") / "scan"
+        _run("simulate", str(work), *ARGS, "--workers", str(min(2, os.cpu_count() or 1)))
+        _run(
+            "calibrate",
+            str(work / "scan.mp4"),
+            "--intrinsics",
+            str(work / "intrinsics.json"),
+            "--picks",
+            str(work / "picks.json"),
+            "--speed",
+            str(SPEED_MM_S),
+            "-o",
+            str(work / "cal.json"),
+        )
+        (work / "complete").write_text("ok\n")
+        for old in cache.iterdir():
+            shutil.rmtree(old, ignore_errors=True)
+        tmp = cache / f".{final.name}.{os.getpid()}"
+        shutil.copytree(work, tmp)
+        try:
+            tmp.rename(final)
+        except OSError:  # another session got there first
+            shutil.rmtree(tmp, ignore_errors=True)
+    _SESSION["scan"] = final
+    return final
+
+
+def truth(scan: Path) -> dict:
+    return json.loads((scan / "truth.json").read_text())
+
+
+def block_a_frames(scan: Path) -> tuple[int, int]:
+    """Frames in which the green stripe sweeps the slotted block A (travel >= 128 mm)."""
+    t = truth(scan)
+    travel = t["travel_mm"]
+    start = next(k for k, s in enumerate(travel) if s >= 128.0)
+    return start, len(travel)
+
+
+def rail_y(scan: Path, world_y_mm: float) -> float:
+    """The reconstruction's y of a truth (world) y: the rail frame starts at frame t1."""
+    t = truth(scan)
+    return world_y_mm - t["travel_mm"][t["calibration_frames"]["t1"]]
+
+
+def blocks_recon(config, factory) -> Path:
+    """Block A reconstructed from the scan (core pipeline), once per session."""
+    if "recon" in _SESSION:
+        return _SESSION["recon"]
+    from impress_gui.core.pipeline import process_files
+    from impress_gui.core.reconstruct import ProcessParams
+
+    scan = blocks_scan(config, factory)
+    start, stop = block_a_frames(scan)
+    out = factory.mktemp("blocks-recon") / "recon"
+    process_files(
+        scan / "scan.mp4", scan / "cal.json", out, ProcessParams(frame_start=start, frame_stop=stop)
+    )
+    _SESSION["recon"] = out
+    return out
