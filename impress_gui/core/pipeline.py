@@ -41,7 +41,7 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
            "timings": {k: v for k, v in rec.stats.items() if k.startswith("seconds")
                        or k == "frames_per_second"},
            "wall_seconds": round(time.perf_counter() - t0, 3)}
-    write_reconstruction(rec, out_dir, meta, run)
+    meta["files"] = write_reconstruction(rec, out_dir, meta, run)
     return meta | {"run": run}
 
 

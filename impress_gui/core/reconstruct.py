@@ -253,7 +253,7 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
                 y = np.full(w, np.nan)
                 z = np.full(w, np.nan)
                 x[valid], y[valid], z[valid] = p[:, 0], p[:, 1] + s_k, p[:, 2]
-                hgt = cal.reference_depth(x, y) - z
+                hgt = _despike(cal.reference_depth(x, y) - z, params.max_step_mm)
                 ok = valid & np.isfinite(hgt)
                 xu, yu, hu, vu = upsample_profile(np.nan_to_num(x), np.nan_to_num(y),
                                                   np.nan_to_num(hgt), ok, params.grid_mm, k_up,
@@ -300,6 +300,17 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
     report(progress, 1.0, "done")
     return Reconstruction(spec, fused, per, diff, contrib, texture, (start, stop), rois, stats,
                           warnings)
+
+
+def _despike(h: np.ndarray, tol_mm: float) -> np.ndarray:
+    """Drop single-column spikes: a height farther than ``tol_mm`` from the median of itself and
+    its two neighbours (steps survive: at a step the median follows one side)."""
+    a, b, c = h[:-2], h[1:-1], h[2:]
+    med = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
+    spike = np.abs(b - med) > tol_mm
+    out = h.copy()
+    out[1:-1][spike & np.isfinite(med)] = np.nan
+    return out
 
 
 def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:

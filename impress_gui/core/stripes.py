@@ -172,6 +172,15 @@ def detect_band(name: str, rgb_band: np.ndarray, y_band: np.ndarray | None, row0
         centre = (above * rr).sum(axis=0) / wsum
     width = (sig > 0.5 * top).sum(axis=0)
     ok = has & (top >= params.min_peak) & (wsum > 0) & (width <= params.max_width_px)
+    # which laser: the stripe's light (core and halo) must lean towards this laser's colour;
+    # a white core alone says nothing, so the other laser's stripe entering the band is refused
+    other = _CH["red" if name == "green" else "green"]
+    lean = (rgb_band[rr, cols[None, :], _CH[name]].astype(np.float32)
+            - rgb_band[rr, cols[None, :], other])
+    ok &= (lean * (sig > 0.25 * top)).sum(axis=0) > 0
+    # a stripe is a peak: the light falls below half its height on both sides of the window
+    # (a bright edge, e.g. where a light object meets dark soil, does not)
+    ok &= (sig[0] < 0.7 * top) & (sig[-1] < 0.7 * top)
     # a window cut by the band edge is not trusted
     ok &= (peak >= k) & (peak < h - k)
     rows = np.where(ok, centre + row0, np.nan)
