@@ -167,7 +167,7 @@ def calibrate(qtbot, tab, timeout=20000):
 def test_click_corners_and_calibrate_matches_truth(qtbot, tab, scan, truth, true_picks):
     load_video(qtbot, tab, scan / "scan.mp4")
     assert tab.video.frame_count == truth["frame_count"]
-    tab.corners.snap_check.setChecked(False)  # the clicks themselves must land right
+    assert not tab.corners.snap_check.isChecked()  # the clicks themselves must land right
     tab.view.zoom_around(100, 100, span_px=16)
     resolution = 0.5 / tab.view.pixels_per_image_pixel()
     assert resolution < 0.02
@@ -196,10 +196,21 @@ def test_click_corners_and_calibrate_matches_truth(qtbot, tab, scan, truth, true
     want = np.array([true_picks["corners_t2"][c] for c in CORNER_NAMES])
     assert np.abs(np.column_stack([x, y]) - want).max() < 1.0
     assert tab.export_cal_button.isEnabled()
+    assert not tab.results.stale_label.isVisible()
+    # changing an input afterwards flags the result as out of date
+    tab.setup.speed_spin.setValue(5.2552)
+    assert tab.results.stale_label.isVisible()
+    assert "The rail speed changed since this calibration" in tab.results.stale_label.text()
+    tab.setup.speed_spin.setValue(truth["speed_mm_s"])
+    assert not tab.results.stale_label.isVisible()
 
 
 def test_snap_is_visible_and_undoable_and_drag_moves_a_corner(qtbot, tab, scan, true_picks):
     load_video(qtbot, tab, scan / "scan.mp4")
+    assert not tab.corners.snap_check.isChecked()  # an aid the user turns on
+    box = tab.corners.snap_check
+    QTest.mouseClick(box, Qt.MouseButton.LeftButton, pos=QPoint(8, box.height() // 2))
+    assert box.isChecked()
     t1 = true_picks["t1"]
     tab.go_to_frame(t1)
     true_a = np.array(true_picks["corners_t1"]["A"])

@@ -370,13 +370,29 @@ class CalibrationTab(CalibrationFiles, QWidget):
             self.editor.clear(which)
 
     def _on_picks_changed(self) -> None:
-        if self.calibration is not None:
-            self.results.set_stale(
-                self.editor.state != self._cal_state,
-                "The corner picks changed since this calibration.",
-            )
         self._mark_dirty()
         self._refresh()
+
+    def _check_stale(self) -> None:
+        """Say so when the inputs on screen are no longer those of the calibration shown."""
+        cal, setup = self.calibration, self.setup
+        if cal is None:
+            self.results.set_stale(False)
+            return
+        changed = []
+        if self.editor.state != self._cal_state:
+            changed.append("the corner picks")
+        if abs(setup.speed_mm_s() - cal.speed_mm_s) > 1e-9:
+            changed.append("the rail speed")
+        if setup.intrinsics is None or setup.intrinsics.to_json() != cal.intrinsics.to_json():
+            changed.append("the intrinsics")
+        name = cal.inputs.get("target", {}).get("name") if isinstance(cal.inputs, dict) else None
+        if name and setup.target is not None and setup.target.name != name:
+            changed.append("the target model")
+        what = ", ".join(changed)
+        self.results.set_stale(
+            bool(changed), f"{what[:1].upper()}{what[1:]} changed since this calibration."
+        )
 
     def _on_setup_changed(self) -> None:
         self._mark_dirty()
@@ -460,9 +476,6 @@ class CalibrationTab(CalibrationFiles, QWidget):
         self.project.set_picks(picks)
         self.project.set_calibration(cal)
         self.results.show_calibration(cal)
-        self.results.set_stale(
-            self.editor.state != state, "The corner picks changed while calibrating."
-        )
         self._mark_dirty()
         self._refresh()
         self.calibrated.emit(cal)
@@ -495,6 +508,7 @@ class CalibrationTab(CalibrationFiles, QWidget):
 
     # ----- display ----------------------------------------------------------------------------
     def _refresh(self) -> None:
+        self._check_stale()
         s, busy, has_video = self.editor.state, self.tasks.is_busy(), self.video is not None
         which = self.editor.which_for_frame(self.current_frame) if has_video else None
         self.frames.show_frames({f: s.frame(f) for f in FRAMES}, has_video, busy)

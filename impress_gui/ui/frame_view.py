@@ -220,6 +220,7 @@ class Loupe(QWidget):
         self._rgb: np.ndarray | None = None
         self.centre: tuple[float, float] | None = None
         self._marks: dict[str, tuple[float, float]] = {}
+        self._clicks: dict[str, tuple[float, float]] = {}
         self.setToolTip("Magnified view around the cursor")
 
     def sizeHint(self) -> QSize:  # noqa: N802 - Qt override
@@ -229,8 +230,14 @@ class Loupe(QWidget):
         self._rgb = rgb
         self.update()
 
-    def set_marks(self, marks: dict[str, tuple[float, float]]) -> None:
+    def set_marks(
+        self,
+        marks: dict[str, tuple[float, float]],
+        clicks: dict[str, tuple[float, float]] | None = None,
+    ) -> None:
+        """Corners to draw, and the original clicks of snapped ones (white x)."""
         self._marks = dict(marks)
+        self._clicks = dict(clicks or {})
         self.update()
 
     def set_centre(self, centre: tuple[float, float] | None) -> None:
@@ -277,6 +284,11 @@ class Loupe(QWidget):
                 p.setPen(QPen(QColor(255, 230, 0), 1.5))
                 p.drawEllipse(q, 5, 5)
                 p.drawText(q + QPointF(7, -7), name)
+        p.setPen(QPen(QColor(255, 255, 255), 1.5))
+        for u, v in self._clicks.values():
+            q = to_w(u, v)
+            p.drawLine(q + QPointF(-4, -4), q + QPointF(4, 4))
+            p.drawLine(q + QPointF(-4, 4), q + QPointF(4, -4))
         c = to_w(*self.centre)
         p.setPen(QPen(QColor(255, 0, 255), 1))
         p.drawLine(QPointF(c.x(), 0), QPointF(c.x(), side))

@@ -8,6 +8,7 @@ running and tests can read ``last_box.text()``. Questions
 
 from __future__ import annotations
 
+import html
 from collections.abc import Callable
 
 from PySide6.QtCore import QObject, Qt, Signal
@@ -36,8 +37,9 @@ class Messenger(QObject):
 
     @property
     def last_text(self) -> str:
+        """The last box's title and message, as plain text."""
         box = self.last_box
-        return "" if box is None else box.text()
+        return "" if box is None else f"{box.windowTitle()}\n{box.informativeText()}"
 
     def error(self, title: str, message: str, code: str = "", details: str = "") -> QMessageBox:
         """Report a failure; ``code`` (E-...) is shown so it can be looked up in the docs."""
@@ -87,7 +89,11 @@ class Messenger(QObject):
     def _show(
         self, icon: QMessageBox.Icon, level: str, title: str, text: str, details: str = ""
     ) -> QMessageBox:
-        box = QMessageBox(icon, title, text, QMessageBox.StandardButton.Ok, self.parent_widget)
+        box = QMessageBox(icon, title, "", QMessageBox.StandardButton.Ok, self.parent_widget)
+        # the title is repeated as a heading: some window managers show no title bar
+        box.setTextFormat(Qt.TextFormat.RichText)
+        box.setText(f"<b>{html.escape(title)}</b>")
+        box.setInformativeText(text)
         box.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         if details:
             box.setDetailedText(details)
