@@ -15,7 +15,7 @@ import pytest
 from PySide6.QtCore import QEvent, QPoint, QPointF, Qt
 from PySide6.QtGui import QMouseEvent
 from PySide6.QtTest import QTest
-from PySide6.QtWidgets import QApplication
+from PySide6.QtWidgets import QApplication, QMessageBox
 
 from impress_gui.core.target import CORNER_NAMES
 from impress_gui.ui import pyside_fix
@@ -286,8 +286,14 @@ def test_a_bad_video_shows_a_message_and_keeps_the_loaded_one(
     state, path = tab.editor.state, tab.video_path
     bad = tmp_path / "bad.mp4"
     bad.write_bytes(b"" if kind == "empty" else b"this is a text file, not a video\n" * 50)
+    questions = []
+    answers = iter([QMessageBox.StandardButton.No, QMessageBox.StandardButton.Yes])
+    tab.messenger.ask = lambda title, text, *a: questions.append(text) or next(answers)
+    assert not tab.load_video(bad)  # "No": nothing happens
+    assert not tab.is_busy() and tab.messenger.last_box is None
     with qtbot.waitSignal(tab.tasks.done, timeout=10000):
-        tab.load_video(bad)
+        assert tab.load_video(bad)
+    assert len(questions) == 2 and "the corners and the calibration" in questions[0]
     assert needle in tab.messenger.last_text
     assert "[E-VIDEO-" in tab.messenger.last_text
     assert tab.video_path == path and tab.video is not None

@@ -18,10 +18,13 @@ from PySide6.QtGui import QImage
 from PySide6.QtWidgets import QMessageBox
 from test_gui_calibration import FakeDialogs, calibrate, load_video, render_scan, set_inputs
 
+from impress_gui.core.errors import CalibrationError
 from impress_gui.core.project import LOG_FILE, PROJECT_FILE, read_log
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.app import build_main_window, make_settings
+from impress_gui.ui.messages import Messenger
 from impress_gui.ui.motor_panel import MotorPanel
+from impress_gui.ui.worker import LatestOnly, Worker
 
 pyside_fix.guard()
 pytestmark = pytest.mark.qt_log_ignore("propagateSizeHints")
@@ -301,3 +304,50 @@ def test_plain_impress_opens_the_window(monkeypatch):
             },
         )
     ]
+
+
+def test_worker_reports_failures_by_code_and_keeps_tracebacks_out_of_sight(qtbot):
+    worker = Worker(name="test")
+
+    def refuses(progress, cancel):
+        raise CalibrationError("corners C and D coincide", code="E-PICKS")
+
+    with qtbot.waitSignal(worker.failed, timeout=5000) as blocker:
+        worker.start(refuses)
+    assert blocker.args == ["E-PICKS", "corners C and D coincide"]
+
+    def buggy(progress, cancel):
+        progress(0.5, "half way")
+        return {}["missing"]
+
+    with qtbot.waitSignal(worker.failed, timeout=5000) as blocker:
+        worker.start(buggy)
+    code, message = blocker.args
+    assert code == "E-INTERNAL" and "KeyError" in message and "Traceback" in message
+    messenger = Messenger(None)
+    box = messenger.error("Calibration failed", message, code)
+    assert "Traceback" not in box.informativeText() and "KeyError" in box.detailedText()
+    assert not worker.is_running()
+    messenger.close_all()
+
+
+def test_latest_only_delivers_just_the_newest_request(qtbot):
+    release = threading.Event()
+
+    def job(i):
+        def run(progress, cancel):
+            while not release.wait(0.005):
+                cancel.check()
+            cancel.check()
+            return i
+
+        return run
+
+    latest = LatestOnly(name="test")
+    results = []
+    latest.finished.connect(results.append)
+    for i in range(3):
+        latest.submit(job(i))
+    release.set()
+    qtbot.waitUntil(lambda: not latest.is_running(), timeout=5000)
+    assert results == [2]

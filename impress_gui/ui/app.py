@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import sys
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 
@@ -82,6 +83,15 @@ def run_gui(
     window = build_main_window(make_settings(settings_path), with_motor=with_motor)
     window.resize(*size)
     window.show()
+    previous_hook = sys.excepthook
+
+    def report_bug(kind, value, tb) -> None:
+        # a bug in a slot must reach the user as a message (and the log), not only the console
+        previous_hook(kind, value, tb)
+        text = "".join(traceback.format_exception(kind, value, tb, limit=8))
+        window.messenger.error("Internal error", f"internal error: {value!r}", "E-INTERNAL", text)
+
+    sys.excepthook = report_bug
     if path:
         window.open_path(path)
     result = {"code": 0}
@@ -105,6 +115,9 @@ def run_gui(
 
     if screenshot or quit_after_s is not None:
         QTimer.singleShot(int(1000 * (quit_after_s or 0.5)), finish)
-    code = app.exec()
+    try:
+        code = app.exec()
+    finally:
+        sys.excepthook = previous_hook
     window.shutdown()
     return result["code"] or int(code)

@@ -18,6 +18,7 @@ from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QHBoxLayout,
+    QMessageBox,
     QSplitter,
     QVBoxLayout,
     QWidget,
@@ -211,6 +212,15 @@ class CalibrationTab(CalibrationFiles, QWidget):
         if not path:
             return False
         p = Path(path)
+        marked = any(self.editor.count(f) for f in FRAMES) or self.calibration is not None
+        if self.video is not None and marked:
+            answer = self.messenger.ask(
+                "Replace the video?",
+                f"Open {p.name} instead of {self.video_path.name}? If it is a different "
+                "video, the corners and the calibration made on this one are cleared.",
+            )
+            if answer != QMessageBox.StandardButton.Yes:
+                return False
 
         def task(progress, cancel):
             if p.is_dir():

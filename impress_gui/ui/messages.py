@@ -18,6 +18,7 @@ from impress_gui.core.errors import ImpressError
 
 LogSink = Callable[[str, dict], None]
 MAX_BOXES = 5
+TRACEBACK_MARK = "\n\nTraceback"
 
 
 class Messenger(QObject):
@@ -42,7 +43,11 @@ class Messenger(QObject):
         return "" if box is None else f"{box.windowTitle()}\n{box.informativeText()}"
 
     def error(self, title: str, message: str, code: str = "", details: str = "") -> QMessageBox:
-        """Report a failure; ``code`` (E-...) is shown so it can be looked up in the docs."""
+        """Report a failure; ``code`` (E-...) is shown so it can be looked up in the docs.
+        A traceback after the message (internal errors) goes into the box's details."""
+        if TRACEBACK_MARK in message and not details:
+            message, details = message.split(TRACEBACK_MARK, 1)
+            details = "Traceback" + details
         text = f"{message}\n\n[{code}]" if code else message
         if self.log is not None:
             self._log("error shown", {"title": title, "code": code, "message": message})
