@@ -17,7 +17,8 @@ from PySide6.QtWidgets import (
 )
 
 from impress_gui.core.calibration import SceneCalibration
-from impress_gui.core.target import CORNER_NAMES
+from impress_gui.core.geometry import Intrinsics
+from impress_gui.core.target import CORNER_NAMES, TargetModel
 
 WARN_STYLE = (
     "background: #fff1c2; color: #5a3b00; border: 2px solid #e0a000; "
@@ -29,6 +30,27 @@ STALE_STYLE = (
 )
 RESIDUAL_WARN_MM = 0.5
 PLANE_WARN_MM = 0.2
+
+
+def changed_inputs(
+    cal: SceneCalibration | None,
+    picks_changed: bool,
+    speed_mm_s: float,
+    intrinsics: Intrinsics | None,
+    target: TargetModel | None,
+) -> list[str]:
+    """Which inputs on screen differ from those the calibration ``cal`` was made with."""
+    if cal is None:
+        return []
+    changed = ["the corner picks"] if picks_changed else []
+    if abs(speed_mm_s - cal.speed_mm_s) > 1e-9:
+        changed.append("the rail speed")
+    if intrinsics is None or intrinsics.to_json() != cal.intrinsics.to_json():
+        changed.append("the intrinsics")
+    name = cal.inputs.get("target", {}).get("name") if isinstance(cal.inputs, dict) else None
+    if name and target is not None and target.name != name:
+        changed.append("the target model")
+    return changed
 
 
 def fmt_vanishing_point(vp: np.ndarray) -> str:

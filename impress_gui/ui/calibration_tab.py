@@ -24,16 +24,21 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from impress_gui.core.calib_aids import propose_calibration_frames, refine_corner
-from impress_gui.core.calibration import SceneCalibration, calibrate_scene, check_picks
-from impress_gui.core.errors import ImpressError, InputError
+from impress_gui.core.calib_aids import refine_corner
+from impress_gui.core.calibration import SceneCalibration, check_picks
+from impress_gui.core.errors import ImpressError
 from impress_gui.core.picks import Picks
-from impress_gui.core.progress import sub_progress
-from impress_gui.core.project import Project, hash_file
-from impress_gui.core.video import VIDEO_SUFFIXES, VideoSource, open_video
-from impress_gui.ui.calibration_files import CalibrationFiles
+from impress_gui.core.project import Project
+from impress_gui.core.video import VIDEO_SUFFIXES, VideoSource
+from impress_gui.ui.calibration_io import (
+    CalibrationFiles,
+    calibrate_task,
+    checkerboard_task,
+    open_evidence,
+    propose_task,
+)
 from impress_gui.ui.calibration_overlays import Overlays
-from impress_gui.ui.calibration_results import CalibrationResults
+from impress_gui.ui.calibration_results import CalibrationResults, changed_inputs
 from impress_gui.ui.calibration_setup import SetupPanel, checkerboard_available
 from impress_gui.ui.calibration_widgets import ROLE, CalibrationSidebar, FrameNavigator
 from impress_gui.ui.frame_view import FRAME_COLOURS, FrameView
@@ -158,13 +163,9 @@ class CalibrationTab(CalibrationFiles, QWidget):
         if project.video is not None:
             path = project.video_path()
 
-            def task(progress, cancel):
-                project.check_evidence(sub_progress(progress, 0.0, 0.9), cancel)
-                return open_video(path), project.video.sha256
-
             self._run(
                 "Checking and opening the evidence video",
-                task,
+                lambda progress, cancel: open_evidence(path, progress, cancel, project),
                 lambda res: self._adopt_video(path, *res, new=False),
                 "The evidence video cannot be used",
             )
@@ -222,23 +223,9 @@ class CalibrationTab(CalibrationFiles, QWidget):
             if answer != QMessageBox.StandardButton.Yes:
                 return False
 
-        def task(progress, cancel):
-            if p.is_dir():
-                raise InputError(
-                    f"{p} is a folder; open the scan's video file (its SHA-256 is "
-                    "recorded as evidence)",
-                    code="E-VIDEO-OPEN",
-                )
-            video = open_video(p)
-            try:
-                return video, hash_file(p, sub_progress(progress, 0.05, 1.0), cancel)
-            except BaseException:
-                video.close()
-                raise
-
         return self._run(
             f"Opening {p.name}",
-            task,
+            lambda progress, cancel: open_evidence(p, progress, cancel),
             lambda res: self._adopt_video(p, *res, new=True),
             "Cannot open the video",
         )
@@ -385,20 +372,14 @@ class CalibrationTab(CalibrationFiles, QWidget):
 
     def _check_stale(self) -> None:
         """Say so when the inputs on screen are no longer those of the calibration shown."""
-        cal, setup = self.calibration, self.setup
-        if cal is None:
-            self.results.set_stale(False)
-            return
-        changed = []
-        if self.editor.state != self._cal_state:
-            changed.append("the corner picks")
-        if abs(setup.speed_mm_s() - cal.speed_mm_s) > 1e-9:
-            changed.append("the rail speed")
-        if setup.intrinsics is None or setup.intrinsics.to_json() != cal.intrinsics.to_json():
-            changed.append("the intrinsics")
-        name = cal.inputs.get("target", {}).get("name") if isinstance(cal.inputs, dict) else None
-        if name and setup.target is not None and setup.target.name != name:
-            changed.append("the target model")
+        setup = self.setup
+        changed = changed_inputs(
+            self.calibration,
+            self.editor.state != self._cal_state,
+            setup.speed_mm_s(),
+            setup.intrinsics,
+            setup.target,
+        )
         what = ", ".join(changed)
         self.results.set_stale(
             bool(changed), f"{what[:1].upper()}{what[1:]} changed since this calibration."
@@ -415,12 +396,11 @@ class CalibrationTab(CalibrationFiles, QWidget):
             return False
         path = self.video_path
 
-        def task(progress, cancel):
-            with open_video(path) as video:
-                return propose_calibration_frames(video, progress=progress, cancel=cancel)
-
         return self._run(
-            "Finding t1 and t2", task, self._on_proposal, "Cannot find the calibration frames"
+            "Finding t1 and t2",
+            propose_task(path),
+            self._on_proposal,
+            "Cannot find the calibration frames",
         )
 
     def _on_proposal(self, out: dict[str, int]) -> None:
@@ -461,22 +441,9 @@ class CalibrationTab(CalibrationFiles, QWidget):
             "target": {"name": target.name},
         }
 
-        def task(progress, cancel):
-            with open_video(path) as video:
-                return calibrate_scene(
-                    video,
-                    intr,
-                    target,
-                    picks,
-                    speed,
-                    progress=progress,
-                    cancel=cancel,
-                    inputs=inputs,
-                )
-
         return self._run(
             "Calibrating",
-            task,
+            calibrate_task(path, intr, target, picks, speed, inputs),
             lambda cal: self._on_calibrated(cal, picks, state),
             "Calibration failed",
         )
@@ -503,15 +470,9 @@ class CalibrationTab(CalibrationFiles, QWidget):
         if not path:
             return False
 
-        def task(progress, cancel):
-            from impress_gui.core.intrinsics_cal import calibrate_camera
-
-            with open_video(path) as video:
-                return calibrate_camera(video, progress=progress, cancel=cancel)
-
         return self._run(
             "Calibrating the camera",
-            task,
+            checkerboard_task(Path(path)),
             self.setup.set_intrinsics,
             "Checkerboard calibration failed",
         )
