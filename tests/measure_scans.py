@@ -121,3 +121,25 @@ def blocks_recon(config, factory) -> Path:
     )
     _SESSION["recon"] = out
     return out
+
+
+def guard_pyside_none() -> bool:
+    """PySide6 6.12 on CPython 3.11 takes one reference away from ``None`` at every call of a
+    method returning void (``widget.update()``, ``QTest.qWait``, ``processEvents``...), as it
+    does from ``True`` at every ``emit`` (see ``impress_gui.ui.pyside_fix``): a session of a
+    few thousand calls aborts with "Fatal Python error: none_dealloc". Same workaround: when
+    the loss is detected, give ``None`` a reference count no session can use up."""
+    import ctypes
+
+    from PySide6.QtCore import QObject
+
+    if sys.version_info >= (3, 12) or sys.implementation.name != "cpython":
+        return False
+    probe = QObject()
+    before = sys.getrefcount(None)
+    for _ in range(8):
+        probe.setObjectName("probe")
+    if before - sys.getrefcount(None) >= 8:
+        ctypes.c_ssize_t.from_address(id(None)).value += 1 << 40
+        return True
+    return False

@@ -1,0 +1,336 @@
+"""The viewer's exports: heightmap TIFF, X3P, PLY, figure PNG, profile CSV/PNG, the HTML
+report and the 3D view. Files are written atomically in the background and recorded in the
+project's outputs (with their SHA-256) and log."""
+
+from __future__ import annotations
+
+import hashlib
+import platform
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import QBuffer, QByteArray, QIODevice
+
+from impress_gui.core import measure as M
+from impress_gui.core.fileio import atomic_write_bytes
+from impress_gui.core.grid import GridSpec
+from impress_gui.core.outputs import ply_bytes, x3p_bytes
+from impress_gui.ui.viewer_3d import Surface3DWindow
+from impress_gui.ui.viewer_export import colourise, figure, png_bytes, report_html
+
+if TYPE_CHECKING:
+    from impress_gui.ui.viewer_tab import ViewerTab
+
+MAX_PLY_POINTS = 10_000_000
+FILTERS = {
+    "tiff": "TIFF (*.tif *.tiff)",
+    "x3p": "X3P (*.x3p)",
+    "ply": "PLY point cloud (*.ply)",
+    "png": "PNG image (*.png)",
+    "csv": "CSV (*.csv)",
+    "html": "HTML report (*.html)",
+}
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def _tiff_bytes(arr: np.ndarray) -> bytes:
+    import io
+
+    import tifffile
+
+    buf = io.BytesIO()
+    tifffile.imwrite(buf, arr, compression="zlib", metadata=None, software=None)
+    return buf.getvalue()
+
+
+class ViewerActions:
+    def __init__(self, tab: ViewerTab) -> None:
+        self.tab = tab
+        self.windows: list[Surface3DWindow] = []
+        b = tab.exports.buttons
+        b["tiff"].clicked.connect(lambda: self.export_tiff())
+        b["x3p"].clicked.connect(lambda: self.export_x3p())
+        b["ply"].clicked.connect(lambda: self.export_ply())
+        b["png"].clicked.connect(lambda: self.export_png())
+        b["profile_csv"].clicked.connect(lambda: self.export_profile_csv())
+        b["profile_png"].clicked.connect(lambda: self.export_profile_png())
+        b["report"].clicked.connect(lambda: self.export_report())
+        b["view3d"].clicked.connect(lambda: self.open_3d())
+        tab.table.export_button.clicked.connect(lambda: self.export_measurements_csv())
+
+    # ----- helpers -----------------------------------------------------------------------------
+    def _path(self, path, title: str, filt: str, suffix: str) -> Path | None:
+        if path is None:
+            start = str(self.tab.project.root or "")
+            path = self.tab.dialogs.save_file(title, FILTERS[filt], start)
+        if not path:
+            return None
+        p = Path(path)
+        return p if p.suffix else p.with_suffix(suffix)
+
+    def _need_data(self) -> bool:
+        if self.tab.data is None:
+            self.tab.messenger.info("Export", "Open a reconstruction first.")
+            return False
+        return True
+
+    def _write(self, what: str, path: Path, kind: str, make_bytes) -> bool:
+        """Render ``make_bytes()`` in the background, write atomically, record the output."""
+
+        def task(progress, cancel):
+            data = make_bytes()
+            cancel.check()
+            atomic_write_bytes(path, data)
+            return hashlib.sha256(data).hexdigest()
+
+        def done(sha: str) -> None:
+            self.tab.project.add_output(path, kind, sha256=sha)
+            self.tab.changed.emit()
+            self.tab.status.emit(f"{what} written to {path}")
+
+        return self.tab.tasks.run(f"Writing {what}", task, done, f"Cannot write the {what}")
+
+    def _height_for_export(self) -> tuple[np.ndarray, str]:
+        tab = self.tab
+        note = f"layer {tab.measure_key()}" + ("; levelled" if tab.plane is not None else "")
+        return tab.measure_height(), note
+
+    # ----- map exports ---------------------------------------------------------------------------
+    def export_tiff(self, path=None) -> bool:
+        if not self._need_data() or not (
+            p := self._path(path, "Export the heightmap", "tiff", ".tif")
+        ):
+            return False
+        h, _note = self._height_for_export()
+        return self._write(
+            "heightmap TIFF", p, "heightmap-tiff", lambda: _tiff_bytes(np.asarray(h, np.float32))
+        )
+
+    def export_x3p(self, path=None) -> bool:
+        if not self._need_data() or not (p := self._path(path, "Export X3P", "x3p", ".x3p")):
+            return False
+        h, note = self._height_for_export()
+        spec = self.tab.data.spec
+        return self._write(
+            "X3P", p, "x3p", lambda: x3p_bytes(spec, h, _now(), f"IMPREsS viewer export; {note}")
+        )
+
+    def export_ply(self, path=None) -> bool:
+        if not self._need_data() or not (p := self._path(path, "Export PLY", "ply", ".ply")):
+            return False
+        h, _note = self._height_for_export()
+        data = self.tab.data
+        step = max(1, int(np.ceil(np.sqrt(h.size / MAX_PLY_POINTS))))
+        return self._write("PLY", p, "ply", lambda: ply_bytes(data.spec, h, data.texture_rgb, step))
+
+    def figure_maker(self):
+        """A function ``(max_px) -> RGB figure`` of the shown layer (title, measurements, scale
+        bar, colour bar), with everything it needs captured here on the GUI thread so that
+        it can run in a worker."""
+        tab = self.tab
+        key = tab.display.layer_key()
+        proj = tab.project
+        title = (
+            f"Case {proj.case_id or '-'}, evidence {proj.evidence_id or '-'}: "
+            f"{tab.display.layer.currentText()}" + (" (levelled)" if tab.plane is not None else "")
+        )
+        spec, ms = tab.data.spec, [dict(m) for m in proj.measurements]
+        if key in ("fused", "green", "red", "difference") and key in tab.data.layers:
+            arr = tab.measure_height(key) if key != "difference" else tab.data.layers[key]
+            lut = pg.colormap.get(tab.display.cmap.currentText()).getLookupTable(nPts=256)
+            vrange = tab.map.levels()
+            unit = "green-red (mm)" if key == "difference" else "height (mm)"
+            return lambda max_px=6000: figure(
+                spec,
+                height=arr,
+                lut=lut,
+                vrange=vrange,
+                title=title,
+                measurements=ms,
+                max_px=max_px,
+                unit_label=unit,
+            )
+        rgb = {"texture": tab.data.texture_rgb, "contribution": tab._contribution_rgb}.get(key)
+        if key == "hillshade" and tab._hillshade is not None:
+            rgb = tab._hillshade[1]
+        if rgb is None:  # fall back to the fused heights
+            arr = tab.measure_height("fused")
+            lut = pg.colormap.get("turbo").getLookupTable(nPts=256)
+            vrange = tab._auto_levels(arr)
+            return lambda max_px=6000: figure(
+                spec,
+                height=arr,
+                lut=lut,
+                vrange=vrange,
+                title=title,
+                measurements=ms,
+                max_px=max_px,
+            )
+        return lambda max_px=6000: figure(
+            spec, rgb=rgb, title=title, measurements=ms, max_px=max_px
+        )
+
+    def export_png(self, path=None) -> bool:
+        if not self._need_data() or not (p := self._path(path, "Export a figure", "png", ".png")):
+            return False
+        fig = self.figure_maker()
+        return self._write("figure", p, "figure-png", lambda: png_bytes(fig()))
+
+    # ----- profile -------------------------------------------------------------------------------
+    def export_profile_csv(self, path=None) -> bool:
+        tab = self.tab
+        if tab.profile is None:
+            tab.messenger.info("Profile", "Place the ruler first: its profile is exported.")
+            return False
+        if not (p := self._path(path, "Export the profile", "csv", ".csv")):
+            return False
+        text = M.profile_csv(tab.profile, tab.step)
+        return self._write("profile CSV", p, "profile-csv", lambda: text.encode("utf-8"))
+
+    def profile_png_bytes(self) -> bytes:
+        pix = self.tab.profile_plot.grab()
+        arr = QByteArray()
+        buf = QBuffer(arr)
+        buf.open(QIODevice.OpenModeFlag.WriteOnly)
+        pix.save(buf, "PNG")
+        buf.close()
+        return bytes(arr.data())
+
+    def export_profile_png(self, path=None) -> bool:
+        if self.tab.profile is None:
+            self.tab.messenger.info("Profile", "Place the ruler first: its profile is exported.")
+            return False
+        if not (p := self._path(path, "Export the profile plot", "png", ".png")):
+            return False
+        data = self.profile_png_bytes()
+        return self._write("profile PNG", p, "profile-png", lambda: data)
+
+    def export_measurements_csv(self, path=None) -> bool:
+        if not (p := self._path(path, "Export the measurements", "csv", ".csv")):
+            return False
+        text = M.measurements_csv(self.tab.project.measurements)
+        return self._write("measurements CSV", p, "measurements-csv", lambda: text.encode("utf-8"))
+
+    # ----- report --------------------------------------------------------------------------------
+    def export_report(self, path=None) -> bool:
+        tab = self.tab
+        if not self._need_data() or not (
+            p := self._path(path, "Write the report", "html", ".html")
+        ):
+            return False
+        proj, data = tab.project, tab.data
+        meta = dict(data.metadata)
+        cal = proj.calibration
+        cal_info = None
+        if cal is not None:
+            cal_info = {
+                "roll (deg)": cal.roll_deg,
+                "tilt (deg)": cal.tilt_deg,
+                "rail speed (mm/s)": cal.speed_mm_s,
+                "speed implied by the target (mm/s)": cal.implied_speed_mm_s,
+                "corner reprojection RMS (px)": cal.reprojection_rms_px,
+            }
+            for name, f in cal.planes.items():
+                cal_info[f"{name} laser plane fit RMS (mm)"] = f.rms_mm
+                cal_info[f"{name} laser plane points"] = f.n_points
+            cal_info["warnings"] = "; ".join(cal.warnings) or "none"
+        elif "calibration" in meta:
+            cal_info = {k: v for k, v in meta["calibration"].items()}
+        inputs = dict(meta.get("inputs", {}))
+        if proj.video is not None:
+            inputs["evidence video (project)"] = {
+                "path": proj.video.path,
+                "sha256": proj.video.sha256,
+            }
+        files = meta.get("files", {})
+        for name in ("heightmap.tif", "texture.png"):
+            if name in files:
+                inputs[f"reconstruction {name}"] = {
+                    "path": str(data.folder / name) if data.folder else name,
+                    "sha256": files[name],
+                }
+        g = data.spec
+        recon = {
+            "folder": str(data.folder or ""),
+            "software": meta.get("software", ""),
+            "grid": f"{g.shape[1]} x {g.shape[0]} cells of {g.pixel_mm} mm, origin "
+            f"({g.x0_mm:.2f}, {g.y0_mm:.2f}) mm",
+            "frames": str(meta.get("frames", "")),
+            "parameters": str(meta.get("parameters", "")),
+            "height convention": meta.get("height", ""),
+            "warnings": "; ".join(meta.get("warnings", [])) or "none",
+            "host": platform.node(),
+        }
+        level = (
+            None
+            if tab.plane is None
+            else {
+                "plane": f"z = {tab.plane.a:.6f} x + {tab.plane.b:.6f} y + {tab.plane.c:.4f} mm",
+                "tilt (deg)": tab.plane.tilt_deg,
+                "fit RMS (mm)": tab.plane.rms_mm,
+                "cells": tab.plane.n,
+            }
+        )
+        case = {
+            "case_id": proj.case_id,
+            "evidence_id": proj.evidence_id,
+            "examiner": proj.examiner,
+            "notes": proj.notes,
+            "project": str(proj.root or "not saved"),
+        }
+        profile_png = self.profile_png_bytes() if tab.profile is not None else None
+        measurements = [dict(m) for m in proj.measurements]
+        fig = self.figure_maker()
+
+        def make() -> bytes:
+            images = [
+                (
+                    "Map with the measurements (scale bar and colour bar in mm)",
+                    png_bytes(fig(max_px=2400)),
+                )
+            ]
+            if profile_png is not None:
+                images.append(("Depth profile along the ruler", profile_png))
+            return report_html(
+                case=case,
+                reconstruction=recon,
+                calibration=cal_info,
+                measurements=measurements,
+                images=images,
+                inputs=inputs,
+                created_utc=_now(),
+                levelling=level,
+            ).encode("utf-8")
+
+        return self._write("report", p, "report-html", make)
+
+    # ----- 3D ------------------------------------------------------------------------------------
+    def open_3d(self) -> Surface3DWindow | None:
+        tab = self.tab
+        if not self._need_data():
+            return None
+        h, spec = tab.measure_height(), tab.data.spec
+        step = max(1, int(np.ceil(np.sqrt(h.size / 300_000))))
+        small = np.ascontiguousarray(h[::step, ::step])
+        small_spec = GridSpec(spec.x0_mm, spec.y0_mm, spec.pixel_mm * step, small.shape)
+        if tab.display.layer_key() == "texture" and tab.data.texture_rgb is not None:
+            colours = np.ascontiguousarray(tab.data.texture_rgb[::step, ::step])
+        else:
+            lut = pg.colormap.get(tab.display.cmap.currentText()).getLookupTable(nPts=256)
+            colours = colourise(small, lut, tab.map.levels())
+        win = Surface3DWindow(small, small_spec, colours, "3D view - IMPREsS")
+        self.windows.append(win)
+        win.show()
+        return win
+
+    def shutdown(self) -> None:
+        for w in self.windows:
+            w.shutdown()
+            w.close()
+        self.windows.clear()

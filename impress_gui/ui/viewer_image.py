@@ -1,0 +1,183 @@
+"""Large maps on screen: a multi-resolution pyramid and a view-sized crop.
+
+A 1.75 m scan at 0.1 mm is about 17,500 x 2,700 cells. Letting pyqtgraph downsample the whole
+array at every zoom step costs hundreds of milliseconds, so :class:`LodImage` keeps a pyramid
+(each level the 2 x 2 mean of the one below, NaN-aware) and gives its ImageItem only the part
+of the level closest to the screen's resolution that covers the view plus a margin. Panning
+inside the margin costs nothing; a new crop costs a few tens of milliseconds whatever the map's
+size. This is display only: every measurement reads the full-resolution arrays.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import QObject, QRectF
+
+from impress_gui.core.grid import GridSpec
+from impress_gui.ui.worker import Worker
+
+MIN_LEVEL_SIZE = 512
+MARGIN = 0.2  # of the view's size, on each side
+
+
+def reduce2(a: np.ndarray, nearest: bool = False) -> np.ndarray:
+    """One pyramid step: 2 x 2 blocks -> one cell (mean of the cells with data for floats,
+    mean for RGB bytes, the top-left cell for categorical maps). Odd last rows/columns drop."""
+    h, w = (a.shape[0] // 2) * 2, (a.shape[1] // 2) * 2
+    if nearest:
+        return np.ascontiguousarray(a[0:h:2, 0:w:2])
+    if a.dtype == np.uint8:
+        q = a[:h, :w].astype(np.uint16)
+        s = q[0::2, 0::2] + q[1::2, 0::2] + q[0::2, 1::2] + q[1::2, 1::2]
+        return ((s + 2) // 4).astype(np.uint8)
+    out = np.empty((h // 2, w // 2), np.float32)
+    for r0 in range(0, h, 4096):  # bounded temporaries
+        b = a[r0 : min(h, r0 + 4096), :w]
+        ok = np.isfinite(b)
+        z = np.where(ok, b, 0).astype(np.float32)
+        s = z[0::2, 0::2] + z[1::2, 0::2] + z[0::2, 1::2] + z[1::2, 1::2]
+        n = ok[0::2, 0::2].astype(np.uint8) + ok[1::2, 0::2] + ok[0::2, 1::2] + ok[1::2, 1::2]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[r0 // 2 : (r0 + b.shape[0]) // 2] = np.where(n > 0, s / n, np.nan)
+    return out
+
+
+def pyramid(
+    a: np.ndarray, nearest: bool = False, min_size: int = MIN_LEVEL_SIZE, cancel=None
+) -> list[np.ndarray]:
+    levels = [a]
+    while max(levels[-1].shape[:2]) > min_size and min(levels[-1].shape[:2]) >= 4:
+        if cancel is not None:
+            cancel.check()
+        levels.append(reduce2(levels[-1], nearest))
+    return levels
+
+
+def strided_pyramid(a: np.ndarray, min_size: int = MIN_LEVEL_SIZE) -> list[np.ndarray]:
+    """Instant stand-in levels (views, no copies) until the mean pyramid is ready."""
+    levels, k = [a], 1
+    while max(a.shape[:2]) // (2**k) >= min_size // 2 and min(a.shape[:2]) // 2**k >= 2:
+        s = 2**k
+        h, w = (a.shape[0] // s) * s, (a.shape[1] // s) * s
+        levels.append(a[0:h:s, 0:w:s])
+        if max(levels[-1].shape[:2]) <= min_size:
+            break
+        k += 1
+    return levels
+
+
+class LodImage(QObject):
+    """Shows a map in ``item`` (inside ``view_box``) at the resolution the view needs."""
+
+    def __init__(self, item: pg.ImageItem, view_box: pg.ViewBox, name: str = "map") -> None:
+        super().__init__(view_box)
+        self.item, self.vb = item, view_box
+        self.name = name
+        self.item.setAutoDownsample(False)
+        self.levels: list[np.ndarray] = []
+        self.spec: GridSpec | None = None
+        self.colour_levels: tuple[float, float] | None = None
+        self.shown: tuple[int, int, int, int, int] | None = None  # level, i0, i1, j0, j1
+        self._builder = Worker(parent=self, name=f"pyramid-{name}")
+        self._builder.finished.connect(self._on_pyramid)
+        self._token = 0
+        self.crops = 0  # how many crops were uploaded (benchmarks, tests)
+        view_box.sigRangeChanged.connect(lambda *_: self.update_view())
+        view_box.sigResized.connect(lambda *_: self.update_view())
+
+    # ----- content ----------------------------------------------------------------------------
+    def set_data(
+        self,
+        arr: np.ndarray | None,
+        spec: GridSpec | None,
+        colour_levels: tuple[float, float] | None = None,
+        nearest: bool = False,
+    ) -> None:
+        """Show ``arr`` (H x W floats, or H x W x 3 bytes) on ``spec``'s grid; the mean pyramid
+        is built in the background, strided levels stand in meanwhile."""
+        self._builder.shutdown()
+        self._token += 1
+        self.spec = spec
+        self.colour_levels = colour_levels
+        self.shown = None
+        if arr is None or spec is None:
+            self.levels = []
+            self.item.clear()
+            return
+        self.levels = strided_pyramid(arr)
+        self.update_view()
+        if len(self.levels) > 1 and not nearest:
+            token = self._token
+            self._builder.start(lambda _p, cancel: (token, pyramid(arr, cancel=cancel)))
+
+    def set_colour_levels(self, levels: tuple[float, float] | None) -> None:
+        self.colour_levels = levels
+        if levels is not None and self.shown is not None:
+            self.item.setLevels(levels)
+
+    def is_building(self) -> bool:
+        return self._builder.is_running()
+
+    def shutdown(self) -> None:
+        self._builder.shutdown()
+
+    def _on_pyramid(self, result) -> None:
+        token, levels = result
+        if token != self._token:
+            return
+        self.levels = levels
+        self.shown = None
+        self.update_view()
+
+    # ----- view -------------------------------------------------------------------------------
+    def level_for_view(self) -> int:
+        if not self.levels or self.spec is None:
+            return 0
+        px = self.vb.viewPixelSize()
+        per_px = max(min(px[0], px[1]), 1e-12) / self.spec.pixel_mm  # cells per screen pixel
+        k = int(math.floor(math.log2(per_px) + 0.5)) if per_px > 0 else 0
+        return max(0, min(len(self.levels) - 1, k))
+
+    def update_view(self) -> None:
+        if not self.levels or self.spec is None:
+            return
+        s = self.spec
+        k = self.level_for_view()
+        lev = self.levels[k]
+        cell = s.pixel_mm * 2**k
+        left, bottom = s.x0_mm - s.pixel_mm / 2, s.y0_mm - s.pixel_mm / 2
+        r = self.vb.viewRect()
+        h, w = lev.shape[:2]
+
+        def idx(v0, v1, origin, n):
+            a = int(math.floor((v0 - origin) / cell))
+            b = int(math.ceil((v1 - origin) / cell))
+            return max(0, min(n, a)), max(0, min(n, b))
+
+        vi0, vi1 = idx(r.top(), r.bottom(), bottom, h)  # QRectF top() is the smaller y
+        vj0, vj1 = idx(r.left(), r.right(), left, w)
+        if self.shown is not None:
+            k0, i0, i1, j0, j1 = self.shown
+            if k0 == k and i0 <= vi0 and vi1 <= i1 and j0 <= vj0 and vj1 <= j1:
+                return  # the view is still inside the crop
+        mi = int(math.ceil(MARGIN * (r.height() / cell))) + 1
+        mj = int(math.ceil(MARGIN * (r.width() / cell))) + 1
+        i0, i1 = max(0, vi0 - mi), min(h, vi1 + mi)
+        j0, j1 = max(0, vj0 - mj), min(w, vj1 + mj)
+        if i1 <= i0 or j1 <= j0:
+            self.item.clear()
+            self.shown = (k, i0, i1, j0, j1)
+            return
+        crop = lev[i0:i1, j0:j1]
+        if self.colour_levels is not None and crop.ndim == 2:
+            self.item.setImage(crop, autoLevels=False, levels=self.colour_levels)
+        else:
+            self.item.setImage(crop, autoLevels=False, levels=(0, 255))
+        self.item.setRect(
+            QRectF(left + j0 * cell, bottom + i0 * cell, (j1 - j0) * cell, (i1 - i0) * cell)
+        )
+        self.shown = (k, i0, i1, j0, j1)
+        self.crops += 1
