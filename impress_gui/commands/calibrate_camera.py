@@ -1,0 +1,77 @@
+"""``impress calibrate-camera``: camera intrinsics from a checkerboard video or image folder.
+
+Example::
+
+    impress calibrate-camera board.MTS --board 9x6 --square-mm 25 -o intrinsics.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", type=Path,
+                   help="checkerboard video (.mp4, .mov, .mts, ...) or a folder of images")
+    p.add_argument("--board", default="9x6",
+                   help="inner corners COLSxROWS, as OpenCV counts them: a board of 10 x 7 "
+                   "squares is 9x6 (default 9x6)")
+    p.add_argument("--square-mm", type=float, default=25.0,
+                   help="side of one square in mm, measured on the print (default 25)")
+    p.add_argument("-o", "--output", type=Path, default=Path("intrinsics.json"),
+                   help="intrinsics file to write (default intrinsics.json)")
+    p.add_argument("--max-frames", type=int, default=80,
+                   help="frames of a video examined, evenly spread (default 80)")
+    p.add_argument("--min-boards", type=int, default=8,
+                   help="fewest distinct board views accepted (default 8)")
+    p.add_argument("--k3", action="store_true",
+                   help="also fit the third radial coefficient k3 (default: k3 = 0)")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frame rate of an image folder (only used in messages)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def run(args: argparse.Namespace) -> int:
+    from impress_gui.core.errors import InputError
+    from impress_gui.core.intrinsics_cal import parse_board, run_camera_calibration
+    from impress_gui.core.video import open_video
+
+    board = parse_board(args.board)
+    if args.max_frames < 3:
+        raise InputError("--max-frames must be at least 3", code="E-BOARD")
+    if args.output.suffix.lower() != ".json":
+        raise InputError(f"--output {args.output}: the intrinsics file must end in .json",
+                         code="E-OUTPUT")
+    last = [0.0]
+
+    def progress(frac: float, msg: str) -> None:
+        now = time.monotonic()
+        if not args.quiet and (now - last[0] > 2.0 or frac >= 1.0):
+            last[0] = now
+            print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
+
+    t0 = time.perf_counter()
+    with open_video(args.input, args.fps) as video:
+        res = run_camera_calibration(video, board, args.square_mm, progress,
+                                     min_boards=args.min_boards, max_frames=args.max_frames,
+                                     fix_k3=not args.k3)
+    intr = res.intrinsics
+    intr.save(args.output)
+    w, h = intr.image_size
+    k1, k2, p1, p2, k3 = intr.dist_coeffs[:5]
+    print(f"camera intrinsics from {res.boards_found} board views in {res.frames_examined} "
+          f"frames ({time.perf_counter() - t0:.1f} s), image {w}x{h}")
+    print(f"  focal length     fx = {intr.fx:.2f} px, fy = {intr.fy:.2f} px")
+    print(f"  principal point  cx = {intr.cx:.2f} px, cy = {intr.cy:.2f} px")
+    print(f"  distortion       k1 = {k1:.5f}, k2 = {k2:.5f}, p1 = {p1:.6f}, p2 = {p2:.6f}, "
+          f"k3 = {k3:.5f}")
+    print(f"  RMS reprojection error {intr.rms_px:.3f} px over {len(res.views)} views "
+          f"(worst view {max(res.view_rms_px):.3f} px)")
+    if res.rejected_frames:
+        print(f"  dropped as outliers: frames {', '.join(map(str, res.rejected_frames))}")
+    print(f"  frames used: {', '.join(map(str, intr.frames_used))}")
+    print(f"wrote {args.output}")
+    return 0
