@@ -29,10 +29,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-class _LazyCommand(argparse.Action):
-    """Placeholder; real sub-parsers are filled in on demand in :func:`build_parser`."""
-
-
 def _load(name: str):
     module_name, _ = COMMANDS[name]
     return importlib.import_module(module_name)
@@ -55,16 +51,15 @@ def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    selected = next((a for a in argv if not a.startswith("-")), None)
-    if selected not in COMMANDS:
-        selected = None if not argv or argv[0].startswith("-") else selected
-    parser = build_parser(selected)
-    args = parser.parse_args(argv)
-    command = args.command or "gui"
-    if args.command is None:
-        # no subcommand: the GUI, with its own defaults
-        parser = build_parser("gui")
-        args = parser.parse_args(["gui", *argv])
+    if argv and argv[0] in COMMANDS:
+        command = argv[0]
+    elif argv and argv[0] in ("-h", "--help", "--version"):
+        build_parser().parse_args(argv)  # prints and exits
+        return 0
+    else:
+        # no subcommand: the GUI, with everything given as its arguments (`impress PROJECT`)
+        command, argv = "gui", ["gui", *argv]
+    args = build_parser(command).parse_args(argv)
     from impress_gui.core.errors import ImpressError
 
     try:

@@ -8,6 +8,14 @@ from pathlib import Path  # noqa: E402
 import pytest  # noqa: E402
 
 
+def pytest_configure(config):
+    # PySide6 6.12.0 loses a reference to True on every emit (the pinned 6.11.3 does not);
+    # the guard only acts when that bug is present
+    from impress_gui.ui.pyside_fix import guard
+
+    guard()
+
+
 def _simulate(out: Path, **kw) -> Path:
     from impress_gui.sim.simulate import SimConfig, simulate
 

@@ -54,18 +54,22 @@ def refine_corner(rgb: np.ndarray, uv_px, radius_px: int | None = None) -> Corne
 def propose_calibration_frames(video, sample_step: int | None = None,
                                progress: ProgressCallback | None = None,
                                cancel: CancelToken | None = None) -> dict[str, int]:
-    """Frames where each laser's stripe lies on the calibration target: the target is the
-    tallest object near the start of a scan, so its stripe is displaced furthest from the
-    stripe's usual row. Returns ``{"t1": green frame, "t2": red frame}``."""
+    """Frames where each laser's stripe lies on the calibration target.
+
+    The target is the tallest object of a scan, so its stripe is displaced furthest from the
+    stripe's usual row: per sampled frame the 95th percentile of that displacement is scored,
+    and the frames scoring at least 60 % of the best form the run where the stripe is on the
+    target. The green stripe (leading) is taken a third into its run and the red one two thirds
+    into its run: far apart (parallax) with the whole target still likely in view. The user
+    checks that all six corners are visible and adjusts. Returns ``{"t1": ..., "t2": ...}``."""
     cancel = cancel or CancelToken()
     n = video.frame_count
-    step = sample_step or max(1, n // 300)
-    probe = [video.read(k) for k in np.linspace(0, n - 1, 6).astype(int)]
-    rois = auto_rois(probe)
+    step = sample_step or max(1, n // 400)
+    probe = [video.read(int(k)) for k in np.linspace(0, n - 1, 6).astype(int)]
+    rois = auto_rois(probe, margin_px=probe[0].shape[0] // 6)
     params = StripeParams(rois=rois)
     disp = {name: [] for name in LASERS}
     frames = []
-    base = {}
     for k, rgb in video.iter_frames(0, n):
         if k % step:
             continue
@@ -74,22 +78,22 @@ def propose_calibration_frames(video, sample_step: int | None = None,
         frames.append(k)
         for name in LASERS:
             rows = res[name].rows
-            if name not in base:
-                base[name] = np.nanmedian(rows) if np.isfinite(rows).any() else np.nan
-            dev = np.abs(rows - np.nanmedian(rows)) if np.isfinite(rows).any() else np.zeros(1)
-            disp[name].append(float(np.nansum(dev > max(4.0, rgb.shape[0] / 90))))
+            if np.isfinite(rows).sum() < 0.1 * len(rows):
+                disp[name].append(0.0)
+                continue
+            dev = np.abs(rows - np.nanmedian(rows))
+            disp[name].append(float(np.nanpercentile(dev, 95)))
         report(progress, k / n, f"scanning frame {k}")
     out = {}
-    for key, name in (("t1", "green"), ("t2", "red")):
+    for key, name, where in (("t1", "green", 0.35), ("t2", "red", 0.65)):
         score = np.array(disp[name])
-        if score.max() <= 0:
+        if score.max() <= 2.0:
             raise CalibrationError(f"no frame shows the {name} stripe displaced by the target",
                                    code="E-NO-TARGET")
         strong = np.flatnonzero(score >= 0.6 * score.max())
-        # the longest run of strong frames, its middle
         runs = np.split(strong, np.flatnonzero(np.diff(strong) > 2) + 1)
-        run = max(runs, key=len)
-        out[key] = int(frames[run[len(run) // 2]])
+        run = max(runs, key=lambda r: score[r].sum())
+        out[key] = int(frames[run[int(round(where * (len(run) - 1)))]])
     return out
 
 

@@ -25,7 +25,14 @@ from impress_gui.core.grid import (
     upsample_profile,
 )
 from impress_gui.core.progress import CancelToken, ProgressCallback, report
-from impress_gui.core.stripes import LASERS, METHODS, BackgroundLUT, StripeParams, detect_band
+from impress_gui.core.stripes import (
+    LASERS,
+    METHODS,
+    BackgroundLUT,
+    Planes,
+    StripeParams,
+    detect_planes,
+)
 
 
 @dataclass(frozen=True)
@@ -117,6 +124,39 @@ def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) ->
     return out
 
 
+def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
+                 rois: dict[str, tuple[int, int]] | None = None, margin_px: int = 8):
+    """Per laser, the first row to search in every column and the band height: where the
+    stripe can fall for surfaces within the height range (clipped to ``rois`` when given)."""
+    w, h = size
+    out = {}
+    cols = np.arange(w, dtype=np.float64)
+    lo_h, hi_h = height_range_mm
+    for name in LASERS:
+        plane = cal.planes[name].plane
+        z_ref = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
+        rmin = np.full(w, np.inf)
+        rmax = np.full(w, -np.inf)
+        for hgt in np.linspace(lo_h, hi_h, 9):
+            z = z_ref - hgt
+            xs = np.linspace(-1.2 * z * w / cal.intrinsics.fx, 1.2 * z * w / cal.intrinsics.fx, 257)
+            n, d = plane.normal, plane.offset_mm
+            ys = (d - n[0] * xs - n[2] * z) / n[1]
+            uv = cal.intrinsics.project(np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation)
+            order = np.argsort(uv[:, 0])
+            r = np.interp(cols, uv[order, 0], uv[order, 1])
+            rmin, rmax = np.minimum(rmin, r), np.maximum(rmax, r)
+        start = np.floor(rmin).astype(np.int64) - margin_px
+        stop = np.ceil(rmax).astype(np.int64) + margin_px + 1
+        if rois and name in rois:
+            a, b = rois[name]
+            start, stop = np.maximum(start, a), np.minimum(stop, b)
+        start = np.clip(start, 0, h - 1)
+        stop = np.clip(stop, start + 1, h)
+        out[name] = (start, int(max(1, (stop - start).max())))
+    return out
+
+
 class _Frames:
     """Decoded frames as (index, rgb band getter, luma) in a background thread."""
 
@@ -124,13 +164,14 @@ class _Frames:
         self.q: queue.Queue = queue.Queue(maxsize=depth)
         self.video, self.start, self.stop, self.cancel = video, start, stop, cancel
         self.error: BaseException | None = None
+        self._stop = False
         self.thread = threading.Thread(target=self._run, name="impress-decode", daemon=True)
         self.thread.start()
 
     def _run(self) -> None:
         try:
-            for k, frame in self.video.iter_frames(self.start, self.stop):
-                if self.cancel.cancelled:
+            for k, frame in self.video.iter_frames(self.start, self.stop, raw=True):
+                if self.cancel.cancelled or self._stop:
                     break
                 self.q.put((k, frame))
         except BaseException as exc:  # noqa: BLE001 - handed to the consumer
@@ -148,7 +189,7 @@ class _Frames:
             yield item
 
     def close(self) -> None:
-        self.cancel_local = True
+        self._stop = True
         while self.thread.is_alive():
             try:
                 self.q.get(timeout=0.1)
@@ -228,21 +269,23 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
         tex_ok = (tu >= 0) & (tu <= w - 1) & (tv >= 0) & (tv <= h - 1)
         tex_uv = np.column_stack([tu, tv])[tex_ok]
         tex_rays = (np.column_stack([xn, np.zeros_like(xn), np.ones_like(xn)]) @ rot.T)[tex_ok]
-        tex_r0 = int(max(0, np.floor(tex_uv[:, 1].min())))
-        tex_r1 = int(min(h, np.ceil(tex_uv[:, 1].max()) + 2))
 
+    bands = column_bands(cal, (w, h), params.height_range_mm, rois)
+    min_cols = int(0.02 * w)
     frames = _Frames(video, start, stop, cancel)
     n_total = stop - start
     t_loop = time.perf_counter()
     try:
-        for k, rgb in frames:
+        for k, frame in frames:
             cancel.check()
+            planes = Planes.from_av(frame) if not isinstance(frame, np.ndarray) else \
+                Planes.from_rgb(frame)
             s_k = float(travel[k])
             for name in LASERS:
-                a, b = rois[name]
-                res = detect_band(name, rgb[a:b], None, a, sp, lut)
+                b0, bh = bands[name]
+                res = detect_planes(name, planes, b0, bh, sp, lut)
                 valid = res.found
-                if valid.sum() < 2:
+                if valid.sum() < max(2, min_cols):  # a few isolated hits are not a stripe
                     acc[name].reset_chain()
                     continue
                 found_frames[name] += 1
@@ -260,8 +303,7 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
                                                   params.max_step_mm)
                 acc[name].add_profile(xu, yu, hu, vu)
             if params.texture:
-                band = rgb[tex_r0:tex_r1].astype(np.float32)
-                tex_rows.append((k, _bilinear(band, tex_uv[:, 0], tex_uv[:, 1] - tex_r0)))
+                tex_rows.append((k, _sample_planes(planes, tex_uv[:, 0], tex_uv[:, 1])))
             i = k - start + 1
             if i % 25 == 0 or i == n_total:
                 el = time.perf_counter() - t_loop
@@ -313,13 +355,15 @@ def _despike(h: np.ndarray, tol_mm: float) -> np.ndarray:
     return out
 
 
-def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    u0 = np.clip(np.floor(u).astype(np.int64), 0, img.shape[1] - 2)
-    v0 = np.clip(np.floor(v).astype(np.int64), 0, img.shape[0] - 2)
+def _sample_planes(planes: Planes, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear RGB samples (float32) at sub-pixel positions of a frame's planes."""
+    h, w = planes.y.shape
+    u0 = np.clip(np.floor(u).astype(np.int64), 0, w - 2)
+    v0 = np.clip(np.floor(v).astype(np.int64), 0, h - 2)
     fu, fv = (u - u0)[:, None], (v - v0)[:, None]
-    a = img[v0, u0] * (1 - fu) + img[v0, u0 + 1] * fu
-    b = img[v0 + 1, u0] * (1 - fu) + img[v0 + 1, u0 + 1] * fu
-    return a * (1 - fv) + b * fv
+    a = planes.rgb(v0, u0) * (1 - fu) + planes.rgb(v0, u0 + 1) * fu
+    b = planes.rgb(v0 + 1, u0) * (1 - fu) + planes.rgb(v0 + 1, u0 + 1) * fu
+    return (a * (1 - fv) + b * fv).astype(np.float32)
 
 
 def _map_texture(rows, rays, travel, height, spec: GridSpec, cal: SceneCalibration,

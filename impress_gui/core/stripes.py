@@ -137,32 +137,89 @@ def _dilate_rows(mask: np.ndarray, k: int) -> np.ndarray:
     return cv2.dilate(mask.view(np.uint8), kernel).astype(bool)
 
 
-def detect_band(name: str, rgb_band: np.ndarray, y_band: np.ndarray | None, row0: int,
-                params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
-    """Detect one laser's stripe in a band of rows starting at image row ``row0``."""
-    h, w = rgb_band.shape[:2]
-    y = luma(rgb_band) if y_band is None else y_band.astype(np.float32, copy=False)
+@dataclass
+class Planes:
+    """A frame (or band) as BT.601 limited-range YCbCr planes, the way H.264 stores it: luma
+    ``y`` at full resolution, chroma ``cb``/``cr`` at ``chroma_step`` (2 for 4:2:0 video, 1 for
+    frames converted from RGB)."""
+
+    y: np.ndarray  # (H, W) uint8
+    cb: np.ndarray
+    cr: np.ndarray
+    chroma_step: int = 2
+
+    @classmethod
+    def from_rgb(cls, rgb: np.ndarray) -> Planes:
+        f = rgb.astype(np.float32)
+        r, g, b = f[..., 0], f[..., 1], f[..., 2]
+        y = 16 + (65.481 * r + 128.553 * g + 24.966 * b) / 255
+        cb = 128 + (-37.797 * r - 74.203 * g + 112.0 * b) / 255
+        cr = 128 + (112.0 * r - 93.786 * g - 18.214 * b) / 255
+        q = [np.clip(np.rint(a), 0, 255).astype(np.uint8) for a in (y, cb, cr)]
+        return cls(q[0], q[1], q[2], 1)
+
+    @classmethod
+    def from_av(cls, frame) -> Planes:
+        """Zero-copy views of a decoded yuv420p PyAV frame's planes."""
+        if frame.format.name not in ("yuv420p", "yuvj420p"):
+            frame = frame.reformat(format="yuv420p")
+        w, h = frame.width, frame.height
+        views = []
+        for i, (pw, ph) in enumerate(((w, h), ((w + 1) // 2, (h + 1) // 2),
+                                      ((w + 1) // 2, (h + 1) // 2))):
+            pl = frame.planes[i]
+            arr = np.frombuffer(pl, np.uint8).reshape(-1, pl.line_size)
+            views.append(arr[:ph, :pw])
+        return cls(views[0], views[1], views[2], 2)
+
+    def rgb(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """RGB (float32, 0..255) of the pixels at ``rows``/``cols`` (broadcast arrays)."""
+        s = self.chroma_step
+        y = (self.y[rows, cols].astype(np.float32) - 16) * 1.164
+        cb = self.cb[rows // s, cols // s].astype(np.float32) - 128
+        cr = self.cr[rows // s, cols // s].astype(np.float32) - 128
+        rgb = np.stack([y + 1.596 * cr, y - 0.392 * cb - 0.813 * cr, y + 2.017 * cb], axis=-1)
+        return np.clip(rgb, 0, 255)
+
+
+def _hue_ok(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
+    import cv2
+
+    flat = np.ascontiguousarray(rgb.reshape(1, -1, 3).astype(np.uint8))
+    hsv = cv2.cvtColor(flat, cv2.COLOR_RGB2HSV).reshape(*rgb.shape)
+    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    m = np.zeros(h.shape, bool)
+    for lo, hi in params.hue_ranges[name]:
+        m |= (h >= lo) & (h <= hi)
+    return m & (s >= params.min_saturation) & (v >= params.min_value)
+
+
+def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height: int,
+                  params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
+    """Detect one laser's stripe; column ``c`` is searched in rows
+    ``band_start[c] .. band_start[c] + band_height``.
+
+    1. candidate: per column the brightest pixel of luma biased towards the laser's chroma;
+    2. the method's colour test (hue, background table, tint) on the pixels around it;
+    3. centre of mass of the background-subtracted luma above half maximum, with checks that
+       it is a peak (not an edge) leaning to this laser's colour."""
     method = params.method
     if method == "lut" and lut is None:
         raise InputError("the lookup-table method needs a learned background", code="E-PARAM")
-    if method in ("hue", "combined"):
-        m = hue_mask(name, rgb_band, params)
-        if method == "combined":
-            m |= tint_mask(name, rgb_band, params)
-        m = _dilate_rows(m, 3)  # join the white core to its coloured halo
-    else:
-        m = np.zeros((h, w), bool)
-    if method in ("lut", "combined") and lut is not None:
-        m |= lut.mask(name, rgb_band, params.lut_margin)
-    # strongest laser pixel per column (the laser channel breaks ties inside the white core)
-    score = np.where(m, y + 0.01 * rgb_band[..., _CH[name]], -1.0)
-    peak = score.argmax(axis=0)
+    h, w = planes.y.shape
     cols = np.arange(w)
-    has = score[peak, cols] >= 0
+    s = planes.chroma_step
+    offs_b = np.arange(band_height)
+    rows = np.clip(band_start[None, :] + offs_b[:, None], 0, h - 1)  # (Hb, W)
+    yb = planes.y[rows, cols[None, :]].astype(np.int16)
+    crb = planes.cr[rows // s, (cols // s)[None, :]].astype(np.int16) - 128
+    sign = 1 if name == "red" else -1
+    peak_i = (yb + sign * crb).argmax(axis=0)  # index inside the band
+    peak = band_start + peak_i
     k = params.half_window_px
     offs = np.arange(-k, k + 1)
-    rr = np.clip(peak[None, :] + offs[:, None], 0, h - 1)
-    win = y[rr, cols[None, :]]  # (2k+1, W)
+    rr = np.clip(peak[None, :] + offs[:, None], 0, h - 1)  # (2k+1, W) image rows
+    win = planes.y[rr, cols[None, :]].astype(np.float32)
     base = win.min(axis=0)
     sig = win - base
     top = sig.max(axis=0)
@@ -171,20 +228,36 @@ def detect_band(name: str, rgb_band: np.ndarray, y_band: np.ndarray | None, row0
     with np.errstate(invalid="ignore", divide="ignore"):
         centre = (above * rr).sum(axis=0) / wsum
     width = (sig > 0.5 * top).sum(axis=0)
-    ok = has & (top >= params.min_peak) & (wsum > 0) & (width <= params.max_width_px)
-    # which laser: the stripe's light (core and halo) must lean towards this laser's colour;
-    # a white core alone says nothing, so the other laser's stripe entering the band is refused
-    other = _CH["red" if name == "green" else "green"]
-    lean = (rgb_band[rr, cols[None, :], _CH[name]].astype(np.float32)
-            - rgb_band[rr, cols[None, :], other])
-    ok &= (lean * (sig > 0.25 * top)).sum(axis=0) > 0
-    # a stripe is a peak: the light falls below half its height on both sides of the window
-    # (a bright edge, e.g. where a light object meets dark soil, does not)
+    ok = (top >= params.min_peak) & (wsum > 0) & (width <= params.max_width_px)
+    ok &= (peak_i >= k) & (peak_i < band_height - k)
     ok &= (sig[0] < 0.7 * top) & (sig[-1] < 0.7 * top)
-    # a window cut by the band edge is not trusted
-    ok &= (peak >= k) & (peak < h - k)
-    rows = np.where(ok, centre + row0, np.nan)
-    return StripeResult(rows, np.where(ok, top, 0).astype(np.float32))
+    # which laser: the light around the peak leans to this laser's chroma
+    crw = planes.cr[rr // s, (cols // s)[None, :]].astype(np.float32) - 128
+    ok &= (sign * crw * (sig > 0.25 * top)).sum(axis=0) > 0
+    # the method's colour test on the central rows (a white core sits between coloured halo)
+    core = slice(k - 3, k + 4)
+    rgb = planes.rgb(rr[core], cols[None, :])  # (7, W, 3)
+    colour = np.zeros(rgb.shape[:2], bool)
+    if method in ("hue", "combined"):
+        colour |= _hue_ok(name, rgb, params)
+    if method == "combined":
+        c, (o1, o2) = _CH[name], _OTHERS[name]
+        colour |= ((rgb[..., c] - np.maximum(rgb[..., o1], rgb[..., o2]) >= params.min_tint)
+                   & (rgb[..., c] >= params.min_value))
+    if method in ("lut", "combined") and lut is not None:
+        colour |= lut.mask(name, np.clip(rgb + 0.5, 0, 255).astype(np.uint8), params.lut_margin)
+    ok &= colour.any(axis=0)
+    out_rows = np.where(ok, centre, np.nan)
+    return StripeResult(out_rows, np.where(ok, top, 0).astype(np.float32))
+
+
+def detect_band(name: str, rgb_band: np.ndarray, y_band: np.ndarray | None, row0: int,
+                params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
+    """Detect one laser's stripe in an RGB band of rows starting at image row ``row0``."""
+    planes = Planes.from_rgb(rgb_band)
+    h, w = rgb_band.shape[:2]
+    res = detect_planes(name, planes, np.zeros(w, np.int64), h, params, lut)
+    return StripeResult(res.rows + row0, res.strength)
 
 
 def detect(rgb: np.ndarray, params: StripeParams, lut: BackgroundLUT | None = None,

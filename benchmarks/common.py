@@ -1,0 +1,68 @@
+"""Shared helpers for the benchmarks: cached simulator scans and truth comparison."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+CACHE = Path(os.environ.get("IMPRESS_BENCH_CACHE", Path(__file__).parent / ".cache"))
+
+
+def scan(name: str, **cfg) -> Path:
+    """Simulate (once) and return the scan folder."""
+    from impress_gui.sim.simulate import SimConfig, simulate
+
+    out = CACHE / name
+    if not (out / "truth.json").exists():
+        print(f"[simulating {name}: {cfg}]", flush=True)
+        simulate(SimConfig(**cfg), out, workers=min(2, os.cpu_count() or 1))
+    return out
+
+
+def truth_on_grid(scan_dir: Path, spec) -> np.ndarray:
+    import tifffile
+
+    truth = json.loads((scan_dir / "truth.json").read_text())
+    th = tifffile.imread(scan_dir / "truth_height.tif")
+    hm = truth["heightmap"]
+    s1 = truth["travel_mm"][truth["calibration_frames"]["t1"]]
+    jj = np.rint((spec.xs() - hm["x0_mm"]) / hm["pixel_mm"]).astype(int)
+    ii = np.rint((spec.ys() + s1 - hm["y0_mm"]) / hm["pixel_mm"]).astype(int)
+    okj = (jj >= 0) & (jj < th.shape[1])
+    oki = (ii >= 0) & (ii < th.shape[0])
+    out = np.full(spec.shape, np.nan, np.float32)
+    out[np.ix_(oki, okj)] = th[np.ix_(ii[oki], jj[okj])]
+    return out
+
+
+def calibrate(scan_dir: Path, picks_file: str = "picks.json", noise_px: float = 0.0, seed: int = 0):
+    from impress_gui.core.calibration import calibrate_scene
+    from impress_gui.core.geometry import Intrinsics
+    from impress_gui.core.picks import Picks
+    from impress_gui.core.target import TargetModel
+    from impress_gui.core.video import open_video
+
+    truth = json.loads((scan_dir / "truth.json").read_text())
+    picks = Picks.load(scan_dir / picks_file)
+    if noise_px:
+        rng = np.random.default_rng(seed)
+        noisy = {}
+        for key in ("corners_t1", "corners_t2"):
+            d = getattr(picks, key)
+            noisy[key] = {c: tuple(np.add(v, rng.normal(0, noise_px, 2))) for c, v in d.items()}
+        picks = Picks(picks.video, picks.t1, picks.t2, noisy["corners_t1"], noisy["corners_t2"])
+    with open_video(scan_dir / truth["video"]) as v:
+        return calibrate_scene(v, Intrinsics.load(scan_dir / "intrinsics.json"),
+                               TargetModel.load(scan_dir / "target.json"), picks,
+                               truth["speed_mm_s"])
+
+
+def edge_mask(truth: np.ndarray, radius_cells: int = 5, jump_mm: float = 1.0) -> np.ndarray:
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    t0 = np.nan_to_num(truth)
+    k = 2 * radius_cells + 1
+    return (maximum_filter(t0, k) - minimum_filter(t0, k)) > jump_mm
