@@ -20,8 +20,9 @@ from impress_gui.core.grid import GridSpec
 from impress_gui.core.outputs import ply_bytes, x3p_bytes
 from impress_gui.ui.viewer_3d import Surface3DWindow
 from impress_gui.ui.viewer_export import colourise, figure, png_bytes, report_html
+from impress_gui.ui.viewer_image import auto_levels
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # pragma: no cover
     from impress_gui.ui.viewer_tab import ViewerTab
 
 MAX_PLY_POINTS = 10_000_000
@@ -162,7 +163,7 @@ class ViewerActions:
         if rgb is None:  # fall back to the fused heights
             arr = tab.measure_height("fused")
             lut = pg.colormap.get("turbo").getLookupTable(nPts=256)
-            vrange = tab._auto_levels(arr)
+            vrange = auto_levels(arr)
             return lambda max_px=6000: figure(
                 spec,
                 height=arr,

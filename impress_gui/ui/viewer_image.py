@@ -69,6 +69,19 @@ def strided_pyramid(a: np.ndarray, min_size: int = MIN_LEVEL_SIZE) -> list[np.nd
     return levels
 
 
+def auto_levels(arr: np.ndarray, samples: float = 250_000) -> tuple[float, float]:
+    """A colour range for display: the 0.5 and 99.5 percentiles of a regular subsample."""
+    step = max(1, int(math.sqrt(arr.size / samples)))
+    v = arr[::step, ::step]
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return (-1.0, 1.0)
+    lo, hi = np.percentile(v, [0.5, 99.5])
+    if hi - lo < 0.1:
+        lo, hi = lo - 0.05, hi + 0.05
+    return float(round(lo, 2)), float(round(hi, 2))
+
+
 class LodImage(QObject):
     """Shows a map in ``item`` (inside ``view_box``) at the resolution the view needs."""
 

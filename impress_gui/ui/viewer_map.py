@@ -146,7 +146,7 @@ class MapView(pg.GraphicsLayoutWidget):
 
     def set_texture(self, rgb: np.ndarray | None, opacity: float) -> None:
         self.texture.set_data(rgb, self.spec if rgb is not None else None)
-        self.texture_item.setOpacity(opacity)
+        self.set_texture_opacity(opacity)
 
     def set_texture_opacity(self, opacity: float) -> None:
         self.texture_item.setOpacity(opacity)

@@ -8,6 +8,7 @@ from PySide6.QtCore import QRectF
 
 from impress_gui.core import measure as M
 from impress_gui.core.errors import ImpressError
+from impress_gui.ui.viewer_image import auto_levels
 
 
 class LevellingMixin:
@@ -41,12 +42,17 @@ class LevellingMixin:
         def task(progress, cancel):
             plane = fit()
             progress(0.5, "levelling the map")
-            return plane, M.levelled(data.layers[key], data.spec, plane)
+            lev = M.levelled(data.layers[key], data.spec, plane)
+            return plane, lev, auto_levels(lev)
 
         def done(result) -> None:
-            plane, lev = result
+            plane, lev, auto = result
             self.plane = plane
             self._levelled = {key: lev}
+            for d in (self._ranges, self._auto):
+                for k in [k for k in d if k.endswith("/levelled")]:
+                    del d[k]
+            self._auto[f"{key}/levelled"] = auto
             self._update_level_text(how)
             self.refresh_layer()
             self.update_profile()

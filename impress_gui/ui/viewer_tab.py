@@ -24,6 +24,7 @@ from impress_gui.core.project import Project
 from impress_gui.ui.messages import Dialogs, Messenger
 from impress_gui.ui.task_bar import TaskBar
 from impress_gui.ui.viewer_actions import ViewerActions
+from impress_gui.ui.viewer_image import auto_levels
 from impress_gui.ui.viewer_map import MapView
 from impress_gui.ui.viewer_measurements import LevellingMixin, MeasurementsMixin
 from impress_gui.ui.viewer_panels import DisplayPanel, ExportPanel, MeasurementTable, ToolPanel
@@ -31,6 +32,7 @@ from impress_gui.ui.viewer_profile import ProfilePlot
 from impress_gui.ui.worker import LatestOnly
 
 HEIGHT_LAYERS = ("fused", "green", "red")
+SCALAR_LAYERS = HEIGHT_LAYERS + ("difference",)
 HINTS = {
     "pan": "Drag to pan, wheel to zoom, right click to show everything.",
     "ruler": "Click the ruler's start, then its end; drag its ends or its line to adjust.",
@@ -78,6 +80,7 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         self.plane: M.Plane | None = None
         self._levelled: dict[str, np.ndarray] = {}
         self._ranges: dict[str, tuple[float, float]] = {}
+        self._auto: dict[str, tuple[float, float]] = {}
         self._hillshade: tuple[tuple, np.ndarray] | None = None
         self._contribution_rgb: np.ndarray | None = None
         self.profile: M.Profile | None = None
@@ -198,10 +201,12 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
             progress(0.1, "reading the maps")
             data = M.load_reconstruction(folder)
             cancel.check()
-            progress(0.8, "colouring the contribution map")
-            return data, contribution_png(
-                data.layers["contribution"]
-            ) if "contribution" in data.layers else None
+            progress(0.7, "colouring the contribution map")
+            contrib = None
+            if "contribution" in data.layers:
+                contrib = contribution_png(data.layers["contribution"])
+            auto = {k: auto_levels(data.layers[k]) for k in SCALAR_LAYERS if k in data.layers}
+            return data, contrib, auto
 
         return self.tasks.run(
             f"Opening {folder.name}",
@@ -211,12 +216,18 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         )
 
     def set_data(
-        self, data: M.ReconData | None, contribution_rgb: np.ndarray | None = None
+        self,
+        data: M.ReconData | None,
+        contribution_rgb: np.ndarray | None = None,
+        auto: dict[str, tuple[float, float]] | None = None,
     ) -> None:
+        """Show a reconstruction (``contribution_rgb`` and the ``auto`` colour ranges per
+        layer are computed here when not given)."""
         self.data = data
         self.plane = None
         self._levelled.clear()
         self._ranges.clear()
+        self._auto = dict(auto or {})
         self._hillshade = None
         self._contribution_rgb = contribution_rgb
         if data is not None and contribution_rgb is None and "contribution" in data.layers:
@@ -265,7 +276,8 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         cmap = self.display.cmap.currentText()
         if key in HEIGHT_LAYERS + ("difference",) and key in self.data.layers:
             arr = self.measure_height(key) if key != "difference" else self.data.layers[key]
-            levels = self._ranges.get(self._range_key(key)) or self._auto_levels(arr)
+            rk = self._range_key(key)
+            levels = self._ranges.get(rk) or self._auto.get(rk) or auto_levels(arr)
             self._ranges[self._range_key(key)] = levels
             label = "green - red (mm)" if key == "difference" else "height (mm)"
             self.map.show_scalar(arr, levels, cmap, label)
@@ -285,23 +297,12 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
     def _range_key(self, key: str) -> str:
         return f"{key}/levelled" if self.plane is not None and key != "difference" else key
 
-    @staticmethod
-    def _auto_levels(arr: np.ndarray) -> tuple[float, float]:
-        step = max(1, int(math.sqrt(arr.size / 1e6)))
-        v = arr[::step, ::step]
-        v = v[np.isfinite(v)]
-        if v.size == 0:
-            return (-1.0, 1.0)
-        lo, hi = np.percentile(v, [0.5, 99.5])
-        if hi - lo < 0.1:
-            lo, hi = lo - 0.05, hi + 0.05
-        return float(round(lo, 2)), float(round(hi, 2))
-
     def auto_range(self) -> None:
         key = self.display.layer_key()
         if self.data is None or key not in HEIGHT_LAYERS + ("difference",):
             return
         self._ranges.pop(self._range_key(key), None)
+        self._auto.pop(self._range_key(key), None)
         self.refresh_layer()
 
     def _on_range_entered(self, lo: float, hi: float) -> None:

@@ -1,0 +1,205 @@
+"""The processing tab driven through its widgets (pytest-qt, offscreen) on the simulated
+`blocks` scan: stripe preview and lookup tables, regions of interest, a run from the Run
+button inside the main window (progress, frames/s, event loop never blocked > 100 ms, outputs
+recorded in the project, the viewer opens them), a cancelled run that leaves nothing behind,
+and missing inputs."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+from measure_scans import block_a_frames, blocks_scan, guard_pyside_none
+from PySide6.QtCore import Qt, QTimer
+from PySide6.QtTest import QTest
+
+from impress_gui.core.calibration import SceneCalibration
+from impress_gui.core.project import Project
+from impress_gui.ui import pyside_fix
+from impress_gui.ui.messages import Messenger
+from impress_gui.ui.processing_tab import ProcessingTab
+
+pyside_fix.guard()
+guard_pyside_none()
+pytestmark = pytest.mark.qt_log_ignore("propagateSizeHints")
+
+
+class FakeDialogs:
+    def __init__(self) -> None:
+        self.answer = ""
+
+    def open_file(self, title, filters, start=""):
+        return self.answer
+
+    save_file = open_file
+
+    def directory(self, title, start=""):
+        return self.answer
+
+
+@pytest.fixture(autouse=True)
+def no_stray_threads():
+    """No thread left running. Python registers a ``_DummyThread`` for a QThread that starts a
+    Python thread (the reconstruction's decoder) and never unregisters it; those entries are
+    not threads, the workers' own state is checked by the tests."""
+    before = set(threading.enumerate())
+    yield
+    left = {
+        t for t in set(threading.enumerate()) - before if not isinstance(t, threading._DummyThread)
+    }
+    assert left == set()
+
+
+@pytest.fixture(scope="module")
+def scan(request, tmp_path_factory):
+    return blocks_scan(request.config, tmp_path_factory)
+
+
+def make_project(scan, folder, calibrated: bool = True) -> Project:
+    p = Project(case_id="T-6")
+    p.set_video(scan / "scan.mp4")
+    if calibrated:
+        p.set_calibration(SceneCalibration.load(scan / "cal.json"))
+    p.save(folder)
+    return p
+
+
+@pytest.fixture
+def tab(qtbot):
+    messenger = Messenger(None)
+    widget = ProcessingTab(messenger, FakeDialogs())
+    qtbot.addWidget(widget)
+    widget.resize(1500, 950)
+    widget.show()
+    qtbot.waitExposed(widget)
+    yield widget
+    widget.shutdown()
+    messenger.close_all()
+
+
+def test_preview_of_both_stripes_lookup_tables_and_regions(qtbot, tab, scan, tmp_path):
+    with qtbot.waitSignal(tab.preview_ready, timeout=20000):
+        tab.set_project(make_project(scan, tmp_path / "p"))
+    w = tab.video.size[0]
+    assert tab.params.frame_start.value() == 15  # 0.5 s skipped at 30 frames/s
+    for name, rows in tab.last_stripes.items():
+        assert np.isfinite(rows).sum() > 0.9 * w, name
+    # scrub to another frame the way a user does (debounced slider)
+    with qtbot.waitSignal(tab.preview_ready, timeout=20000, check_params_cb=lambda k: k == 120):
+        tab.nav.spin.setValue(120)
+    assert "frame 120" in tab.stripe_label.text()
+    with qtbot.waitSignal(tab.lut_ready, timeout=20000):
+        tab.lut_button.setChecked(True)
+    assert tab.lut_view.isVisible()
+    for t in tab.lut.tables.values():
+        assert (t >= 0).sum() > 50  # background colours were learned
+    # manual regions: a green band that misses the green stripe finds nothing there
+    auto = tab.current_rois()
+    tab.params.auto_rois.setChecked(False)
+    assert tab.regions["green"].movable
+    g0, g1 = auto["green"]
+    red_rows = tab.last_stripes["red"]
+    with qtbot.waitSignal(tab.preview_ready, timeout=20000):
+        tab.params.roi["green"][0].setValue(g0)
+        tab.params.roi["green"][1].setValue(g0 + 12)
+    assert tab.regions["green"].getRegion() == pytest.approx((g0, g0 + 12))
+    assert np.isfinite(tab.last_stripes["green"]).sum() < 0.05 * w
+    # (the red result may move a little: the background tables exclude the regions' rows)
+    n_red = np.isfinite(red_rows).sum()
+    assert abs(np.isfinite(tab.last_stripes["red"]).sum() - n_red) < 0.05 * n_red
+    assert np.nanmax(np.abs(tab.last_stripes["red"] - red_rows)) < 1.0
+    assert tab.params.params().rois["green"] == (g0, g0 + 12)
+
+
+def test_run_from_the_window_records_outputs_and_opens_the_viewer(qtbot, scan, tmp_path):
+    from impress_gui.ui.app import build_main_window, make_settings
+
+    window = build_main_window(make_settings(tmp_path / "settings.ini"), with_motor=False)
+    qtbot.addWidget(window)
+    window.resize(1600, 1000)
+    window.show()
+    try:
+        proc, viewer = window.extra_tabs["Processing"], window.extra_tabs["Viewer"]
+        assert isinstance(proc, ProcessingTab)
+        project = make_project(scan, tmp_path / "case")
+        with qtbot.waitSignal(proc.preview_ready, timeout=20000):
+            window.set_project(project)
+        window.tabs.setCurrentWidget(proc)
+        start, stop = block_a_frames(scan)
+        proc.params.frame_start.setValue(start)
+        proc.params.frame_stop.setValue(stop)
+        gaps, last = [], [time.perf_counter()]
+
+        def tick():
+            now = time.perf_counter()
+            gaps.append(now - last[0])
+            last[0] = now
+
+        timer = QTimer()
+        timer.timeout.connect(tick)
+        loaded = qtbot.waitSignal(viewer.loaded, timeout=90000)  # connected from here on
+        with qtbot.waitSignal(proc.reconstructed, timeout=90000):
+            QTest.mouseClick(proc.run_panel.run_button, Qt.MouseButton.LeftButton)
+            assert proc.is_running() and not proc.run_panel.run_button.isEnabled()
+            last[0] = time.perf_counter()
+            timer.start(10)
+        timer.stop()
+        # while the reconstruction ran (the viewer's first paint afterwards is not part of it)
+        assert max(gaps) < 0.1, f"the event loop was blocked for {max(gaps) * 1000:.0f} ms"
+        loaded.wait()
+        out = proc.last_output
+        assert out.parent == project.root / "reconstructions" and (out / "heightmap.tif").exists()
+        meta = json.loads((out / "metadata.json").read_text())
+        assert (meta["frames"]["start"], meta["frames"]["stop"]) == (start, stop)
+        entry = project.outputs[-1]
+        assert entry["kind"] == "reconstruction"
+        assert entry["sha256"] == hashlib.sha256((out / "metadata.json").read_bytes()).hexdigest()
+        assert project.processing["frame_start"] == start and project.dirty
+        assert proc.run_panel.frames_per_second > 0 and "frames/s" in proc.run_panel.rate.text()
+        assert proc.run_panel.bar.value() == 1000
+        assert window.tabs.currentWidget() is viewer and viewer.data.folder == out.resolve()
+        # saved and reopened, the viewer finds the reconstruction again
+        assert window.save_project()
+        reopened = Project.load(project.root)
+        assert reopened.outputs[-1]["relative_path"].startswith("reconstructions/")
+    finally:
+        window.shutdown()
+
+
+def test_cancel_leaves_nothing_behind(qtbot, tab, scan, tmp_path):
+    project = make_project(scan, tmp_path / "p")
+    with qtbot.waitSignal(tab.preview_ready, timeout=20000):
+        tab.set_project(project)
+    n_outputs = len(project.outputs)
+    with qtbot.waitSignal(tab.worker.progress, timeout=20000):
+        QTest.mouseClick(tab.run_panel.run_button, Qt.MouseButton.LeftButton)
+    assert tab.run_panel.cancel_button.isEnabled()
+    with qtbot.waitSignal(tab.worker.cancelled, timeout=30000):
+        QTest.mouseClick(tab.run_panel.cancel_button, Qt.MouseButton.LeftButton)
+    folder = project.root / "reconstructions"
+    assert not folder.exists() or list(folder.iterdir()) == []
+    assert len(project.outputs) == n_outputs and tab.last_output is None
+    assert tab.run_panel.run_button.isEnabled() and "cancelled" in tab.run_panel.rate.text()
+
+
+def test_missing_calibration_and_bad_parameters(qtbot, tab, scan, tmp_path):
+    project = make_project(scan, tmp_path / "p", calibrated=False)
+    tab.set_project(project)
+    assert not tab.run_panel.run_button.isEnabled()
+    assert not tab.run()
+    assert "calibration" in tab.messenger.last_text
+    tab.dialogs.answer = str(tmp_path / "nothing.json")
+    assert not tab.load_calibration()  # a missing file: a message, nothing changes
+    assert tab.calibration is None and "[E-" in tab.messenger.last_text
+    tab.dialogs.answer = str(scan / "cal.json")
+    with qtbot.waitSignal(tab.preview_ready, timeout=20000):
+        assert tab.load_calibration()
+    assert project.calibration is not None and tab.run_panel.run_button.isEnabled()
+    tab.params.frame_start.setValue(100)
+    tab.params.frame_stop.setValue(50)
+    assert not tab.run()
+    assert "frame range" in tab.messenger.last_text and not tab.is_running()
