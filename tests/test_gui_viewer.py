@@ -191,7 +191,9 @@ def test_exported_profile_csv_matches_the_core_profile(qtbot, viewer, slot, tmp_
 def test_layers_readout_and_levelling(qtbot, viewer, slot):
     v, y = viewer, slot["y"]
     for key in ("green", "red", "difference", "contribution", "texture", "hillshade", "fused"):
-        with qtbot.waitSignal(v.layer_shown, timeout=20000, check_params_cb=lambda k: k == key):
+        with qtbot.waitSignal(
+            v.layer_shown, timeout=20000, check_params_cb=lambda k, key=key: k == key
+        ):
             v.display.set_layer(key)
         assert v.map.colour_bar.isVisible() == (key in ("fused", "green", "red", "difference"))
     v.tools.radius.setValue(2.0)
