@@ -17,7 +17,13 @@ import numpy as np
 from impress_gui import __version__
 from impress_gui.core.errors import CalibrationError, FormatError
 from impress_gui.core.fileio import float_array, read_json, require, write_json
-from impress_gui.core.geometry import Intrinsics, Plane, fit_plane, ideal_rotation, roll_tilt_from_direction
+from impress_gui.core.geometry import (
+    Intrinsics,
+    Plane,
+    fit_plane,
+    ideal_rotation,
+    roll_tilt_from_direction,
+)
 from impress_gui.core.picks import Picks
 from impress_gui.core.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.target import CORNER_NAMES, TargetModel, _inside_convex
@@ -271,17 +277,22 @@ def _project(intr: Intrinsics, rot: np.ndarray, pts_rail: np.ndarray, travel: fl
     return intr.project(rel @ rot)  # rows: R^T (P - C)
 
 
-def _bundle(intr, target, picks, init, d0, fixed_travel: bool = False):
-    """Refine roll, tilt, target pose (and the travel unless ``fixed_travel``) by the
-    reprojection error of all 12 picks."""
+def _bundle(intr, target, picks, init, d0, fixed_travel: bool = False,
+            fixed_rotation: bool = False):
+    """Refine roll, tilt (unless ``fixed_rotation``), the target pose and the travel (unless
+    ``fixed_travel``) by the reprojection error of all 12 picks."""
     from scipy.optimize import least_squares
 
     obj = target.corner_array()
     uv1, uv2 = picks.array("t1"), picks.array("t2")
+    roll, tilt, r_o, t_o = init
+    rot_fixed = ideal_rotation(roll, tilt)
 
     def unpack(p):
-        d = d0 if fixed_travel else p[8]
-        return ideal_rotation(p[0], p[1]), _rodrigues(p[2:5]), p[5:8], d
+        i = 0 if fixed_rotation else 2
+        rot = rot_fixed if fixed_rotation else ideal_rotation(p[0], p[1])
+        d = d0 if fixed_travel else p[i + 6]
+        return rot, _rodrigues(p[i:i + 3]), p[i + 3:i + 6], d
 
     def resid(p):
         rot, r_o, t_o, d = unpack(p)
@@ -289,11 +300,13 @@ def _bundle(intr, target, picks, init, d0, fixed_travel: bool = False):
         return np.concatenate([(_project(intr, rot, pts, 0.0) - uv1).ravel(),
                                (_project(intr, rot, pts, d) - uv2).ravel()])
 
-    roll, tilt, r_o, t_o = init
-    p0 = np.concatenate([[roll, tilt], _rot_to_vec(r_o), t_o] + ([] if fixed_travel else [[d0]]))
+    p0 = np.concatenate(([] if fixed_rotation else [[roll, tilt]]) + [_rot_to_vec(r_o), t_o]
+                        + ([] if fixed_travel else [[d0]]))
     sol = least_squares(resid, p0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=4000)
     rot, r_o, t_o, d = unpack(sol.x)
     rms = float(np.sqrt(np.mean(sol.fun**2)))
+    if fixed_rotation:
+        return roll, tilt, r_o, t_o, float(d), rms
     return sol.x[0], sol.x[1], r_o, t_o, float(d), rms
 
 
@@ -312,10 +325,9 @@ def _face_polygons(calib_pose, target: TargetModel):
     return out
 
 
-def stripe_points_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
-                            pose, target: TargetModel, travel_mm: float, params=None):
-    """3D points (camera-fixed ideal frame) of the laser stripe where it falls on the target's
-    top faces in one frame, and the face height of each point."""
+def stripe_uv_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
+                        pose, target: TargetModel, travel_mm: float, params=None) -> np.ndarray:
+    """Sub-pixel stripe positions ``(N, 2)`` of one laser inside the target's image region."""
     from impress_gui.core.stripes import StripeParams, detect_band
 
     faces = _face_polygons(pose, target)
@@ -326,36 +338,47 @@ def stripe_points_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: 
     c0 = int(max(0, np.floor(all_uv[:, 0].min())))
     c1 = int(min(w, np.ceil(all_uv[:, 0].max()) + 1))
     if r1 - r0 < 10 or c1 - c0 < 10:
-        return np.zeros((0, 3)), np.zeros(0)
-    p = params or StripeParams(method="combined")
-    res = detect_band(laser, rgb[r0:r1, c0:c1], None, r0, p, None)
+        return np.zeros((0, 2))
+    res = detect_band(laser, rgb[r0:r1, c0:c1], None, r0, params or StripeParams(), None)
     cols = np.flatnonzero(res.found)
-    if cols.size == 0:
-        return np.zeros((0, 3)), np.zeros(0)
-    uv = np.column_stack([cols + c0, res.rows[cols]])
-    rays = intr.rays(uv) @ rot.T  # ideal frame
+    return np.column_stack([cols + c0, res.rows[cols]])
+
+
+def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: float):
+    """Intersect ideal-frame rays with the target's top faces (seen from a frame whose camera
+    travelled ``travel_mm``): 3D points in the camera-fixed ideal frame and face heights, for
+    the rays that hit a face (inside it by 1 mm)."""
     best_t = np.full(len(rays), np.inf)
     best_h = np.full(len(rays), np.nan)
-    for height, poly_in, poly in faces:
+    for height, poly_in, poly in _face_polygons(pose, target):
         n = np.cross(poly[1] - poly[0], poly[2] - poly[0])
         n /= np.linalg.norm(n)
         p0 = poly[0] - np.array([0.0, travel_mm, 0.0])
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (p0 @ n) / (rays @ n)
         hit = rays * t[:, None] + np.array([0.0, travel_mm, 0.0])  # rail frame
-        # inside test in the face's own 2D frame
         e1 = poly[1] - poly[0]
         e1 /= np.linalg.norm(e1)
         e2 = np.cross(n, e1)
         q = poly_in - poly[0]
-        poly2 = np.column_stack([q @ e1, q @ e2])
         hq = hit - poly[0]
-        inside = _inside_convex(poly2, hq @ e1, hq @ e2) & (t > 0)
+        inside = _inside_convex(np.column_stack([q @ e1, q @ e2]), hq @ e1, hq @ e2) & (t > 0)
         better = inside & (t < best_t)
         best_t[better] = t[better]
         best_h[better] = height
     ok = np.isfinite(best_t)
-    return rays[ok] * best_t[ok, None], best_h[ok]
+    return rays[ok] * best_t[ok, None], best_h[ok], ok
+
+
+def stripe_points_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
+                            pose, target: TargetModel, travel_mm: float, params=None):
+    """3D points (camera-fixed ideal frame) of the laser stripe where it falls on the target's
+    top faces in one frame, and the face height of each point."""
+    uv = stripe_uv_on_target(rgb, laser, intr, rot, pose, target, travel_mm, params)
+    if len(uv) == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    pts, hts, _ = points_on_faces(intr.rays(uv) @ rot.T, pose, target, travel_mm)
+    return pts, hts
 
 
 def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames) -> LaserPlaneFit:
@@ -405,7 +428,7 @@ class PoseSolution:
 
 def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_mm_s: float,
                dt_s: float) -> PoseSolution:
-    """Motion direction, roll, tilt, metric corners and target pose from the picks alone.
+    """Motion direction, roll, tilt, metric corners and target pose from the picks.
 
     ``dt_s`` is the time between frames t1 and t2."""
     d = speed_mm_s * dt_s
@@ -442,14 +465,17 @@ def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_
             f"the target model does not match the picks (corner residuals up to "
             f"{np.max(residuals):.1f} mm); check the corner order and the target model",
             code="E-TARGET-MISMATCH")
+    fix_rot = False
     roll_b, tilt_b, r_o, t_o, d_fit, rms_px = _bundle(
-        intrinsics, target, picks, (roll, tilt, r_s, t_s / scale), d / scale)
+        intrinsics, target, picks, (roll, tilt, r_s, t_s / scale), d / scale,
+        fixed_rotation=fix_rot)
     implied = d_fit / dt_s
     warnings = []
     if abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s:
         # the entered speed is confirmed: the known travel constrains the pose better
         roll_b, tilt_b, r_o, t_o, _, rms_px = _bundle(
-            intrinsics, target, picks, (roll_b, tilt_b, r_o, t_o), d, fixed_travel=True)
+            intrinsics, target, picks, (roll_b, tilt_b, r_o, t_o), d, fixed_travel=True,
+            fixed_rotation=fix_rot)
     rot_b = ideal_rotation(roll_b, tilt_b)
     m_b = rot_b.T @ np.array([0.0, 1.0, 0.0])
     if abs(implied - speed_mm_s) > SPEED_WARN_FRACTION * speed_mm_s:
@@ -470,7 +496,9 @@ def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_
 
 def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: Picks,
                     speed_mm_s: float, fps: float | None = None, plane_frames: int = 15,
-                    plane_span: int = 30, progress: ProgressCallback | None = None,
+                    plane_span: int = 300, plane_travel_mm: float = 25.0,
+                    refine_with_stripes: bool = True, click_sigma_px: float = 0.5,
+                    progress: ProgressCallback | None = None,
                     cancel: CancelToken | None = None, inputs: dict | None = None
                     ) -> SceneCalibration:
     """Calibrate the rig from one scan. ``video`` is an open :class:`VideoSource`."""
@@ -483,48 +511,114 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
     fps = float(fps or video.fps)
     times = video.times_s if fps == video.fps else np.arange(video.frame_count) / fps
     dt = float(times[picks.t2] - times[picks.t1])
-    d = speed_mm_s * dt
     report(progress, 0.05, "motion direction and pose")
     pose = solve_pose(intrinsics, target, picks, speed_mm_s, dt)
     rot_b, r_o, t_o = pose.rotation, pose.target_rotation, pose.target_translation_mm
     implied, warnings = pose.implied_speed_mm_s, list(pose.warnings)
-    # ----- laser planes from the stripes on the target --------------------------------------
-    planes = {}
+    # ----- stripes on the target around each calibration frame ----------------------------
     v_true = implied  # the travel between frames that matches the target's pose
+    obs: dict[str, list] = {}
     for i, (name, t_c) in enumerate((("green", picks.t1), ("red", picks.t2))):
         cancel.check()
-        report(progress, 0.2 + 0.35 * i, f"{name} laser plane")
-        lo = max(0, t_c - plane_span)
-        hi = min(video.frame_count, t_c + plane_span + 1)
-        step = max(1, (hi - lo) // max(1, plane_frames))
-        wanted = set(range(t_c % step + (lo - lo % step), hi, step)) | {t_c}
-        pts, hts, used = [], [], []
-        for k, rgb in video.iter_frames(lo, hi):
+        report(progress, 0.15 + 0.3 * i, f"{name} stripe on the target")
+        span = max(3, min(plane_span, int(round(plane_travel_mm / max(v_true, 1e-6) * fps))))
+        lo, hi = max(0, t_c - span), min(video.frame_count, t_c + span + 1)
+        wanted = sorted(set(np.linspace(lo, hi - 1, max(1, plane_frames)).astype(int)) | {t_c})
+        obs[name] = []
+        for k in wanted:
             cancel.check()
-            if k not in wanted:
-                continue
-            travel = v_true * float(times[k] - times[picks.t1])
-            p, hh = stripe_points_on_target(rgb, name, intrinsics, rot_b, (r_o, t_o), target,
-                                            travel)
-            if len(np.unique(hh)) >= 2 and min(np.sum(hh == v) for v in np.unique(hh)) >= 10:
+            dt_k = float(times[k] - times[picks.t1])
+            uv = stripe_uv_on_target(video.read(int(k)), name, intrinsics, rot_b, (r_o, t_o),
+                                     target, v_true * dt_k)
+            if len(uv):
+                obs[name].append((int(k), dt_k, intrinsics.rays(uv)))
+
+    def stripe_points(name, rot, pose_rt):
+        pts, hts, used = [], [], []
+        for k, dt_k, rays in obs[name]:
+            p, hh, _ = points_on_faces(rays @ rot.T, pose_rt, target, v_true * dt_k)
+            levels = np.unique(hh)
+            if len(levels) >= 2 and min(np.sum(hh == v) for v in levels) >= 10:
                 pts.append(p)
                 hts.append(hh)
                 used.append(k)
-        if not pts:
-            raise CalibrationError(
-                f"the {name} stripe was not found on two target faces in frames {lo}..{hi - 1} "
-                f"around frame {t_c}; choose a frame where it crosses the target",
-                code="E-PLANE-UNDETERMINED")
-        # frames whose points disagree with the others (acceleration ramp, a passing shadow)
-        # are dropped: their travel does not follow the constant speed
-        if len(used) >= 4:
-            first = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
-            err = np.array([np.median(np.abs(first.plane.distance(p))) for p in pts])
-            good = err <= max(3 * np.median(err), 0.02)
-            pts = [p for p, g in zip(pts, good) if g]
-            hts = [h for h, g in zip(hts, good) if g]
-            used = [k for k, g in zip(used, good) if g]
-        planes[name] = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
+        return pts, hts, used
+
+    def planes_for(rot, pose_rt):
+        out = {}
+        for name, t_c in (("green", picks.t1), ("red", picks.t2)):
+            pts, hts, used = stripe_points(name, rot, pose_rt)
+            if not pts:
+                raise CalibrationError(
+                    f"the {name} stripe was not found on two target faces around frame {t_c}; "
+                    "choose a frame where it crosses both the low and the high face",
+                    code="E-PLANE-UNDETERMINED")
+            # frames whose points disagree with the others (acceleration ramp, a passing
+            # shadow) are dropped: their travel does not follow the constant speed
+            if len(used) >= 4:
+                first = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
+                err = np.array([np.median(np.abs(first.plane.distance(p))) for p in pts])
+                good = err <= max(3 * np.median(err), 0.02)
+                pts = [p for p, g in zip(pts, good) if g]
+                hts = [h for h, g in zip(hts, good) if g]
+                used = [k for k, g in zip(used, good) if g]
+            out[name] = (fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used),
+                         pts)
+        return out
+
+    planes0 = planes_for(rot_b, (r_o, t_o))
+    if refine_with_stripes:
+        # The clicks fix roll well but tilt poorly (a tilt of 0.05 deg moves the corners by
+        # less than 0.1 px). The stripe on the target's faces, seen over a stretch of travel,
+        # is only consistent with one motion direction: refine the tilt to minimise the plane
+        # residuals of the stripe points together with the reprojection of the picks.
+        from scipy.optimize import minimize_scalar
+
+        sigma_s = max(1e-3, np.mean([f.rms_mm for f, _ in planes0.values()]))
+        n_ref = {name: sum(len(p) for p in pts) for name, (_, pts) in planes0.items()}
+        speed_ok = abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s
+        d_use = (speed_mm_s if speed_ok else v_true) * dt
+        base = (pose.roll_rad, pose.tilt_rad, r_o, t_o)
+
+        def cost(tilt):
+            roll = pose.roll_rad
+            _, _, ro, to, _, rms = _bundle(intrinsics, target, picks, (roll, tilt, base[2],
+                                                                       base[3]),
+                                           d_use, fixed_travel=True, fixed_rotation=True)
+            rot = ideal_rotation(roll, tilt)
+            total = 24 * (rms / click_sigma_px) ** 2
+            for name in ("green", "red"):
+                pts, hts, _ = stripe_points(name, rot, (ro, to))
+                n_pts = sum(len(p) for p in pts)
+                if n_pts < 0.8 * n_ref[name]:
+                    return 1e12  # the stripe no longer falls on the faces: not a candidate
+                allp = np.concatenate(pts)
+                plane, _, _ = fit_plane(allp)
+                r = np.clip(np.abs(plane.distance(allp)) / sigma_s, 0, 5)  # outliers capped
+                total += n_ref[name] * float(np.mean(r**2))
+            return total
+
+        # tilt only: roll is fixed well by the picks (the stripes would add their own bias)
+        span = np.radians(0.6)
+        res = minimize_scalar(cost, bounds=(pose.tilt_rad - span, pose.tilt_rad + span),
+                              method="bounded", options={"xatol": 2e-7})
+        roll_r, tilt_r = pose.roll_rad, float(res.x)
+        _, _, r_o, t_o, _, rms_px = _bundle(intrinsics, target, picks,
+                                            (roll_r, tilt_r, base[2], base[3]), d_use,
+                                            fixed_travel=True, fixed_rotation=True)
+        rot_b = ideal_rotation(roll_r, tilt_r)
+        m_b = rot_b.T @ np.array([0.0, 1.0, 0.0])
+        n1 = intrinsics.undistort_points(picks.array("t1"))
+        n2 = intrinsics.undistort_points(picks.array("t2"))
+        corners = triangulate_parallax(*ideal_pair(intrinsics, rot_b, n1, n2), speed_mm_s * dt)
+        _, r_e, t_e = umeyama(target.corner_array(), corners, with_scale=False)
+        residuals = np.linalg.norm(corners - (target.corner_array() @ r_e.T + t_e), axis=1)
+        pose = replace(pose, roll_rad=float(roll_r), tilt_rad=float(tilt_r), rotation=rot_b,
+                       motion_dir_cam=m_b, corners_parallax_mm=corners,
+                       corner_residuals_mm=residuals, target_rotation=r_o,
+                       target_translation_mm=t_o, reprojection_rms_px=rms_px)
+        planes0 = planes_for(rot_b, (r_o, t_o))
+    planes = {name: fit for name, (fit, _) in planes0.items()}
     report(progress, 1.0, "calibrated")
     return SceneCalibration(
         intrinsics=intrinsics, speed_mm_s=float(speed_mm_s), fps=fps, t1=picks.t1, t2=picks.t2,

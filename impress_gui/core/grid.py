@@ -46,7 +46,6 @@ def upsample_profile(x, y, h, valid, pixel_mm: float, k: int, max_step_mm: float
     Returns arrays of length ``(n - 1) * k + 1``, index-aligned across frames (so consecutive
     profiles can be paired point by point). Across a height jump larger than ``max_step_mm``
     the inserted points take the nearer neighbour's values (the edge lands midway)."""
-    n = len(x)
     t = (np.arange(k) / k)[None, :]
     a_ok = valid[:-1] & valid[1:]
     step = np.abs(h[1:] - h[:-1]) > max_step_mm
