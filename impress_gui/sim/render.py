@@ -34,6 +34,10 @@ class RenderOptions:
     laser_peak: float = 4.0  # peak laser signal in multiples of the sensor's full scale
     ambient: float = 0.45
     seed: int = 0
+    #: pixels next to a depth step of more than ``antialias_step_mm`` average
+    #: ``antialias x antialias`` rays over their area (1 = one ray per pixel everywhere)
+    antialias: int = 3
+    antialias_step_mm: float = 4.0
 
 
 @dataclass
@@ -132,6 +136,21 @@ def _pool2(a: np.ndarray, op) -> np.ndarray:
     return np.ascontiguousarray(op(op(a[0::2, 0::2], a[1::2, 0::2]), op(a[0::2, 1::2], a[1::2, 1::2])))
 
 
+def _minmod_slope(h: np.ndarray, axis: int, step: float) -> np.ndarray:
+    """Slope of ``h`` along ``axis``: the smaller of the one-sided differences, zero where they
+    disagree in sign. A flat top stays flat up to its last cell (a central difference would
+    shade the cells on both sides of a step as a slope and shift the edge seen in the image)."""
+    h = np.asarray(h, np.float32)
+    d = np.diff(h, axis=axis) / np.float32(step)
+    pad = [(0, 0), (0, 0)]
+    pad[axis] = (1, 0)
+    back = np.pad(d, pad)  # h[i] - h[i-1]
+    pad[axis] = (0, 1)
+    fwd = np.pad(d, pad)  # h[i+1] - h[i]
+    return np.where(back * fwd > 0, np.where(np.abs(back) < np.abs(fwd), back, fwd), 0.0).astype(
+        np.float32)
+
+
 def _at(b, d, z):
     return b + z * d
 
@@ -155,7 +174,7 @@ class Renderer:
         pix = scene.pixel_mm
         hm = scene.height_mm
         self.depth = np.ascontiguousarray(rig.standoff_mm - hm, dtype=np.float32)  # Z' of surface
-        gy, gx = np.gradient(hm.astype(np.float32), pix)
+        gx, gy = _minmod_slope(hm, 1, pix), _minmod_slope(hm, 0, pix)
         light = np.array([0.3, -0.35, 1.0])
         light /= np.linalg.norm(light)
         shade = (-gx * light[0] - gy * light[1] + light[2]) / np.sqrt(1.0 + gx * gx + gy * gy)
@@ -353,6 +372,46 @@ class Renderer:
                        ztol=2e-3)
         return np.where(np.isfinite(z), z, zh)
 
+    def _antialias(self, s: float, z: np.ndarray, rgb: np.ndarray) -> None:
+        """Average ``n x n`` rays over the area of pixels beside depth steps (occluding edges:
+        the sensor integrates over the pixel, so an edge falls between pixels as a blend)."""
+        n = int(self.opt.antialias)
+        if n <= 1:
+            return
+        step = self.opt.antialias_step_mm
+        edge = np.zeros(z.shape, bool)
+        jump = np.abs(np.diff(z, axis=1)) > step
+        edge[:, 1:] |= jump
+        edge[:, :-1] |= jump
+        jump = np.abs(np.diff(z, axis=0)) > step
+        edge[1:] |= jump
+        edge[:-1] |= jump
+        idx = np.flatnonzero(edge)
+        if not idx.size:
+            return
+        v, u = np.divmod(idx, self.width)
+        offs = (np.arange(n) + 0.5) / n - 0.5
+        du, dv = (a.ravel() for a in np.meshgrid(offs, offs))
+        other = np.abs(du) + np.abs(dv) > 1e-9  # the pixel centre is already rendered
+        du, dv = du[other], dv[other]
+        mu = (u[None, :] + du[:, None]).astype(np.float32).ravel()
+        mv = (v[None, :] + dv[:, None]).astype(np.float32).ravel()
+        sc = self.scene
+        inv = np.float32(1.0 / sc.pixel_mm)
+        dx = remap_points(self.ax, mu, mv) * inv  # ray slopes vary smoothly over a pixel
+        dy = remap_points(self.ay, mu, mv) * inv
+        bx = np.float32(-sc.x0_mm / sc.pixel_mm)
+        by = np.float32((s - sc.y0_mm) / sc.pixel_mm)
+        zl = np.full(dx.size, self.bounds.zmin - 0.01, np.float32)
+        zh = np.full(dx.size, self.bounds.zmax + 0.01, np.float32)
+        zs = self._cast(bx, by, dx, dy, zl, zh, refine=8, ftol=2e-3, ztol=2e-3)
+        zs = np.where(np.isfinite(zs), zs, zh)
+        col = remap_points(self.shaded, bx + zs * dx, by + zs * dy).astype(np.float32)
+        total = col.reshape(du.size, idx.size, 3).sum(axis=0)
+        if n % 2:
+            total += rgb[v, u]
+        rgb[v, u] = total / np.float32(n * n)
+
     def camera_surface(self, k: int):
         """Rail-frame surface point seen by every pixel of frame ``k`` (X, Y, Z) as (H, W)."""
         s = self.travel(k)
@@ -464,6 +523,7 @@ class Renderer:
         mx = np.float32(-sc.x0_mm / sc.pixel_mm) + z * self._cam_dx
         my = np.float32((s - sc.y0_mm) / sc.pixel_mm) + z * self._cam_dy
         rgb = remap_points(self.shaded, mx, my).reshape(h, w, 3).astype(np.float32)
+        self._antialias(s, z.reshape(h, w), rgb)
         truths = {}
         for laser in self.rig.lasers:
             tr = self.laser_points(laser, k)
