@@ -62,6 +62,25 @@ def upsample_profile(x, y, h, valid, pixel_mm: float, k: int, max_step_mm: float
     return tuple(np.concatenate([o, [last]]) for o, last in zip(out, (x[-1], y[-1], h[-1], valid[-1])))
 
 
+def _cell_index(spec: GridSpec, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Flat cell index of each point (nearest cell), -1 outside the grid."""
+    j = np.rint((x - spec.x0_mm) / spec.pixel_mm).astype(np.int64)
+    i = np.rint((y - spec.y0_mm) / spec.pixel_mm).astype(np.int64)
+    ok = (i >= 0) & (i < spec.shape[0]) & (j >= 0) & (j < spec.shape[1])
+    return np.where(ok, i * spec.shape[1] + j, -1)
+
+
+def _accumulate(target: np.ndarray, idx: np.ndarray, values: np.ndarray | None) -> None:
+    """``target[idx] += values`` (or ``+= 1``) with repeated indices, via a bincount over the
+    small span of cells one frame touches (much faster than ``np.add.at``)."""
+    if idx.size == 0:
+        return
+    lo, hi = int(idx.min()), int(idx.max()) + 1
+    add = np.bincount(idx - lo, weights=values, minlength=hi - lo)
+    view = target[lo:hi]
+    view += add.astype(view.dtype) if values is not None else add.astype(view.dtype)
+
+
 class HeightAccumulator:
     """Sum and count of heights per cell, filled between consecutive profiles."""
 
@@ -77,13 +96,10 @@ class HeightAccumulator:
         self._prev = None
 
     def _splat(self, x, y, h) -> None:
-        s = self.spec
-        j = np.rint((x - s.x0_mm) / s.pixel_mm).astype(np.int64)
-        i = np.rint((y - s.y0_mm) / s.pixel_mm).astype(np.int64)
-        ok = (i >= 0) & (i < s.shape[0]) & (j >= 0) & (j < s.shape[1])
-        idx = i[ok] * s.shape[1] + j[ok]
-        np.add.at(self.sum.reshape(-1), idx, h[ok])
-        np.add.at(self.count.reshape(-1), idx, 1)
+        idx = _cell_index(self.spec, x, y)
+        ok = idx >= 0
+        _accumulate(self.sum.reshape(-1), idx[ok], h[ok])
+        _accumulate(self.count.reshape(-1), idx[ok], None)
 
     def add_profile(self, x, y, h, valid) -> None:
         """Add one frame's (upsampled) profile; fill towards the previous one."""
@@ -151,14 +167,12 @@ class ColorAccumulator:
         X = np.concatenate([p[0] for p in pts])
         Y = np.concatenate([p[1] for p in pts])
         C = np.concatenate([p[2] for p in pts]).astype(np.float32)
-        j = np.rint((X - s.x0_mm) / s.pixel_mm).astype(np.int64)
-        i = np.rint((Y - s.y0_mm) / s.pixel_mm).astype(np.int64)
-        ok = (i >= 0) & (i < s.shape[0]) & (j >= 0) & (j < s.shape[1])
-        idx = i[ok] * s.shape[1] + j[ok]
+        idx = _cell_index(s, X, Y)
+        ok = idx >= 0
         flat = self.sum.reshape(-1, 3)
         for c in range(3):
-            np.add.at(flat[:, c], idx, C[ok, c])
-        np.add.at(self.count.reshape(-1), idx, 1)
+            _accumulate(flat[:, c], idx[ok], C[ok, c])
+        _accumulate(self.count.reshape(-1), idx[ok], None)
 
     def mean(self) -> np.ndarray:
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -209,13 +209,24 @@ def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height
     h, w = planes.y.shape
     cols = np.arange(w)
     s = planes.chroma_step
-    offs_b = np.arange(band_height)
-    rows = np.clip(band_start[None, :] + offs_b[:, None], 0, h - 1)  # (Hb, W)
-    yb = planes.y[rows, cols[None, :]].astype(np.int16)
-    crb = planes.cr[rows // s, (cols // s)[None, :]].astype(np.int16) - 128
+    # one rectangular slice covering every column's band (views, no gathering), with the
+    # rows outside a column's own band pushed out of the argmax
+    r0 = int(band_start.min())
+    r1 = int(min(h, (band_start + band_height).max()))
+    yb = planes.y[r0:r1].astype(np.int16)
+    c0, c1 = r0 // s, (r1 + s - 1) // s
+    crb = planes.cr[c0:c1]
+    if s > 1:
+        import cv2
+
+        crb = cv2.resize(crb, (crb.shape[1] * s, crb.shape[0] * s),
+                         interpolation=cv2.INTER_NEAREST)[r0 - c0 * s : r0 - c0 * s + (r1 - r0), :w]
+    score = yb + (crb.astype(np.int16) - 128) * (1 if name == "red" else -1)
+    rel = np.arange(r1 - r0)[:, None] + r0 - band_start[None, :]
+    score[(rel < 0) | (rel >= band_height)] = -1000
+    peak = score.argmax(axis=0) + r0
+    peak_i = peak - band_start
     sign = 1 if name == "red" else -1
-    peak_i = (yb + sign * crb).argmax(axis=0)  # index inside the band
-    peak = band_start + peak_i
     k = params.half_window_px
     offs = np.arange(-k, k + 1)
     rr = np.clip(peak[None, :] + offs[:, None], 0, h - 1)  # (2k+1, W) image rows
