@@ -129,7 +129,7 @@ def load_reconstruction(
                 raise FormatError(f"{path}: missing", code="E-FILE-MISSING")
             continue
         try:
-            arr = tifffile.imread(path)
+            arr = tifffile.imread(path, maxworkers=1)
         except Exception as exc:  # noqa: BLE001 - tifffile raises many kinds
             raise FormatError(f"{path}: damaged ({exc})") from None
         if arr.shape != spec.shape:

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QObject, QRectF
+from PySide6.QtCore import QObject, QRectF, QTimer
 
 from impress_gui.core.grid import GridSpec
 from impress_gui.ui.worker import Worker
@@ -85,7 +85,11 @@ def auto_levels(arr: np.ndarray, samples: float = 250_000) -> tuple[float, float
 class LodImage(QObject):
     """Shows a map in ``item`` (inside ``view_box``) at the resolution the view needs."""
 
-    def __init__(self, item: pg.ImageItem, view_box: pg.ViewBox, name: str = "map") -> None:
+    def __init__(
+        self, item: pg.ImageItem, view_box: pg.ViewBox, name: str = "map", delay_ms: int = 150
+    ) -> None:
+        """``delay_ms``: the pyramid is started that long after new data is shown, so that the
+        first picture is painted without worker threads competing for the interpreter."""
         super().__init__(view_box)
         self.item, self.vb = item, view_box
         self.name = name
@@ -96,6 +100,9 @@ class LodImage(QObject):
         self.shown: tuple[int, int, int, int, int] | None = None  # level, i0, i1, j0, j1
         self._builder = Worker(parent=self, name=f"pyramid-{name}")
         self._builder.finished.connect(self._on_pyramid)
+        self._start_timer = QTimer(self, singleShot=True, interval=delay_ms)
+        self._start_timer.timeout.connect(self._start_pyramid)
+        self._pending: tuple[int, np.ndarray] | None = None
         self._token = 0
         self.crops = 0  # how many crops were uploaded (benchmarks, tests)
         view_box.sigRangeChanged.connect(lambda *_: self.update_view())
@@ -112,6 +119,8 @@ class LodImage(QObject):
         """Show ``arr`` (H x W floats, or H x W x 3 bytes) on ``spec``'s grid; the mean pyramid
         is built in the background, strided levels stand in meanwhile."""
         self._builder.shutdown()
+        self._start_timer.stop()
+        self._pending = None
         self._token += 1
         self.spec = spec
         self.colour_levels = colour_levels
@@ -124,7 +133,15 @@ class LodImage(QObject):
         self.update_view()
         if len(self.levels) > 1 and not nearest:
             token = self._token
-            self._builder.start(lambda _p, cancel: (token, pyramid(arr, cancel=cancel)))
+            self._pending = (token, arr)
+            self._start_timer.start()
+
+    def _start_pyramid(self) -> None:
+        if self._pending is None or self._pending[0] != self._token:
+            return
+        token, arr = self._pending
+        self._pending = None
+        self._builder.start(lambda _p, cancel: (token, pyramid(arr, cancel=cancel)))
 
     def set_colour_levels(self, levels: tuple[float, float] | None) -> None:
         self.colour_levels = levels
@@ -132,9 +149,11 @@ class LodImage(QObject):
             self.item.setLevels(levels)
 
     def is_building(self) -> bool:
-        return self._builder.is_running()
+        return self._builder.is_running() or self._pending is not None
 
     def shutdown(self) -> None:
+        self._start_timer.stop()
+        self._pending = None
         self._builder.shutdown()
 
     def _on_pyramid(self, result) -> None:

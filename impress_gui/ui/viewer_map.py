@@ -65,7 +65,7 @@ class MapView(pg.GraphicsLayoutWidget):
             self.plot.addItem(item)
         self.scalar = LodImage(self.scalar_item, self.vb, "layer")
         self.rgb = LodImage(self.rgb_item, self.vb, "rgb-layer")
-        self.texture = LodImage(self.texture_item, self.vb, "texture")
+        self.texture = LodImage(self.texture_item, self.vb, "texture", delay_ms=600)
         self.colour_bar = pg.ColorBarItem(
             values=(0.0, 1.0),
             colorMap=pg.colormap.get("turbo"),
