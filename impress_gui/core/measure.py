@@ -13,18 +13,17 @@ are float32 mm with NaN for no data. All functions work on the full-resolution a
 - :func:`plane_from_points`, :func:`plane_from_region`, :func:`levelled` - levelling;
 - :func:`hillshade` - an oblique virtual light;
 - :func:`profile_csv`, :func:`measurements_csv` - CSV text.
+
+Levelling and hillshade live in :mod:`~impress_gui.core.measure_surface`, records and CSV in
+:mod:`~impress_gui.core.measure_records`; both are re-exported here.
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import math
-import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from types import MappingProxyType
 
@@ -381,275 +380,52 @@ def width_at_level(profile: Profile, level_mm: float, around_mm: float) -> Width
     return Width(lo, hi, hi - lo, float(level_mm))
 
 
-# ----- levelling -----------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Plane:
-    """Reference plane ``z = a*x + b*y + c`` (mm); ``rms_mm`` of the fit residuals."""
+# the rest of the measuring API, in one namespace (imported last: records use the types above)
+from impress_gui.core.measure_records import (  # noqa: E402
+    MEASUREMENT_KINDS,
+    measurements_csv,
+    new_measurement,
+    profile_csv,
+    read_profile_csv,
+    ruler_values,
+    step_values,
+)
+from impress_gui.core.measure_surface import (  # noqa: E402
+    Plane,
+    hillshade,
+    levelled,
+    plane_from_points,
+    plane_from_region,
+)
 
-    a: float
-    b: float
-    c: float
-    rms_mm: float = 0.0
-    n: int = 3
-
-    def at(self, x_mm, y_mm):
-        return self.a * np.asarray(x_mm) + self.b * np.asarray(y_mm) + self.c
-
-    @property
-    def tilt_deg(self) -> float:
-        return math.degrees(math.atan(math.hypot(self.a, self.b)))
-
-    def to_json(self) -> dict:
-        return {"a": self.a, "b": self.b, "c": self.c, "rms_mm": self.rms_mm, "n": self.n}
-
-
-def plane_from_points(points: Sequence[Sequence[float]]) -> Plane:
-    """The plane through three ``(x, y, z)`` points; InputError when they are collinear or
-    a height is missing."""
-    pts = np.asarray(points, np.float64)
-    if pts.shape != (3, 3) or not np.isfinite(pts).all():
-        raise InputError("levelling needs three points with data", code="E-LEVEL")
-    m = np.column_stack([pts[:, 0], pts[:, 1], np.ones(3)])
-    if abs(np.linalg.det(m)) < 1e-6:
-        raise InputError("the three levelling points are on one line", code="E-LEVEL")
-    a, b, c = np.linalg.solve(m, pts[:, 2])
-    return Plane(float(a), float(b), float(c), 0.0, 3)
-
-
-def plane_from_region(
-    height: np.ndarray,
-    spec: GridSpec,
-    x_range: Sequence[float],
-    y_range: Sequence[float],
-    mask: np.ndarray | None = None,
-) -> Plane:
-    """Least-squares plane through every cell with data in a rectangle (and ``mask``)."""
-    (xa, xb), (ya, yb) = sorted(x_range), sorted(y_range)
-    p = spec.pixel_mm
-    j0 = max(0, math.ceil((xa - spec.x0_mm) / p))
-    j1 = min(spec.shape[1], math.floor((xb - spec.x0_mm) / p) + 1)
-    i0 = max(0, math.ceil((ya - spec.y0_mm) / p))
-    i1 = min(spec.shape[0], math.floor((yb - spec.y0_mm) / p) + 1)
-    sub = height[i0:i1, j0:j1] if i1 > i0 and j1 > j0 else np.zeros((0, 0), np.float32)
-    ok = np.isfinite(sub)
-    if mask is not None and sub.size:
-        ok &= mask[i0:i1, j0:j1]
-    ii, jj = np.nonzero(ok)
-    if ii.size < 3:
-        raise InputError(
-            "the levelling region has fewer than three cells with data", code="E-LEVEL"
-        )
-    # centred coordinates keep the normal equations well conditioned
-    x = (jj + j0) * p + spec.x0_mm
-    y = (ii + i0) * p + spec.y0_mm
-    z = sub[ok].astype(np.float64)
-    xm, ym, zm = x.mean(), y.mean(), z.mean()
-    m = np.column_stack([x - xm, y - ym])
-    if np.linalg.matrix_rank(m.T @ m) < 2:
-        raise InputError("the levelling region is a line; draw an area", code="E-LEVEL")
-    (a, b), *_ = np.linalg.lstsq(m, z - zm, rcond=None)
-    res = z - zm - m @ np.array([a, b])
-    return Plane(
-        float(a),
-        float(b),
-        float(zm - a * xm - b * ym),
-        float(np.sqrt(np.mean(res**2))),
-        int(z.size),
-    )
-
-
-def levelled(height: np.ndarray, spec: GridSpec, plane: Plane | None) -> np.ndarray:
-    """Heights relative to ``plane`` (float32, NaN kept); the input itself when None."""
-    if plane is None:
-        return height
-    xs = spec.xs().astype(np.float32)
-    out = np.empty(height.shape, np.float32)
-    for r0 in range(0, height.shape[0], 2048):
-        r1 = min(height.shape[0], r0 + 2048)
-        ys = (spec.ys()[r0:r1]).astype(np.float64)
-        ref = (plane.a * xs)[None, :] + (plane.b * ys + plane.c).astype(np.float32)[:, None]
-        np.subtract(height[r0:r1], ref, out=out[r0:r1])
-    return _frozen(out)
-
-
-# ----- hillshade -----------------------------------------------------------------------------
-def hillshade(
-    height: np.ndarray,
-    pixel_mm: float,
-    azimuth_deg: float = 315.0,
-    elevation_deg: float = 45.0,
-    z_factor: float = 1.0,
-    chunk_rows: int = 1024,
-) -> np.ndarray:
-    """Lambertian shading in [0, 1] (float32, NaN where no data) under a light from
-    ``azimuth_deg`` (clockwise from +y) at ``elevation_deg`` above the surface. Slopes use
-    central differences, one-sided next to missing data."""
-    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-    light = np.array(
-        [math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)], np.float32
-    )
-    h, w = height.shape
-    out = np.empty((h, w), np.float32)
-    for r0 in range(0, h, chunk_rows):
-        r1 = min(h, r0 + chunk_rows)
-        a, b = max(0, r0 - 1), min(h, r1 + 1)
-        z = np.asarray(height[a:b], np.float32) * np.float32(z_factor)
-        gx = _gradient(z, 1, pixel_mm)
-        gy = _gradient(z, 0, pixel_mm)
-        norm = np.sqrt(gx * gx + gy * gy + 1.0)
-        shade = (-gx * light[0] - gy * light[1] + light[2]) / norm
-        np.clip(shade, 0.0, 1.0, out=shade)
-        shade[~np.isfinite(z)] = np.nan
-        out[r0:r1] = shade[r0 - a : r0 - a + (r1 - r0)]
-    return out
-
-
-def _gradient(z: np.ndarray, axis: int, step: float) -> np.ndarray:
-    zp = np.swapaxes(z, 0, axis)
-    lo = np.empty_like(zp)
-    hi = np.empty_like(zp)
-    lo[1:], lo[0] = zp[:-1], np.nan
-    hi[:-1], hi[-1] = zp[1:], np.nan
-    lo_ok, hi_ok = np.isfinite(lo), np.isfinite(hi)
-    lo = np.where(lo_ok, lo, zp)
-    hi = np.where(hi_ok, hi, zp)
-    span = (lo_ok.astype(np.float32) + hi_ok.astype(np.float32)) * np.float32(step)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        g = np.where(span > 0, (hi - lo) / span, 0.0).astype(np.float32)
-    g[~np.isfinite(g)] = 0.0
-    return np.swapaxes(g, 0, axis)
-
-
-# ----- measurement records and CSV ------------------------------------------------------------
-MEASUREMENT_KINDS = ("point", "ruler", "profile", "annotation", "plane")
-
-
-def new_measurement(
-    kind: str,
-    points_mm: Sequence[Sequence[float]],
-    values: Mapping,
-    label: str = "",
-    note: str = "",
-    params: Mapping | None = None,
-) -> dict:
-    """A JSON-able measurement record as kept in the project's ``measurements`` list:
-    ``{"id", "kind", "label", "note", "points_mm", "params", "values", "created_utc"}``
-    (non-finite values are stored as None)."""
-    if kind not in MEASUREMENT_KINDS:
-        raise InputError(f"unknown measurement kind {kind!r}")
-    return {
-        "id": uuid.uuid4().hex[:8],
-        "kind": kind,
-        "label": str(label),
-        "note": str(note),
-        "points_mm": [[round(float(c), 4) for c in p] for p in points_mm],
-        "params": _jsonable(dict(params or {})),
-        "values": _jsonable(dict(values)),
-        "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-    }
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return round(float(obj), 5) if math.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
-
-
-def ruler_values(r: RulerResult) -> dict:
-    return {
-        "xy_mm": r.xy_mm,
-        "d3_mm": r.d3_mm,
-        "dz_mm": r.dz_mm,
-        "z_start_mm": r.start.height_mm,
-        "z_end_mm": r.end.height_mm,
-    }
-
-
-def step_values(s: StepHeight) -> dict:
-    return {
-        "band_a_mean_mm": s.a.mean_mm,
-        "band_a_sd_mm": s.a.sd_mm,
-        "band_a_n": s.a.n,
-        "band_b_mean_mm": s.b.mean_mm,
-        "band_b_sd_mm": s.b.sd_mm,
-        "band_b_n": s.b.n,
-        "step_mm": s.difference_mm,
-        "step_sd_mm": s.sd_mm,
-    }
-
-
-def _fmt(v) -> str:
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        return "" if not math.isfinite(v) else f"{v:.4f}"
-    return str(v)
-
-
-def profile_csv(profile: Profile, step: StepHeight | None = None) -> str:
-    """Comment header (segment, width, bands) then ``distance_mm,x_mm,y_mm,height_mm,n_valid``
-    rows; missing heights are empty fields."""
-    buf = io.StringIO()
-    buf.write(
-        f"# IMPREsS profile; start ({profile.start[0]:.4f}, {profile.start[1]:.4f}) mm; "
-        f"end ({profile.end[0]:.4f}, {profile.end[1]:.4f}) mm; length "
-        f"{profile.length_mm:.4f} mm; averaging width {profile.width_mm:.4f} mm\n"
-    )
-    if step is not None:
-        for name, b in (("A", step.a), ("B", step.b)):
-            buf.write(
-                f"# band {name} {b.start_mm:.4f}..{b.end_mm:.4f} mm: mean "
-                f"{_fmt(b.mean_mm)} mm, SD {_fmt(b.sd_mm)} mm, n {b.n}\n"
-            )
-        buf.write(f"# step B - A: {_fmt(step.difference_mm)} mm, SD {_fmt(step.sd_mm)} mm\n")
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["distance_mm", "x_mm", "y_mm", "height_mm", "n_valid"])
-    for d, x, y, h, n in zip(
-        profile.distance_mm, profile.x_mm, profile.y_mm, profile.height_mm, profile.n_valid
-    ):
-        w.writerow([f"{d:.4f}", f"{x:.4f}", f"{y:.4f}", _fmt(float(h)), int(n)])
-    return buf.getvalue()
-
-
-def read_profile_csv(text: str) -> tuple[np.ndarray, np.ndarray]:
-    """``(distance_mm, height_mm)`` back from :func:`profile_csv` text (NaN for empty)."""
-    rows = [
-        r
-        for r in csv.reader(line for line in text.splitlines() if line and not line.startswith("#"))
-    ]
-    body = rows[1:]
-    d = np.array([float(r[0]) for r in body])
-    h = np.array([float(r[3]) if r[3] else np.nan for r in body])
-    return d, h
-
-
-def measurements_csv(measurements: Sequence[Mapping]) -> str:
-    """One row per measurement: number, id, kind, label, note, points and every value."""
-    value_keys: list[str] = []
-    n_pts = 0
-    for m in measurements:
-        n_pts = max(n_pts, len(m.get("points_mm", [])))
-        for k in m.get("values", {}):
-            if k not in value_keys:
-                value_keys.append(k)
-    head = ["number", "id", "kind", "label", "note"]
-    for i in range(n_pts):
-        head += [f"x{i + 1}_mm", f"y{i + 1}_mm"]
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(head + value_keys)
-    for k, m in enumerate(measurements, 1):
-        row = [k, m.get("id", ""), m.get("kind", ""), m.get("label", ""), m.get("note", "")]
-        pts = list(m.get("points_mm", []))
-        for i in range(n_pts):
-            row += [_fmt(float(pts[i][0])), _fmt(float(pts[i][1]))] if i < len(pts) else ["", ""]
-        vals = m.get("values", {})
-        row += [_fmt(vals.get(key)) for key in value_keys]
-        w.writerow(row)
-    return buf.getvalue()
+__all__ = [
+    "LAYER_FILES",
+    "MEASUREMENT_KINDS",
+    "BandStats",
+    "Plane",
+    "Profile",
+    "Readout",
+    "ReconData",
+    "RulerResult",
+    "StepHeight",
+    "Width",
+    "band_stats",
+    "hillshade",
+    "level_crossings",
+    "levelled",
+    "line_profile",
+    "load_reconstruction",
+    "measurements_csv",
+    "new_measurement",
+    "plane_from_points",
+    "plane_from_region",
+    "profile_csv",
+    "read_profile_csv",
+    "readout",
+    "ruler",
+    "ruler_values",
+    "sample_bilinear",
+    "step_height",
+    "step_values",
+    "width_at_level",
+]
