@@ -10,9 +10,6 @@ time remaining and Cancel. The outputs are written into the project folder
 
 from __future__ import annotations
 
-import hashlib
-import shutil
-from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -31,31 +28,19 @@ from PySide6.QtWidgets import (
 )
 
 from impress_gui.core.calibration import SceneCalibration
-from impress_gui.core.errors import Cancelled, ImpressError
+from impress_gui.core.errors import ImpressError
 from impress_gui.core.project import Project
-from impress_gui.core.reconstruct import ProcessParams, laser_rois
+from impress_gui.core.reconstruct import laser_rois
 from impress_gui.core.stripes import LASERS, BackgroundLUT, StripeParams, detect
 from impress_gui.core.video import VideoSource, open_video
 from impress_gui.ui.calibration_widgets import FrameNavigator
 from impress_gui.ui.frame_view import STRIPE_COLOURS, FrameView
 from impress_gui.ui.messages import Dialogs, Messenger
+from impress_gui.ui.processing_jobs import learn_lut, new_output_folder, reconstruct_into
 from impress_gui.ui.processing_panels import LutView, ParamsPanel, RunPanel
 from impress_gui.ui.worker import LatestOnly, Worker
 
 CAL_FILTER = "Scene calibration (*.json)"
-
-
-def learn_lut(
-    video_path: Path, start: int, stop: int, rois, n_frames: int, cancel
-) -> BackgroundLUT:
-    """The background tables as the reconstruction learns them (frames spread over the range),
-    read through a video handle of its own (the GUI's is not shared between threads)."""
-    lut = BackgroundLUT()
-    with open_video(video_path) as video:
-        for k in np.linspace(start, stop - 1, max(1, min(n_frames, stop - start))).astype(int):
-            cancel.check()
-            lut.learn(video.read(int(k)), list(rois.values()))
-    return lut
 
 
 class ProcessingTab(QWidget):
@@ -398,23 +383,14 @@ class ProcessingTab(QWidget):
 
     # ----- run --------------------------------------------------------------------------------
     def output_folder(self) -> Path | None:
-        root = self.project.root
-        if root is None:
-            chosen = self.dialogs.directory(
-                "Choose a folder for the reconstruction (or save the project first)"
-            )
-            if not chosen:
-                return None
-            root = Path(chosen)
-            base = root
-        else:
-            base = root / "reconstructions"
-        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-        out, k = base / f"recon-{stamp}", 1
-        while out.exists():
-            k += 1
-            out = base / f"recon-{stamp}-{k}"
-        return out
+        """``<project>/reconstructions/recon-<date-time>``; a chosen folder for a project
+        that has not been saved yet."""
+        if self.project.root is not None:
+            return new_output_folder(self.project.root / "reconstructions")
+        chosen = self.dialogs.directory(
+            "Choose a folder for the reconstruction (or save the project first)"
+        )
+        return new_output_folder(Path(chosen)) if chosen else None
 
     def run(self, out_dir: str | Path | None = None) -> bool:
         """Start the reconstruction; False (with a message) when inputs are missing."""
@@ -438,31 +414,22 @@ class ProcessingTab(QWidget):
         cal_path = out.parent / f"{out.name}.calibration.json"
         video, cal = self.video_path, self.calibration
         fps = self.video.fps if self.video is not None else None
+        ref, ref_path = self.project.video, self.project.video_path()
+        # the evidence registered in the project: refuse to process it once it has changed
+        expected = ref.sha256 if ref and ref_path and ref_path.resolve() == video else None
 
         def task(progress, cancel):
-            from impress_gui.core.pipeline import process_files
-
-            out.parent.mkdir(parents=True, exist_ok=True)
-            cal.save(cal_path)
-            try:
-                meta = process_files(
-                    video, cal_path, out, params, fps=fps, progress=progress, cancel=cancel
-                )
-                # The reconstruction's frame reader stops at a cancel and its loop can end
-                # without noticing: a result (or an error) then stems from a truncated run.
-                if cancel.cancelled:
-                    shutil.rmtree(out, ignore_errors=True)
-                    raise Cancelled("cancelled by the user")
-            except ImpressError:
-                cal_path.unlink(missing_ok=True)
-                if cancel.cancelled:
-                    raise Cancelled("cancelled by the user") from None
-                raise
-            except BaseException:
-                cal_path.unlink(missing_ok=True)
-                raise
-            sha = hashlib.sha256((out / "metadata.json").read_bytes()).hexdigest()
-            return meta, sha
+            return reconstruct_into(
+                video,
+                cal,
+                cal_path,
+                out,
+                params,
+                fps,
+                progress,
+                cancel,
+                expected_video_sha256=expected,
+            )
 
         self.run_panel.output_label.setText(f"Output: {out}")
         self.run_panel.start()
@@ -541,6 +508,3 @@ class ProcessingTab(QWidget):
         )
         self.run_panel.cancel_button.setEnabled(busy)
         self.params.setEnabled(not busy)
-
-
-__all__ = ["ProcessingTab", "ProcessParams", "learn_lut"]
