@@ -100,6 +100,7 @@ class ProcessingTab(QWidget):
         self.stripe_label = QLabel("")
         lv.addWidget(self.stripe_label)
         self.lut_view = LutView()
+        self.lut_view.setMaximumHeight(300)
         self.lut_view.hide()
         lv.addWidget(self.lut_view)
         split.addWidget(left)

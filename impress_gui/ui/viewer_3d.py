@@ -59,26 +59,45 @@ def render_surface(
     x = xs * cell
     y = ys * cell
     zz = z[ok] * exaggeration
+    nx, ny = -gx[ok], -gy[ok]
+    base = np.full((len(x), 3), 200.0, np.float32) if col is None else col[ok].astype(np.float32)
+    # vertical walls: points from each cell down to its lowest neighbour where it steps down
+    pad = np.pad(np.where(ok, z, np.nan), 1, constant_values=np.nan)
+    low = np.fmin.reduce(
+        np.stack([pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]]), axis=0
+    )[ok]
+    drop = np.nan_to_num((z[ok] - low) * exaggeration, nan=0.0)
+    wall = np.nonzero(drop > 1.5 * cell)[0]
+    if wall.size:
+        n = np.minimum(np.ceil(drop[wall] / cell).astype(np.int64), 64)
+        idx = np.repeat(wall, n - 1)
+        k = np.arange(idx.size) - np.repeat(np.cumsum(n - 1) - (n - 1), n - 1) + 1
+        frac = k / np.repeat(n, n - 1)
+        x = np.concatenate([x, x[idx]])
+        y = np.concatenate([y, y[idx]])
+        zz = np.concatenate([zz, zz[idx] - frac * drop[idx]])
+        # a wall faces the side of its lower neighbour: shade it as a steep, darker face
+        nx = np.concatenate([nx, np.zeros(idx.size)])
+        ny = np.concatenate([ny, np.zeros(idx.size)])
+        base = np.concatenate([base, base[idx] * 0.55])
     x, y, zz = x - x.mean(), y - y.mean(), zz - zz.mean()
     az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
-    # viewer direction (from the surface towards the eye)
+    # the screen frame: eye (from the surface towards the viewer), right, up = eye x right
     eye = np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
-    right = np.array([math.cos(az), -math.sin(az), 0.0])
+    right = np.array([-math.cos(az), math.sin(az), 0.0])
     up = np.cross(eye, right)
     u = x * right[0] + y * right[1]
     v = x * up[0] + y * up[1] + zz * up[2]
     depth = x * eye[0] + y * eye[1] + zz * eye[2]
-    nx, ny = -gx[ok], -gy[ok]
     norm = np.sqrt(nx * nx + ny * ny + 1.0)
     light = eye + np.array([0.3, 0.3, 0.6])
     light /= np.linalg.norm(light)
     shade = np.clip((nx * light[0] + ny * light[1] + light[2]) / norm, 0, 1) * 0.7 + 0.3
-    base = np.full((len(u), 3), 200.0) if col is None else col[ok].astype(np.float32)
     rgb = np.clip(base * shade[:, None], 0, 255).astype(np.uint8)
     span = max(np.ptp(u), np.ptp(v), 1e-6)
     scale = 0.92 * zoom * min(w_out, h_out) / span
     spacing = cell * scale  # screen pixels between neighbouring cells
-    r = max(1.0, spacing / 1.3)
+    r = max(1.0, spacing / 0.8)  # neighbouring cells land on touching buffer pixels
     wb, hb = max(2, int(w_out / r)), max(2, int(h_out / r))
     sb = scale / r
     px = np.rint(u * sb + wb / 2).astype(np.int64)

@@ -149,7 +149,7 @@ def _colour_bar(
             thick=thick,
         )
     _text(
-        panel, unit_label, (4, max(int(20 * scale), a - int(8 * scale))), scale * 0.8, thick=thick
+        panel, unit_label, (4, max(int(20 * scale), a - int(32 * scale))), scale * 0.8, thick=thick
     )
     return panel
 

@@ -56,6 +56,9 @@ class LevellingMixin:
             self._update_level_text(how)
             self.refresh_layer()
             self.update_profile()
+            self.status.emit(
+                f"Levelled ({how}): tilt {plane.tilt_deg:.3f}°, fit RMS {plane.rms_mm:.3f} mm"
+            )
             self.levelled_changed.emit()
 
         try:

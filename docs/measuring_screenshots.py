@@ -1,0 +1,176 @@
+"""Make the screenshots of docs/measuring-guide.md (processing and viewer tabs in use).
+
+Runs the real window on the simulated `blocks` scan (640x360, 200 mm at 39.414 mm/s):
+processing preview, a run in progress, the viewer with a ruler across the widest slot and its
+profile, hillshade with levelling, the 3D view and an exported figure. Use a virtual X server
+so that the pictures are those of a real display:
+
+    xvfb-run -s "-screen 0 1920x1080x24" .venv/bin/python docs/measuring_screenshots.py [--scan DIR]
+
+``--scan`` is a folder with scan.mp4, cal.json and truth.json (else one is simulated, ~1 min).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+IMAGES = ROOT / "docs" / "images"
+SPEED = "39.414"
+
+
+def simulate(folder: Path) -> Path:
+    run = [sys.executable, "-m", "impress_gui"]
+    subprocess.run(
+        [
+            *run,
+            "simulate",
+            str(folder),
+            "--preset",
+            "blocks",
+            "--length-mm",
+            "200",
+            "--speed",
+            SPEED,
+            "--resolution",
+            "640x360",
+            "--workers",
+            "2",
+        ],
+        check=True,
+    )
+    subprocess.run(
+        [
+            *run,
+            "calibrate",
+            str(folder / "scan.mp4"),
+            "--intrinsics",
+            str(folder / "intrinsics.json"),
+            "--picks",
+            str(folder / "picks.json"),
+            "--speed",
+            SPEED,
+            "-o",
+            str(folder / "cal.json"),
+        ],
+        check=True,
+    )
+    return folder
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scan", type=Path)
+    args = ap.parse_args()
+    from PySide6.QtCore import QEventLoop, QRectF, QTimer
+
+    from impress_gui.core.calibration import SceneCalibration
+    from impress_gui.core.project import Project
+    from impress_gui.ui.app import build_main_window, create_app, grab, make_settings
+
+    app = create_app()
+    tmp = Path(tempfile.mkdtemp(prefix="impress-shots-"))
+    scan = args.scan or simulate(tmp / "scan")
+    truth = json.loads((scan / "truth.json").read_text())
+    y_slot = 190.0 - truth["travel_mm"][truth["calibration_frames"]["t1"]]
+    slot = next(f for f in truth["features"] if f["kind"] == "slot")
+    left = slot["centre_a_mm"] - slot["width_mm"] / 2
+    right = left + slot["width_mm"]
+    start = next(k for k, s in enumerate(truth["travel_mm"]) if s >= 128.0)
+
+    def wait(signal=None, ms: int = 120_000) -> None:
+        loop = QEventLoop()
+        if signal is not None:
+            signal.connect(loop.quit)
+        QTimer.singleShot(ms, loop.quit)
+        loop.exec()
+        if signal is not None:
+            signal.disconnect(loop.quit)
+
+    def shot(widget, name: str) -> None:
+        wait(ms=400)
+        grab(widget).save(str(IMAGES / name))
+        print(f"wrote docs/images/{name}")
+
+    win = build_main_window(make_settings(tmp / "settings.ini"), with_motor=False)
+    win.resize(1920, 1080)
+    win.move(0, 0)
+    win.show()
+    project = Project(
+        case_id="2024-0117",
+        evidence_id="E3 (cast area 2)",
+        examiner="A. Analyst",
+        notes="Accuracy blocks, simulated scan",
+    )
+    project.set_video(scan / "scan.mp4")
+    project.set_calibration(SceneCalibration.load(scan / "cal.json"))
+    project.save(tmp / "case")
+    proc, viewer = win.extra_tabs["Processing"], win.extra_tabs["Viewer"]
+    win.set_project(project)
+    wait(proc.preview_ready, 30000)
+    win.tabs.setCurrentWidget(proc)
+    proc.params.frame_start.setValue(start)
+    proc.params.frame_stop.setValue(len(truth["travel_mm"]))
+    proc.lut_button.setChecked(True)
+    proc.go_to_frame(start + 20)
+    wait(proc.preview_ready, 30000)
+    shot(win, "processing-preview.png")
+
+    proc.run()
+    while proc.run_panel.bar.value() < 450 and proc.is_running():
+        wait(proc.worker.progress, 5000)
+    shot(win, "processing-running.png")
+    wait(viewer.loaded, 120000)
+    v = viewer
+    v.map.vb.setRange(QRectF(-70, y_slot - 38, 110, 76), padding=0)
+    v.tools.width.setValue(10.0)
+    v.tools.radius.setValue(1.0)
+    v.set_mode("ruler")
+    v.set_ruler((left - 5.0, y_slot), (right + 5.0, y_slot))
+    wait(v.profile_changed, 10000)
+    v.set_bands((1.0, 4.5), (5.6, 5.0 + slot["width_mm"] - 0.6))
+    wait(ms=300)
+    v.add_ruler_measurement("slot 1: width and depth")
+    v.add_marker(28.5, y_slot + 10.0, "block top")
+    v.add_marker(-55.0, y_slot - 35.0, "plate")
+    v.show_readout(28.5, y_slot + 10.0)
+    shot(win, "viewer-ruler-profile.png")
+
+    v.display.set_layer("hillshade")
+    wait(v.layer_shown, 20000)
+    v.level_region((-75.0, 75.0), (y_slot - 55.0, y_slot - 25.0))
+    wait(v.levelled_changed, 20000)
+    wait(v.layer_shown, 20000)
+    v.display.blend.setValue(35)
+    v.map.vb.setRange(QRectF(-90, y_slot - 70, 180, 140), padding=0)
+    v.show_readout(28.5, y_slot + 10.0)
+    shot(win, "viewer-hillshade-levelled.png")
+
+    v.display.set_layer("fused")
+    wait(v.layer_shown, 20000)
+    fig = v.actions.figure_maker()(max_px=1400)
+    from impress_gui.core.fileio import atomic_write_png
+
+    atomic_write_png(IMAGES / "viewer-figure.png", fig)
+    print("wrote docs/images/viewer-figure.png")
+    w3 = v.actions.open_3d()
+    w3.resize(900, 650)
+    w3.move(100, 100)
+    w3.azimuth, w3.elevation = 200.0, 35.0
+    w3.exaggeration.setValue(2.0)
+    wait(w3.rendered, 20000)
+    shot(w3, "viewer-3d.png")
+    win.shutdown()
+    win.close()
+    app.processEvents()
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
