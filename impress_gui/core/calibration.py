@@ -169,7 +169,7 @@ class SceneCalibration:
                 planes=planes, warnings=tuple(str(w) for w in doc.get("warnings", [])),
                 inputs=dict(doc.get("inputs", {})),
             )
-        except (TypeError, ValueError, AttributeError) as exc:
+        except (TypeError, ValueError, AttributeError, OverflowError) as exc:
             raise FormatError(f"{where}damaged calibration ({exc})") from None
 
     def save(self, path) -> None:

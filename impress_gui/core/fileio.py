@@ -99,7 +99,7 @@ def read_json(path: str | os.PathLike, fmt: str, versions: tuple[int, ...] = (1,
     try:
         text = path.read_bytes().decode("utf-8")
         doc = json.loads(text, parse_constant=_reject_constant)
-    except (UnicodeDecodeError, ValueError) as exc:
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise FormatError(f"{path}: not valid JSON ({exc})", code="E-JSON") from None
     if not isinstance(doc, dict):
         raise FormatError(f"{path}: expected a JSON object for a {fmt} file")
@@ -143,7 +143,7 @@ def float_array(value: Any, shape: tuple[int, ...], name: str) -> "Any":
 
     try:
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise FormatError(f"{name} must be numbers of shape {shape}") from None
     if arr.shape != shape:
         raise FormatError(f"{name} must have shape {shape}, not {arr.shape}")

@@ -193,7 +193,7 @@ class Intrinsics:
             return cls(k, d, (size[0], size[1]), rms_px=rms,
                        frames_used=tuple(doc.get("frames_used", [])),
                        source=str(doc.get("source", "")))
-        except InputError as exc:
+        except (InputError, TypeError, ValueError) as exc:
             raise FormatError(f"{where}{exc}") from None
 
     def save(self, path) -> None:

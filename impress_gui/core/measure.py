@@ -100,7 +100,7 @@ def load_reconstruction(
         raise FormatError(
             f"{folder}: not a reconstruction (no metadata.json)", code="E-FILE-MISSING"
         ) from None
-    except (ValueError, UnicodeDecodeError) as exc:
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
         raise FormatError(f"{meta_path}: damaged ({exc})") from None
     if not isinstance(meta, dict) or meta.get("format") != RECON_FORMAT:
         raise FormatError(f"{meta_path}: not an {RECON_FORMAT} document")

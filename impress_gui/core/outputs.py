@@ -179,6 +179,7 @@ def write_reconstruction(rec, out_dir: Path, metadata: dict, run_info: dict,
     spacing on the default grid, a quarter of the cells; 1 keeps every cell)."""
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
+    recover_interrupted(out_dir)
     tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
     if tmp.exists():
         shutil.rmtree(tmp)
@@ -221,6 +222,45 @@ def write_reconstruction(rec, out_dir: Path, metadata: dict, run_info: dict,
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return digests
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return False  # our own leftovers are stale by definition
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True  # exists (another user's) or unknown: leave it alone
+    return True
+
+
+def recover_interrupted(out_dir: Path) -> list[str]:
+    """Clean up after a run that was killed while writing ``out_dir``: remove its hidden
+    ``.NAME.partial-PID`` folders, and its ``.NAME.old-PID`` folders - after putting the newest
+    back in place if the kill came between the two renames of the swap (``out_dir`` missing).
+    Folders of a process still alive are left alone. Returns what was done."""
+    out_dir = Path(out_dir)
+    done: list[str] = []
+    if not out_dir.parent.is_dir():
+        return done
+    stale = []
+    for p in out_dir.parent.iterdir():
+        for kind in ("partial", "old"):
+            prefix = f".{out_dir.name}.{kind}-"
+            if p.name.startswith(prefix) and p.name[len(prefix):].isdigit() and p.is_dir():
+                if not _pid_alive(int(p.name[len(prefix):])):
+                    stale.append((kind, p))
+    olds = sorted((p for k, p in stale if k == "old"), key=lambda p: p.stat().st_mtime)
+    if olds and not out_dir.exists() and (olds[-1] / "metadata.json").is_file():
+        olds[-1].rename(out_dir)
+        done.append(f"restored {out_dir} from {olds[-1].name}")
+        stale = [(k, p) for k, p in stale if p != olds[-1]]
+    for _, p in stale:
+        shutil.rmtree(p, ignore_errors=True)
+        done.append(f"removed {p.name}")
+    return done
 
 
 def build_metadata(rec, cal, params, inputs: dict) -> dict:

@@ -61,7 +61,7 @@ class Picks:
                 if (not isinstance(v, list) or len(v) != 2
                         or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
                                    for x in v)
-                        or not all(np.isfinite(v)) or max(abs(x) for x in v) > 1e6):
+                        or max(abs(x) for x in v) > 1e6 or not all(np.isfinite(v))):
                     raise FormatError(f"{where}{key}.{c} must be [x, y] in pixels")
                 out[c] = (float(v[0]), float(v[1]))
             corners[key] = out

@@ -10,8 +10,13 @@ from pathlib import Path
 
 
 def process_files(video_path: Path, calibration_path: Path, out_dir: Path, params,
-                  fps: float | None = None, progress=None, cancel=None) -> dict:
-    """Core entry shared by the CLI and the GUI: read, reconstruct, write; return metadata."""
+                  fps: float | None = None, progress=None, cancel=None,
+                  expected_video_sha256: str | None = None) -> dict:
+    """Core entry shared by the CLI and the GUI: read, reconstruct, write; return metadata.
+
+    ``expected_video_sha256`` (the hash recorded when the evidence was added to a project):
+    processing is refused with IntegrityError ``E-EVIDENCE-CHANGED`` when the video's hash
+    differs."""
     import platform
     from datetime import datetime, timezone
 
@@ -26,6 +31,13 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
                               "sha256": sha256_file(calibration_path)}}
     video_sha = sha256_file(video_path) if Path(video_path).is_file() else None
     inputs["video"] = {"path": str(video_path), "sha256": video_sha}
+    if expected_video_sha256 and video_sha != expected_video_sha256:
+        from impress_gui.core.errors import IntegrityError
+
+        raise IntegrityError(
+            f"the evidence video {video_path} has changed since it was added to the project "
+            f"(SHA-256 {str(video_sha)[:12]}... instead of {expected_video_sha256[:12]}...); "
+            "processing refused", code="E-EVIDENCE-CHANGED")
     warnings = []
     recorded = cal.inputs.get("video", {}).get("sha256") if cal.inputs else None
     if recorded and video_sha and recorded != video_sha:

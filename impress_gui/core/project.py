@@ -503,7 +503,22 @@ class Project:
             raise FormatError(f"{where}damaged project ({exc})") from None
         if verify:
             verify_log(proj.log_file, proj._log_head)
+            _check_video_against_log(proj)
         return proj
+
+
+def _check_video_against_log(proj: Project) -> None:
+    """project.json is not chained: its evidence hash must be the one the (chained) log
+    recorded when the video was added, or a swapped video with an edited hash would pass."""
+    if proj.video is None or proj.log_file is None:
+        return
+    added = [e for e in read_log(proj.log_file) if e.get("action") == "video added"]
+    if added and added[-1].get("details", {}).get("sha256") != proj.video.sha256:
+        raise IntegrityError(
+            f"{proj.project_file}: the video's SHA-256 differs from the one the log recorded "
+            "when the video was added (project.json was edited)",
+            code="E-LOG-TAMPERED",
+        )
 
 
 def _typed(doc: dict, key: str, kind: type, where: str) -> Any:

@@ -97,6 +97,9 @@ class TargetModel:
             v = float_array(verts, (len(verts), 3), f"face {i} vertices")
             if len(v) < 3:
                 raise FormatError(f"{where}face {i} needs at least 3 vertices")
+            if not np.linalg.norm(np.cross(v[1] - v[0], v[2] - v[0])) > 1e-9:
+                raise FormatError(f"{where}face {i} is degenerate (its first vertices are on "
+                                  "one line)")
             faces.append(Face(str(fd.get("name", f"face{i}")), v))
         if not any(f.is_horizontal for f in faces):
             raise FormatError(f"{where}the target has no horizontal face for the lasers")

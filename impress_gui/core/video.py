@@ -69,6 +69,10 @@ class AVVideo(VideoSource):
             self._container.close()
             raise VideoError(f"{self.path}: the file has no video stream", code="E-VIDEO-OPEN")
         st = streams[0]
+        if st.codec_context is None:
+            self._container.close()
+            raise VideoError(f"{self.path}: the video stream cannot be decoded",
+                             code="E-VIDEO-OPEN")
         st.codec_context.thread_type = "AUTO"
         st.codec_context.thread_count = threads
         self._stream = st
