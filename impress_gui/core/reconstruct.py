@@ -284,7 +284,7 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
             for name in LASERS:
                 b0, bh = bands[name]
                 res = detect_planes(name, planes, b0, bh, sp, lut)
-                valid = res.found
+                valid = _connected(res.rows)
                 if valid.sum() < max(2, min_cols):  # a few isolated hits are not a stripe
                     acc[name].reset_chain()
                     continue
@@ -342,6 +342,17 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
     report(progress, 1.0, "done")
     return Reconstruction(spec, fused, per, diff, contrib, texture, (start, stop), rois, stats,
                           warnings)
+
+
+def _connected(rows: np.ndarray, tol_px: float = 2.0) -> np.ndarray:
+    """Stripe columns that continue into a neighbouring column (within ``tol_px`` rows): a
+    stripe is a curve, isolated hits are noise."""
+    d = np.abs(np.diff(rows))
+    link = np.isfinite(d) & (d <= tol_px)
+    out = np.zeros(rows.shape, bool)
+    out[:-1] |= link
+    out[1:] |= link
+    return out
 
 
 def _despike(h: np.ndarray, tol_mm: float) -> np.ndarray:
