@@ -142,9 +142,11 @@ def test_ruler_across_the_slot_reads_its_width_and_depth(qtbot, viewer, slot):
     assert s.a.sd_mm < 0.1 and s.b.sd_mm < 0.1
     assert f"{s.difference_mm:+.3f} ± {s.sd_mm:.3f} mm" in v.tools.step_text.text()
     assert v.profile_plot.labels["A"].isVisible() and v.map.band_lines["B"].xData is not None
-    # the left wall's foot is in view: the profile's edge lies where the ruler says
+    # the left wall's foot is in view: the profile's edge lies where the ruler says (0.2 mm:
+    # the 10 mm wide average spans the reconstructed wall's wobble along y; see test_measure
+    # for the wall on a narrow profile)
     edges = M.level_crossings(v.profile, s.a.mean_mm + s.difference_mm / 2)
-    assert np.abs(edges - 5.0).min() < 0.1
+    assert np.abs(edges - 5.0).min() < 0.2
     m = v.add_ruler_measurement("slot 1")
     assert m["values"]["step_mm"] == pytest.approx(s.difference_mm, abs=1e-4)
     assert m["params"]["bands_mm"]["A"] == list(a) or tuple(m["params"]["bands_mm"]["A"]) == a
