@@ -75,6 +75,7 @@ table { border-collapse: collapse; margin: 1rem 0; font-size: .95em; }
 th, td { border: 1px solid #d5dbe0; padding: .3rem .6rem; vertical-align: top; text-align: left; }
 th { background: #f1f3f5; }
 img { max-width: 100%; border: 1px solid #d5dbe0; }
+td:first-child code { white-space: nowrap; }
 footer { margin-top: 3rem; color: #6b7780; font-size: .85em; }
 @media (max-width: 50rem) { nav { position: static; width: auto; } main { margin-left: 0; } }
 @media print { nav { display: none; } main { margin: 0; } }
