@@ -65,6 +65,23 @@ rm -f "dist/impress_gui-$version.tar.gz" "dist/impress_gui-$version-py3-none-any
 wheel="dist/impress_gui-$version-py3-none-any.whl"
 sdist="dist/impress_gui-$version.tar.gz"
 for f in "$wheel" "$sdist"; do [ -f "$f" ] || { echo "build.sh: $f was not made" >&2; exit 1; }; done
+# setuptools writes the sdist with the files' and the clock's times: repack it with the commit's
+# time, sorted, without owners, so the same commit gives the same bytes (the wheel already does)
+"$BPY" - "$sdist" <<'EOF'
+import gzip, io, os, sys, tarfile
+path, epoch = sys.argv[1], int(os.environ["SOURCE_DATE_EPOCH"])
+with tarfile.open(path) as src:
+    members = sorted(src.getmembers(), key=lambda m: m.name)
+    data = {m.name: src.extractfile(m).read() for m in members if m.isfile()}
+buf = io.BytesIO()
+with tarfile.open(fileobj=buf, mode="w", format=tarfile.PAX_FORMAT) as dst:
+    for m in members:
+        m.mtime, m.uid, m.gid, m.uname, m.gname = epoch, 0, 0, "", ""
+        m.pax_headers = {}
+        dst.addfile(m, io.BytesIO(data[m.name]) if m.isfile() else None)
+with open(path, "wb") as fh, gzip.GzipFile(fileobj=fh, mode="wb", mtime=epoch, filename="") as gz:
+    gz.write(buf.getvalue())
+EOF
 "$BPY" - "$wheel" <<'EOF'
 import sys, zipfile
 names = zipfile.ZipFile(sys.argv[1]).namelist()
