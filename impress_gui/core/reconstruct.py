@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from impress_gui.core.calibration import SceneCalibration
-from impress_gui.core.errors import InputError, ReconstructionError
+from impress_gui.core.errors import InputError, ReconstructionError, VideoError
 from impress_gui.core.grid import (
     ColorAccumulator,
     GridSpec,
@@ -273,11 +273,13 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
     bands = column_bands(cal, (w, h), params.height_range_mm, rois)
     min_cols = int(0.02 * w)
     frames = _Frames(video, start, stop, cancel)
+    frames_seen = [0]
     n_total = stop - start
     t_loop = time.perf_counter()
     try:
         for k, frame in frames:
             cancel.check()
+            frames_seen[0] += 1
             planes = Planes.from_av(frame) if not isinstance(frame, np.ndarray) else \
                 Planes.from_rgb(frame)
             s_k = float(travel[k])
@@ -311,6 +313,10 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
                        f"frame {i}/{n_total} ({i / max(el, 1e-9):.1f} frames/s)")
     finally:
         frames.close()
+    cancel.check()  # the reader stops early on cancel: never take that as a finished run
+    if frames_seen[0] < n_total:
+        raise VideoError(f"the video ended at frame {start + frames_seen[0]} before frame "
+                         f"{stop - 1}", code="E-VIDEO-TRUNCATED")
     loop_s = time.perf_counter() - t_loop
     warnings = []
     for name in LASERS:
