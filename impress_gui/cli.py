@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "process": ("impress_gui.commands.process", "reconstruct heightmap, texture and point cloud"),
     "motor": ("impress_gui.commands.motor", "drive the Cool Muscle rail motor (or its emulator)"),
     "demo": ("impress_gui.commands.demo", "make (or reuse) the cached sample scan and process it"),
+    "validate": ("impress_gui.commands.validate", "accuracy validation (thesis table 4.1) and report"),
 }
 
 

@@ -29,11 +29,25 @@ from impress_gui.core.picks import Picks
 from impress_gui.core.project import Project, create_project
 from impress_gui.core.readers import read_export, read_ply, read_x3p
 from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
-from impress_gui.core.validate import load_spec
+from impress_gui.core.validation_spec import load_spec
 from impress_gui.sim.rig import default_intrinsics, default_rig
 
-HOSTILE = [None, True, "", "x" * 5000, -1, 0, 1e308, -1e308, 10**400, [], {}, [[1, 2], 3],
-           {"a": None}, "NaN"]
+HOSTILE = [
+    None,
+    True,
+    "",
+    "x" * 5000,
+    -1,
+    0,
+    1e308,
+    -1e308,
+    10**400,
+    [],
+    {},
+    [[1, 2], 3],
+    {"a": None},
+    "NaN",
+]
 
 
 # ----- valid documents --------------------------------------------------------------------------
@@ -43,34 +57,72 @@ def _intrinsics() -> Intrinsics:
 
 def _picks() -> Picks:
     c1 = {c: (100.0 + 30 * i, 120.0 + 9 * i) for i, c in enumerate(CORNER_NAMES)}
-    return Picks("scan.mp4", 31, 86, c1, {c: (x, y - 60) for c, (x, y) in c1.items()},
-                 video_sha256="ab" * 32)
+    return Picks(
+        "scan.mp4", 31, 86, c1, {c: (x, y - 60) for c, (x, y) in c1.items()}, video_sha256="ab" * 32
+    )
 
 
 def _calibration() -> SceneCalibration:
     rig = default_rig(640, 360)
-    planes = {la.name: LaserPlaneFit(la.name, Plane(la.plane.normal, la.plane.offset_mm), 0.02,
-                                     500, (30, 31), (15.0, 35.0)) for la in rig.lasers}
+    planes = {
+        la.name: LaserPlaneFit(
+            la.name, Plane(la.plane.normal, la.plane.offset_mm), 0.02, 500, (30, 31), (15.0, 35.0)
+        )
+        for la in rig.lasers
+    }
     rot = ideal_rotation(np.radians(1.2), np.radians(-1.8))
     return SceneCalibration(
-        intrinsics=_intrinsics(), speed_mm_s=13.138, fps=30.0, t1=31, t2=86, t_ref_s=1.03,
-        motion_dir_cam=rot.T @ np.array([0.0, 1.0, 0.0]), vanishing_point_px=np.array(
-            [1.0, 2.0, 0.0]), roll_deg=1.2, tilt_deg=-1.8, rotation=rot,
-        corners_parallax_mm=np.arange(18.0).reshape(6, 3), corner_residuals_mm=np.zeros(6),
-        target_rotation=np.eye(3), target_translation_mm=np.array([-40.0, 50.0, 300.0]),
-        implied_speed_mm_s=13.14, reprojection_rms_px=0.1, planes=planes)
+        intrinsics=_intrinsics(),
+        speed_mm_s=13.138,
+        fps=30.0,
+        t1=31,
+        t2=86,
+        t_ref_s=1.03,
+        motion_dir_cam=rot.T @ np.array([0.0, 1.0, 0.0]),
+        vanishing_point_px=np.array([1.0, 2.0, 0.0]),
+        roll_deg=1.2,
+        tilt_deg=-1.8,
+        rotation=rot,
+        corners_parallax_mm=np.arange(18.0).reshape(6, 3),
+        corner_residuals_mm=np.zeros(6),
+        target_rotation=np.eye(3),
+        target_translation_mm=np.array([-40.0, 50.0, 300.0]),
+        implied_speed_mm_s=13.14,
+        reprojection_rms_px=0.1,
+        planes=planes,
+    )
 
 
 def _spec(tmp: Path) -> dict:
-    m = {"id": "w", "kind": "width", "nominal_mm": 6.35, "start_mm": [0, 0], "end_mm": [20, 0],
-         "band_a_mm": [1, 4], "band_b_mm": [6, 9], "around_mm": 7.5,
-         "level_region": {"x_mm": [-5, 25], "y_mm": [-5, 5], "exclude": [
-             {"x_mm": [0, 20], "y_mm": [-2, 2]}]}}
-    e = {"id": "e", "kind": "edge_distance", "nominal_mm": 6.35, "start_mm": [0, 0],
-         "end_mm": [20, 0], "edges": [{"band_low_mm": [1, 2], "band_high_mm": [3, 4],
-                                       "near_mm": 2.5}] * 2}
-    return {"format": "impress.validation-spec", "version": 1, "name": "t",
-            "scans": [{"name": "AB", "reconstruction": "recon", "measurements": [m, e]}]}
+    m = {
+        "id": "w",
+        "kind": "width",
+        "nominal_mm": 6.35,
+        "start_mm": [0, 0],
+        "end_mm": [20, 0],
+        "band_a_mm": [1, 4],
+        "band_b_mm": [6, 9],
+        "around_mm": 7.5,
+        "level_region": {
+            "x_mm": [-5, 25],
+            "y_mm": [-5, 5],
+            "exclude": [{"x_mm": [0, 20], "y_mm": [-2, 2]}],
+        },
+    }
+    e = {
+        "id": "e",
+        "kind": "edge_distance",
+        "nominal_mm": 6.35,
+        "start_mm": [0, 0],
+        "end_mm": [20, 0],
+        "edges": [{"band_low_mm": [1, 2], "band_high_mm": [3, 4], "near_mm": 2.5}] * 2,
+    }
+    return {
+        "format": "impress.validation-spec",
+        "version": 1,
+        "name": "t",
+        "scans": [{"name": "AB", "reconstruction": "recon", "measurements": [m, e]}],
+    }
 
 
 JSON_READERS = {
@@ -172,7 +224,7 @@ def _byte_fuzz(data: bytes, load, path: Path, seed: int, n: int = 150) -> None:
             if op < 0.4 and b:
                 b[i] = rng.randrange(256)
             elif op < 0.6 and b:
-                del b[i: i + rng.randint(1, 64)]
+                del b[i : i + rng.randint(1, 64)]
             elif op < 0.8:
                 b[i:i] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 16)))
             else:
@@ -237,9 +289,13 @@ def test_video_reader_refuses_damage(tiny_video, tmp_path):
 
     _video_load(tiny_video)
     data = tiny_video.read_bytes()
-    cases = {"empty.mp4": b"", "text.mp4": b"not a video at all", "half.mp4": data[: len(data) // 2],
-             "head.mp4": data[:64], "noise.mp4": bytes(random.Random(1).randrange(256)
-                                                     for _ in range(5000))}
+    cases = {
+        "empty.mp4": b"",
+        "text.mp4": b"not a video at all",
+        "half.mp4": data[: len(data) // 2],
+        "head.mp4": data[:64],
+        "noise.mp4": bytes(random.Random(1).randrange(256) for _ in range(5000)),
+    }
     for name, payload in cases.items():
         (tmp_path / name).write_bytes(payload)
         with pytest.raises(ImpressError) as err:
@@ -290,8 +346,9 @@ def _x3p(tmp_path: Path, name: str = "h.x3p", xml_edit=None, members=None, data=
     src = zipfile.ZipFile(io.BytesIO(x3p_bytes(SPEC, _height(), "2024-01-01T00:00:00Z")))
     xml = src.read("main.xml").decode()
     payload = src.read("bindata/data.bin") if data is None else data
-    xml = xml.replace(hashlib.md5(src.read("bindata/data.bin")).hexdigest(),
-                      hashlib.md5(payload).hexdigest())
+    xml = xml.replace(
+        hashlib.md5(src.read("bindata/data.bin")).hexdigest(), hashlib.md5(payload).hexdigest()
+    )
     if xml_edit:
         xml = xml_edit(xml)
     xb = xml.encode()
@@ -331,11 +388,11 @@ def test_x3p_zip_traversal_and_bombs(tmp_path):
     assert _code(read_x3p, p) == "E-ZIP-TRAVERSAL"
     # a declared size of 16 TB: refused from the directory, nothing inflated
     good = _x3p(tmp_path).read_bytes()
-    cd = good.rfind(b"PK\x01\x02" + good[good.rfind(b"PK\x01\x02") + 4:][:0])
+    cd = good.rfind(b"PK\x01\x02" + good[good.rfind(b"PK\x01\x02") + 4 :][:0])
     patched = bytearray(good)
     for off in _central_entries(good):
-        if good[off + 46: off + 46 + 16] == b"bindata/data.bin":
-            patched[off + 24: off + 28] = struct.pack("<I", 0xFFFFFFFE)
+        if good[off + 46 : off + 46 + 16] == b"bindata/data.bin":
+            patched[off + 24 : off + 28] = struct.pack("<I", 0xFFFFFFFE)
     assert cd > 0
     p = tmp_path / "declared.x3p"
     p.write_bytes(bytes(patched))
@@ -356,37 +413,63 @@ def _central_entries(data: bytes):
         off = data.find(b"PK\x01\x02", off + 4)
 
 
-@pytest.mark.parametrize("edit, code", [
-    (lambda x: x.replace("ISO5436 - 2000", "ISO9999 - 2042"), "E-VERSION"),
-    (lambda x: x.replace("<SizeX>30</SizeX>", "<SizeX>-30</SizeX>"), "E-X3P-XML"),
-    (lambda x: x.replace("<SizeX>30</SizeX>", "<SizeX>abc</SizeX>"), "E-X3P-XML"),
-    (lambda x: x.replace("<SizeX>30</SizeX>", "<SizeX>99999999999</SizeX>"), "E-X3P-XML"),
-    (lambda x: x.replace("<SizeX>30</SizeX>", "<SizeX>400000</SizeX>")
-     .replace("<SizeY>20</SizeY>", "<SizeY>400000</SizeY>"), "E-TOO-LARGE"),
-    (lambda x: x.replace("<SizeX>30</SizeX>", "<SizeX>31</SizeX>"), "E-X3P-DATA"),
-    (lambda x: x.replace("<Increment>0.0001</Increment>", "<Increment>nan</Increment>", 1),
-     "E-VALUE"),
-    (lambda x: x.replace("<Increment>0.0001</Increment>", "<Increment>1e300</Increment>", 1),
-     "E-VALUE"),
-    (lambda x: x.replace("<Increment>0.0001</Increment>", "<Increment>0</Increment>", 1),
-     "E-VALUE"),
-    (lambda x: x.replace("<DataType>D</DataType></CZ>", "<DataType>Q</DataType></CZ>"),
-     "E-X3P-DATA"),
-    (lambda x: x.replace("<FeatureType>SUR</FeatureType>", "<FeatureType>PRF</FeatureType>"),
-     "E-X3P-DATA"),
-    (lambda x: x[: len(x) // 2], "E-X3P-XML"),
-    (lambda x: x.replace("<Record3>", "<Record3><Junk>"), "E-X3P-XML"),
-    (lambda x: '<?xml version="1.0"?><!DOCTYPE lol [<!ENTITY a "aaaa">'
-     '<!ENTITY b "&a;&a;&a;&a;">]>' + x.split("?>", 1)[1], "E-X3P-XML"),
-])
+@pytest.mark.parametrize(
+    "edit, code",
+    [
+        (lambda x: x.replace("ISO5436 - 2000", "ISO9999 - 2042"), "E-VERSION"),
+        (lambda x: x.replace("<SizeX>30</SizeX>", "<SizeX>-30</SizeX>"), "E-X3P-XML"),
+        (lambda x: x.replace("<SizeX>30</SizeX>", "<SizeX>abc</SizeX>"), "E-X3P-XML"),
+        (lambda x: x.replace("<SizeX>30</SizeX>", "<SizeX>99999999999</SizeX>"), "E-X3P-XML"),
+        (
+            lambda x: x.replace("<SizeX>30</SizeX>", "<SizeX>400000</SizeX>").replace(
+                "<SizeY>20</SizeY>", "<SizeY>400000</SizeY>"
+            ),
+            "E-TOO-LARGE",
+        ),
+        (lambda x: x.replace("<SizeX>30</SizeX>", "<SizeX>31</SizeX>"), "E-X3P-DATA"),
+        (
+            lambda x: x.replace("<Increment>0.0001</Increment>", "<Increment>nan</Increment>", 1),
+            "E-VALUE",
+        ),
+        (
+            lambda x: x.replace("<Increment>0.0001</Increment>", "<Increment>1e300</Increment>", 1),
+            "E-VALUE",
+        ),
+        (
+            lambda x: x.replace("<Increment>0.0001</Increment>", "<Increment>0</Increment>", 1),
+            "E-VALUE",
+        ),
+        (
+            lambda x: x.replace("<DataType>D</DataType></CZ>", "<DataType>Q</DataType></CZ>"),
+            "E-X3P-DATA",
+        ),
+        (
+            lambda x: x.replace("<FeatureType>SUR</FeatureType>", "<FeatureType>PRF</FeatureType>"),
+            "E-X3P-DATA",
+        ),
+        (lambda x: x[: len(x) // 2], "E-X3P-XML"),
+        (lambda x: x.replace("<Record3>", "<Record3><Junk>"), "E-X3P-XML"),
+        (
+            lambda x: (
+                '<?xml version="1.0"?><!DOCTYPE lol [<!ENTITY a "aaaa">'
+                '<!ENTITY b "&a;&a;&a;&a;">]>' + x.split("?>", 1)[1]
+            ),
+            "E-X3P-XML",
+        ),
+    ],
+)
 def test_x3p_damaged_main_xml(tmp_path, edit, code):
     assert _code(read_x3p, _x3p(tmp_path, xml_edit=edit)) == code
 
 
 def test_x3p_damaged_data_and_container(tmp_path):
     good = _x3p(tmp_path).read_bytes()
-    cases = {"empty.x3p": b"", "text.x3p": b"hello", "half.x3p": good[: len(good) // 2],
-             "tail.x3p": good[:-30]}
+    cases = {
+        "empty.x3p": b"",
+        "text.x3p": b"hello",
+        "half.x3p": good[: len(good) // 2],
+        "tail.x3p": good[:-30],
+    }
     for name, payload in cases.items():
         (tmp_path / name).write_bytes(payload)
         assert _code(read_x3p, tmp_path / name) == "E-X3P-ZIP", name
@@ -444,27 +527,43 @@ def _ply_with(header_edit=None, body=None) -> bytes:
     return head.encode() + (rest if body is None else body)
 
 
-@pytest.mark.parametrize("payload, code", [
-    (b"", "E-PLY-HEADER"),
-    (b"PLY junk", "E-PLY-HEADER"),
-    (b"ply\nformat binary_little_endian 1.0\n" + b"comment x\n" * 10000, "E-PLY-HEADER"),
-    (_ply_with(lambda h: h.replace("binary_little_endian 1.0", "ascii 1.0")), "E-PLY-HEADER"),
-    (_ply_with(lambda h: h.replace("binary_little_endian 1.0", "binary_little_endian 2.0")),
-     "E-VERSION"),
-    (_ply_with(lambda h: h.replace("element vertex 599", "element vertex 999999999999")),
-     "E-TOO-LARGE"),
-    (_ply_with(lambda h: h.replace("element vertex 599", "element vertex -5")), "E-PLY-HEADER"),
-    (_ply_with(lambda h: h.replace("element vertex 599", "element vertex 600")),
-     "E-PLY-TRUNCATED"),
-    (_ply()[:-100], "E-PLY-TRUNCATED"),
-    (_ply_with(lambda h: h.replace("property float z\n", "")), "E-PLY-HEADER"),
-    (_ply_with(lambda h: h.replace("property float z", "property list uchar int z")),
-     "E-PLY-HEADER"),
-    (_ply_with(lambda h: h.replace("property float z", "property quaternion z")),
-     "E-PLY-HEADER"),
-    (_ply_with(lambda h: h.replace("element vertex", "element face")), "E-PLY-HEADER"),
-    (_ply_with(lambda h: h.replace("property uchar red", "property float red")), "E-PLY-HEADER"),
-])
+@pytest.mark.parametrize(
+    "payload, code",
+    [
+        (b"", "E-PLY-HEADER"),
+        (b"PLY junk", "E-PLY-HEADER"),
+        (b"ply\nformat binary_little_endian 1.0\n" + b"comment x\n" * 10000, "E-PLY-HEADER"),
+        (_ply_with(lambda h: h.replace("binary_little_endian 1.0", "ascii 1.0")), "E-PLY-HEADER"),
+        (
+            _ply_with(lambda h: h.replace("binary_little_endian 1.0", "binary_little_endian 2.0")),
+            "E-VERSION",
+        ),
+        (
+            _ply_with(lambda h: h.replace("element vertex 599", "element vertex 999999999999")),
+            "E-TOO-LARGE",
+        ),
+        (_ply_with(lambda h: h.replace("element vertex 599", "element vertex -5")), "E-PLY-HEADER"),
+        (
+            _ply_with(lambda h: h.replace("element vertex 599", "element vertex 600")),
+            "E-PLY-TRUNCATED",
+        ),
+        (_ply()[:-100], "E-PLY-TRUNCATED"),
+        (_ply_with(lambda h: h.replace("property float z\n", "")), "E-PLY-HEADER"),
+        (
+            _ply_with(lambda h: h.replace("property float z", "property list uchar int z")),
+            "E-PLY-HEADER",
+        ),
+        (
+            _ply_with(lambda h: h.replace("property float z", "property quaternion z")),
+            "E-PLY-HEADER",
+        ),
+        (_ply_with(lambda h: h.replace("element vertex", "element face")), "E-PLY-HEADER"),
+        (
+            _ply_with(lambda h: h.replace("property uchar red", "property float red")),
+            "E-PLY-HEADER",
+        ),
+    ],
+)
 def test_ply_damaged(tmp_path, payload, code):
     p = tmp_path / "c.ply"
     p.write_bytes(payload)
@@ -476,7 +575,7 @@ def test_ply_values(tmp_path):
     body = raw.index(b"end_header\n") + len(b"end_header\n")
     for value in (np.nan, np.inf, 1e30):
         b = bytearray(raw)
-        b[body + 8: body + 12] = np.float32(value).tobytes()  # the first vertex's z
+        b[body + 8 : body + 12] = np.float32(value).tobytes()  # the first vertex's z
         (tmp_path / "v.ply").write_bytes(bytes(b))
         assert _code(read_ply, tmp_path / "v.ply") == "E-VALUE"
     assert _code(read_ply, tmp_path / "none.ply") == "E-FILE-MISSING"

@@ -173,6 +173,14 @@ class MainWindow(QMainWindow):
         view = self.menuBar().addMenu("&View")
         if self.motor_dock is not None:
             view.addAction(self.motor_dock.toggleViewAction())
+        tools = self.menuBar().addMenu("&Tools")
+        self.validation_action = act(
+            tools,
+            "Method &validation...",
+            self.open_validation,
+            None,
+            "Run the thesis' accuracy protocol (table 4.1) and write a validation report",
+        )
         helpm = self.menuBar().addMenu("&Help")
         act(
             helpm,
@@ -184,6 +192,16 @@ class MainWindow(QMainWindow):
             ),
         )
         self._fill_recent()
+
+    def open_validation(self):
+        """Show the method-validation dialog (created on first use)."""
+        from impress_gui.ui.validation_dialog import ValidationDialog
+
+        if getattr(self, "validation_dialog", None) is None:
+            self.validation_dialog = ValidationDialog(self.messenger, self.dialogs, self)
+        self.validation_dialog.show()
+        self.validation_dialog.raise_()
+        return self.validation_dialog
 
     def all_tabs(self) -> list[QWidget]:
         return [self.calibration_tab, *self.extra_tabs.values()]
@@ -377,5 +395,7 @@ class MainWindow(QMainWindow):
                 tab.shutdown()
         if self.motor_panel is not None and hasattr(self.motor_panel, "shutdown"):
             self.motor_panel.shutdown()
+        if getattr(self, "validation_dialog", None) is not None:
+            self.validation_dialog.shutdown()
         self.messenger.close_all()
         self.settings.sync()

@@ -1,0 +1,272 @@
+"""Method validation (issue 8): the thesis' protocol end to end in quick mode on the "Order AB"
+placement and the flat plane, the protocol's own geometry against the simulator's truth, the
+plane and sphere quantities on exact surfaces, the real-scan spec path, the table, the report,
+the command and the dialog.
+
+Tolerances in quick mode (640x360, 78.8 mm/s here: one camera pixel is 0.38 mm on the
+targets, 2.6 mm of travel per frame):
+- z (slot depths, step rises): every reading within 0.15 mm, mean <= 0.19 mm (the issue's bar:
+  five times better than the thesis' 0.94 mm);
+- xy (slot and tread widths): mean <= 0.35 mm. The bar (0.12 mm) needs the full mode: at
+  640x360 the reconstruction loses about one camera column of the upper surface at each
+  edge (see docs/validation.md), which widens slots by ~0.2-0.5 mm;
+- flatness (0.3 % trimmed range of the residuals) <= 0.6 mm, RMS <= 0.1 mm, plane height
+  within 0.15 mm of the truth.
+The rendered scans are kept in pytest's cache folder between sessions (keyed by the
+simulator's code and the scan's settings); a cold run renders them first (about a minute).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+from conftest import truth_on_grid
+
+from impress_gui import __version__
+from impress_gui.core import validate as V
+from impress_gui.core import validation_vdi as VDI
+from impress_gui.core.errors import Cancelled, FormatError
+from impress_gui.core.fileio import sha256_file, write_json
+from impress_gui.core.grid import GridSpec
+from impress_gui.core.progress import CancelToken
+from impress_gui.core.validation_report import format_table, report_html, write_report
+from impress_gui.core.validation_run import RunConfig, run_real, run_simulated
+from impress_gui.core.validation_spec import load_spec
+
+QUICK = dict(speed_mm_s=78.828, placements=("AB",), extras=("flat",), workers=2)
+
+
+@pytest.fixture(scope="module")
+def run(request, tmp_path_factory):
+    out = tmp_path_factory.mktemp("validation")
+    scans = request.config.cache.mkdir("impress-validation-scans")
+    seen = []
+    record = run_simulated(
+        RunConfig.quick(**QUICK), out, lambda f, m: seen.append((f, m)), scans_dir=scans
+    )
+    paths = write_report(record, out)
+    return {"out": out, "scans": scans, "record": record, "paths": paths, "progress": seen}
+
+
+def test_quick_mode_meets_the_z_bar_and_its_xy_tolerance(run):
+    rec = run["record"]
+    readings = rec["readings"]
+    assert len(readings) == 2 * 4 * len(V.STATIONS_MM)  # two targets, four dimensions each
+    assert all(r["error_mm"] is not None for r in readings), [
+        r for r in readings if r["error_mm"] is None
+    ]
+    z = [abs(r["error_mm"]) for r in readings if r["axis"] == "z"]
+    xy = [abs(r["error_mm"]) for r in readings if r["axis"] == "xy"]
+    assert len(z) == len(xy) == 12
+    assert max(z) < 0.15 and np.mean(z) <= V.BAR_Z_MM
+    assert np.mean(xy) <= 0.35
+    ov = rec["summary"]["Overall"]
+    assert ov["z"]["mean_abs_mm"] == pytest.approx(np.mean(z), abs=1e-4)
+    assert ov["xy"]["sd_mm"] == pytest.approx(np.std(xy, ddof=1), abs=1e-4)
+    assert rec["acceptance"]["z_ok"] and not rec["acceptance"]["all_placements"]
+    f = rec["flat"]
+    assert f["flatness_mm"] <= 0.6 and f["rms_mm"] <= 0.1 and abs(f["offset_mm"]) <= 0.15
+    assert f["n"] > 300_000
+    # progress rose to the end
+    fr = [p[0] for p in run["progress"]]
+    assert fr[-1] == pytest.approx(1.0) and all(b >= a - 1e-9 for a, b in zip(fr, fr[1:]))
+
+
+def test_the_protocol_measures_the_truth_itself_exactly(run):
+    """The readings' positions and bands come from the truth; on the true surface (resampled
+    onto the reconstruction's grid) every reading is within the 0.1 mm grid's quantisation."""
+    from impress_gui.core.measure import load_reconstruction
+
+    scan = run["scans"] / "AB"
+    truth = json.loads((scan / "truth.json").read_text())
+    rec = load_reconstruction(run["out"] / "runs" / "AB" / "reconstruction", layers=("fused",))
+    true_h = truth_on_grid(scan, rec.spec)
+    res = V.measure_all(true_h, rec.spec, V.blocks_readings(truth, "truth"))
+    errs = np.array([r.error_mm for r in res])
+    assert np.isfinite(errs).all() and np.abs(errs).max() <= 0.1, [
+        (r.reading.id, r.error_mm) for r in res if not abs(r.error_mm) <= 0.1
+    ]
+
+
+def test_table_and_report_carry_versions_hashes_and_the_thesis(run):
+    rec, paths = run["record"], run["paths"]
+    table = paths["table"].read_text()
+    assert table == format_table(rec)
+    line = next(x for x in table.splitlines() if x.startswith("Order AB"))
+    assert line.split()[-4:] == ["0.54", "0.34", "1.45", "0.47"]  # the thesis' row beside ours
+    assert "0.60  0.39  0.94  0.51  (208 readings)" in table
+    assert "Plane (VDI/VDE 2634-2 flatness)" in table
+    html = paths["report"].read_text()
+    assert f"impress {__version__}" in html and rec["date_utc"] in html
+    scan = rec["scans"][0]
+    video_sha = sha256_file(scan["inputs"]["video"]["path"])
+    assert video_sha in html and scan["inputs"]["calibration"]["sha256"] in html
+    assert scan["reconstruction"]["files"]["heightmap.tif"] in html
+    assert "&quot;speed_mm_s&quot;: 78.828" in html  # the parameters
+    assert "1.45" in html and "0.94" in html and "208 readings" in html
+    imgs = re.findall(r"src='data:image/png;base64,[A-Za-z0-9+/=]+'", html)
+    assert len(imgs) >= 2  # the chart and the measuring positions, inline
+    assert "http://" not in html.replace("http://www.w3", "") and "src='http" not in html
+    saved = json.loads((run["out"] / "validation.json").read_text())
+    assert saved["format"] == "impress.validation" and saved["version"] == 1
+    assert saved["software"] == f"impress {__version__}"
+
+
+def test_a_real_scan_spec_gives_the_same_readings(run, tmp_path):
+    """The simulator run writes its readings as a real-scan spec (a template for physical
+    artefacts): measuring from it, without any truth, reproduces every value."""
+    spec = run["out"] / "validation-spec.json"
+    rec = run_real(spec, tmp_path)
+    a = {r["id"]: r["measured_mm"] for r in run["record"]["readings"]}
+    b = {r["id"]: r["measured_mm"] for r in rec["readings"]}
+    assert a == b
+    assert rec["kind"] == "real" and rec["spec"]["sha256"] == sha256_file(spec)
+    html = report_html(rec, figures=False)
+    assert rec["spec"]["sha256"] in html
+    assert rec["scans"][0]["inputs"]["video"]["sha256"] in html
+
+
+def test_the_command_prints_the_table(run, tmp_path, capsys):
+    from impress_gui.cli import main
+
+    code = main(
+        [
+            "validate",
+            "--spec",
+            str(run["out"] / "validation-spec.json"),
+            "--out",
+            str(tmp_path),
+            "--no-figures",
+        ]
+    )
+    out = capsys.readouterr().out
+    assert code in (0, 1)  # 1: the quick scans do not meet the xy bar
+    assert "Order AB" in out and "thesis table 4.1" in out and "Acceptance" in out
+    assert (tmp_path / "validation_report.html").is_file()
+
+
+def test_cancel_stops_a_run(tmp_path):
+    token = CancelToken()
+    token.cancel()
+    with pytest.raises(Cancelled):
+        run_simulated(RunConfig.quick(**QUICK), tmp_path, cancel=token)
+
+
+def test_bad_specs_are_refused(tmp_path):
+    good = {
+        "format": "impress.validation-spec",
+        "version": 1,
+        "scans": [
+            {
+                "name": "s",
+                "reconstruction": "r",
+                "measurements": [
+                    {
+                        "id": "a",
+                        "kind": "step",
+                        "nominal_mm": 6.35,
+                        "start_mm": [0, 0],
+                        "end_mm": [10, 0],
+                        "band_a_mm": [1, 2],
+                        "band_b_mm": [5, 6],
+                    }
+                ],
+            }
+        ],
+    }
+    p = tmp_path / "spec.json"
+    write_json(p, good)
+    assert load_spec(p)[1][0].readings[0].kind == "step"
+    bad = [
+        ("kind", "volume"),
+        ("nominal_mm", -1),
+        ("start_mm", [0]),
+        ("band_a_mm", None),
+        ("id", ""),
+    ]
+    for key, value in bad:
+        doc = json.loads(json.dumps(good))
+        doc["scans"][0]["measurements"][0][key] = value
+        write_json(p, doc)
+        with pytest.raises(FormatError) as err:
+            load_spec(p)
+        assert err.value.code == "E-VAL-SPEC", key
+    doc = json.loads(json.dumps(good))
+    doc["scans"][0]["measurements"] *= 2
+    write_json(p, doc)
+    with pytest.raises(FormatError, match="unique"):
+        load_spec(p)
+
+
+# ----- the VDI/VDE 2634-2 quantities on exact surfaces -------------------------------------------
+def test_flatness_of_a_tilted_noisy_plane():
+    spec = GridSpec(0.0, 0.0, 0.1, (400, 500))
+    rng = np.random.default_rng(1)
+    h = (0.02 * spec.xs()[None, :] - 0.01 * spec.ys()[:, None] + 2.0).astype(np.float32)
+    h += rng.uniform(-0.05, 0.05, h.shape).astype(np.float32)
+    h[10, 10] = 5.0  # one outlier: in the range, trimmed from the flatness
+    f = VDI.flatness(h, spec, (1.0, 49.0), (1.0, 39.0), expected_mm=2.0 + 0.02 * 25 - 0.01 * 20)
+    assert f.flatness_mm == pytest.approx(0.1, abs=0.01)
+    assert f.range_mm > 2.5 and abs(f.offset_mm) < 0.01
+    assert f.tilt_deg == pytest.approx(math.degrees(math.atan(math.hypot(0.02, 0.01))), abs=1e-3)
+
+
+def test_sphere_fit_diameter_and_spacing():
+    spec = GridSpec(-40.0, -40.0, 0.1, (800, 1200))
+    xs, ys = np.meshgrid(spec.xs(), spec.ys())
+    h = np.zeros(spec.shape, np.float32)
+    rng = np.random.default_rng(2)
+    spheres = [(-20.0, 0.0, 0.0, 12.7), (30.0, 5.0, -1.0, 12.7)]
+    for x, y, z, r in spheres:
+        d2 = (xs - x) ** 2 + (ys - y) ** 2
+        cap = z + np.sqrt(np.clip(r * r - d2, 0, None))
+        h = np.where(d2 < r * r, np.maximum(h, cap), h).astype(np.float32)
+    h += rng.normal(0, 0.01, h.shape).astype(np.float32)
+    out = VDI.sphere_errors(h, spec, spheres)
+    assert out["failed"] == 0 and out["diameter"]["max_abs_mm"] < 0.01
+    assert out["spacing"]["n"] == 1 and out["spacing"]["max_abs_mm"] < 0.01
+    assert out["form_max_mm"] < 0.07
+    # a sphere 0.1 mm too large is seen as such
+    big = [(x, y, z, r - 0.05) for x, y, z, r in spheres]
+    assert VDI.sphere_errors(h, spec, big)["diameter"]["mean_abs_mm"] == pytest.approx(
+        0.1, abs=0.01
+    )
+
+
+# ----- the dialog and the menu -------------------------------------------------------------------
+@pytest.mark.qt_log_ignore("propagateSizeHints", r"does not support raise\(\)")
+def test_the_dialog_runs_a_spec_and_shows_the_table(qtbot, run, tmp_path):
+    from measure_scans import guard_pyside_none
+    from PySide6.QtCore import QSettings
+
+    from impress_gui.ui.main_window import MainWindow
+
+    guard_pyside_none()
+    settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+    win = MainWindow(settings)
+    qtbot.addWidget(win)
+    try:
+        dlg = win.open_validation()
+        assert dlg.isVisible() and win.validation_action.text() == "Method &validation..."
+        dlg.mode.setCurrentIndex(2)
+        dlg.spec_edit.setText(str(run["out"] / "validation-spec.json"))
+        dlg.out_edit.setText(str(tmp_path / "out"))
+        with qtbot.waitSignal(dlg.finished_run, timeout=120_000):
+            assert dlg.run()
+        assert dlg.table.rowCount() == 2  # Order AB and Overall
+        assert dlg.table.item(0, 0).text() == "Order AB"
+        assert dlg.table.item(0, 6).text() == "0.540"
+        assert dlg.report_button.isEnabled() and dlg.report_path.is_file()
+        assert "Acceptance" in dlg.text.toPlainText()
+        # a damaged spec: a message, no crash
+        (tmp_path / "bad.json").write_text("{")
+        dlg.spec_edit.setText(str(tmp_path / "bad.json"))
+        with qtbot.waitSignal(dlg.worker.failed, timeout=30_000):
+            dlg.run()
+        assert "[E-JSON]" in win.messenger.last_text
+    finally:
+        win.shutdown()
