@@ -49,4 +49,4 @@ def run(args: argparse.Namespace) -> int:
         return 0
     from impress_gui.cli import main as cli_main
 
-    return cli_main(["gui", str(project)])
+    return cli_main(["gui", str(project), "--tab", "viewer"])

@@ -55,6 +55,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="settings file (INI) instead of the user's configuration",
     )
     p.add_argument("--no-motor", action="store_true", help="no motor panel")
+    p.add_argument("--tab", choices=["calibration", "processing", "viewer"], default=None,
+                   help="the tab to show first")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,4 +74,5 @@ def run(args: argparse.Namespace) -> int:
         size=args.size,
         settings_path=args.settings,
         with_motor=not args.no_motor,
+        tab=args.tab,
     )

@@ -252,9 +252,14 @@ def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height
     ok = (top >= params.min_peak) & (wsum > 0) & (width <= params.max_width_px)
     ok &= (peak_i >= k) & (peak_i < band_height - k)
     ok &= (sig[0] < 0.7 * top) & (sig[-1] < 0.7 * top)
-    # which laser: the light around the peak leans to this laser's chroma
-    crw = planes.cr[rr // s, (cols // s)[None, :]].astype(np.float32) - 128
-    ok &= (sign * crw * (sig > 0.25 * top)).sum(axis=0) > 0
+    # which laser: the stripe's halo (not its white core) shifts the chroma of the surface it
+    # falls on towards this laser's colour - judged against the background at the window's
+    # ends, so red or green soil does not decide it; the other laser's stripe is refused
+    crw = planes.cr[rr // s, (cols // s)[None, :]].astype(np.float32)
+    cr_bg = 0.5 * (crw[0] + crw[-1])
+    halo = (sig > 0.2 * top) & (sig < 0.65 * top)
+    lean = (sign * (crw - cr_bg) * halo).sum(axis=0)
+    ok &= (lean > 0) | ~halo.any(axis=0)
     # the method's colour test on the central rows (a white core sits between coloured halo)
     core = slice(k - 3, k + 4)
     rgb = planes.rgb(rr[core], cols[None, :])  # (7, W, 3)

@@ -9,7 +9,7 @@ from pathlib import Path
 from impress_gui import __version__
 from impress_gui.core.progress import CancelToken, ProgressCallback, report, sub_progress
 
-SAMPLE_VERSION = 1  # bump when the sample's recipe changes, to rebuild caches
+SAMPLE_VERSION = 3  # bump when the sample's recipe changes, to rebuild caches
 
 
 def sample_config():
@@ -74,7 +74,7 @@ def make_sample(cache_dir: Path, workers: int = 2, progress: ProgressCallback | 
     out = project_dir / "reconstruction"
     process_files(scan / truth["video"], cal_path, out, params,
                   progress=sub_progress(progress, 0.75, 1.0), cancel=cancel)
-    proj.add_output(out / "heightmap.tif", "heightmap")
+    proj.add_output(out / "metadata.json", "reconstruction")
     proj.save()
     stamp.write_text(json.dumps({"sample_version": SAMPLE_VERSION, "software": __version__}))
     report(progress, 1.0, "sample ready")

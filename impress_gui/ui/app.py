@@ -78,6 +78,7 @@ def run_gui(
     size: tuple[int, int] = (1920, 1080),
     settings_path: str | Path | None = None,
     with_motor: bool = True,
+    tab: str | None = None,
 ) -> int:
     app = create_app()
     window = build_main_window(make_settings(settings_path), with_motor=with_motor)
@@ -94,11 +95,15 @@ def run_gui(
     sys.excepthook = report_bug
     if path:
         window.open_path(path)
+    if tab:
+        for i in range(window.tabs.count()):
+            if window.tabs.tabText(i).lower() == tab.lower():
+                window.tabs.setCurrentIndex(i)
     result = {"code": 0}
 
     def finish() -> None:
-        tab = window.calibration_tab
-        if tab.is_busy():  # a video is still being opened and checked
+        # a video is still being opened and checked, or a map still loading
+        if any(getattr(t, "is_busy", lambda: False)() for t in window.all_tabs()):
             QTimer.singleShot(200, finish)
             return
         if screenshot:
