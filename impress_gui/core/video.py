@@ -110,37 +110,70 @@ class AVVideo(VideoSource):
             if abs(float(rate) - self.fps) / float(rate) < 0.002:
                 self.fps = float(rate)
         self._decoder = None
-        self._next = None
 
-    def _open_decoder(self, k: int):
+    def _open_decoder(self, k: int, attempt: int = 0):
+        """Position the decoder before frame ``k``: at the keyframe before it, or ``attempt``
+        keyframes earlier (some containers, e.g. MPEG-TS, seek imprecisely), or - as the last
+        resort - by reopening the file and decoding from its start."""
         import av
 
         target_pts = int(self._pts[k])
         key = self._keys[self._keys <= target_pts]
-        seek_pts = int(key[-1]) if key.size else int(self._pts[0])
-        self._container.seek(seek_pts, stream=self._stream, backward=True, any_frame=False)
+        if attempt >= 3 or key.size <= attempt:
+            self._container.close()
+            self._container = av.open(str(self.path), "r")
+            st = self._container.streams.video[0]
+            st.codec_context.thread_type = "AUTO"
+            st.codec_context.thread_count = self._threads
+            self._stream = st
+        else:
+            seek_pts = int(key[-1 - attempt])
+            self._container.seek(seek_pts, stream=self._stream, backward=True, any_frame=False)
         self._decoder = self._container.decode(self._stream)
-        self._next = None
-        return av
+
+    def _indexed(self, want: int):
+        """(index, frame) pairs from the positioned decoder, skipping frames before ``want``."""
+        for frame in self._decoder:
+            if frame.pts is None:
+                continue
+            idx = int(np.searchsorted(self._pts, frame.pts))
+            if idx < len(self._pts) and self._pts[idx] == frame.pts and idx >= want:
+                yield idx, frame
 
     def _frames_from(self, k: int):
-        """Decoded frames (PyAV objects) from frame ``k`` on, in order."""
+        """Decoded frames (PyAV objects) from frame ``k`` on, in order.
+
+        A seek that lands after ``k`` is retried from earlier keyframes; a decoder that runs
+        dry before the last indexed frame (the tail of an MPEG-TS can be lost after a seek) is
+        re-run from the start of the file; a frame that still cannot be decoded is an error."""
         import av
 
-        self._open_decoder(k)
         want = k
         try:
-            for frame in self._decoder:
-                if frame.pts is None:
+            for attempt in range(4):
+                self._open_decoder(want, attempt)
+                late = False
+                for idx, frame in self._indexed(want):
+                    if idx > want:
+                        if want == k and attempt < 3:
+                            late = True
+                            break
+                        raise VideoError(f"{self.path}: frame {want} cannot be decoded",
+                                         code="E-VIDEO-TRUNCATED")
+                    yield idx, frame
+                    want = idx + 1
+                if late:
                     continue
-                idx = int(np.searchsorted(self._pts, frame.pts))
-                if idx >= len(self._pts) or self._pts[idx] != frame.pts or idx < want:
-                    continue
-                if idx > want:
-                    raise VideoError(f"{self.path}: frame {want} cannot be decoded",
-                                     code="E-VIDEO-TRUNCATED")
-                yield idx, frame
-                want = idx + 1
+                if want >= len(self._pts) or attempt == 3:
+                    break
+                # ran dry early: one more pass, decoding from the start of the file
+                self._open_decoder(want, 3)
+                for idx, frame in self._indexed(want):
+                    if idx > want:
+                        break
+                    yield idx, frame
+                    want = idx + 1
+                break
         except av.error.FFmpegError as exc:
             raise VideoError(f"{self.path}: decoding failed at frame {want} ({exc})",
                              code="E-VIDEO-TRUNCATED") from None
