@@ -66,3 +66,31 @@ def edge_mask(truth: np.ndarray, radius_cells: int = 5, jump_mm: float = 1.0) ->
     t0 = np.nan_to_num(truth)
     k = 2 * radius_cells + 1
     return (maximum_filter(t0, k) - minimum_filter(t0, k)) > jump_mm
+
+
+def visible_mask(scan_dir: Path, spec, frames: tuple[int, int]) -> np.ndarray:
+    """Cells of a reconstruction grid that at least one laser lights where the camera sees
+    it, in the processed frames: the simulator's exact stripe points (laser shadows and camera
+    occlusion included), gathered on the grid and closed along the scan over one frame's
+    travel. This is 'the surface either laser can see' of issue 4's fill-rate target."""
+    import cv2
+
+    from impress_gui.sim.simulate import SimConfig, _make_renderer
+
+    truth = json.loads((scan_dir / "truth.json").read_text())
+    cfg = SimConfig(**truth["config"])
+    renderer, _ = _make_renderer(cfg)
+    s1 = truth["travel_mm"][truth["calibration_frames"]["t1"]]
+    mask = np.zeros(spec.shape, np.uint8)
+    for k in range(*frames):
+        renderer.travel_cache = renderer.travel(k)
+        for laser in renderer.rig.lasers:
+            p = renderer.laser_points(laser, k).points_rail_mm
+            j = np.rint((p[:, 0] - spec.x0_mm) / spec.pixel_mm).astype(int)
+            i = np.rint((p[:, 1] - s1 - spec.y0_mm) / spec.pixel_mm).astype(int)
+            ok = (i >= 0) & (i < spec.shape[0]) & (j >= 0) & (j < spec.shape[1])
+            mask[i[ok], j[ok]] = 1
+    step = np.median(np.diff(truth["travel_mm"][frames[0]:frames[1]]))
+    n = int(np.ceil(step / spec.pixel_mm)) + 2
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((n, 3), np.uint8))
+    return mask.astype(bool)

@@ -45,6 +45,7 @@ class StripeParams:
     min_value: int = 120
     lut_margin: int = 6
     min_tint: int = 12
+    max_wrong_lean: float = 4.0  # chroma units: the halo leaning to the other laser's colour
     max_width_px: int = 20
 
     def validate(self, height: int | None = None) -> None:
@@ -239,15 +240,24 @@ def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height
     sign = 1 if name == "red" else -1
     k = params.half_window_px
     offs = np.arange(-k, k + 1)
-    rr = np.clip(peak[None, :] + offs[:, None], 0, h - 1)  # (2k+1, W) image rows
-    win = planes.y[rr, cols[None, :]].astype(np.float32)
-    base = win.min(axis=0)
-    sig = win - base
-    top = sig.max(axis=0)
-    above = np.clip(sig - 0.5 * top, 0, None)
-    wsum = above.sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        centre = (above * rr).sum(axis=0) / wsum
+
+    def window(centre_rows):
+        rr = np.clip(centre_rows[None, :] + offs[:, None], 0, h - 1)  # (2k+1, W) image rows
+        win = planes.y[rr, cols[None, :]].astype(np.float32)
+        sig = win - win.min(axis=0)
+        top = sig.max(axis=0)
+        above = np.clip(sig - 0.5 * top, 0, None)
+        wsum = above.sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            centre = (above * rr).sum(axis=0) / wsum
+        return rr, sig, top, wsum, centre
+
+    # the brightest row may sit at one edge of a saturated core: centre the window on the
+    # first estimate and measure again
+    rr, sig, top, wsum, centre = window(peak)
+    peak = np.where(np.isfinite(centre), np.rint(np.nan_to_num(centre)), peak).astype(np.int64)
+    rr, sig, top, wsum, centre = window(peak)
+    peak_i = peak - band_start
     width = (sig > 0.5 * top).sum(axis=0)
     ok = (top >= params.min_peak) & (wsum > 0) & (width <= params.max_width_px)
     ok &= (peak_i >= k) & (peak_i < band_height - k)
@@ -258,8 +268,8 @@ def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height
     crw = planes.cr[rr // s, (cols // s)[None, :]].astype(np.float32)
     cr_bg = 0.5 * (crw[0] + crw[-1])
     halo = (sig > 0.2 * top) & (sig < 0.65 * top)
-    lean = (sign * (crw - cr_bg) * halo).sum(axis=0)
-    ok &= (lean > 0) | ~halo.any(axis=0)
+    lean = (sign * (crw - cr_bg) * halo).sum(axis=0) / np.maximum(halo.sum(axis=0), 1)
+    ok &= lean > -params.max_wrong_lean  # only a clear lean to the other colour refuses
     # the method's colour test on the central rows (a white core sits between coloured halo)
     core = slice(k - 3, k + 4)
     rgb = planes.rgb(rr[core], cols[None, :])  # (7, W, 3)
