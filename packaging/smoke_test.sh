@@ -6,7 +6,8 @@
 #   2. the simulated motor answers (`impress motor --port sim status`, a short move);
 #   3. the bundled `impress demo --no-gui` builds the sample project: a simulated shoe scan
 #      (rendered in spawned worker processes), calibrated and processed (2-4 minutes);
-#   4. `impress gui PROJECT --screenshot out.png --quit-after 1` opens it offscreen and exits
+#   4. `impress gui PROJECT --tab viewer --screenshot out.png --quit-after 2` opens it offscreen
+#      on the viewer tab (its reconstruction shown) and exits
 #      with status 0, no traceback, and a 1920x1080 picture of the window.
 #   (A message box the window might show is not in the picture and does not change the exit
 #   status: look at the picture, SCREENSHOT=out.png keeps it.)
@@ -54,7 +55,10 @@ step "window: open the project offscreen, screenshot, quit"
 shot="$work/window.png"
 t_gui=$(date +%s)
 set +e
-"$APP" gui "$project" --settings "$settings" --screenshot "$shot" --quit-after 1 \
+tab=()
+# the viewer exercises pyqtgraph and the reconstruction readers in the frozen application
+if "$APP" gui --help | grep -q -- "--tab"; then tab=(--tab viewer); fi
+"$APP" gui "$project" "${tab[@]}" --settings "$settings" --screenshot "$shot" --quit-after 2 \
   > "$work/gui.txt" 2> "$work/gui-err.txt"
 rc=$?
 set -e
