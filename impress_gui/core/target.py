@@ -56,13 +56,18 @@ class TargetModel:
         c = self.corner_array()
         return float(np.sqrt(np.mean(np.sum((c - c.mean(0)) ** 2, axis=1))))
 
-    def heightfield(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
-        """Height of the target's top surface at object-frame points (NaN off the target)."""
+    def heightfield(self, x_mm: np.ndarray, y_mm: np.ndarray, grow_mm: float = 0.0) -> np.ndarray:
+        """Height of the target's top surface at object-frame points (NaN off the target).
+
+        ``grow_mm`` widens each top face by that much in x and y (a grid sampled at cell
+        centres puts a face's edge half a cell further out)."""
         h = np.full(np.broadcast(x_mm, y_mm).shape, np.nan)
         for face in self.top_faces():
-            v = face.vertices_mm
-            inside = _inside_convex(v[:, :2], x_mm, y_mm)
-            h = np.where(inside, np.fmax(h, v[0, 2]), h)
+            v = face.vertices_mm[:, :2]
+            if grow_mm:
+                v = v + grow_mm * np.sign(v - v.mean(0))
+            inside = _inside_convex(v, x_mm, y_mm)
+            h = np.where(inside, np.fmax(h, face.vertices_mm[0, 2]), h)
         return h
 
     def to_json(self) -> dict:

@@ -244,8 +244,11 @@ def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
     features: list[dict] = []
     kind = "soil"
     if preset == "shoe":
-        h = _shoe(X, Y, rng, length_mm, features)
-        h = _smooth(h.astype(np.float32), 0.25, pixel_mm)
+        # the sole spans about 300 mm from FEATURES_START_Y_MM: compute its relief there only
+        rows = (ys >= FEATURES_START_Y_MM) & (ys <= FEATURES_START_Y_MM + 340.0)
+        h = np.zeros(X.shape, np.float32)
+        h[rows] = _smooth(_shoe(X[rows], Y[rows], rng, length_mm, features).astype(np.float32),
+                          0.25, pixel_mm)
     elif preset == "tire":
         h = _smooth(_tire(X, Y, rng, length_mm, features).astype(np.float32), 0.3, pixel_mm)
         kind = "sand"
@@ -264,15 +267,24 @@ def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
     if target is not None:
         tx, ty, yaw = target_pose
         c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
-        Xg, Yg = np.meshgrid(xs, ys)
+        # only the cells around the target (its footprint's bounding box)
+        corners = target.corner_array()
+        reach = float(np.max(np.abs(corners[:, :2]))) * 1.5 + 2.0
+        j0 = max(0, int((tx - reach - x0) / pixel_mm))
+        j1 = min(len(xs), int((tx + reach - x0) / pixel_mm) + 1)
+        i0 = max(0, int((ty - reach - y0) / pixel_mm))
+        i1 = min(len(ys), int((ty + reach - y0) / pixel_mm) + 1)
+        Xg, Yg = np.meshgrid(xs[j0:j1], ys[i0:i1])
         # object coordinates of every cell: the inverse of rail = T + Rz(yaw) (x, -y) (object z
         # is up while the rail frame's Z' is depth, so the object's y axis points backwards)
         ox = c * (Xg - tx) + s * (Yg - ty)
         oy = s * (Xg - tx) - c * (Yg - ty)
-        th = target.heightfield(ox, oy)
+        th = target.heightfield(ox, oy, grow_mm=0.5 * pixel_mm)
         on = np.isfinite(th)
-        h = np.where(on, th, h).astype(np.float32)
+        sub = h[i0:i1, j0:j1]
+        sub[on] = th[on]
         # painted wood: light grey with a matte finish
-        albedo[on] = (np.array([178, 170, 160]) * (1 + 0.03 * rng.standard_normal((on.sum(), 1))))\
+        alb = albedo[i0:i1, j0:j1]
+        alb[on] = (np.array([178, 170, 160]) * (1 + 0.03 * rng.standard_normal((on.sum(), 1))))\
             .clip(0, 255).astype(np.uint8)
     return Scene(x0, y0, pixel_mm, h, albedo, features)
