@@ -262,7 +262,7 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
 
     # texture: the row through the principal point after undistortion
     tex_acc = ColorAccumulator(spec, max_gap) if params.texture else None
-    tex_rows: list = []
+    tex_rows = _RowSpool() if params.texture else None
     if params.texture:
         xn = np.linspace(-(intr.cx) / intr.fx, (w - 1 - intr.cx) / intr.fx, w * k_up)
         tu, tv = intr.distort_normalized(xn, np.zeros_like(xn))
@@ -305,7 +305,7 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
                                                   params.max_step_mm)
                 acc[name].add_profile(xu, yu, hu, vu)
             if params.texture:
-                tex_rows.append((k, _sample_planes(planes, tex_uv[:, 0], tex_uv[:, 1])))
+                tex_rows.append(k, _sample_planes(planes, tex_uv[:, 0], tex_uv[:, 1]))
             i = k - start + 1
             if i % 25 == 0 or i == n_total:
                 el = time.perf_counter() - t_loop
@@ -332,7 +332,10 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
     report(progress, 0.93, "mapping the texture")
     texture = None
     if params.texture:
-        texture = _map_texture(tex_rows, tex_rays, travel, fused, spec, cal, tex_acc)
+        try:
+            texture = _map_texture(tex_rows, tex_rays, travel, fused, spec, cal, tex_acc)
+        finally:
+            tex_rows.close()
     total_s = time.perf_counter() - t_start
     stats = {
         "frames_processed": n_total,
@@ -381,6 +384,34 @@ def _sample_planes(planes: Planes, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     a = planes.rgb(v0, u0) * (1 - fu) + planes.rgb(v0, u0 + 1) * fu
     b = planes.rgb(v0 + 1, u0) * (1 - fu) + planes.rgb(v0 + 1, u0 + 1) * fu
     return (a * (1 - fv) + b * fv).astype(np.float32)
+
+
+class _RowSpool:
+    """Texture rows (uint8 RGB, one per frame) spooled to an anonymous temporary file, so
+    memory stays flat however long the video is; read back in order for the mapping."""
+
+    def __init__(self) -> None:
+        import tempfile
+
+        self._fh = tempfile.TemporaryFile()
+        self._frames: list[int] = []
+        self._width = 0
+
+    def append(self, k: int, colours: np.ndarray) -> None:
+        row = np.clip(colours + 0.5, 0, 255).astype(np.uint8)
+        self._width = len(row)
+        self._fh.write(row.tobytes())
+        self._frames.append(k)
+
+    def __iter__(self):
+        self._fh.seek(0)
+        size = self._width * 3
+        for k in self._frames:
+            row = np.frombuffer(self._fh.read(size), np.uint8).reshape(-1, 3)
+            yield k, row.astype(np.float32)
+
+    def close(self) -> None:
+        self._fh.close()
 
 
 def _map_texture(rows, rays, travel, height, spec: GridSpec, cal: SceneCalibration,
