@@ -202,6 +202,28 @@ def test_bad_specs_are_refused(tmp_path):
         load_spec(p)
 
 
+def test_a_missing_wall_fails_instead_of_measuring_the_next_one():
+    """Two 4 mm slots 6 mm apart on a 20 mm block; the first slot's far wall has no data around
+    it: its width is a failed reading, not the distance to the next slot's wall."""
+    spec = GridSpec(0.0, 0.0, 0.1, (50, 400))
+    xs = spec.xs()
+    h = np.full(spec.shape, 20.0, np.float32)
+    for a in (10.0, 20.0):
+        h[:, (xs >= a) & (xs < a + 4.0)] = 14.0
+    floor, top = (10.5, 13.5), (4.0, 9.5)
+    walls = (V.Edge(floor, top, 10.0, 1.5), V.Edge(floor, (14.5, 19.5), 14.0, 1.5))
+    r = V.Reading("w", "g", "A", "edge_distance", 4.0, (0.0, 2.5), (39.0, 2.5), edges=walls)
+    d = V.Reading(
+        "d", "g", "A", "step", 4.0 + 2.0, (0.0, 2.5), (39.0, 2.5), band_a_mm=top, band_b_mm=floor
+    )
+    ok = V.measure_all(h, spec, [r, d])
+    assert ok[0].error_mm == pytest.approx(0.0, abs=0.06) and ok[1].measured_mm == 6.0
+    h[:, (xs >= 12.5) & (xs < 17.0)] = np.nan  # the far wall and its surroundings lost
+    bad = V.measure_reading(h, spec, r)
+    assert math.isnan(bad.measured_mm) and bad.note.startswith("failed")
+    assert V.stats([bad.error_mm, 0.1]).failed == 1
+
+
 # ----- the VDI/VDE 2634-2 quantities on exact surfaces -------------------------------------------
 def test_flatness_of_a_tilted_noisy_plane():
     spec = GridSpec(0.0, 0.0, 0.1, (400, 500))

@@ -366,7 +366,8 @@ def read_ply(path: str | os.PathLike, max_points: int = MAX_POINTS) -> PlyData:
         if n > max_points:
             raise _err(path, f"{n} vertices is too many", "E-TOO-LARGE")
         if {"red", "green", "blue"} <= set(names) and any(
-                dict(props)[c] != "u1" for c in ("red", "green", "blue")):
+            dict(props)[c] != "u1" for c in ("red", "green", "blue")
+        ):
             raise _err(path, "colours must be uchar", "E-PLY-HEADER")
         dt = np.dtype([(p, order + t) for p, t in props])
         need = n * dt.itemsize

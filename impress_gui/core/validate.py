@@ -91,11 +91,14 @@ PLACEMENT_BY_KEY = {p.key: p for p in PLACEMENTS}
 @dataclass(frozen=True)
 class Edge:
     """An edge on a profile: where the profile crosses the level halfway between the means of
-    two bands (distance ranges in mm along the profile), the crossing nearest ``near_mm``."""
+    two bands (distance ranges in mm along the profile), the crossing nearest ``near_mm`` -
+    none (a failed reading) when that is farther than ``max_offset_mm``: a missing wall must
+    not be replaced by the next one."""
 
     band_low_mm: tuple[float, float]
     band_high_mm: tuple[float, float]
     near_mm: float
+    max_offset_mm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -202,7 +205,12 @@ def _edge(profile: M.Profile, e: Edge) -> float:
     if not math.isfinite(level):
         return math.nan
     c = M.level_crossings(profile, level)
-    return float(c[np.argmin(np.abs(c - e.near_mm))]) if c.size else math.nan
+    if not c.size:
+        return math.nan
+    best = float(c[np.argmin(np.abs(c - e.near_mm))])
+    if e.max_offset_mm is not None and abs(best - e.near_mm) > e.max_offset_mm:
+        return math.nan
+    return best
 
 
 def measure_reading(
@@ -254,7 +262,9 @@ def measure_all(height: np.ndarray, spec: GridSpec, readings: Sequence[Reading])
 # ----- the simulator's blocks: readings from the truth features ------------------------------
 STATIONS_MM = (-10.0, 0.0, 10.0)  # profile lines across each target (targets are 44 mm long)
 PROFILE_WIDTH_MM = 2.0
-BAND_MARGIN_MM = 1.0  # bands keep this far from walls and edges
+BAND_MARGIN_MM = 1.0  # bands on tops keep this far from walls and edges
+FLOOR_MARGIN_MM = 0.3  # slot floors: laser shadows can leave data only near the walls (rotated)
+EDGE_SEARCH_MM = 1.5  # an edge is looked for within this distance of where it should be
 
 
 class _PlateFrame:
@@ -310,10 +320,13 @@ def blocks_readings(
     for k, f in enumerate(sorted(slots, key=lambda f: -f["width_mm"])[:2], 1):
         w, depth = float(f["width_mm"]), float(f["depth_mm"])
         a_l = f["centre_a_mm"] - w / 2
-        start, end = a_l - land - 2.0, a_l + w + 3.0
+        start, end = a_l - land - 2.0, a_l + w + land + 2.0
         off = a_l - start  # the near wall's distance along the profile
         top = (off - land + m, off - m)
-        floor = (off + min(m, w / 4), off + w - min(m, w / 4))
+        top2 = (off + w + m, off + w + land - m)
+        fm = min(FLOOR_MARGIN_MM, w / 4)
+        floor = (off + fm, off + w - fm)
+        walls = (Edge(floor, top, off, EDGE_SEARCH_MM), Edge(floor, top2, off + w, EDGE_SEARCH_MM))
         for b in stations_mm:
             common = dict(
                 group=group,
@@ -328,9 +341,9 @@ def blocks_readings(
             out.append(
                 Reading(
                     f"{group}/A/slot{k}-width/b{b:+.0f}",
-                    kind="width",
+                    kind="edge_distance",
                     nominal_mm=w,
-                    around_mm=off + w / 2,
+                    edges=walls,
                     label=f"A: slot {k} width",
                     **common,
                 )
@@ -368,8 +381,8 @@ def blocks_readings(
         )
         for k in (2, 3):
             edges = (
-                Edge(tread(k - 1), tread(k), riser[k - 1]),
-                Edge(tread(k), tread(k + 1), riser[k]),
+                Edge(tread(k - 1), tread(k), riser[k - 1], EDGE_SEARCH_MM),
+                Edge(tread(k), tread(k + 1), riser[k], EDGE_SEARCH_MM),
             )
             out.append(
                 Reading(

@@ -10,7 +10,7 @@ into the table and the report.
 Folder layout under ``out_dir``::
 
     scans/<item>/        simulator output (video, truth, picks, intrinsics), reused while the
-                         simulator's code and the scan's settings are unchanged
+                         scan's settings are unchanged (``fresh``: render again)
     runs/<item>/         calibration.json and reconstruction/ of this run
     validation.json      the record; validation-spec.json the readings as a real-scan spec
 """
@@ -58,6 +58,9 @@ class RunConfig:
     seed: int = 1
     workers: int = 2
     reuse_scans: bool = True
+    #: the rail raised for "B lifted by 40 mm": at the default 300 mm the two laser planes cross
+    #: 67 mm above the ground and the stair on the lifted plate reaches 77 mm
+    lifted_standoff_mm: float = 380.0
 
     @classmethod
     def quick(cls, **kw) -> RunConfig:
@@ -114,11 +117,13 @@ class RunConfig:
         out: dict[str, object] = {}
         for key in self.placements:
             p = V.PLACEMENT_BY_KEY[key]
+            extra = {"standoff_mm": self.lifted_standoff_mm} if p.lift_b_mm else {}
             out[key] = SimConfig(
                 preset="blocks",
                 length_mm=self.blocks_length_mm,
                 blocks=p.blocks_options(),
                 **common,
+                **extra,
             )
         if "flat" in self.extras:
             out["flat"] = SimConfig(preset="flat", length_mm=self.flat_length_mm, **common)
@@ -127,18 +132,22 @@ class RunConfig:
         return out
 
 
-def simulator_key(sim_cfg) -> str:
-    """Hash of a scan's settings and the simulator's code: a scan is reused only while both
-    are unchanged."""
+def simulator_sha256() -> str:
+    """Hash of the simulator's code (recorded with each scan it renders)."""
     import impress_gui.sim as sim_pkg
 
-    h = hashlib.sha256(json.dumps(dataclasses.asdict(sim_cfg), sort_keys=True).encode())
+    h = hashlib.sha256()
     core = Path(__file__).parent
     files = sorted(Path(sim_pkg.__file__).parent.glob("*.py"))
     files += [core / n for n in ("target.py", "geometry.py", "picks.py")]
     for f in files:
         h.update(f.read_bytes())
     return h.hexdigest()
+
+
+def _same_config(truth: dict, sim_cfg) -> bool:
+    a = json.dumps(truth.get("config"), sort_keys=True)
+    return a == json.dumps(json.loads(json.dumps(dataclasses.asdict(sim_cfg))), sort_keys=True)
 
 
 def produce_scan(
@@ -149,26 +158,29 @@ def produce_scan(
     progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
 ) -> bool:
-    """Render ``sim_cfg`` into ``folder`` unless a complete scan with the same key is there.
-    Returns True when it rendered."""
+    """Render ``sim_cfg`` into ``folder`` unless a complete scan of the same settings is there
+    (its truth.json, written last, records them) with its video unchanged. A scan rendered by
+    an older simulator is reused too (the video and its truth stay consistent); the record
+    says which simulator made it. Returns True when it rendered."""
     from impress_gui.sim.simulate import simulate
 
-    key = simulator_key(sim_cfg)
-    marker = folder / "scan-key.txt"
-    if (
-        reuse
-        and marker.is_file()
-        and marker.read_text().strip() == key
-        and (folder / "truth.json").is_file()
-    ):
-        truth = json.loads((folder / "truth.json").read_text())
-        if truth.get("video_sha256") == sha256_file(folder / truth["video"]):
+    truth_path = folder / "truth.json"
+    if reuse and truth_path.is_file():
+        try:
+            truth = json.loads(truth_path.read_text())
+            ok = _same_config(truth, sim_cfg) and truth.get("video_sha256") == sha256_file(
+                folder / truth["video"]
+            )
+        except (OSError, ValueError, KeyError, TypeError):
+            ok = False
+        if ok:
             report(progress, 1.0, "reusing the rendered scan")
             return False
     if folder.exists():
         shutil.rmtree(folder)
+    code = simulator_sha256()
     simulate(sim_cfg, folder, workers=workers, progress=progress, cancel=cancel)
-    marker.write_text(key + "\n")
+    (folder / "simulator.txt").write_text(code + "\n")
     return True
 
 
@@ -342,7 +354,10 @@ def run_simulated(
         )
         t_render = time.perf_counter() - t0
         lift = sim_cfg.blocks.get("lift_b_mm", 0.0) if sim_cfg.blocks else 0.0
-        params = ProcessParams(texture=False, height_range_mm=(-40.0, 60.0 + lift))
+        # a lifted plate: its top (77 mm) is the tallest surface; the default range reaches
+        # past the laser planes' crossing, where the two stripes' bands overlap
+        hr = (-20.0, 40.0 + lift) if lift else (-40.0, 60.0)
+        params = ProcessParams(texture=False, height_range_mm=hr)
         info = _calibrate_and_process(
             scan,
             out / "runs" / item,
@@ -367,6 +382,7 @@ def run_simulated(
                 "title": title,
                 "sim_config": dataclasses.asdict(sim_cfg),
                 "rendered_now": rendered,
+                "simulator_sha256": _read_text(scan / "simulator.txt") or "unknown",
             }
             | info
         )
@@ -423,6 +439,13 @@ def run_real(
     _finish(record, results, groups)
     write_json(out / "validation.json", record)
     return record
+
+
+def _read_text(path: Path) -> str | None:
+    try:
+        return path.read_text().strip()
+    except OSError:
+        return None
 
 
 def _labelled(progress: ProgressCallback | None, title: str) -> ProgressCallback | None:

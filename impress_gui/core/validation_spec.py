@@ -106,6 +106,9 @@ def _reading_from_json(doc, group: str, default_width: float, where: str) -> Rea
                 _pair(e.get("band_low_mm"), "band_low_mm", where),
                 _pair(e.get("band_high_mm"), "band_high_mm", where),
                 _number(e, "near_mm", where, -1e6, 1e6),
+                _number(e, "max_offset_mm", where, 0.0, 1e6)
+                if e.get("max_offset_mm") is not None
+                else None,
             )
             for e in edges
         )
@@ -178,6 +181,7 @@ def reading_to_json(r: Reading) -> dict:
                 "band_low_mm": list(e.band_low_mm),
                 "band_high_mm": list(e.band_high_mm),
                 "near_mm": e.near_mm,
+                "max_offset_mm": e.max_offset_mm,
             }
             for e in r.edges
         ]
