@@ -119,14 +119,15 @@ def decode_only_seconds(video_path: Path, start: int, stop: int) -> float:
 
 
 PEAK_CODE = """
-import json, resource, sys, time
+import json, sys, time
 from impress_gui.core.calibration import SceneCalibration
 from impress_gui.core.reconstruct import ProcessParams, reconstruct
 from impress_gui.core.video import open_video
 cal = SceneCalibration.load(sys.argv[2])
 with open_video(sys.argv[1]) as v:
     rec = reconstruct(v, cal, ProcessParams(frame_start=int(sys.argv[3]), frame_stop=int(sys.argv[4]), method=sys.argv[5]))
-print(json.dumps({"peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+hwm = [l for l in open("/proc/self/status") if l.startswith("VmHWM")][0].split()[1]
+print(json.dumps({"peak_mb": int(hwm) / 1024,
                   "grid_mb": rec.height_mm.nbytes * 13 / 2**20,
                   "fps": rec.stats["frames_per_second"], "loop_s": rec.stats["seconds_frame_loop"]}))
 """

@@ -86,8 +86,10 @@ class HeightAccumulator:
 
     def __init__(self, spec: GridSpec, max_gap_mm: float, max_step_mm: float) -> None:
         self.spec = spec
-        self.sum = np.zeros(spec.shape, np.float64)
-        self.count = np.zeros(spec.shape, np.uint32)
+        # float32 sums: heights within +-1 m summed over a cell's few hundred samples keep
+        # micrometre precision; uint16 counts (a cell gets at most a few hundred samples)
+        self.sum = np.zeros(spec.shape, np.float32)
+        self.count = np.zeros(spec.shape, np.uint16)
         self.max_gap_mm = max_gap_mm
         self.max_step_mm = max_step_mm
         self._prev = None

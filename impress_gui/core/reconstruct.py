@@ -212,6 +212,15 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
                 progress: ProgressCallback | None = None, cancel: CancelToken | None = None
                 ) -> Reconstruction:
     """Run the whole reconstruction on an open video."""
+    spool = _RowSpool() if params.texture else None
+    try:
+        return _reconstruct(video, cal, params, progress, cancel, spool)
+    finally:
+        if spool is not None:
+            spool.close()
+
+
+def _reconstruct(video, cal, params, progress, cancel, spool) -> Reconstruction:
     params.validate()
     cancel = cancel or CancelToken()
     t_start = time.perf_counter()
@@ -262,7 +271,7 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
 
     # texture: the row through the principal point after undistortion
     tex_acc = ColorAccumulator(spec, max_gap) if params.texture else None
-    tex_rows = _RowSpool() if params.texture else None
+    tex_rows = spool
     if params.texture:
         xn = np.linspace(-(intr.cx) / intr.fx, (w - 1 - intr.cx) / intr.fx, w * k_up)
         tu, tv = intr.distort_normalized(xn, np.zeros_like(xn))
@@ -332,10 +341,7 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
     report(progress, 0.93, "mapping the texture")
     texture = None
     if params.texture:
-        try:
-            texture = _map_texture(tex_rows, tex_rays, travel, fused, spec, cal, tex_acc)
-        finally:
-            tex_rows.close()
+        texture = _map_texture(tex_rows, tex_rays, travel, fused, spec, cal, tex_acc)
     total_s = time.perf_counter() - t_start
     stats = {
         "frames_processed": n_total,
