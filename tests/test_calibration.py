@@ -179,3 +179,38 @@ def test_cli_round_trip(flat_scan, tmp_path):
         capture_output=True, text=True)
     assert bad.returncode == 2 and "not a impress.intrinsics file" in bad.stderr
     assert not (tmp_path / "x.json").exists()
+
+
+def test_three_point_fallback_recovers_the_plane(flat_scan, flat_calibration):
+    """The seed's L, M, N method: stripe pixels on three target edges, rays met with the
+    edges, the plane through the three points - from the true stripe positions."""
+    from impress_gui.core.calib_aids import three_point_plane
+    from impress_gui.sim.simulate import SimConfig, _make_renderer
+
+    truth = json.loads((flat_scan / "truth.json").read_text())
+    cal = SceneCalibration.load(flat_calibration)
+    target = default_target()
+    renderer, _ = _make_renderer(SimConfig(**truth["config"]))
+    t1 = truth["calibration_frames"]["t1"]
+    stripe = renderer.laser_points(renderer.rig.laser("green"), t1)
+    corners = cal.corners_fit_mm(target)  # rail frame, origin at the camera at t1
+    idx = {c: i for i, c in enumerate(CORNER_NAMES)}
+    # edges A-B (low top, outer), F-C (top of the riser), E-D (high top, outer)
+    edges = [(corners[idx["A"]], corners[idx["B"]]), (corners[idx["F"]], corners[idx["C"]]),
+             (corners[idx["E"]], corners[idx["D"]])]
+    # the true stripe pixel nearest to each edge (world points from the simulator)
+    s1 = truth["travel_mm"][t1]
+    pts = stripe.points_rail_mm - [0.0, s1, 0.0]
+    picks = []
+    for a, b in edges:
+        e = (b - a) / np.linalg.norm(b - a)
+        d = np.linalg.norm(np.cross(pts - a, e), axis=1)
+        picks.append(stripe.uv_px[np.argmin(d)])
+    plane = three_point_plane(cal.intrinsics, cal.rotation, 0.0, np.array(picks), edges)
+    true_plane = Plane.from_json(truth["lasers"]["green"]["plane"], "green").oriented_like(plane)
+    # three points only, each within a stripe sample of its edge: a coarse plane
+    assert plane.angle_to_deg(true_plane) < 1.0
+    assert abs(plane.offset_mm - true_plane.offset_mm) < 3.0
+    with pytest.raises(CalibrationError, match="collinear|parallel"):
+        three_point_plane(cal.intrinsics, cal.rotation, 0.0, np.array([picks[0]] * 3),
+                          [edges[0]] * 3)

@@ -120,7 +120,8 @@ def three_point_plane(intr: Intrinsics, rotation: np.ndarray, travel_mm: float,
         pts.append(a + s * e)
     p = np.array(pts)
     n = np.cross(p[1] - p[0], p[2] - p[1])
-    if np.linalg.norm(n) < 1e-6 * np.linalg.norm(p[1] - p[0]) ** 2:
+    spread = max(np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0]), 1e-9)
+    if np.linalg.norm(n) < 1e-6 * spread**2 or spread < 1e-6:
         raise CalibrationError("the three stripe points are collinear: the plane is "
                                "undetermined", code="E-PLANE-UNDETERMINED")
     n /= np.linalg.norm(n)
