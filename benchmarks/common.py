@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from impress_gui.sim.truth import truth_on_grid  # noqa: F401  (re-exported for the benchmarks)
+
 CACHE = Path(os.environ.get("IMPRESS_BENCH_CACHE", Path(__file__).parent / ".cache"))
 
 
@@ -19,22 +21,6 @@ def scan(name: str, **cfg) -> Path:
     if not (out / "truth.json").exists():
         print(f"[simulating {name}: {cfg}]", flush=True)
         simulate(SimConfig(**cfg), out, workers=min(2, os.cpu_count() or 1))
-    return out
-
-
-def truth_on_grid(scan_dir: Path, spec) -> np.ndarray:
-    import tifffile
-
-    truth = json.loads((scan_dir / "truth.json").read_text())
-    th = tifffile.imread(scan_dir / "truth_height.tif")
-    hm = truth["heightmap"]
-    s1 = truth["travel_mm"][truth["calibration_frames"]["t1"]]
-    jj = np.rint((spec.xs() - hm["x0_mm"]) / hm["pixel_mm"]).astype(int)
-    ii = np.rint((spec.ys() + s1 - hm["y0_mm"]) / hm["pixel_mm"]).astype(int)
-    okj = (jj >= 0) & (jj < th.shape[1])
-    oki = (ii >= 0) & (ii < th.shape[0])
-    out = np.full(spec.shape, np.nan, np.float32)
-    out[np.ix_(oki, okj)] = th[np.ix_(ii[oki], jj[okj])]
     return out
 
 

@@ -49,19 +49,4 @@ def flat_calibration(flat_scan, tmp_path_factory) -> Path:
     return path
 
 
-def truth_on_grid(scan_dir: Path, spec) -> "object":
-    """The simulator's true heightmap resampled (nearest) onto a reconstruction grid."""
-    import numpy as np
-    import tifffile
-
-    truth = json.loads((scan_dir / "truth.json").read_text())
-    th = tifffile.imread(scan_dir / "truth_height.tif")
-    hm = truth["heightmap"]
-    s1 = truth["travel_mm"][truth["calibration_frames"]["t1"]]
-    jj = np.rint((spec.xs() - hm["x0_mm"]) / hm["pixel_mm"]).astype(int)
-    ii = np.rint((spec.ys() + s1 - hm["y0_mm"]) / hm["pixel_mm"]).astype(int)
-    okj = (jj >= 0) & (jj < th.shape[1])
-    oki = (ii >= 0) & (ii < th.shape[0])
-    out = np.full(spec.shape, np.nan, np.float32)
-    out[np.ix_(oki, okj)] = th[np.ix_(ii[oki], jj[okj])]
-    return out
+from impress_gui.sim.truth import truth_on_grid  # noqa: E402,F401  (used by test modules)
