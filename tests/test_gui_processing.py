@@ -110,7 +110,7 @@ def test_preview_of_both_stripes_lookup_tables_and_regions(qtbot, tab, scan, tmp
     assert np.isfinite(tab.last_stripes["green"]).sum() < 0.05 * w
     # (the red result may move a little: the background tables exclude the regions' rows)
     n_red = np.isfinite(red_rows).sum()
-    assert abs(np.isfinite(tab.last_stripes["red"]).sum() - n_red) < 0.05 * n_red
+    assert abs(np.isfinite(tab.last_stripes["red"]).sum() - n_red) < 0.1 * n_red
     assert np.nanmax(np.abs(tab.last_stripes["red"] - red_rows)) < 1.0
     assert tab.params.params().rois["green"] == (g0, g0 + 12)
 

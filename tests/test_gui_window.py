@@ -301,6 +301,7 @@ def test_plain_impress_opens_the_window(monkeypatch):
                 "size": (1920, 1080),
                 "settings_path": None,
                 "with_motor": True,
+                "tab": None,
             },
         )
     ]
