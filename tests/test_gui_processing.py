@@ -203,3 +203,21 @@ def test_missing_calibration_and_bad_parameters(qtbot, tab, scan, tmp_path):
     tab.params.frame_stop.setValue(50)
     assert not tab.run()
     assert "frame range" in tab.messenger.last_text and not tab.is_running()
+
+
+def test_heightmap_grows_in_a_preview_during_the_run(qtbot, tab, scan, tmp_path, monkeypatch):
+    """The core hands partial heightmaps to the tab while it runs; the run panel shows them,
+    each covering more of the scan than the last."""
+    import impress_gui.core.reconstruct as R
+
+    monkeypatch.setattr(R, "PREVIEW_EVERY_S", 0.05)
+    project = make_project(scan, tmp_path / "p")
+    with qtbot.waitSignal(tab.preview_ready, timeout=20000):
+        tab.set_project(project)
+    shown = []
+    tab.growing.connect(lambda a: shown.append(int(np.isfinite(a).sum())))
+    with qtbot.waitSignal(tab.worker.finished, timeout=120000):
+        QTest.mouseClick(tab.run_panel.run_button, Qt.MouseButton.LeftButton)
+    assert len(shown) >= 3 and tab.run_panel.growing_updates == len(shown)
+    assert tab.run_panel.growing.isVisible()
+    assert shown[-1] > shown[0] > 0

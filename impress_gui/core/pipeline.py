@@ -11,7 +11,7 @@ from pathlib import Path
 
 def process_files(video_path: Path, calibration_path: Path, out_dir: Path, params,
                   fps: float | None = None, progress=None, cancel=None,
-                  expected_video_sha256: str | None = None) -> dict:
+                  expected_video_sha256: str | None = None, preview=None) -> dict:
     """Core entry shared by the CLI and the GUI: read, reconstruct, write; return metadata.
 
     ``expected_video_sha256`` (the hash recorded when the evidence was added to a project):
@@ -45,7 +45,8 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
                         "(SHA-256 mismatch)")
     t0 = time.perf_counter()
     with open_video(video_path, fps=fps) as video:
-        rec = reconstruct(video, cal, params, progress=progress, cancel=cancel)
+        rec = reconstruct(video, cal, params, progress=progress, cancel=cancel,
+                          preview=preview)
     rec.warnings[:0] = warnings
     meta = build_metadata(rec, cal, params, inputs)
     run = {"date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),

@@ -209,18 +209,38 @@ def _default_range(video, cal: SceneCalibration, params: ProcessParams) -> tuple
 
 
 def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessParams(),
-                progress: ProgressCallback | None = None, cancel: CancelToken | None = None
-                ) -> Reconstruction:
-    """Run the whole reconstruction on an open video."""
+                progress: ProgressCallback | None = None, cancel: CancelToken | None = None,
+                preview=None, preview_every_s: float | None = None) -> Reconstruction:
+    """Run the whole reconstruction on an open video.
+
+    ``preview``, if given, is called about every ``preview_every_s`` seconds (default
+    :data:`PREVIEW_EVERY_S`) with a small
+    (longest side <= 480 cells) float32 heightmap of what has been measured so far (mean of
+    the two lasers, NaN where nothing yet) - for a display that grows during the run."""
     spool = _RowSpool() if params.texture else None
     try:
-        return _reconstruct(video, cal, params, progress, cancel, spool)
+        every = PREVIEW_EVERY_S if preview_every_s is None else preview_every_s
+        return _reconstruct(video, cal, params, progress, cancel, spool, preview, every)
     finally:
         if spool is not None:
             spool.close()
 
 
-def _reconstruct(video, cal, params, progress, cancel, spool) -> Reconstruction:
+PREVIEW_EVERY_S = 1.5
+
+
+def _preview_map(acc: dict) -> np.ndarray:
+    """Decimated mean height over both lasers' accumulators so far."""
+    shape = next(iter(acc.values())).sum.shape
+    step = max(1, int(np.ceil(max(shape) / 480)))
+    total = sum(a.sum[::step, ::step].astype(np.float32) for a in acc.values())
+    count = sum(a.count[::step, ::step].astype(np.float32) for a in acc.values())
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / count, np.nan).astype(np.float32)
+
+
+def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
+                 preview_every_s: float = 1.5) -> Reconstruction:
     params.validate()
     cancel = cancel or CancelToken()
     t_start = time.perf_counter()
@@ -283,6 +303,7 @@ def _reconstruct(video, cal, params, progress, cancel, spool) -> Reconstruction:
     min_cols = int(0.02 * w)
     frames = _Frames(video, start, stop, cancel)
     frames_seen = [0]
+    last_preview = [time.perf_counter()]
     n_total = stop - start
     t_loop = time.perf_counter()
     try:
@@ -316,6 +337,9 @@ def _reconstruct(video, cal, params, progress, cancel, spool) -> Reconstruction:
             if params.texture:
                 tex_rows.append(k, _sample_planes(planes, tex_uv[:, 0], tex_uv[:, 1]))
             i = k - start + 1
+            if preview is not None and time.perf_counter() - last_preview[0] > preview_every_s:
+                last_preview[0] = time.perf_counter()
+                preview(_preview_map(acc))
             if i % 25 == 0 or i == n_total:
                 el = time.perf_counter() - t_loop
                 report(progress, 0.05 + 0.85 * i / n_total,

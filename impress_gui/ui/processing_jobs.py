@@ -50,6 +50,7 @@ def reconstruct_into(
     progress,
     cancel,
     expected_video_sha256: str | None = None,
+    preview=None,
 ) -> tuple[dict, str]:
     """Save the calibration used beside the output (the reconstruction's metadata records its
     path and hash), run :func:`~impress_gui.core.pipeline.process_files` into ``out`` and
@@ -68,6 +69,7 @@ def reconstruct_into(
             progress=progress,
             cancel=cancel,
             expected_video_sha256=expected_video_sha256,
+            preview=preview,
         )
         # The reconstruction's frame reader stops at a cancel and the frame loop can end
         # without noticing: a result (or an error) then stems from a truncated run.

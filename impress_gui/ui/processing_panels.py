@@ -264,12 +264,33 @@ class RunPanel(QGroupBox):
         self.message.setWordWrap(True)
         v.addWidget(self.rate)
         v.addWidget(self.message)
+        # the heightmap as it grows during the run (decimated; heights in a turbo colour map)
+        self.growing = pg.ImageView()
+        self.growing.ui.roiBtn.hide()
+        self.growing.ui.menuBtn.hide()
+        self.growing.ui.histogram.hide()
+        self.growing.setMinimumHeight(160)
+        self.growing.setColorMap(pg.colormap.get("turbo"))
+        self.growing.hide()
+        v.addWidget(self.growing)
+        self.growing_updates = 0
         self._t0 = 0.0
         self._first: tuple[float, int] | None = None
         self.frames_per_second = 0.0
         self.remaining_s: float | None = None
 
+    def show_growing(self, height: np.ndarray) -> None:
+        """Show the partial heightmap (rows along the scan) sent by the running job."""
+        if not np.isfinite(height).any():
+            return
+        lo, hi = np.nanpercentile(height, [1, 99])
+        self.growing.setImage(np.nan_to_num(height, nan=lo), autoRange=self.growing_updates == 0,
+                              autoLevels=False, levels=(float(lo), float(max(hi, lo + 0.1))))
+        self.growing.show()
+        self.growing_updates += 1
+
     def start(self) -> None:
+        self.growing_updates = 0
         self._t0 = time.monotonic()
         self._first = None
         self.frames_per_second, self.remaining_s = 0.0, None

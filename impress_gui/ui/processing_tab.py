@@ -48,6 +48,7 @@ class ProcessingTab(QWidget):
     status = Signal(str)
     reconstructed = Signal(str)  # the output folder, once written and recorded
     preview_ready = Signal(int)  # frame whose detected stripes are shown
+    growing = Signal(object)  # partial heightmap from the running reconstruction
     lut_ready = Signal()
 
     def __init__(
@@ -72,6 +73,7 @@ class ProcessingTab(QWidget):
         self._out: Path | None = None
         self.worker = Worker(self, name="processing")
         self.worker.progress.connect(lambda f, m: self.run_panel.progress(f, m))
+        self.growing.connect(lambda a: self.run_panel.show_growing(a))
         self.worker.finished.connect(self._on_finished)
         self.worker.failed.connect(self._on_failed)
         self.worker.cancelled.connect(self._on_cancelled)
@@ -419,6 +421,8 @@ class ProcessingTab(QWidget):
         # the evidence registered in the project: refuse to process it once it has changed
         expected = ref.sha256 if ref and ref_path and ref_path.resolve() == video else None
 
+        growing = self.growing
+
         def task(progress, cancel):
             return reconstruct_into(
                 video,
@@ -430,6 +434,7 @@ class ProcessingTab(QWidget):
                 progress,
                 cancel,
                 expected_video_sha256=expected,
+                preview=growing.emit,  # queued to the GUI thread
             )
 
         self.run_panel.output_label.setText(f"Output: {out}")
