@@ -127,7 +127,11 @@ def bar_chart(record: dict) -> np.ndarray:
         y = y_of(v)
         cv2.line(img, (left, y), (width - 10, y), (225, 225, 225), 1)
         _text(img, f"{v:.1f}", (8, y + 4))
-    _text(img, "mean |error| (mm), whisker = SD", (left, 22))
+    _text(img, "mean |error| (mm), whisker = SD; dashed: the acceptance bars", (left, 22))
+    for bar, colour in ((V.BAR_XY_MM, (31, 119, 180)), (V.BAR_Z_MM, (214, 39, 40))):
+        y = y_of(bar)
+        for x in range(left, width - 10, 12):
+            cv2.line(img, (x, y), (min(x + 6, width - 10), y), colour, 1)
     colours = {
         ("xy", "ours"): (31, 119, 180),
         ("z", "ours"): (214, 39, 40),
@@ -337,6 +341,8 @@ def report_html(record: dict, figures: bool = True) -> str:
             for k, v in s.get("reconstruction", {}).get("files", {}).items()
             if k in ("heightmap.tif", "metadata.json", "heightmap.x3p")
         }
+        if s.get("simulator_sha256"):
+            files["simulator code (at rendering)"] = s["simulator_sha256"]
         for k, v in files.items():
             out.append(
                 f"<tr><td class='l'>{e(s['title'])}</td><td class='l'>{e(k)}</td>"
