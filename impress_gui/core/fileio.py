@@ -137,7 +137,7 @@ def require(doc: dict, key: str, kind: type | tuple[type, ...], where: str = "")
     return value
 
 
-def float_array(value: Any, shape: tuple[int, ...], name: str) -> "Any":
+def float_array(value: Any, shape: tuple[int, ...], name: str) -> Any:
     """Convert a JSON list to a float64 array of exactly ``shape`` with finite values."""
     import numpy as np
 
