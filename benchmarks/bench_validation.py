@@ -4,7 +4,7 @@ simulator scans of the six placements of plates A and B, plus the flat plane and
 Prints the table in the thesis' layout beside the thesis' figures, the acceptance verdict
 (overall xy mean <= 0.12 mm, z mean <= 0.19 mm: five times better than the thesis) and the
 wall time of each stage. Rendered scans are kept in the output folder and reused, so a second
-run measures the reconstruction alone (rendering 1080p is the long part: about an hour on two
+run measures the reconstruction alone (rendering 1080p is the long part: about 20 minutes on two
 cores). Wall times on a shared machine depend on what else runs: the load average is printed.
 
 Usage: .venv/bin/python benchmarks/bench_validation.py [--quick] [--out DIR]

@@ -27,7 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--quick",
         action="store_true",
         help="quick mode: 640x360 at three times the fast rail speed (minutes); "
-        "the default is the full mode, 1920x1080 at the fast speed (an hour or more)",
+        "the default is the full mode, 1920x1080 at the fast speed (about half an hour on two cores)",
     )
     p.add_argument(
         "--out",

@@ -28,7 +28,7 @@ from impress_gui.ui.worker import Worker
 
 MODES = (
     "Simulator, quick (640x360, minutes)",
-    "Simulator, full (1920x1080, about an hour)",
+    "Simulator, full (1920x1080, about half an hour)",
     "Real scans (spec file)",
 )
 COLUMNS = (
