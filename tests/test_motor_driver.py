@@ -271,7 +271,8 @@ def test_write_program_and_run_banks(rig):
     driver.check(watch)
     driver.start_bank(2)
     snap = driver.wait(watch)
-    assert -2000 < snap.position_pulses < -1000
+    # stopped well before the long run's target (the stop may arrive before it has moved)
+    assert -2000 < snap.position_pulses <= -1000
     assert_stopped(emu)
     with pytest.raises(MotorRangeError):
         driver.start_bank(0)
