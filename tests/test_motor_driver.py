@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -231,7 +232,15 @@ def test_enable_disable_zero_and_speed(rig):
     assert driver.position_pulses() == 0
     watch = driver.start_move_mm(50.0, 5.0)
     driver.check(watch)
-    assert driver.speed_mm_s() == pytest.approx(driver.units.units_to_speed_mm_s(4), rel=0.05)
+    # The emulator ramps up at the configured acceleration; poll until cruising (the
+    # 50-mm move at 5 mm/s lasts ten seconds, the ramp a few hundredths of one).
+    cruise = driver.units.units_to_speed_mm_s(4)
+    deadline = time.monotonic() + 5.0
+    speed = driver.speed_mm_s()
+    while speed != pytest.approx(cruise, rel=0.05) and time.monotonic() < deadline:
+        time.sleep(0.02)
+        speed = driver.speed_mm_s()
+    assert speed == pytest.approx(cruise, rel=0.05)
     driver.stop()
     assert driver.speed_mm_s() == 0.0
 
