@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from impress_gui.core import kernels
 from impress_gui.core.calibration import SceneCalibration
 from impress_gui.core.errors import InputError, ReconstructionError, VideoError
 from impress_gui.core.grid import (
@@ -22,7 +23,6 @@ from impress_gui.core.grid import (
     GridSpec,
     HeightAccumulator,
     fuse,
-    upsample_profile,
 )
 from impress_gui.core.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.stripes import (
@@ -258,13 +258,12 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
     lut = None
     if params.method in ("lut", "combined"):
         lut = BackgroundLUT()
-        for k in np.linspace(start, stop - 1, min(params.lut_frames, stop - start)).astype(int):
+        for k in video.quick_frames(start, stop, params.lut_frames):
             cancel.check()
-            lut.learn(video.read(int(k)), list(rois.values()))
+            lut.learn(video.read(k), list(rois.values()))
     report(progress, 0.03, "background learned")
 
-    # ----- per-column rays of each band, precomputed once ----------------------------------
-    cols = np.arange(w, dtype=np.float64)
+    # ----- grid extent and sampling ----------------------------------------------------------
     per_frame_travel = float(np.median(np.abs(np.diff(travel[start:stop])))) if stop - start > 1 else 0.1
     z_ref0 = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
     footprint = z_ref0 / intr.fx
@@ -296,10 +295,17 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
         xn = np.linspace(-(intr.cx) / intr.fx, (w - 1 - intr.cx) / intr.fx, w * k_up)
         tu, tv = intr.distort_normalized(xn, np.zeros_like(xn))
         tex_ok = (tu >= 0) & (tu <= w - 1) & (tv >= 0) & (tv <= h - 1)
-        tex_uv = np.column_stack([tu, tv])[tex_ok]
+        tu, tv = tu[tex_ok], tv[tex_ok]
         tex_rays = (np.column_stack([xn, np.zeros_like(xn), np.ones_like(xn)]) @ rot.T)[tex_ok]
+        u0 = np.clip(np.floor(tu).astype(np.int64), 0, w - 2)
+        v0 = np.clip(np.floor(tv).astype(np.int64), 0, h - 2)
+        tex_sample = (u0, v0, tu - u0, tv - v0)
+        tex_colours = np.empty((len(tu), 3), np.float64)
 
     bands = column_bands(cal, (w, h), params.height_range_mm, rois)
+    rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
+    ref = _reference_coeffs(cal)
+    profile = {n: _Profile(w, k_up) for n in LASERS}
     min_cols = int(0.02 * w)
     frames = _Frames(video, start, stop, cancel)
     frames_seen = [0]
@@ -321,21 +327,17 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
                     acc[name].reset_chain()
                     continue
                 found_frames[name] += 1
-                uv = np.column_stack([cols[valid], res.rows[valid]])
-                rays = intr.rays(uv) @ rot.T
-                p = cal.planes[name].plane.intersect_rays(rays)
-                x = np.full(w, np.nan)
-                y = np.full(w, np.nan)
-                z = np.full(w, np.nan)
-                x[valid], y[valid], z[valid] = p[:, 0], p[:, 1] + s_k, p[:, 2]
-                hgt = _despike(cal.reference_depth(x, y) - z, params.max_step_mm)
+                pr = profile[name]
+                plane = cal.planes[name].plane
+                kernels.triangulate(res.rows, valid, b0, rays[name], plane.normal,
+                                    float(plane.offset_mm), s_k, ref, pr.x, pr.y, pr.h)
+                hgt = _despike(pr.h, params.max_step_mm)
                 ok = valid & np.isfinite(hgt)
-                xu, yu, hu, vu = upsample_profile(np.nan_to_num(x), np.nan_to_num(y),
-                                                  np.nan_to_num(hgt), ok, params.grid_mm, k_up,
-                                                  params.max_step_mm)
-                acc[name].add_profile(xu, yu, hu, vu)
+                acc[name].add_profile(*pr.upsampled(hgt, ok, params.max_step_mm))
             if params.texture:
-                tex_rows.append(k, _sample_planes(planes, tex_uv[:, 0], tex_uv[:, 1]))
+                kernels.sample_rgb(planes.y, planes.cb, planes.cr, planes.chroma_step,
+                                   *tex_sample, tex_colours)
+                tex_rows.append(k, tex_colours)
             i = k - start + 1
             if preview is not None and time.perf_counter() - last_preview[0] > preview_every_s:
                 last_preview[0] = time.perf_counter()
@@ -360,8 +362,10 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
         if found_frames[name] < 0.5 * n_total:
             warnings.append(f"the {name} stripe was found in only {found_frames[name]} of "
                             f"{n_total} frames")
+    t_fuse = time.perf_counter()
     per = {n: acc[n].mean() for n in LASERS}
     fused, diff, contrib = fuse(per["green"], per["red"], params.fuse_tolerance_mm)
+    t_tex = time.perf_counter()
     report(progress, 0.93, "mapping the texture")
     texture = None
     if params.texture:
@@ -375,7 +379,10 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
         "cells_green": int(np.isfinite(per["green"]).sum()),
         "cells_red": int(np.isfinite(per["red"]).sum()),
         "seconds_total": round(total_s, 3),
+        "seconds_setup": round(t_loop - t_start, 3),
         "seconds_frame_loop": round(loop_s, 3),
+        "seconds_fusion": round(t_tex - t_fuse, 3),
+        "seconds_texture": round(time.perf_counter() - t_tex, 3),
         "frames_per_second": round(n_total / max(loop_s, 1e-9), 2),
     }
     report(progress, 1.0, "done")
@@ -405,15 +412,40 @@ def _despike(h: np.ndarray, tol_mm: float) -> np.ndarray:
     return out
 
 
-def _sample_planes(planes: Planes, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Bilinear RGB samples (float32) at sub-pixel positions of a frame's planes."""
-    h, w = planes.y.shape
-    u0 = np.clip(np.floor(u).astype(np.int64), 0, w - 2)
-    v0 = np.clip(np.floor(v).astype(np.int64), 0, h - 2)
-    fu, fv = (u - u0)[:, None], (v - v0)[:, None]
-    a = planes.rgb(v0, u0) * (1 - fu) + planes.rgb(v0, u0 + 1) * fu
-    b = planes.rgb(v0 + 1, u0) * (1 - fu) + planes.rgb(v0 + 1, u0 + 1) * fu
-    return (a * (1 - fv) + b * fv).astype(np.float32)
+def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int) -> np.ndarray:
+    """Rail-frame ray directions ``(W, band height + 1, 3)`` through every column at the
+    integer rows of its band (lens distortion undone once here, not per frame)."""
+    b0, bh = band
+    w = len(b0)
+    rows = np.minimum(b0[:, None] + np.arange(bh + 1)[None, :], height - 1).astype(np.float64)
+    cols = np.broadcast_to(np.arange(w, dtype=np.float64)[:, None], rows.shape)
+    uv = np.column_stack([cols.ravel(), rows.ravel()])
+    rays = cal.intrinsics.rays(uv) @ cal.rotation.T
+    return np.ascontiguousarray(rays.reshape(w, bh + 1, 3))
+
+
+def _reference_coeffs(cal: SceneCalibration) -> np.ndarray:
+    """``(c0, cx, cy)`` with ``reference_depth(x, y) = c0 + cx x + cy y`` (a plane)."""
+    c0 = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
+    cx = float(cal.reference_depth(np.array(1.0), np.array(0.0))) - c0
+    cy = float(cal.reference_depth(np.array(0.0), np.array(1.0))) - c0
+    return np.array([c0, cx, cy])
+
+
+class _Profile:
+    """Per-laser scratch arrays of one frame's profile, reused from frame to frame."""
+
+    def __init__(self, w: int, k_up: int) -> None:
+        self.x, self.y, self.h = (np.empty(w) for _ in range(3))
+        self.k = k_up
+
+    def upsampled(self, hgt: np.ndarray, ok: np.ndarray, max_step_mm: float):
+        """New arrays (the accumulator keeps the previous frame's) of the upsampled profile."""
+        n = (len(hgt) - 1) * self.k + 1
+        xo, yo, ho = np.empty(n), np.empty(n), np.empty(n)
+        vo = np.empty(n, bool)
+        kernels.upsample(self.x, self.y, hgt, ok, self.k, max_step_mm, xo, yo, ho, vo)
+        return xo, yo, ho, vo
 
 
 class _RowSpool:
@@ -433,35 +465,33 @@ class _RowSpool:
         self._fh.write(row.tobytes())
         self._frames.append(k)
 
-    def __iter__(self):
+    def chunks(self, n: int):
+        """``(frame indices, rows (m, width, 3) uint8)`` in order, ``m <= n`` rows at a time."""
         self._fh.seek(0)
         size = self._width * 3
-        for k in self._frames:
-            row = np.frombuffer(self._fh.read(size), np.uint8).reshape(-1, 3)
-            yield k, row.astype(np.float32)
+        for a in range(0, len(self._frames), n):
+            ks = np.array(self._frames[a : a + n], np.int64)
+            yield ks, np.frombuffer(self._fh.read(size * len(ks)), np.uint8).reshape(
+                len(ks), self._width, 3)
 
     def close(self) -> None:
         self._fh.close()
 
 
 def _map_texture(rows, rays, travel, height, spec: GridSpec, cal: SceneCalibration,
-                 acc: ColorAccumulator) -> np.ndarray:
+                 acc: ColorAccumulator, chunk: int = 128) -> np.ndarray:
     """Each texture row's rays meet the reconstructed surface (fixed-point iteration on the
     fused heightmap, missing cells taken at the reference); colours are splatted there."""
-    import cv2
-
     filled = np.where(np.isfinite(height), height, 0.0).astype(np.float32)
-    ax = rays[:, 0] / rays[:, 2]
-    ay = rays[:, 1] / rays[:, 2]
-    for k, colours in rows:
-        s = float(travel[k])
-        z = np.full(len(ax), float(cal.reference_depth(np.array(0.0), np.array(s))))
-        for _ in range(4):
-            x, y = ax * z, s + ay * z
-            mx = ((x - spec.x0_mm) / spec.pixel_mm).astype(np.float32)[None, :]
-            my = ((y - spec.y0_mm) / spec.pixel_mm).astype(np.float32)[None, :]
-            hh = cv2.remap(filled, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
-            z = cal.reference_depth(x, y) - hh
-        x, y = ax * z, s + ay * z
-        acc.add_row(x, y, colours, np.ones(len(x), bool))
+    ax = np.ascontiguousarray(rays[:, 0] / rays[:, 2])
+    ay = np.ascontiguousarray(rays[:, 1] / rays[:, 2])
+    ref = _reference_coeffs(cal)
+    n = len(ax)
+    prev = (np.empty(n), np.empty(n), np.empty((n, 3)))
+    has_prev = False
+    for ks, colours in rows.chunks(chunk):
+        has_prev = kernels.texture_rows(
+            ax, ay, np.ascontiguousarray(travel[ks], dtype=np.float64), ref, filled,
+            spec.x0_mm, spec.y0_mm, spec.pixel_mm, colours, acc.sum, acc.count,
+            float(acc.max_gap_mm), *prev, has_prev)
     return acc.mean()

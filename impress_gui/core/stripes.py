@@ -198,7 +198,48 @@ def _hue_ok(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
 def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height: int,
                   params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
     """Detect one laser's stripe; column ``c`` is searched in rows
-    ``band_start[c] .. band_start[c] + band_height``.
+    ``band_start[c] .. band_start[c] + band_height``. The compiled kernel
+    (:func:`impress_gui.core.kernels.detect_stripe`) of :func:`detect_planes_numpy`."""
+    from impress_gui.core import kernels
+
+    method = params.method
+    if method == "lut" and lut is None:
+        raise InputError("the lookup-table method needs a learned background", code="E-PARAM")
+    w = planes.y.shape[1]
+    ranges = params.hue_ranges[name]
+    table = lut.tables[name] if (lut is not None and method in ("lut", "combined")) else \
+        np.zeros((0, 0), np.int16)
+    sdiv, hdiv = _hsv_tables()
+    rows = np.empty(w, np.float64)
+    strength = np.empty(w, np.float32)
+    o1, o2 = _OTHERS[name]
+    kernels.detect_stripe(
+        planes.y, planes.cb, planes.cr, planes.chroma_step,
+        np.ascontiguousarray(band_start, dtype=np.int64), int(band_height),
+        1 if name == "red" else -1, _CH[name], o1, o2, float(params.min_peak),
+        int(params.half_window_px), int(params.max_width_px), float(params.max_wrong_lean),
+        method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
+        np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
+        int(params.min_value), method == "combined", float(params.min_tint), table,
+        int(params.lut_margin), sdiv, hdiv, rows, strength)
+    return StripeResult(rows, strength)
+
+
+_HSV_TABLES: tuple | None = None
+
+
+def _hsv_tables():
+    global _HSV_TABLES
+    if _HSV_TABLES is None:
+        from impress_gui.core.kernels import hsv_tables
+
+        _HSV_TABLES = hsv_tables()
+    return _HSV_TABLES
+
+
+def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_height: int,
+                        params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
+    """The readable numpy reference of :func:`detect_planes` (the tests check they agree).
 
     1. candidate: per column the brightest pixel of luma biased towards the laser's chroma;
     2. the method's colour test (hue, background table, tint) on the pixels around it;

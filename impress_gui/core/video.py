@@ -37,6 +37,11 @@ class VideoSource:
     def iter_frames(self, start: int = 0, stop: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
         raise NotImplementedError
 
+    def quick_frames(self, start: int, stop: int, n: int) -> list[int]:
+        """About ``n`` frame indices spread over ``start..stop-1`` that are cheap to read
+        (in a compressed video: keyframes, which decode without their predecessors)."""
+        return sorted({int(k) for k in np.linspace(start, stop - 1, max(1, min(n, stop - start)))})
+
     def check_index(self, k: int) -> int:
         if not isinstance(k, (int, np.integer)) or not 0 <= k < self.frame_count:
             raise VideoError(f"frame {k} is outside the video (0..{self.frame_count - 1})",
@@ -110,6 +115,14 @@ class AVVideo(VideoSource):
             if abs(float(rate) - self.fps) / float(rate) < 0.002:
                 self.fps = float(rate)
         self._decoder = None
+
+    def quick_frames(self, start: int, stop: int, n: int) -> list[int]:
+        keys = np.searchsorted(self._pts, self._keys)
+        keys = keys[(keys >= start) & (keys < stop)]
+        if len(keys) < max(2, n // 2):  # too few keyframes in the range: any frames
+            return super().quick_frames(start, stop, n)
+        pick = np.unique(np.rint(np.linspace(0, len(keys) - 1, min(n, len(keys)))).astype(int))
+        return [int(k) for k in keys[pick]]
 
     def _open_decoder(self, k: int, attempt: int = 0):
         """Position the decoder before frame ``k``: at the keyframe before it, or ``attempt``

@@ -1,0 +1,487 @@
+"""Compiled per-frame kernels of the reconstruction (numba).
+
+The frame loop must cost little beside decoding (issue 4: processing time <= 1.3 x decode-only
+time). What numpy does as dozens of whole-array passes per frame, these kernels do in one pass
+over the image columns. Each one states the numpy expression it replaces in its docstring; the
+readable numpy reference of the stripe detector stays in :mod:`impress_gui.core.stripes` and the
+tests check the two agree on simulated frames.
+
+All kernels release the GIL (the decoder thread keeps running) and are deterministic: no
+fast-math, no parallel reductions, a fixed order of accumulation.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+# numba keys its on-disk cache on the source file; a frozen bundle ships no source, and
+# asking for a cache there fails at import - compile in memory instead
+_CACHE = Path(__file__).exists()
+
+
+def _jit(fn):
+    return njit(cache=_CACHE, nogil=True)(fn)
+
+
+HSV_SHIFT = 12
+
+
+def hsv_tables() -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's fixed-point division tables of its 8-bit RGB->HSV conversion (hue range 180)."""
+    i = np.arange(256, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        sdiv = np.where(i > 0, np.rint((255 << HSV_SHIFT) / i), 0).astype(np.int64)
+        hdiv = np.where(i > 0, np.rint((180 << HSV_SHIFT) / (6.0 * i)), 0).astype(np.int64)
+    return sdiv, hdiv
+
+
+@_jit
+def _rgb(yv, cbv, crv):
+    """BT.601 limited-range YCbCr -> RGB, clipped to 0..255 (as ``stripes.Planes.rgb``)."""
+    yy = (yv - 16.0) * 1.164
+    cbf = cbv - 128.0
+    crf = crv - 128.0
+    r = min(max(yy + 1.596 * crf, 0.0), 255.0)
+    g = min(max(yy - 0.392 * cbf - 0.813 * crf, 0.0), 255.0)
+    b = min(max(yy + 2.017 * cbf, 0.0), 255.0)
+    return r, g, b
+
+
+@_jit
+def _hsv8(r, g, b, sdiv, hdiv):
+    """OpenCV's COLOR_RGB2HSV for one 8-bit pixel: (h 0..179, s, v)."""
+    v = max(r, g, b)
+    vmin = min(r, g, b)
+    diff = v - vmin
+    s = (diff * sdiv[v] + (1 << (HSV_SHIFT - 1))) >> HSV_SHIFT
+    if v == r:
+        h = g - b
+    elif v == g:
+        h = b - r + 2 * diff
+    else:
+        h = r - g + 4 * diff
+    h = (h * hdiv[diff] + (1 << (HSV_SHIFT - 1))) >> HSV_SHIFT
+    if h < 0:
+        h += 180
+    return h, s, v
+
+
+@_jit
+def _window(y, c, centre, k, rr, sig):
+    """Fill ``rr``/``sig`` with the ``2k+1`` rows around ``centre`` of column ``c`` and the luma
+    above the window's minimum; return (top, sum above half maximum, centre of mass)."""
+    h = y.shape[0]
+    n = 2 * k + 1
+    lo = 1e9
+    for j in range(n):
+        r = min(max(centre + j - k, 0), h - 1)
+        rr[j] = r
+        v = float(y[r, c])
+        sig[j] = v
+        lo = min(lo, v)
+    top = 0.0
+    for j in range(n):
+        sig[j] -= lo
+        top = max(top, sig[j])
+    half = 0.5 * top
+    wsum = 0.0
+    acc = 0.0
+    for j in range(n):
+        a = sig[j] - half
+        if a > 0:
+            wsum += a
+            acc += a * rr[j]
+    return top, wsum, (acc / wsum) if wsum > 0 else np.nan
+
+
+@_jit
+def detect_stripe(y, cb, cr, s, band_start, band_height, sign, ch, o1, o2, min_peak, k,
+                  max_width, max_wrong_lean, use_hue, hue_lo, hue_hi, min_sat, min_value,
+                  use_tint, min_tint, lut, lut_margin, sdiv, hdiv, rows_out, strength_out):
+    """One laser's stripe in every column: the compiled form of ``stripes.detect_planes_numpy``
+    (same steps, same thresholds). ``lut`` is a (64, 64) table or an empty (0, 0) array."""
+    h, w = y.shape
+    sh = 1 if s == 2 else 0  # chroma subsampling as a shift (4:2:0 or full resolution)
+    r0 = band_start.min()
+    r0 -= r0 % 2
+    r1 = min(h, band_start.max() + band_height)
+    n = 2 * k + 1
+    rr = np.empty(n, np.int64)
+    sig = np.empty(n, np.float64)
+    use_lut = lut.shape[0] > 0
+    # 1. candidate: per column the brightest luma biased towards the laser's chroma, at every
+    # second row of the column's band (row-major: memory is read in order)
+    # the score and (4095 - the row's index) packed in one integer: a plain running maximum,
+    # which compiles to vector instructions, picks the first row of equal maxima
+    best = np.full(w, np.int32(-(1 << 30)), np.int32)
+    crx = np.empty(w, np.int32)
+    lo = band_start.astype(np.int32)
+    hi = lo + np.int32(band_height)
+    sg = np.int32(sign)
+    cidx = np.arange(w) >> sh
+    for i, r in enumerate(range(r0, r1, 2)):
+        yr = y[r]
+        crr = cr[r >> sh]
+        for c in range(w):
+            crx[c] = np.int32(crr[cidx[c]]) - np.int32(128)
+        r32 = np.int32(r)
+        tag = np.int32(4095 - i)
+        for c in range(w):
+            v = np.int32(yr[c]) + sg * crx[c]
+            v = v if (r32 >= lo[c]) & (r32 < hi[c]) else np.int32(-1000)
+            best[c] = max(best[c], v * np.int32(4096) + tag)
+    for c in range(w):
+        rows_out[c] = np.nan
+        strength_out[c] = 0.0
+        b0 = band_start[c]
+        cc = c >> sh
+        if (best[c] >> 12) <= -1000:
+            continue  # no row of the column's band was searched
+        coarse = r0 + 2 * (4095 - (best[c] & 4095))
+        # fine: the brightest luma row within +-2 rows
+        peak = -1
+        bestv = -1
+        for o in range(-2, 3):
+            r = min(max(coarse + o, 0), h - 1)
+            if int(y[r, c]) > bestv:
+                bestv = int(y[r, c])
+                peak = r
+        # 2. centre of mass of the luma above half maximum, in a window re-centred once
+        top, wsum, centre = _window(y, c, peak, k, rr, sig)
+        if not math.isnan(centre):
+            peak = int(np.rint(centre))
+        top, wsum, centre = _window(y, c, peak, k, rr, sig)
+        pi = peak - b0
+        if not (top >= min_peak and wsum > 0 and pi >= k and pi < band_height - k):
+            continue
+        if not (sig[0] < 0.7 * top and sig[n - 1] < 0.7 * top):
+            continue  # an edge, not a peak
+        width = 0
+        for j in range(n):
+            if sig[j] > 0.5 * top:
+                width += 1
+        if width > max_width:
+            continue
+        # 3. the halo leans to this laser's colour (judged against the window's ends)
+        bg = 0.5 * (float(cr[rr[0] >> sh, cc]) + float(cr[rr[n - 1] >> sh, cc]))
+        lean = 0.0
+        nh = 0
+        for j in range(n):
+            if sig[j] > 0.2 * top and sig[j] < 0.65 * top:
+                lean += sign * (float(cr[rr[j] >> sh, cc]) - bg)
+                nh += 1
+        if lean / max(nh, 1) <= -max_wrong_lean:
+            continue
+        # 4. the method's colour test on the central rows
+        colour = False
+        for j in range(k - 3, k + 4):
+            r = rr[j]
+            rgb = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+            rf = rgb[ch]
+            of = max(rgb[o1], rgb[o2])
+            if use_hue:
+                hh, ss, vv = _hsv8(int(rgb[0]), int(rgb[1]), int(rgb[2]), sdiv, hdiv)
+                if ss >= min_sat and vv >= min_value:
+                    for q in range(hue_lo.shape[0]):
+                        if hue_lo[q] <= hh <= hue_hi[q]:
+                            colour = True
+            if use_tint and rf - of >= min_tint and rf >= min_value:
+                colour = True
+            if use_lut:
+                q0 = int(min(max(rgb[o1] + 0.5, 0.0), 255.0)) >> 2
+                q1 = int(min(max(rgb[o2] + 0.5, 0.0), 255.0)) >> 2
+                if int(min(max(rf + 0.5, 0.0), 255.0)) > lut[q0, q1] + lut_margin:
+                    colour = True
+            if colour:
+                break
+        if colour:
+            rows_out[c] = centre
+            strength_out[c] = top
+
+
+@_jit
+def triangulate(rows, valid, band_start, rays, normal, offset, travel, ref, x_out, y_out,
+                h_out):
+    """Stripe rows -> rail-frame points on the laser plane and their heights.
+
+    ``rays[c, j]`` is the rail-frame ray direction through column ``c`` at image row
+    ``band_start[c] + j`` (lens distortion undone once, before the loop); a sub-pixel row
+    interpolates linearly between the two rows around it. ``ref = (c0, cx, cy)``: the
+    reference surface depth ``c0 + cx x + cy y`` (height = reference depth - depth). Travel is
+    added to y. NaN where not ``valid`` or where the ray runs parallel to the plane."""
+    nt = rays.shape[1]
+    for c in range(rows.shape[0]):
+        x_out[c] = np.nan
+        y_out[c] = np.nan
+        h_out[c] = np.nan
+        if not valid[c]:
+            continue
+        t = rows[c] - band_start[c]
+        j = min(max(int(math.floor(t)), 0), nt - 2)
+        f = t - j
+        d0 = rays[c, j, 0] + f * (rays[c, j + 1, 0] - rays[c, j, 0])
+        d1 = rays[c, j, 1] + f * (rays[c, j + 1, 1] - rays[c, j, 1])
+        d2 = rays[c, j, 2] + f * (rays[c, j + 1, 2] - rays[c, j, 2])
+        den = d0 * normal[0] + d1 * normal[1] + d2 * normal[2]
+        if abs(den) <= 1e-12:
+            continue
+        lam = offset / den
+        x = lam * d0
+        yy = lam * d1 + travel
+        x_out[c] = x
+        y_out[c] = yy
+        h_out[c] = ref[0] + ref[1] * x + ref[2] * yy - lam * d2
+
+
+@_jit
+def upsample(x, y, h, valid, k, max_step, xo, yo, ho, vo):
+    """``k - 1`` points between neighbouring columns of a profile (``grid.upsample_profile``):
+    linear where the surface is continuous, the nearer neighbour across a step."""
+    n = x.shape[0]
+    for i in range(n - 1):
+        both = valid[i] and valid[i + 1]
+        step = abs(h[i + 1] - h[i]) > max_step
+        o = i * k
+        xo[o], yo[o], ho[o], vo[o] = x[i], y[i], h[i], valid[i]
+        for j in range(1, k):
+            t = j / k
+            if step:
+                a = i if t < 0.5 else i + 1
+                xo[o + j], yo[o + j], ho[o + j] = x[a], y[a], h[a]
+            else:
+                xo[o + j] = x[i] + t * (x[i + 1] - x[i])
+                yo[o + j] = y[i] + t * (y[i + 1] - y[i])
+                ho[o + j] = h[i] + t * (h[i + 1] - h[i])
+            vo[o + j] = both
+    o = (n - 1) * k
+    xo[o], yo[o], ho[o], vo[o] = x[n - 1], y[n - 1], h[n - 1], valid[n - 1]
+
+
+@_jit
+def _add(total, count, x0, y0, g, x, y, v):
+    j = int(np.rint((x - x0) / g))
+    i = int(np.rint((y - y0) / g))
+    if 0 <= i < count.shape[0] and 0 <= j < count.shape[1] and count[i, j] < 65535:
+        total[i, j] += v
+        count[i, j] += 1
+
+
+@_jit
+def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev, max_gap,
+                  max_step):
+    """Add one upsampled profile to the per-cell sums and counts, filling the strip towards
+    the previous profile: each point pairs with the same point of the previous frame when both
+    are valid and closer than ``max_gap``; the segment between them is sampled at 0.7 cell
+    (linear heights, or the nearer end's across a step). Unpaired points are added alone."""
+    lim = 0.7 * g
+    for i in range(x.shape[0]):
+        if not v[i]:
+            continue
+        dx = x[i] - px[i] if has_prev else 0.0
+        dy = y[i] - py[i] if has_prev else 0.0
+        gap = math.hypot(dx, dy)
+        if not (has_prev and pv[i] and gap <= max_gap):
+            _add(total, count, x0, y0, g, x[i], y[i], h[i])
+            continue
+        n = int(math.ceil(gap / lim)) + 1
+        step = abs(h[i] - ph[i]) > max_step
+        for m in range(1, n + 1):  # the previous end was added with the previous frame
+            t = m / n
+            if step:
+                hv = ph[i] if t < 0.5 else h[i]
+            else:
+                hv = ph[i] + t * (h[i] - ph[i])
+            _add(total, count, x0, y0, g, px[i] + t * dx, py[i] + t * dy, hv)
+
+
+@_jit
+def splat_colours(total, count, x0, y0, g, x, y, rgb, px, py, prgb, has_prev, max_gap):
+    """Add one texture row's colours (``(N, 3)``) to the per-cell sums, filling the strip
+    towards the previous row like :func:`splat_heights` (linear colours)."""
+    lim = 0.7 * g
+    hgt, wid = count.shape
+    for i in range(x.shape[0]):
+        if math.isnan(x[i]) or math.isnan(y[i]):
+            continue
+        n = 1
+        dx = 0.0
+        dy = 0.0
+        if has_prev and not (math.isnan(px[i]) or math.isnan(py[i])):
+            dx = x[i] - px[i]
+            dy = y[i] - py[i]
+            gap = math.hypot(dx, dy)
+            if gap <= max_gap:
+                n = max(1, int(math.ceil(gap / lim)))
+        for m in range(n):  # m = 0 is this row's own point; the others fill towards the previous
+            t = m / n
+            jj = int(np.rint((x[i] - t * dx - x0) / g))
+            ii = int(np.rint((y[i] - t * dy - y0) / g))
+            if 0 <= ii < hgt and 0 <= jj < wid and count[ii, jj] < 65535:
+                for q in range(3):
+                    total[ii, jj, q] += rgb[i, q] - t * (rgb[i, q] - prgb[i, q])
+                count[ii, jj] += 1
+
+
+@_jit
+def texture_rows(ax, ay, travels, ref, height, x0, y0, g, colours, total, count, max_gap,
+                 prev_x, prev_y, prev_rgb, has_prev):
+    """Map a run of texture rows (``colours`` ``(n, N, 3)`` uint8, camera travel of each in
+    ``travels``) onto the grid: :func:`surface_hits` then :func:`splat_colours` per row. The
+    previous row's state (``prev_*``, ``has_prev``) is carried in and out for the next run."""
+    n_pts = ax.shape[0]
+    x = np.empty(n_pts)
+    y = np.empty(n_pts)
+    rgb = np.empty((n_pts, 3))
+    for r in range(travels.shape[0]):
+        surface_hits(ax, ay, travels[r], ref, height, x0, y0, g, 4, x, y)
+        for i in range(n_pts):
+            for q in range(3):
+                rgb[i, q] = colours[r, i, q]
+        splat_colours(total, count, x0, y0, g, x, y, rgb, prev_x, prev_y, prev_rgb, has_prev,
+                      max_gap)
+        prev_x[:] = x
+        prev_y[:] = y
+        prev_rgb[:, :] = rgb
+        has_prev = True
+    return has_prev
+
+
+@_jit
+def sample_rgb(y, cb, cr, s, u0, v0, fu, fv, out):
+    """Bilinear RGB of a frame's YCbCr planes at fixed sub-pixel positions (the texture row):
+    ``u0``/``v0`` the top-left pixel, ``fu``/``fv`` the fractions."""
+    sh = 1 if s == 2 else 0
+    for i in range(u0.shape[0]):
+        a, b = u0[i], v0[i]
+        wu, wv = fu[i], fv[i]
+        for q in range(3):
+            out[i, q] = 0.0
+        for dv in range(2):
+            for du in range(2):
+                wgt = (wu if du else 1.0 - wu) * (wv if dv else 1.0 - wv)
+                r, c = b + dv, a + du
+                rgb = _rgb(float(y[r, c]), float(cb[r >> sh, c >> sh]), float(cr[r >> sh, c >> sh]))
+                for q in range(3):
+                    out[i, q] += wgt * rgb[q]
+
+
+@_jit
+def _bilinear_clamped(img, fx, fy):
+    hh, ww = img.shape
+    fx = min(max(fx, 0.0), ww - 1.0)
+    fy = min(max(fy, 0.0), hh - 1.0)
+    j = min(int(fx), ww - 2) if ww > 1 else 0
+    i = min(int(fy), hh - 2) if hh > 1 else 0
+    a = fx - j
+    b = fy - i
+    j1 = min(j + 1, ww - 1)
+    i1 = min(i + 1, hh - 1)
+    top = img[i, j] * (1 - a) + img[i, j1] * a
+    bot = img[i1, j] * (1 - a) + img[i1, j1] * a
+    return top * (1 - b) + bot * b
+
+
+@_jit
+def surface_hits(ax, ay, travel, ref, height, x0, y0, g, iterations, x_out, y_out):
+    """Where the texture row's rays meet the reconstructed surface: the ray through
+    ``(ax, ay, 1)`` from the camera at ``travel``, depth refined ``iterations`` times on the
+    heightmap (bilinear, clamped at its border; missing cells filled at 0 beforehand)."""
+    for i in range(ax.shape[0]):
+        z = ref[0] + ref[2] * travel
+        x = 0.0
+        y = 0.0
+        for _ in range(iterations):
+            x = ax[i] * z
+            y = travel + ay[i] * z
+            hv = _bilinear_clamped(height, (x - x0) / g, (y - y0) / g)
+            z = ref[0] + ref[1] * x + ref[2] * y - hv
+        x_out[i] = ax[i] * z
+        y_out[i] = travel + ay[i] * z
+
+
+@_jit
+def mean_heights(total, count, out):
+    """``out = total / count`` (float32), NaN where ``count == 0``."""
+    for i in range(count.shape[0]):
+        for j in range(count.shape[1]):
+            n = count[i, j]
+            out[i, j] = total[i, j] / n if n > 0 else np.nan
+
+
+@_jit
+def mean_colours(total, count, out):
+    """Rounded mean colour per cell (uint8), 0 where ``count == 0``."""
+    for i in range(count.shape[0]):
+        for j in range(count.shape[1]):
+            n = max(count[i, j], 1)
+            for q in range(3):
+                out[i, j, q] = np.uint8(min(max(total[i, j, q] / n + 0.5, 0.0), 255.0))
+
+
+@_jit
+def _reflect(i, n):
+    """scipy.ndimage's 'reflect' border: (d c b a | a b c d | d c b a)."""
+    if i < 0:
+        return -i - 1
+    if i >= n:
+        return 2 * n - i - 1
+    return i
+
+
+@_jit
+def fuse_maps(hg, hr, tol, radius, fused, diff, contrib):
+    """Fuse the two lasers' maps (see ``grid.fuse`` for the codes). Where both have data but
+    disagree by more than ``tol``, the value nearer the local consensus wins: the mean of the
+    already fused cells in the ``(2 radius + 1)`` square around it."""
+    hh, ww = hg.shape
+    conflicts = 0
+    for i in range(hh):
+        for j in range(ww):
+            g, r = hg[i, j], hr[i, j]
+            g_ok, r_ok = not math.isnan(g), not math.isnan(r)
+            diff[i, j] = g - r if (g_ok and r_ok) else np.nan
+            if g_ok and r_ok:
+                if abs(g - r) <= tol:
+                    fused[i, j], contrib[i, j] = 0.5 * (g + r), 3
+                else:
+                    fused[i, j], contrib[i, j] = np.nan, 4
+                    conflicts += 1
+            elif g_ok:
+                fused[i, j], contrib[i, j] = g, 1
+            elif r_ok:
+                fused[i, j], contrib[i, j] = r, 2
+            else:
+                fused[i, j], contrib[i, j] = np.nan, 0
+    if conflicts == 0:
+        return 0
+    # the consensus is taken over the cells fused before any conflict is decided
+    pick = np.empty(conflicts, np.float32)
+    q = 0
+    for i in range(hh):
+        for j in range(ww):
+            if contrib[i, j] != 4:
+                continue
+            s = 0.0
+            n = 0.0
+            for di in range(-radius, radius + 1):
+                ii = _reflect(i + di, hh)
+                for dj in range(-radius, radius + 1):
+                    v = fused[ii, _reflect(j + dj, ww)]
+                    if not math.isnan(v):
+                        s += v
+                        n += 1.0
+            local = s / n if n > 0 else 0.0
+            g, r = hg[i, j], hr[i, j]
+            pick[q] = g if abs(g - local) <= abs(r - local) else r
+            q += 1
+    q = 0
+    for i in range(hh):
+        for j in range(ww):
+            if contrib[i, j] == 4:
+                fused[i, j] = pick[q]
+                q += 1
+    return conflicts
