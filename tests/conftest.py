@@ -14,6 +14,12 @@ def pytest_configure(config):
     from impress_gui.ui.pyside_fix import guard
 
     guard()
+    # numba's cache of the compiled kernels, filled once before any test (a window starts the
+    # same compilation in a child process; a test would otherwise wait for it)
+    import subprocess
+    import sys
+
+    subprocess.run([sys.executable, "-c", "import impress_gui.core.kernels"], check=True)
 
 
 def _simulate(out: Path, **kw) -> Path:

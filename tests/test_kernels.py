@@ -103,3 +103,64 @@ def test_fuse_codes_and_consensus():
     assert fused[10, 10] == 5.0 and fused[0, 0] == 5.0 and fused[20, 40] == 5.0
     assert contrib[10, 10] == 4
     assert set(np.unique(contrib)) == {0, 1, 2, 3, 4}
+
+
+def _texture_inputs(n_rows=300, n_pts=600):
+    from impress_gui.core.grid import ColorAccumulator, GridSpec
+    from impress_gui.core.reconstruct import _RowSpool
+
+    rng = np.random.default_rng(5)
+    spool = _RowSpool()
+    for k in range(n_rows):
+        spool.append(k, rng.uniform(0, 255, (n_pts, 3)))
+    travel = 0.5 * np.arange(n_rows)
+    xn = np.linspace(-0.3, 0.3, n_pts)
+    rays = np.column_stack([xn, np.full(n_pts, 0.02), np.ones(n_pts)])
+    spec = GridSpec(-130.0, -30.0, 0.25, (800, 1040))
+    height = np.where(rng.random(spec.shape) < 0.7, rng.normal(5, 2, spec.shape), np.nan)
+
+    class Cal:  # a flat reference 400 mm below the camera
+        @staticmethod
+        def reference_depth(x, y):
+            return 400.0 + 0.0 * x + 0.0 * y
+
+    return spool, rays, travel, height.astype(np.float32), spec, Cal(), ColorAccumulator(spec, 1.6)
+
+
+def test_texture_mapping_split_between_threads_equals_one_thread(monkeypatch):
+    from impress_gui.core import kernels
+    from impress_gui.core import reconstruct as rc
+
+    results = []
+    for plan in ("auto", "single", "too tight"):
+        spool, rays, travel, height, spec, cal, acc = _texture_inputs()
+        ranges = set()
+
+        def spy(*args, _real=kernels.texture_rows, _seen=ranges):
+            _seen.add(args[-2:])
+            return _real(*args)
+
+        monkeypatch.setattr(kernels, "texture_rows", spy)
+        if plan == "single":
+            monkeypatch.setattr(rc, "_texture_split", lambda *a, **k: None)
+        elif plan == "too tight":  # no overlap: rows near the middle reach both halves
+            i_mid = int(round((travel[150] - spec.y0_mm) / spec.pixel_mm))
+            tight = (((0, 150), (0, 150), (0, i_mid)),
+                     ((150, 300), (150, 300), (i_mid, spec.shape[0])))
+            monkeypatch.setattr(rc, "_texture_split", lambda *a, _plan=tight, **k: _plan)
+        else:
+            assert rc._texture_split(travel, rays[:, 0], rays[:, 1], np.array([400.0, 0, 0]),
+                                     spec, 1.6) is not None
+        tex = rc._map_texture(spool, rays, travel, height, spec, cal, acc, chunk=16)
+        results.append((tex, acc.sum.copy(), acc.count.copy()))
+        whole = (0, spec.shape[0])
+        # split: two halves and no rerun; too tight: the halves, then one thread over all
+        assert (whole in ranges) == (plan != "auto")
+        assert (len(ranges - {whole, (0, 0)}) == 2) == (plan != "single")
+        spool.close()
+        monkeypatch.undo()
+    for other in results[1:]:
+        for a, b in zip(results[0], other):
+            assert np.array_equal(a, b)
+    tex, total, count = results[0]
+    assert np.isfinite(total).all() and (count > 0).mean() > 0.4

@@ -60,21 +60,21 @@ class HeightAccumulator:
         """Add one frame's (upsampled) profile; fill towards the previous one: each point
         pairs with the same point of the previous profile when both are valid and closer
         than ``max_gap_mm`` (see :func:`impress_gui.core.kernels.splat_heights`)."""
-        from impress_gui.core.kernels import splat_heights
+        from impress_gui.core.compiled import kernels
 
         prev = self._prev
         self._prev = (x, y, h, valid)
         s = self.spec
         has_prev = prev is not None
         px, py, ph, pv = prev if has_prev else (x, y, h, valid)
-        splat_heights(self.sum, self.count, s.x0_mm, s.y0_mm, s.pixel_mm, x, y, h, valid,
+        kernels().splat_heights(self.sum, self.count, s.x0_mm, s.y0_mm, s.pixel_mm, x, y, h, valid,
                       px, py, ph, pv, has_prev, float(self.max_gap_mm), float(self.max_step_mm))
 
     def mean(self) -> np.ndarray:
-        from impress_gui.core.kernels import mean_heights
+        from impress_gui.core.compiled import kernels
 
         out = np.empty(self.spec.shape, np.float32)
-        mean_heights(self.sum, self.count, out)
+        kernels().mean_heights(self.sum, self.count, out)
         return out
 
 
@@ -89,10 +89,10 @@ class ColorAccumulator:
         self.max_gap_mm = max_gap_mm
 
     def mean(self) -> np.ndarray:
-        from impress_gui.core.kernels import mean_colours
+        from impress_gui.core.compiled import kernels
 
         out = np.empty((*self.spec.shape, 3), np.uint8)
-        mean_colours(self.sum, self.count, out)
+        kernels().mean_colours(self.sum, self.count, out)
         return out
 
 
@@ -101,11 +101,11 @@ def fuse(h_green: np.ndarray, h_red: np.ndarray, tol_mm: float):
     contribution is 0 none, 1 green only, 2 red only, 3 both agreeing (mean), 4 both
     disagreeing (the value nearer the local consensus: the mean of the cells fused from
     agreeing or single lasers in the 7 x 7 square around it)."""
-    from impress_gui.core.kernels import fuse_maps
+    from impress_gui.core.compiled import kernels
 
     fused = np.empty(h_green.shape, np.float32)
     diff = np.empty(h_green.shape, np.float32)
     contrib = np.empty(h_green.shape, np.uint8)
-    fuse_maps(np.ascontiguousarray(h_green, np.float32), np.ascontiguousarray(h_red, np.float32),
+    kernels().fuse_maps(np.ascontiguousarray(h_green, np.float32), np.ascontiguousarray(h_red, np.float32),
               float(tol_mm), 3, fused, diff, contrib)
     return fused, diff, contrib

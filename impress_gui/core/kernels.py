@@ -23,8 +23,25 @@ from numba import njit
 _CACHE = Path(__file__).exists()
 
 
+def _compile(fn, *signature: str):
+    try:
+        return njit(*signature, cache=_CACHE, nogil=True)(fn)
+    except RuntimeError as exc:  # no writable cache folder (read-only install, no home)
+        if "cannot cache" not in str(exc):
+            raise
+        return njit(*signature, cache=False, nogil=True)(fn)
+
+
 def _jit(fn):
-    return njit(cache=_CACHE, nogil=True)(fn)
+    """A helper compiled for the types it is called with (inside the kernels)."""
+    return _compile(fn)
+
+
+def _kernel(signature: str):
+    """A kernel called from Python: compiled for exactly one signature when this module is
+    imported (or loaded from numba's cache), so no call ever compiles; ``[:]`` arrays accept
+    any memory layout (decoded frames are strided views)."""
+    return lambda fn: _compile(fn, signature)
 
 
 HSV_SHIFT = 12
@@ -98,7 +115,9 @@ def _window(y, c, centre, k, rr, sig):
     return top, wsum, (acc / wsum) if wsum > 0 else np.nan
 
 
-@_jit
+@_kernel(
+    "void(uint8[:, :], uint8[:, :], uint8[:, :], int64, int64[:], int64, int64, int64, int64, int64, float64, int64, int64, float64, boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64, int64[:], int64[:], float64[:], float32[:])"
+)
 def detect_stripe(y, cb, cr, s, band_start, band_height, sign, ch, o1, o2, min_peak, k,
                   max_width, max_wrong_lean, use_hue, hue_lo, hue_hi, min_sat, min_value,
                   use_tint, min_tint, lut, lut_margin, sdiv, hdiv, rows_out, strength_out):
@@ -203,7 +222,9 @@ def detect_stripe(y, cb, cr, s, band_start, band_height, sign, ch, o1, o2, min_p
             strength_out[c] = top
 
 
-@_jit
+@_kernel(
+    "void(float64[:], boolean[:], int64[:], float64[:, :, :], float64[:], float64, float64, float64[:], float64[:], float64[:], float64[:])"
+)
 def triangulate(rows, valid, band_start, rays, normal, offset, travel, ref, x_out, y_out,
                 h_out):
     """Stripe rows -> rail-frame points on the laser plane and their heights.
@@ -237,7 +258,9 @@ def triangulate(rows, valid, band_start, rays, normal, offset, travel, ref, x_ou
         h_out[c] = ref[0] + ref[1] * x + ref[2] * yy - lam * d2
 
 
-@_jit
+@_kernel(
+    "void(float64[:], float64[:], float64[:], boolean[:], int64, float64, float64[:], float64[:], float64[:], boolean[:])"
+)
 def upsample(x, y, h, valid, k, max_step, xo, yo, ho, vo):
     """``k - 1`` points between neighbouring columns of a profile (``grid.upsample_profile``):
     linear where the surface is continuous, the nearer neighbour across a step."""
@@ -270,7 +293,9 @@ def _add(total, count, x0, y0, g, x, y, v):
         count[i, j] += 1
 
 
-@_jit
+@_kernel(
+    "void(float32[:, :], uint16[:, :], float64, float64, float64, float64[:], float64[:], float64[:], boolean[:], float64[:], float64[:], float64[:], boolean[:], boolean, float64, float64)"
+)
 def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev, max_gap,
                   max_step):
     """Add one upsampled profile to the per-cell sums and counts, filling the strip towards
@@ -296,77 +321,6 @@ def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev,
             else:
                 hv = ph[i] + t * (h[i] - ph[i])
             _add(total, count, x0, y0, g, px[i] + t * dx, py[i] + t * dy, hv)
-
-
-@_jit
-def splat_colours(total, count, x0, y0, g, x, y, rgb, px, py, prgb, has_prev, max_gap):
-    """Add one texture row's colours (``(N, 3)``) to the per-cell sums, filling the strip
-    towards the previous row like :func:`splat_heights` (linear colours)."""
-    lim = 0.7 * g
-    hgt, wid = count.shape
-    for i in range(x.shape[0]):
-        if math.isnan(x[i]) or math.isnan(y[i]):
-            continue
-        n = 1
-        dx = 0.0
-        dy = 0.0
-        if has_prev and not (math.isnan(px[i]) or math.isnan(py[i])):
-            dx = x[i] - px[i]
-            dy = y[i] - py[i]
-            gap = math.hypot(dx, dy)
-            if gap <= max_gap:
-                n = max(1, int(math.ceil(gap / lim)))
-        for m in range(n):  # m = 0 is this row's own point; the others fill towards the previous
-            t = m / n
-            jj = int(np.rint((x[i] - t * dx - x0) / g))
-            ii = int(np.rint((y[i] - t * dy - y0) / g))
-            if 0 <= ii < hgt and 0 <= jj < wid and count[ii, jj] < 65535:
-                for q in range(3):
-                    total[ii, jj, q] += rgb[i, q] - t * (rgb[i, q] - prgb[i, q])
-                count[ii, jj] += 1
-
-
-@_jit
-def texture_rows(ax, ay, travels, ref, height, x0, y0, g, colours, total, count, max_gap,
-                 prev_x, prev_y, prev_rgb, has_prev):
-    """Map a run of texture rows (``colours`` ``(n, N, 3)`` uint8, camera travel of each in
-    ``travels``) onto the grid: :func:`surface_hits` then :func:`splat_colours` per row. The
-    previous row's state (``prev_*``, ``has_prev``) is carried in and out for the next run."""
-    n_pts = ax.shape[0]
-    x = np.empty(n_pts)
-    y = np.empty(n_pts)
-    rgb = np.empty((n_pts, 3))
-    for r in range(travels.shape[0]):
-        surface_hits(ax, ay, travels[r], ref, height, x0, y0, g, 4, x, y)
-        for i in range(n_pts):
-            for q in range(3):
-                rgb[i, q] = colours[r, i, q]
-        splat_colours(total, count, x0, y0, g, x, y, rgb, prev_x, prev_y, prev_rgb, has_prev,
-                      max_gap)
-        prev_x[:] = x
-        prev_y[:] = y
-        prev_rgb[:, :] = rgb
-        has_prev = True
-    return has_prev
-
-
-@_jit
-def sample_rgb(y, cb, cr, s, u0, v0, fu, fv, out):
-    """Bilinear RGB of a frame's YCbCr planes at fixed sub-pixel positions (the texture row):
-    ``u0``/``v0`` the top-left pixel, ``fu``/``fv`` the fractions."""
-    sh = 1 if s == 2 else 0
-    for i in range(u0.shape[0]):
-        a, b = u0[i], v0[i]
-        wu, wv = fu[i], fv[i]
-        for q in range(3):
-            out[i, q] = 0.0
-        for dv in range(2):
-            for du in range(2):
-                wgt = (wu if du else 1.0 - wu) * (wv if dv else 1.0 - wv)
-                r, c = b + dv, a + du
-                rgb = _rgb(float(y[r, c]), float(cb[r >> sh, c >> sh]), float(cr[r >> sh, c >> sh]))
-                for q in range(3):
-                    out[i, q] += wgt * rgb[q]
 
 
 @_jit
@@ -404,6 +358,96 @@ def surface_hits(ax, ay, travel, ref, height, x0, y0, g, iterations, x_out, y_ou
 
 
 @_jit
+def splat_colours(total, count, x0, y0, g, x, y, rgb, px, py, prgb, has_prev, max_gap, i_lo,
+                  i_hi):
+    """Add one texture row's colours (``(N, 3)``) to the per-cell sums, filling the strip
+    towards the previous row like :func:`splat_heights` (linear colours). Only grid rows
+    ``i_lo <= i < i_hi`` are touched; returns how many samples fell on other rows of the grid
+    (threads sharing the grid by row ranges use it to check their split)."""
+    lim = 0.7 * g
+    hgt, wid = count.shape
+    skipped = 0
+    for i in range(x.shape[0]):
+        if math.isnan(x[i]) or math.isnan(y[i]):
+            continue
+        n = 1
+        dx = 0.0
+        dy = 0.0
+        if has_prev and not (math.isnan(px[i]) or math.isnan(py[i])):
+            dx = x[i] - px[i]
+            dy = y[i] - py[i]
+            gap = math.hypot(dx, dy)
+            if gap <= max_gap:
+                n = max(1, int(math.ceil(gap / lim)))
+        for m in range(n):  # m = 0 is this row's own point; the others fill towards the previous
+            t = m / n
+            jj = int(np.rint((x[i] - t * dx - x0) / g))
+            ii = int(np.rint((y[i] - t * dy - y0) / g))
+            if not (0 <= ii < hgt and 0 <= jj < wid):
+                continue
+            if not (i_lo <= ii < i_hi):
+                skipped += 1
+                continue
+            if count[ii, jj] < 65535:
+                for q in range(3):
+                    c = rgb[i, q]
+                    total[ii, jj, q] += c if m == 0 else c - t * (c - prgb[i, q])
+                count[ii, jj] += 1
+    return skipped
+
+
+@_kernel(
+    "int64(float64[:], float64[:], float64[:], float64[:], float32[:, :], float64, float64, float64, uint8[:, :, :], float32[:, :, :], uint16[:, :], float64, float64[:], float64[:], float64[:, :], boolean[:], int64, int64)"
+)
+def texture_rows(ax, ay, travels, ref, height, x0, y0, g, colours, total, count, max_gap,
+                 prev_x, prev_y, prev_rgb, has_prev, i_lo, i_hi):
+    """Map a run of texture rows (``colours`` ``(n, N, 3)`` uint8, camera travel of each in
+    ``travels``) onto grid rows ``i_lo .. i_hi - 1``: :func:`surface_hits` then
+    :func:`splat_colours` per row. The previous row's state (``prev_*``; ``has_prev[0]``) is
+    carried in and out. Returns the number of samples that fell on other grid rows."""
+    n_pts = ax.shape[0]
+    x = np.empty(n_pts)
+    y = np.empty(n_pts)
+    rgb = np.empty((n_pts, 3))
+    skipped = 0
+    for r in range(travels.shape[0]):
+        surface_hits(ax, ay, travels[r], ref, height, x0, y0, g, 4, x, y)
+        for i in range(n_pts):
+            for q in range(3):
+                rgb[i, q] = colours[r, i, q]
+        skipped += splat_colours(total, count, x0, y0, g, x, y, rgb, prev_x, prev_y, prev_rgb,
+                                 has_prev[0], max_gap, i_lo, i_hi)
+        prev_x[:] = x
+        prev_y[:] = y
+        prev_rgb[:, :] = rgb
+        has_prev[0] = True
+    return skipped
+
+
+@_kernel(
+    "void(uint8[:, :], uint8[:, :], uint8[:, :], int64, int64[:], int64[:], float64[:], float64[:], float64[:, :])"
+)
+def sample_rgb(y, cb, cr, s, u0, v0, fu, fv, out):
+    """Bilinear RGB of a frame's YCbCr planes at fixed sub-pixel positions (the texture row):
+    ``u0``/``v0`` the top-left pixel, ``fu``/``fv`` the fractions."""
+    sh = 1 if s == 2 else 0
+    for i in range(u0.shape[0]):
+        a, b = u0[i], v0[i]
+        wu, wv = fu[i], fv[i]
+        for q in range(3):
+            out[i, q] = 0.0
+        for dv in range(2):
+            for du in range(2):
+                wgt = (wu if du else 1.0 - wu) * (wv if dv else 1.0 - wv)
+                r, c = b + dv, a + du
+                rgb = _rgb(float(y[r, c]), float(cb[r >> sh, c >> sh]), float(cr[r >> sh, c >> sh]))
+                for q in range(3):
+                    out[i, q] += wgt * rgb[q]
+
+
+@_kernel(
+    "void(float32[:, :], uint16[:, :], float32[:, :])"
+)
 def mean_heights(total, count, out):
     """``out = total / count`` (float32), NaN where ``count == 0``."""
     for i in range(count.shape[0]):
@@ -412,7 +456,9 @@ def mean_heights(total, count, out):
             out[i, j] = total[i, j] / n if n > 0 else np.nan
 
 
-@_jit
+@_kernel(
+    "void(float32[:, :, :], uint16[:, :], uint8[:, :, :])"
+)
 def mean_colours(total, count, out):
     """Rounded mean colour per cell (uint8), 0 where ``count == 0``."""
     for i in range(count.shape[0]):
@@ -432,7 +478,9 @@ def _reflect(i, n):
     return i
 
 
-@_jit
+@_kernel(
+    "int64(float32[:, :], float32[:, :], float64, int64, float32[:, :], float32[:, :], uint8[:, :])"
+)
 def fuse_maps(hg, hr, tol, radius, fused, diff, contrib):
     """Fuse the two lasers' maps (see ``grid.fuse`` for the codes). Where both have data but
     disagree by more than ``tol``, the value nearer the local consensus wins: the mean of the

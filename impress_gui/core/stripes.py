@@ -200,8 +200,9 @@ def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height
     """Detect one laser's stripe; column ``c`` is searched in rows
     ``band_start[c] .. band_start[c] + band_height``. The compiled kernel
     (:func:`impress_gui.core.kernels.detect_stripe`) of :func:`detect_planes_numpy`."""
-    from impress_gui.core import kernels
+    from impress_gui.core.compiled import kernels as load
 
+    kernels = load()
     method = params.method
     if method == "lut" and lut is None:
         raise InputError("the lookup-table method needs a learned background", code="E-PARAM")
@@ -231,9 +232,9 @@ _HSV_TABLES: tuple | None = None
 def _hsv_tables():
     global _HSV_TABLES
     if _HSV_TABLES is None:
-        from impress_gui.core.kernels import hsv_tables
+        from impress_gui.core.compiled import kernels
 
-        _HSV_TABLES = hsv_tables()
+        _HSV_TABLES = kernels().hsv_tables()
     return _HSV_TABLES
 
 

@@ -30,6 +30,7 @@ from PySide6.QtWidgets import (
 )
 
 from impress_gui import __version__
+from impress_gui.core.compiled import prepare_in_background
 from impress_gui.core.errors import ImpressError
 from impress_gui.core.project import PROJECT_FILE, Project, verify_log
 from impress_gui.core.video import VIDEO_SUFFIXES
@@ -83,6 +84,9 @@ class MainWindow(QMainWindow):
         parent: QWidget | None = None,
     ) -> None:
         super().__init__(parent)
+        # compile the reconstruction kernels in a child process while the user works (the
+        # first import would otherwise hold the GIL for seconds in a worker thread)
+        prepare_in_background()
         self.settings = settings
         self.project = Project()
         self.dialogs = dialogs or Dialogs(self)

@@ -8,11 +8,9 @@ import shutil
 from datetime import datetime
 from pathlib import Path
 
-import numpy as np
-
 from impress_gui.core.calibration import SceneCalibration
 from impress_gui.core.errors import Cancelled, ImpressError
-from impress_gui.core.reconstruct import ProcessParams
+from impress_gui.core.reconstruct import ProcessParams, learn_background
 from impress_gui.core.stripes import BackgroundLUT
 from impress_gui.core.video import open_video
 
@@ -20,14 +18,10 @@ from impress_gui.core.video import open_video
 def learn_lut(
     video_path: Path, start: int, stop: int, rois, n_frames: int, cancel
 ) -> BackgroundLUT:
-    """The background tables as the reconstruction learns them (frames spread over the range),
-    read through a video handle of its own (the GUI's is not shared between threads)."""
-    lut = BackgroundLUT()
+    """The background tables as the reconstruction learns them, read through a video handle
+    of its own (the GUI's is not shared between threads)."""
     with open_video(video_path) as video:
-        for k in np.linspace(start, stop - 1, max(1, min(n_frames, stop - start))).astype(int):
-            cancel.check()
-            lut.learn(video.read(int(k)), list(rois.values()))
-    return lut
+        return learn_background(video, start, stop, rois, n_frames, cancel)
 
 
 def new_output_folder(base: Path) -> Path:
