@@ -107,10 +107,10 @@ def test_fuse_codes_and_consensus():
 
 def _texture_inputs(n_rows=300, n_pts=600):
     from impress_gui.core.grid import ColorAccumulator, GridSpec
-    from impress_gui.core.reconstruct import _RowSpool
+    from impress_gui.core.texture import RowSpool
 
     rng = np.random.default_rng(5)
-    spool = _RowSpool()
+    spool = RowSpool()
     for k in range(n_rows):
         spool.append(k, rng.uniform(0, 255, (n_pts, 3)))
     travel = 0.5 * np.arange(n_rows)
@@ -129,7 +129,7 @@ def _texture_inputs(n_rows=300, n_pts=600):
 
 def test_texture_mapping_split_between_threads_equals_one_thread(monkeypatch):
     from impress_gui.core import kernels
-    from impress_gui.core import reconstruct as rc
+    from impress_gui.core import texture as rc
 
     results = []
     for plan in ("auto", "single", "too tight"):
@@ -142,16 +142,16 @@ def test_texture_mapping_split_between_threads_equals_one_thread(monkeypatch):
 
         monkeypatch.setattr(kernels, "texture_rows", spy)
         if plan == "single":
-            monkeypatch.setattr(rc, "_texture_split", lambda *a, **k: None)
+            monkeypatch.setattr(rc, "texture_split", lambda *a, **k: None)
         elif plan == "too tight":  # no overlap: rows near the middle reach both halves
             i_mid = int(round((travel[150] - spec.y0_mm) / spec.pixel_mm))
             tight = (((0, 150), (0, 150), (0, i_mid)),
                      ((150, 300), (150, 300), (i_mid, spec.shape[0])))
-            monkeypatch.setattr(rc, "_texture_split", lambda *a, _plan=tight, **k: _plan)
+            monkeypatch.setattr(rc, "texture_split", lambda *a, _plan=tight, **k: _plan)
         else:
-            assert rc._texture_split(travel, rays[:, 0], rays[:, 1], np.array([400.0, 0, 0]),
+            assert rc.texture_split(travel, rays[:, 0], rays[:, 1], np.array([400.0, 0, 0]),
                                      spec, 1.6) is not None
-        tex = rc._map_texture(spool, rays, travel, height, spec, cal, acc, chunk=16)
+        tex = rc.map_texture(spool, rays, travel, height, spec, cal, acc, chunk=16)
         results.append((tex, acc.sum.copy(), acc.count.copy()))
         whole = (0, spec.shape[0])
         # split: two halves and no rerun; too tight: the halves, then one thread over all

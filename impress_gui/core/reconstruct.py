@@ -33,6 +33,7 @@ from impress_gui.core.stripes import (
     StripeParams,
     detect_planes,
 )
+from impress_gui.core.texture import RowSpool, map_texture, reference_coeffs
 
 
 @dataclass(frozen=True)
@@ -229,7 +230,7 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
     :data:`PREVIEW_EVERY_S`) with a small
     (longest side <= 480 cells) float32 heightmap of what has been measured so far (mean of
     the two lasers, NaN where nothing yet) - for a display that grows during the run."""
-    spool = _RowSpool() if params.texture else None
+    spool = RowSpool() if params.texture else None
     try:
         every = PREVIEW_EVERY_S if preview_every_s is None else preview_every_s
         return _reconstruct(video, cal, params, progress, cancel, spool, preview, every)
@@ -313,7 +314,7 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
 
     bands = column_bands(cal, (w, h), params.height_range_mm, rois)
     rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
-    ref = _reference_coeffs(cal)
+    ref = reference_coeffs(cal)
     profile = {n: _Profile(w, k_up) for n in LASERS}
     min_cols = int(0.02 * w)
     frames = _Frames(video, start, stop, cancel)
@@ -378,7 +379,7 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
     report(progress, 0.93, "mapping the texture")
     texture = None
     if params.texture:
-        texture = _map_texture(tex_rows, tex_rays, travel, fused, spec, cal, tex_acc)
+        texture = map_texture(tex_rows, tex_rays, travel, fused, spec, cal, tex_acc)
     total_s = time.perf_counter() - t_start
     stats = {
         "frames_processed": n_total,
@@ -433,14 +434,6 @@ def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int)
     return np.ascontiguousarray(rays.reshape(w, bh + 1, 3))
 
 
-def _reference_coeffs(cal: SceneCalibration) -> np.ndarray:
-    """``(c0, cx, cy)`` with ``reference_depth(x, y) = c0 + cx x + cy y`` (a plane)."""
-    c0 = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
-    cx = float(cal.reference_depth(np.array(1.0), np.array(0.0))) - c0
-    cy = float(cal.reference_depth(np.array(0.0), np.array(1.0))) - c0
-    return np.array([c0, cx, cy])
-
-
 class _Profile:
     """Per-laser scratch arrays of one frame's profile, reused from frame to frame."""
 
@@ -455,130 +448,3 @@ class _Profile:
         vo = np.empty(n, bool)
         _kernels().upsample(self.x, self.y, hgt, ok, self.k, max_step_mm, xo, yo, ho, vo)
         return xo, yo, ho, vo
-
-
-class _RowSpool:
-    """Texture rows (uint8 RGB, one per frame) spooled to an anonymous temporary file, so
-    memory stays flat however long the video is; read back in order for the mapping."""
-
-    def __init__(self) -> None:
-        import tempfile
-
-        self._fh = tempfile.TemporaryFile()
-        self._frames: list[int] = []
-        self._width = 0
-
-    def append(self, k: int, colours: np.ndarray) -> None:
-        row = np.clip(colours + 0.5, 0, 255).astype(np.uint8)
-        self._width = len(row)
-        self._fh.write(row.tobytes())
-        self._frames.append(k)
-
-    @property
-    def frames(self) -> np.ndarray:
-        return np.array(self._frames, np.int64)
-
-    def rows(self, a: int, b: int) -> np.ndarray:
-        """Rows ``a .. b - 1`` as ``(b - a, width, 3)`` uint8 (safe from several threads)."""
-        import os
-
-        self._fh.flush()
-        size = self._width * 3
-        data = os.pread(self._fh.fileno(), size * (b - a), size * a)
-        return np.frombuffer(bytearray(data), np.uint8).reshape(b - a, self._width, 3)
-
-    def close(self) -> None:
-        self._fh.close()
-
-
-def _map_texture(rows, rays, travel, height, spec: GridSpec, cal: SceneCalibration,
-                 acc: ColorAccumulator, chunk: int = 128) -> np.ndarray:
-    """Each texture row's rays meet the reconstructed surface (fixed-point iteration on the
-    fused heightmap, missing cells taken at the reference); colours are splatted there.
-
-    The decoder has finished, so two threads share the work: one owns the grid rows before
-    the middle of the scan, the other the rest, and each maps the texture rows that can reach
-    its part. A cell's samples thus arrive in the same order as with one thread (the result
-    does not depend on the split); each thread counts samples of rows only it mapped that
-    fell in the other's part, and if there are any, the split was too tight and the mapping
-    is redone in one thread."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    filled = np.where(np.isfinite(height), height, 0.0).astype(np.float32)
-    ax = np.ascontiguousarray(rays[:, 0] / rays[:, 2])
-    ay = np.ascontiguousarray(rays[:, 1] / rays[:, 2])
-    ref = _reference_coeffs(cal)
-    frames = rows.frames
-    s = np.asarray(travel, np.float64)[frames]
-    n_rows = len(frames)
-
-    def run(lo: int, hi: int, i_lo: int, i_hi: int, exclusive: tuple[int, int]) -> int:
-        """Map spool rows lo..hi-1 (after one unsplatted row to start the fill) onto grid
-        rows i_lo..i_hi-1; return samples of the ``exclusive`` rows that fell elsewhere."""
-        n = len(ax)
-        state = (np.zeros(n), np.zeros(n), np.zeros((n, 3)), np.zeros(1, np.bool_))
-        if lo > 0:
-            _kernels().texture_rows(ax, ay, s[lo - 1 : lo], ref, filled, spec.x0_mm, spec.y0_mm,
-                                 spec.pixel_mm, rows.rows(lo - 1, lo), acc.sum, acc.count,
-                                 float(acc.max_gap_mm), *state, 0, 0)
-        stray = 0
-        for a in range(lo, hi, chunk):
-            b = min(hi, a + chunk)
-            for c0, c1 in _split(a, b, exclusive):
-                miss = _kernels().texture_rows(ax, ay, s[c0:c1], ref, filled, spec.x0_mm,
-                                            spec.y0_mm, spec.pixel_mm, rows.rows(c0, c1),
-                                            acc.sum, acc.count, float(acc.max_gap_mm), *state,
-                                            i_lo, i_hi)
-                if exclusive[0] <= c0 and c1 <= exclusive[1]:
-                    stray += miss
-        return stray
-
-    plan = _texture_split(s, ax, ay, ref, spec, float(acc.max_gap_mm)) if n_rows > 4 * chunk \
-        else None
-    if plan is not None:
-        (a_rows, a_excl, a_cells), (b_rows, b_excl, b_cells) = plan
-        with ThreadPoolExecutor(2, thread_name_prefix="impress-texture") as pool:
-            fa = pool.submit(run, *a_rows, *a_cells, a_excl)
-            fb = pool.submit(run, *b_rows, *b_cells, b_excl)
-            stray = fa.result() + fb.result()
-        if stray == 0:
-            return acc.mean()
-        acc.sum[:] = 0
-        acc.count[:] = 0
-    run(0, n_rows, 0, spec.shape[0], (0, 0))
-    return acc.mean()
-
-
-def _split(a: int, b: int, cut: tuple[int, int]):
-    """``a..b`` cut at the ends of ``cut`` (so no piece straddles them)."""
-    edges = sorted({a, b, *[c for c in cut if a < c < b]})
-    return list(zip(edges[:-1], edges[1:]))
-
-
-def _texture_split(s, ax, ay, ref, spec: GridSpec, max_gap: float):
-    """Two halves of the texture mapping: ``((rows, exclusive rows, grid rows), ...)`` or
-    None when the camera's travel is not monotonic. A texture row's samples lie within
-    ``reach`` mm (along Y) of its camera position: the footprint of the row's rays at the
-    deepest plausible surface plus the fill towards the previous row; generous, and checked
-    by the caller."""
-    d = np.diff(s)
-    if not (np.all(d > 0) or np.all(d < 0)):
-        return None
-    z_far = abs(ref[0]) + 200.0 + abs(ref[1]) * 2000 + abs(ref[2]) * 2000
-    reach = float(np.max(np.abs(ay))) * z_far + max_gap + 5.0
-    n = len(s)
-    mid = n // 2
-    i_mid = int(np.clip(np.rint((s[mid] - spec.y0_mm) / spec.pixel_mm), 1, spec.shape[0] - 1))
-    y_mid = spec.y0_mm + (i_mid - 0.5) * spec.pixel_mm  # the boundary between the two parts
-    below = s - reach < y_mid  # rows that may reach the grid rows before i_mid
-    above = s + reach >= y_mid
-    lo_rows, hi_rows = (below, above) if d[0] > 0 else (above, below)
-    # with monotonic travel both sets are runs: one from the first row, one to the last
-    a_end = int(np.argmin(lo_rows)) if not lo_rows.all() else n
-    b_start = int(np.argmax(hi_rows))
-    if not (lo_rows[:a_end].all() and hi_rows[b_start:].all()) or b_start == 0 or a_end == n:
-        return None
-    cells_first, cells_second = (0, i_mid), (i_mid, spec.shape[0])
-    if d[0] < 0:
-        cells_first, cells_second = cells_second, cells_first
-    return ((0, a_end), (0, b_start), cells_first), ((b_start, n), (a_end, n), cells_second)
