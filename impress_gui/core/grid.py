@@ -51,7 +51,7 @@ class HeightAccumulator:
         self.count = np.zeros(spec.shape, np.uint16)
         self.max_gap_mm = max_gap_mm
         self.max_step_mm = max_step_mm
-        self._prev = None
+        self._prev: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def reset_chain(self) -> None:
         self._prev = None
@@ -66,7 +66,7 @@ class HeightAccumulator:
         self._prev = (x, y, h, valid)
         s = self.spec
         has_prev = prev is not None
-        px, py, ph, pv = prev if has_prev else (x, y, h, valid)
+        px, py, ph, pv = prev if prev is not None else (x, y, h, valid)
         kernels().splat_heights(self.sum, self.count, s.x0_mm, s.y0_mm, s.pixel_mm, x, y, h, valid,
                       px, py, ph, pv, has_prev, float(self.max_gap_mm), float(self.max_step_mm))
 

@@ -23,13 +23,13 @@ from numba import njit
 _CACHE = Path(__file__).exists()
 
 
-def _compile(fn, *signature: str):
+def _compile(fn, signature: str | None = None):
     try:
-        return njit(*signature, cache=_CACHE, nogil=True)(fn)
+        return njit(signature, cache=_CACHE, nogil=True)(fn)
     except RuntimeError as exc:  # no writable cache folder (read-only install, no home)
         if "cannot cache" not in str(exc):
             raise
-        return njit(*signature, cache=False, nogil=True)(fn)
+        return njit(signature, cache=False, nogil=True)(fn)
 
 
 def _jit(fn):

@@ -27,7 +27,7 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
     from impress_gui.core.video import open_video
 
     cal = SceneCalibration.load(calibration_path)
-    inputs = {"calibration": {"path": str(calibration_path),
+    inputs: dict[str, dict[str, str | None]] = {"calibration": {"path": str(calibration_path),
                               "sha256": sha256_file(calibration_path)}}
     video_sha = sha256_file(video_path) if Path(video_path).is_file() else None
     inputs["video"] = {"path": str(video_path), "sha256": video_sha}

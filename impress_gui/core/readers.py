@@ -248,7 +248,7 @@ def read_x3p(path: str | os.PathLike, max_cells: int = MAX_CELLS) -> X3PData:
         if not safe_member_name(link or ""):
             raise _err(path, f"point data link {link!r} would leave the archive", "E-ZIP-TRAVERSAL")
         itemsize = np.dtype(_DTYPES[ztype]).itemsize
-        data = read_member(zf, link, path, nx * ny * itemsize)
+        data = read_member(zf, link or "", path, nx * ny * itemsize)
         if len(data) != nx * ny * itemsize:
             raise _err(
                 path, f"point data has {len(data)} bytes, not {nx * ny * itemsize}", "E-X3P-DATA"
@@ -324,7 +324,9 @@ def read_ply(path: str | os.PathLike, max_points: int = MAX_POINTS) -> PlyData:
         except UnicodeDecodeError:
             raise _err(path, "the PLY header is not ASCII", "E-PLY-HEADER") from None
         body = end + len(b"end_header\n")
-        fmt, elements, comments = None, [], []
+        fmt: str | None = None
+        elements: list = []
+        comments: list[str] = []
         for ln in lines[1:]:
             parts = ln.split()
             if not parts:

@@ -378,7 +378,7 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
     t_tex = time.perf_counter()
     report(progress, 0.93, "mapping the texture")
     texture = None
-    if params.texture:
+    if tex_rows is not None and tex_acc is not None:
         texture = map_texture(tex_rows, tex_rays, travel, fused, spec, cal, tex_acc)
     total_s = time.perf_counter() - t_start
     stats = {

@@ -107,8 +107,8 @@ def map_texture(rows, rays, travel, height, spec: GridSpec, cal: SceneCalibratio
     if plan is not None:
         (a_rows, a_excl, a_cells), (b_rows, b_excl, b_cells) = plan
         with ThreadPoolExecutor(2, thread_name_prefix="impress-texture") as pool:
-            fa = pool.submit(run, *a_rows, *a_cells, a_excl)
-            fb = pool.submit(run, *b_rows, *b_cells, b_excl)
+            fa = pool.submit(run, a_rows[0], a_rows[1], a_cells[0], a_cells[1], a_excl)
+            fb = pool.submit(run, b_rows[0], b_rows[1], b_cells[0], b_cells[1], b_excl)
             stray = fa.result() + fb.result()
         if stray == 0:
             return acc.mean()

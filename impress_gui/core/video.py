@@ -114,7 +114,7 @@ class AVVideo(VideoSource):
             # prefer the nominal rate when the stamps agree with it (it is exact, e.g. 30000/1001)
             if abs(float(rate) - self.fps) / float(rate) < 0.002:
                 self.fps = float(rate)
-        self._decoder = None
+        self._decoder: Iterator | None = None
 
     def quick_frames(self, start: int, stop: int, n: int) -> list[int]:
         keys = np.searchsorted(self._pts, self._keys)
@@ -146,6 +146,7 @@ class AVVideo(VideoSource):
 
     def _indexed(self, want: int):
         """(index, frame) pairs from the positioned decoder, skipping frames before ``want``."""
+        assert self._decoder is not None, "position the decoder first"
         for frame in self._decoder:
             if frame.pts is None:
                 continue

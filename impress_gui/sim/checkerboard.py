@@ -203,6 +203,7 @@ def write_views(out_dir: Path, intr: Intrinsics, board: Board = Board(), n_views
     poses = random_poses(intr, board, n_views, rng)
     rend = CheckerboardRenderer(intr, board, supersample)
     w, h = intr.image_size
+    sink: FrameFolderSink | VideoSink
     if video_format == "frames":
         path = out_dir / "frames"
         sink = FrameFolderSink(path)

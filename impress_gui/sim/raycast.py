@@ -229,7 +229,7 @@ class HeightfieldCaster:
         found = np.zeros(idx.size, bool)
         need = np.ceil(rays[4] * (z1 - z0) / dt(step_cells)).astype(np.int64) + 1
         lo_k = 0
-        for k in (2, 5, 17, None):
+        for k in (2, 5, 17, 0):  # 0: all that remain
             sel = np.flatnonzero((need > lo_k) & (need <= k) if k else need > lo_k)
             lo_k = k
             if not sel.size:

@@ -267,14 +267,14 @@ class Renderer:
         if not rows.size:
             return empty
         r0, r1 = int(rows.min()), int(rows.max()) + 1
-        band = np.bincount((rows - r0) * w + cols, weights=wgt, minlength=(r1 - r0) * w)
-        band = band.reshape(r1 - r0, w).astype(np.float32)
+        sums = np.bincount((rows - r0) * w + cols, weights=wgt, minlength=(r1 - r0) * w)
+        band = sums.reshape(r1 - r0, w).astype(np.float32)
         c = self.opt.speckle_contrast
         if c > 0:
             # granular multiplicative speckle (gamma-distributed, grain ~1 px), in the band only
             shape_k = 1.0 / (c * c)
             sp = rng.gamma(shape_k, 1.0 / shape_k, (r1 - r0, w)).astype(np.float32)
-            sp = cv2.GaussianBlur(sp, (0, 0), 0.6)
+            sp = np.asarray(cv2.GaussianBlur(sp, (0, 0), 0.6), np.float32)
             sp /= sp.mean()
             band *= sp
         return r0, band
@@ -301,6 +301,6 @@ class Renderer:
         noise = np.empty_like(rgb)
         sd = float(self.opt.noise_sigma_dn)
         cv2.setRNGSeed(int(rng.integers(1, 2**31 - 1)))
-        cv2.randn(noise, (0.0, 0.0, 0.0), (sd, sd, sd))
+        cv2.randn(noise, (0.0, 0.0, 0.0), (sd, sd, sd))  # type: ignore[call-overload]  # stub lacks scalar tuples
         # sum, round to nearest and saturate to 0..255 in one pass
         return cv2.add(rgb, noise, dtype=cv2.CV_8U), truths

@@ -225,6 +225,7 @@ def simulate(cfg: SimConfig, out_dir: Path, workers: int = 1,
     n = motion.frame_count
     from impress_gui.sim.video_out import FrameFolderSink, VideoSink
 
+    sink: FrameFolderSink | VideoSink
     if cfg.video_format == "frames":
         video_path = out_dir / "frames"
         sink = FrameFolderSink(video_path)
