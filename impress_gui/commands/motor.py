@@ -81,7 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _config(args: argparse.Namespace) -> Any:
-    from impress_gui.hardware.cool_muscle import MotorConfig
+    from impress_gui.hardware.motor_link import MotorConfig
     from impress_gui.hardware.units import MotorUnits
 
     units = MotorUnits(pulses_per_mm=args.pulses_per_mm, speed_unit_pulses_s=args.speed_unit)
@@ -97,7 +97,7 @@ def _config(args: argparse.Namespace) -> Any:
 
 def _port_url(args: argparse.Namespace) -> str:
     from impress_gui.core.errors import InputError
-    from impress_gui.hardware.cool_muscle import EMULATOR_SCHEME, emulator_url, resolve_port_url
+    from impress_gui.hardware.motor_link import EMULATOR_SCHEME, emulator_url, resolve_port_url
 
     if not args.port:
         raise InputError(f"no motor port: give --port (or set {PORT_ENV}); 'sim' simulates one")
@@ -117,7 +117,8 @@ def _print_snapshot(snap: Any) -> None:
 def _emulate(args: argparse.Namespace) -> int:
     import time
 
-    from impress_gui.hardware.emulator import CM1Emulator, EmulatorConfig, PtyServer
+    from impress_gui.hardware.emulator import PtyServer
+    from impress_gui.hardware.emulator_model import CM1Emulator, EmulatorConfig
 
     config = EmulatorConfig(
         motor_id=args.motor_id,
@@ -140,7 +141,7 @@ def _emulate(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     action = args.action
     if action == "ports":
-        from impress_gui.hardware.cool_muscle import list_serial_ports
+        from impress_gui.hardware.motor_link import list_serial_ports
 
         ports = list_serial_ports()
         for device, description in ports:
@@ -165,7 +166,8 @@ def run(args: argparse.Namespace) -> int:
     if action == "emulate-pty":
         return _emulate(args)
 
-    from impress_gui.hardware.cool_muscle import CoolMuscle, scanner_program
+    from impress_gui.hardware.cool_muscle import CoolMuscle
+    from impress_gui.hardware.motor_program import scanner_program
 
     def traffic(direction: str, text: str) -> None:
         print(f"{direction} {text}", file=sys.stderr)
