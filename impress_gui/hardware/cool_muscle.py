@@ -101,7 +101,7 @@ class CoolMuscle(MotorLink):
         self._connected = False
         self._lock = threading.RLock()
         if hasattr(port, "timeout"):
-            port.timeout = min(0.02, self.config.reply_timeout_s)  # type: ignore[attr-defined]
+            port.timeout = min(0.02, self.config.reply_timeout_s)
 
     @classmethod
     def open(cls, port: str, config: MotorConfig | None = None, **kwargs: Any) -> CoolMuscle:

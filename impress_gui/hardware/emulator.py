@@ -39,6 +39,8 @@ __all__ = [
 class EmulatedSerial(SerialBase):
     """A pyserial port whose other end is a :class:`CM1Emulator` (``cm1emu://`` URLs)."""
 
+    is_open: bool  # set by SerialBase
+
     def __init__(self, *args: Any, motor: CM1Emulator | None = None, **kwargs: Any) -> None:
         self.motor = motor
         super().__init__(*args, **kwargs)
@@ -87,7 +89,7 @@ class EmulatedSerial(SerialBase):
             motor = self._motor()
         return bytes(data)
 
-    def write(self, data: bytes) -> int:  # type: ignore[override]
+    def write(self, data: bytes) -> int:
         self._motor().feed(bytes(data))
         return len(data)
 
