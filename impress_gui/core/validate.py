@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any, TypedDict, TypeVar
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class Placement:
     lift_b_mm: float = 0.0
     tilt_deg: float = 0.0
 
-    def blocks_options(self) -> dict:
+    def blocks_options(self) -> dict[str, str | bool | float]:
         return {
             "order": self.order,
             "rotate90": self.rotate90,
@@ -151,7 +152,7 @@ class Result:
     error_mm: float  # measured - nominal (NaN when the measurement failed)
     note: str = ""
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         r = self.reading
         return {
             "id": r.id,
@@ -174,7 +175,9 @@ def _num(v: float) -> float | None:
 
 
 # ----- measuring ----------------------------------------------------------------------------
-def crop(height: np.ndarray, spec: GridSpec, x_range, y_range) -> tuple[np.ndarray, GridSpec]:
+def crop(
+    height: np.ndarray, spec: GridSpec, x_range: Sequence[float], y_range: Sequence[float]
+) -> tuple[np.ndarray, GridSpec]:
     """A view of ``height`` covering the ranges (mm) and the view's own grid."""
     p = spec.pixel_mm
     j0 = max(0, math.floor((min(x_range) - spec.x0_mm) / p))
@@ -187,7 +190,9 @@ def crop(height: np.ndarray, spec: GridSpec, x_range, y_range) -> tuple[np.ndarr
     return height[i0:i1, j0:j1], sub
 
 
-def levelled_crop(height: np.ndarray, spec: GridSpec, region: LevelRegion):
+def levelled_crop(
+    height: np.ndarray, spec: GridSpec, region: LevelRegion
+) -> tuple[np.ndarray, GridSpec, M.Plane]:
     """The region's heights levelled on its plane: ``(heights, grid, plane)``."""
     sub, sspec = crop(height, spec, region.x_mm, region.y_mm)
     mask = np.ones(sub.shape, bool)
@@ -196,6 +201,19 @@ def levelled_crop(height: np.ndarray, spec: GridSpec, region: LevelRegion):
         mask[np.ix_((ys >= min(by)) & (ys <= max(by)), (xs >= min(bx)) & (xs <= max(bx)))] = False
     plane = M.plane_from_region(sub, sspec, region.x_mm, region.y_mm, mask)
     return M.levelled(sub, sspec, plane), sspec, plane
+
+
+#: levelled crops kept between readings that share a level region
+LevelCache = dict[tuple[str, LevelRegion], tuple[np.ndarray, GridSpec]]
+
+_T = TypeVar("_T")
+
+
+def _required(value: _T | None, what: str, r: Reading) -> _T:
+    """``value``, or an :class:`InputError` (a failed reading) when the reading lacks it."""
+    if value is None:
+        raise InputError(f"a {r.kind} reading needs {what}", code="E-VAL-SPEC")
+    return value
 
 
 def _edge(profile: M.Profile, e: Edge) -> float:
@@ -214,7 +232,7 @@ def _edge(profile: M.Profile, e: Edge) -> float:
 
 
 def measure_reading(
-    height: np.ndarray, spec: GridSpec, r: Reading, cache: dict | None = None
+    height: np.ndarray, spec: GridSpec, r: Reading, cache: LevelCache | None = None
 ) -> Result:
     """Make one reading on a heightmap (float32 mm, NaN = no data) with its grid. ``cache``
     keeps levelled regions between readings that share one."""
@@ -235,12 +253,15 @@ def measure_reading(
             )
         prof = M.line_profile(h, sspec, r.start_mm, r.end_mm, r.profile_width_mm)
         if r.kind == "step":
-            s = M.step_height(prof, r.band_a_mm, r.band_b_mm)
+            s = M.step_height(
+                prof, _required(r.band_a_mm, "band_a_mm", r), _required(r.band_b_mm, "band_b_mm", r)
+            )
             value, note = abs(s.difference_mm), f"bands n={s.a.n}/{s.b.n}"
         elif r.kind == "width":
-            a, b = M.band_stats(prof, r.band_a_mm), M.band_stats(prof, r.band_b_mm)
+            a = M.band_stats(prof, _required(r.band_a_mm, "band_a_mm", r))
+            b = M.band_stats(prof, _required(r.band_b_mm, "band_b_mm", r))
             level = 0.5 * (a.mean_mm + b.mean_mm)
-            value = M.width_at_level(prof, level, r.around_mm).width_mm
+            value = M.width_at_level(prof, level, _required(r.around_mm, "around_mm", r)).width_mm
             note = f"at level {level:.3f} mm"
         elif r.kind == "edge_distance":
             e0, e1 = (_edge(prof, e) for e in r.edges)
@@ -255,7 +276,7 @@ def measure_reading(
 
 
 def measure_all(height: np.ndarray, spec: GridSpec, readings: Sequence[Reading]) -> list[Result]:
-    cache: dict = {}
+    cache: LevelCache = {}
     return [measure_reading(height, spec, r, cache) for r in readings]
 
 
@@ -270,14 +291,16 @@ EDGE_SEARCH_MM = 1.5  # an edge is looked for within this distance of where it s
 class _PlateFrame:
     """Plate-local (a along the target's features, b across) to rail (x, y) coordinates."""
 
-    def __init__(self, centre_y_world: float, rotated: bool, s1: float):
+    def __init__(self, centre_y_world: float, rotated: bool, s1: float) -> None:
         self.cy, self.rot, self.s1 = float(centre_y_world), bool(rotated), float(s1)
 
     def xy(self, a: float, b: float) -> tuple[float, float]:
         x, y = (b, self.cy + a) if self.rot else (a, self.cy + b)
         return (round(float(x), 4), round(float(y - self.s1), 4))
 
-    def box(self, a_range, b_range) -> tuple[tuple[float, float], tuple[float, float]]:
+    def box(
+        self, a_range: Sequence[float], b_range: Sequence[float]
+    ) -> tuple[tuple[float, float], tuple[float, float]]:
         p = [self.xy(a, b) for a in a_range for b in b_range]
         xs, ys = [q[0] for q in p], [q[1] for q in p]
         return (min(xs), max(xs)), (min(ys), max(ys))
@@ -289,8 +312,24 @@ class _PlateFrame:
         return LevelRegion(outer[0], outer[1], (inner,))
 
 
+class _Placed(TypedDict):
+    """The keyword arguments the readings along one profile line share."""
+
+    group: str
+    target: str
+    start_mm: tuple[float, float]
+    end_mm: tuple[float, float]
+    profile_width_mm: float
+    level: LevelRegion
+
+
+class _PlacedBands(_Placed):
+    band_a_mm: tuple[float, float]
+    band_b_mm: tuple[float, float]
+
+
 def blocks_readings(
-    truth: Mapping, group: str, stations_mm: Sequence[float] = STATIONS_MM
+    truth: Mapping[str, Any], group: str, stations_mm: Sequence[float] = STATIONS_MM
 ) -> list[Reading]:
     """The four thesis measurements per target at each station across the target, placed from
     the truth features of a simulated ``blocks`` scan.
@@ -309,7 +348,8 @@ def blocks_readings(
         raise InputError(
             "the truth has no slotted and stepped targets (not a blocks scan)", code="E-VAL-TRUTH"
         )
-    m, out = BAND_MARGIN_MM, []
+    m = BAND_MARGIN_MM
+    out: list[Reading] = []
     # ----- slotted target: walls between the slots are as wide as the widest slot
     fr = _PlateFrame(slots[0]["plate_centre_y_mm"], slots[0]["rotated90"], s1)
     land = max(f["width_mm"] for f in slots)
@@ -328,7 +368,7 @@ def blocks_readings(
         floor = (off + fm, off + w - fm)
         walls = (Edge(floor, top, off, EDGE_SEARCH_MM), Edge(floor, top2, off + w, EDGE_SEARCH_MM))
         for b in stations_mm:
-            common = dict(
+            common_a = _PlacedBands(
                 group=group,
                 target="A",
                 start_mm=fr.xy(start, b),
@@ -345,7 +385,7 @@ def blocks_readings(
                     nominal_mm=w,
                     edges=walls,
                     label=f"A: slot {k} width",
-                    **common,
+                    **common_a,
                 )
             )
             out.append(
@@ -354,7 +394,7 @@ def blocks_readings(
                     kind="step",
                     nominal_mm=depth,
                     label=f"A: slot {k} depth",
-                    **common,
+                    **common_a,
                 )
             )
     # ----- stepped target
@@ -371,7 +411,7 @@ def blocks_readings(
         return (riser[k - 1] + m, riser[k - 1] + sw - m)
 
     for b in stations_mm:
-        common = dict(
+        common = _Placed(
             group=group,
             target="B",
             start_mm=fr.xy(start, b),
@@ -431,7 +471,7 @@ class Stats:
     max_mm: float
     failed: int = 0
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {
             "n": self.n,
             "mean_abs_mm": _num(self.mean_mm),

@@ -28,6 +28,7 @@ import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypedDict
 
 from impress_gui import __version__
 from impress_gui.core import validate as V
@@ -37,8 +38,23 @@ from impress_gui.core.errors import InputError
 from impress_gui.core.fileio import sha256_file, write_json
 from impress_gui.core.progress import CancelToken, ProgressCallback, report, sub_progress
 
+if TYPE_CHECKING:  # imported where used: the simulator and the pipeline are heavy
+    from impress_gui.core.measure import ReconData
+    from impress_gui.core.reconstruct import ProcessParams
+    from impress_gui.sim.simulate import SimConfig
+
 RECORD_FORMAT = "impress.validation"
 EXTRAS = ("flat", "spheres")
+
+
+class _SimCommon(TypedDict):
+    """The :class:`~impress_gui.sim.simulate.SimConfig` settings every item of a run shares."""
+
+    width: int
+    height: int
+    speed_mm_s: float
+    seed: int
+    click_noise_px: float
 
 
 @dataclass(frozen=True)
@@ -63,14 +79,14 @@ class RunConfig:
     lifted_standoff_mm: float = 380.0
 
     @classmethod
-    def quick(cls, **kw) -> RunConfig:
+    def quick(cls, **kw: Any) -> RunConfig:
         """640x360 at three times the fast rail speed: minutes, not hours; xy accuracy is
         limited by the 0.38 mm camera pixel on the targets."""
         return cls(**kw)
 
     @classmethod
-    def full(cls, **kw) -> RunConfig:
-        base = dict(
+    def full(cls, **kw: Any) -> RunConfig:
+        base: dict[str, Any] = dict(
             mode="full",
             width=1920,
             height=1080,
@@ -98,33 +114,34 @@ class RunConfig:
         for sc in self.sim_configs().values():
             sc.validate()
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["placements"], d["extras"] = list(self.placements), list(self.extras)
         return d
 
-    def sim_configs(self) -> dict[str, object]:
+    def sim_configs(self) -> dict[str, SimConfig]:
         """``{item: SimConfig}`` in table order: placements, then the extras."""
         from impress_gui.sim.simulate import SimConfig
 
-        common = dict(
+        common = _SimCommon(
             width=self.width,
             height=self.height,
             speed_mm_s=self.speed_mm_s,
             seed=self.seed,
             click_noise_px=self.click_noise_px,
         )
-        out: dict[str, object] = {}
+        out: dict[str, SimConfig] = {}
         for key in self.placements:
             p = V.PLACEMENT_BY_KEY[key]
-            extra = {"standoff_mm": self.lifted_standoff_mm} if p.lift_b_mm else {}
-            out[key] = SimConfig(
+            sc = SimConfig(
                 preset="blocks",
                 length_mm=self.blocks_length_mm,
                 blocks=p.blocks_options(),
                 **common,
-                **extra,
             )
+            if p.lift_b_mm:
+                sc = dataclasses.replace(sc, standoff_mm=self.lifted_standoff_mm)
+            out[key] = sc
         if "flat" in self.extras:
             out["flat"] = SimConfig(preset="flat", length_mm=self.flat_length_mm, **common)
         if "spheres" in self.extras:
@@ -145,13 +162,13 @@ def simulator_sha256() -> str:
     return h.hexdigest()
 
 
-def _same_config(truth: dict, sim_cfg) -> bool:
+def _same_config(truth: dict[str, Any], sim_cfg: SimConfig) -> bool:
     a = json.dumps(truth.get("config"), sort_keys=True)
     return a == json.dumps(json.loads(json.dumps(dataclasses.asdict(sim_cfg))), sort_keys=True)
 
 
 def produce_scan(
-    sim_cfg,
+    sim_cfg: SimConfig,
     folder: Path,
     workers: int = 2,
     reuse: bool = True,
@@ -184,7 +201,13 @@ def produce_scan(
     return True
 
 
-def _calibrate_and_process(scan: Path, run_dir: Path, params, progress, cancel) -> dict:
+def _calibrate_and_process(
+    scan: Path,
+    run_dir: Path,
+    params: ProcessParams,
+    progress: ProgressCallback | None,
+    cancel: CancelToken | None,
+) -> dict[str, Any]:
     from impress_gui.core.calibration import calibrate_scene
     from impress_gui.core.geometry import Intrinsics
     from impress_gui.core.picks import Picks
@@ -248,7 +271,9 @@ def _calibrate_and_process(scan: Path, run_dir: Path, params, progress, cancel) 
     }
 
 
-def _flat_region(rec, truth: dict) -> tuple[tuple[float, float], tuple[float, float]]:
+def _flat_region(
+    rec: ReconData, truth: dict[str, Any]
+) -> tuple[tuple[float, float], tuple[float, float]]:
     """Ground beyond the L target (world y > 90 mm), x within +-60 mm, limited to the rows
     the scan covered (95 % of the cells have data)."""
     import numpy as np
@@ -265,7 +290,7 @@ def _flat_region(rec, truth: dict) -> tuple[tuple[float, float], tuple[float, fl
     return xr, (float(ys[rows[0]]), float(ys[rows[-1]]))
 
 
-def _measure_item(item: str, rec, truth: dict, group: str) -> dict:
+def _measure_item(item: str, rec: ReconData, truth: dict[str, Any], group: str) -> dict[str, Any]:
     if item in V.PLACEMENT_BY_KEY:
         readings = V.blocks_readings(truth, group)
         return {"results": V.measure_all(rec.height_mm, rec.spec, readings), "readings": readings}
@@ -273,7 +298,7 @@ def _measure_item(item: str, rec, truth: dict, group: str) -> dict:
         xr, yr = _flat_region(rec, truth)
         return {"flat": VDI.flatness(rec.height_mm, rec.spec, xr, yr).to_json()}
     s1 = truth["travel_mm"][truth["calibration_frames"]["t1"]]
-    spheres = []
+    spheres: list[tuple[float, float, float, float]] = []
     for f in truth["features"]:
         if f.get("kind") != "sphere":
             continue
@@ -286,7 +311,7 @@ def _measure_item(item: str, rec, truth: dict, group: str) -> dict:
     return {"spheres": VDI.sphere_errors(rec.height_mm, rec.spec, spheres)}
 
 
-def _header(kind: str) -> dict:
+def _header(kind: str) -> dict[str, Any]:
     return {
         "format": RECORD_FORMAT,
         "version": 1,
@@ -303,7 +328,7 @@ def _header(kind: str) -> dict:
     }
 
 
-def _finish(record: dict, results: list, groups: list[str]) -> dict:
+def _finish(record: dict[str, Any], results: list[V.Result], groups: list[str]) -> dict[str, Any]:
     summary = V.summarise(results, groups)
     record["readings"] = [r.to_json() for r in results]
     record["summary"] = {g: {ax: s.to_json() for ax, s in v.items()} for g, v in summary.items()}
@@ -320,11 +345,11 @@ def _finish(record: dict, results: list, groups: list[str]) -> dict:
 
 def run_simulated(
     cfg: RunConfig,
-    out_dir: str | os.PathLike,
+    out_dir: str | os.PathLike[str],
     progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
-    scans_dir: str | os.PathLike | None = None,
-) -> dict:
+    scans_dir: str | os.PathLike[str] | None = None,
+) -> dict[str, Any]:
     """The protocol on simulator scans; writes ``validation.json`` (and the spec of its
     readings) into ``out_dir`` and returns the record. Rendered scans are kept in
     ``scans_dir`` (default ``out_dir/scans``) and reused while unchanged."""
@@ -337,7 +362,9 @@ def run_simulated(
     out.mkdir(parents=True, exist_ok=True)
     items = cfg.sim_configs()
     record = _header("simulator") | {"config": cfg.to_json(), "scans": []}
-    results, groups, spec_scans = [], [], []
+    results: list[V.Result] = []
+    groups: list[str] = []
+    spec_scans: list[tuple[str, str, list[V.Reading]]] = []
     for i, (item, sim_cfg) in enumerate(items.items()):
         part = sub_progress(progress, i / len(items), (i + 1) / len(items))
         title = V.PLACEMENT_BY_KEY[item].title if item in V.PLACEMENT_BY_KEY else item
@@ -398,11 +425,11 @@ def run_simulated(
 
 
 def run_real(
-    spec_path: str | os.PathLike,
-    out_dir: str | os.PathLike,
+    spec_path: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
     progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """The protocol on reconstructions of physical artefacts: known dimensions and measuring
     positions from a spec file (:data:`validate.SPEC_FORMAT`)."""
     from impress_gui.core.measure import load_reconstruction
@@ -416,7 +443,8 @@ def run_real(
         "scans": [],
         "spec": {"path": str(spec_path), "sha256": sha256_file(spec_path)},
     }
-    results, groups = [], []
+    results: list[V.Result] = []
+    groups: list[str] = []
     for i, s in enumerate(scans):
         cancel.check()
         report(progress, i / len(scans), f"{s.name}: measuring")

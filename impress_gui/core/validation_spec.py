@@ -7,9 +7,11 @@ a template for real scans)."""
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from impress_gui.core.errors import FormatError
 from impress_gui.core.validate import (
@@ -22,7 +24,7 @@ from impress_gui.core.validate import (
 )
 
 
-def _pair(v, name: str, where: str) -> tuple[float, float]:
+def _pair(v: object, name: str, where: str) -> tuple[float, float]:
     if (
         not isinstance(v, list)
         or len(v) != 2
@@ -36,7 +38,12 @@ def _pair(v, name: str, where: str) -> tuple[float, float]:
 
 
 def _number(
-    doc: Mapping, key: str, where: str, lo: float, hi: float, default: float | None = None
+    doc: Mapping[str, object],
+    key: str,
+    where: str,
+    lo: float,
+    hi: float,
+    default: float | None = None,
 ) -> float:
     v = doc.get(key, default)
     if (
@@ -50,7 +57,7 @@ def _number(
     return float(v)
 
 
-def _reading_from_json(doc, group: str, default_width: float, where: str) -> Reading:
+def _reading_from_json(doc: object, group: str, default_width: float, where: str) -> Reading:
     if not isinstance(doc, dict):
         raise FormatError(f"{where}a measurement must be an object", code="E-VAL-SPEC")
     kind = doc.get("kind")
@@ -59,7 +66,7 @@ def _reading_from_json(doc, group: str, default_width: float, where: str) -> Rea
     rid = doc.get("id")
     if not isinstance(rid, str) or not rid or len(rid) > 200:
         raise FormatError(f"{where}id must be a short text", code="E-VAL-SPEC")
-    lvl = None
+    lvl: LevelRegion | None = None
     if doc.get("level_region") is not None:
         lr = doc["level_region"]
         if not isinstance(lr, dict) or not isinstance(lr.get("exclude", []), list):
@@ -76,32 +83,27 @@ def _reading_from_json(doc, group: str, default_width: float, where: str) -> Rea
             _pair(lr.get("y_mm"), "level_region.y_mm", where),
             ex,
         )
-    kw: dict = dict(
-        id=rid,
-        group=group,
-        target=str(doc.get("target", "")),
-        kind=kind,
-        nominal_mm=_number(doc, "nominal_mm", where, 0.0, 1e4),
-        start_mm=_pair(doc.get("start_mm"), "start_mm", where),
-        end_mm=_pair(doc.get("end_mm"), "end_mm", where),
-        profile_width_mm=_number(doc, "profile_width_mm", where, 0.0, 100.0, default_width),
-        level=lvl,
-        label=str(doc.get("label", rid)),
-    )
+    # checked in this order: the first problem is the one reported
+    nominal = _number(doc, "nominal_mm", where, 0.0, 1e4)
+    start = _pair(doc.get("start_mm"), "start_mm", where)
+    end = _pair(doc.get("end_mm"), "end_mm", where)
+    width = _number(doc, "profile_width_mm", where, 0.0, 100.0, default_width)
+    band_a: tuple[float, float] | None = None
+    band_b: tuple[float, float] | None = None
     if kind in ("width", "step"):
-        kw["band_a_mm"] = _pair(doc.get("band_a_mm"), "band_a_mm", where)
-        kw["band_b_mm"] = _pair(doc.get("band_b_mm"), "band_b_mm", where)
-    if kind == "width":
-        kw["around_mm"] = _number(doc, "around_mm", where, -1e6, 1e6)
+        band_a = _pair(doc.get("band_a_mm"), "band_a_mm", where)
+        band_b = _pair(doc.get("band_b_mm"), "band_b_mm", where)
+    around = _number(doc, "around_mm", where, -1e6, 1e6) if kind == "width" else None
+    edges: tuple[Edge, ...] = ()
     if kind == "edge_distance":
-        edges = doc.get("edges")
+        docs = doc.get("edges")
         if (
-            not isinstance(edges, list)
-            or len(edges) != 2
-            or not all(isinstance(e, dict) for e in edges)
+            not isinstance(docs, list)
+            or len(docs) != 2
+            or not all(isinstance(e, dict) for e in docs)
         ):
             raise FormatError(f"{where}edges must be a list of two edge objects", code="E-VAL-SPEC")
-        kw["edges"] = tuple(
+        edges = tuple(
             Edge(
                 _pair(e.get("band_low_mm"), "band_low_mm", where),
                 _pair(e.get("band_high_mm"), "band_high_mm", where),
@@ -110,9 +112,24 @@ def _reading_from_json(doc, group: str, default_width: float, where: str) -> Rea
                 if e.get("max_offset_mm") is not None
                 else None,
             )
-            for e in edges
+            for e in docs
         )
-    return Reading(**kw)
+    return Reading(
+        id=rid,
+        group=group,
+        target=str(doc.get("target", "")),
+        kind=kind,
+        nominal_mm=nominal,
+        start_mm=start,
+        end_mm=end,
+        profile_width_mm=width,
+        band_a_mm=band_a,
+        band_b_mm=band_b,
+        around_mm=around,
+        edges=edges,
+        level=lvl,
+        label=str(doc.get("label", rid)),
+    )
 
 
 @dataclass(frozen=True)
@@ -124,7 +141,7 @@ class ScanSpec:
     readings: tuple[Reading, ...]
 
 
-def load_spec(path: str | Path) -> tuple[str, tuple[ScanSpec, ...]]:
+def load_spec(path: str | os.PathLike[str]) -> tuple[str, tuple[ScanSpec, ...]]:
     """Read a real-scan validation spec (format :data:`SPEC_FORMAT`): ``(name, scans)``."""
     from impress_gui.core.fileio import read_json
 
@@ -135,7 +152,7 @@ def load_spec(path: str | Path) -> tuple[str, tuple[ScanSpec, ...]]:
     if not isinstance(scans, list) or not scans or len(scans) > 1000:
         raise FormatError(f"{where}scans must be a non-empty list", code="E-VAL-SPEC")
     width = _number(doc, "profile_width_mm", where, 0.0, 100.0, PROFILE_WIDTH_MM)
-    out = []
+    out: list[ScanSpec] = []
     for i, s in enumerate(scans):
         w = f"{where}scans[{i}]: "
         if (
@@ -160,8 +177,8 @@ def load_spec(path: str | Path) -> tuple[str, tuple[ScanSpec, ...]]:
     return str(doc.get("name", path.stem)), tuple(out)
 
 
-def reading_to_json(r: Reading) -> dict:
-    d: dict = {
+def reading_to_json(r: Reading) -> dict[str, Any]:
+    d: dict[str, Any] = {
         "id": r.id,
         "target": r.target,
         "label": r.label,
@@ -172,7 +189,9 @@ def reading_to_json(r: Reading) -> dict:
         "profile_width_mm": r.profile_width_mm,
     }
     if r.band_a_mm is not None:
-        d["band_a_mm"], d["band_b_mm"] = list(r.band_a_mm), list(r.band_b_mm)
+        d["band_a_mm"] = list(r.band_a_mm)
+    if r.band_b_mm is not None:
+        d["band_b_mm"] = list(r.band_b_mm)
     if r.around_mm is not None:
         d["around_mm"] = r.around_mm
     if r.edges:
@@ -194,7 +213,7 @@ def reading_to_json(r: Reading) -> dict:
     return d
 
 
-def spec_to_json(name: str, scans: Sequence[tuple[str, str, Sequence[Reading]]]) -> dict:
+def spec_to_json(name: str, scans: Sequence[tuple[str, str, Sequence[Reading]]]) -> dict[str, Any]:
     """A spec document from ``(scan name, reconstruction folder, readings)`` triples."""
     return {
         "format": SPEC_FORMAT,

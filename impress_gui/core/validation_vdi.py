@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -32,15 +33,15 @@ class Flatness:
     x_mm: tuple[float, float]
     y_mm: tuple[float, float]
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {k: (_num(v) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
 
 
 def flatness(
     height: np.ndarray,
     spec: GridSpec,
-    x_range,
-    y_range,
+    x_range: Sequence[float],
+    y_range: Sequence[float],
     expected_mm: float = 0.0,
     trim: float = 0.003,
 ) -> Flatness:
@@ -57,8 +58,8 @@ def flatness(
         float(plane.at(cx, cy) - expected_mm),
         plane.tilt_deg,
         int(res.size),
-        tuple(map(float, x_range)),
-        tuple(map(float, y_range)),
+        (float(x_range[0]), float(x_range[1])),
+        (float(y_range[0]), float(y_range[1])),
     )
 
 
@@ -84,7 +85,7 @@ def fit_sphere(points: np.ndarray, trim: float = 0.003) -> SphereFit:
     sol, *_ = np.linalg.lstsq(a, (q**2).sum(1), rcond=None)
     centre, r0 = sol[:3], math.sqrt(max(sol[3] + sol[:3] @ sol[:3], 1e-12))
 
-    def resid(v):
+    def resid(v: np.ndarray) -> np.ndarray:
         return np.linalg.norm(q - v[:3], axis=1) - v[3]
 
     fit = least_squares(resid, np.r_[centre, r0], method="lm")
@@ -119,10 +120,11 @@ def sphere_points(
 
 def sphere_errors(
     height: np.ndarray, spec: GridSpec, spheres: Sequence[tuple[float, float, float, float]]
-) -> dict:
+) -> dict[str, Any]:
     """Fit each sphere ``(x, y, centre height, radius)`` (rail mm) and compare: diameter
     errors (PS), form (PF) and the distance errors of every pair of centres (SD)."""
-    fits, rows = [], []
+    fits: list[SphereFit | None] = []
+    rows: list[dict[str, Any]] = []
     for x, y, z, r in spheres:
         try:
             f = fit_sphere(sphere_points(height, spec, x, y, r))
@@ -143,24 +145,27 @@ def sphere_errors(
                 "n": f.n,
             }
         )
-    dist = []
+    dist: list[dict[str, Any]] = []
+    sd: list[float] = []  # absolute spacing errors as recorded; NaN (failed) when not finite
     for i in range(len(spheres)):
         for j in range(i + 1, len(spheres)):
-            if fits[i] is None or fits[j] is None:
+            fi, fj = fits[i], fits[j]
+            if fi is None or fj is None:
                 continue
             true = math.dist(spheres[i][:3], spheres[j][:3])
-            meas = math.dist(fits[i].centre_mm, fits[j].centre_mm)
+            meas = math.dist(fi.centre_mm, fj.centre_mm)
+            err = _num(meas - true)
             dist.append(
                 {
                     "pair": [i, j],
                     "nominal_mm": round(true, 4),
                     "measured_mm": _num(meas),
-                    "error_mm": _num(meas - true),
+                    "error_mm": err,
                 }
             )
+            sd.append(math.nan if err is None else abs(err))
     d_err = [abs(2 * f.radius_mm - 2 * s[3]) for f, s in zip(fits, spheres) if f is not None]
     forms = [f.form_mm for f in fits if f is not None]
-    sd = [abs(d["error_mm"]) for d in dist]
     return {
         "spheres": rows,
         "distances": dist,
