@@ -37,7 +37,14 @@ def _source_key() -> str:
     files = sorted((ROOT / "impress_gui" / "sim").glob("*.py"))
     files += [
         ROOT / "impress_gui" / "core" / n
-        for n in ("target.py", "geometry.py", "calibration.py", "picks.py")
+        for n in (
+            "target.py",
+            "geometry.py",
+            "calibration.py",
+            "calib_solve.py",
+            "calib_planes.py",
+            "picks.py",
+        )
     ]
     for f in files:
         h.update(f.read_bytes())

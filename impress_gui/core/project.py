@@ -15,20 +15,14 @@ documents in their own formats: ``intrinsics`` (impress.intrinsics), ``target``
 ``measurements``. ``log_head`` records how many log entries existed at the last save and the
 hash of the last one, so a truncated log is detected too.
 
-Each log line is ``{"seq", "time_utc", "user", "software", "action", "details",
-"prev_sha256"}`` where ``prev_sha256`` is the SHA-256 of the previous line's exact bytes (64
-zeros for the first). :func:`verify_log` re-checks the chain and raises
-:class:`IntegrityError` ``E-LOG-TAMPERED`` when any line was edited, removed or reordered.
+The log (its line format, the hash chain and :func:`verify_log`), the evidence hash and the
+who/when stamps are in :mod:`~impress_gui.core.project_log`.
 """
 
 from __future__ import annotations
 
-import getpass
-import hashlib
-import json
 import os
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -38,134 +32,37 @@ from impress_gui.core.errors import FormatError, ImpressError, InputError, Integ
 from impress_gui.core.fileio import dumps_json, read_json, write_json
 from impress_gui.core.geometry import Intrinsics
 from impress_gui.core.picks import Picks
-from impress_gui.core.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.progress import CancelToken, ProgressCallback
+from impress_gui.core.project_log import (
+    LOG_FILE,
+    append_log,
+    current_user,
+    hash_file,
+    log_tail,
+    read_log,
+    utc_now,
+    verify_log,
+)
 from impress_gui.core.target import TargetModel
 
 PROJECT_FORMAT = "impress.project"
 PROJECT_FILE = "project.json"
-LOG_FILE = "log.jsonl"
-GENESIS = "0" * 64
 CASE_FIELDS = ("case_id", "evidence_id", "examiner", "notes")
-
-
-def utc_now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
-
-
-def current_user() -> str:
-    try:
-        return getpass.getuser()
-    except (KeyError, OSError, ImportError):
-        return os.environ.get("USERNAME", "unknown")
-
-
-def hash_file(
-    path: str | os.PathLike,
-    progress: ProgressCallback | None = None,
-    cancel: CancelToken | None = None,
-    chunk: int = 4 << 20,
-) -> str:
-    """SHA-256 of a file read (never written) in chunks, with progress and cancel."""
-    h = hashlib.sha256()
-    total = max(1, os.path.getsize(path))
-    done = 0
-    with open(path, "rb") as fh:
-        while block := fh.read(chunk):
-            if cancel is not None:
-                cancel.check()
-            h.update(block)
-            done += len(block)
-            report(progress, done / total, "hashing the video")
-    return h.hexdigest()
-
-
-# ----- the log ------------------------------------------------------------------------------
-def _line_hash(line: bytes) -> str:
-    return hashlib.sha256(line).hexdigest()
-
-
-def read_log(path: str | os.PathLike) -> list[dict]:
-    """Entries of a log file, checking the hash chain (see :func:`verify_log`)."""
-    return _check_chain(Path(path))[0]
-
-
-def verify_log(path: str | os.PathLike, head: dict | None = None) -> int:
-    """Check the hash chain of a log; return the number of entries. ``head`` is the
-    ``{"entries", "sha256"}`` recorded in project.json at the last save (detects truncation)."""
-    entries, last = _check_chain(Path(path))
-    if head:
-        n = int(head.get("entries", 0))
-        if len(entries) < n:
-            raise IntegrityError(
-                f"{path}: the log has {len(entries)} entries but {n} were "
-                "recorded at the last save (entries removed)",
-                code="E-LOG-TAMPERED",
-            )
-        if n and _check_chain(Path(path), stop=n)[1] != head.get("sha256"):
-            raise IntegrityError(
-                f"{path}: log entry {n} differs from the one recorded at the last save",
-                code="E-LOG-TAMPERED",
-            )
-    return len(entries)
-
-
-def _check_chain(path: Path, stop: int | None = None) -> tuple[list[dict], str]:
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        return [], GENESIS
-    if data and not data.endswith(b"\n"):
-        raise IntegrityError(f"{path}: the last log entry is incomplete", code="E-LOG-TAMPERED")
-    prev = GENESIS
-    entries: list[dict] = []
-    for i, line in enumerate(data.splitlines(keepends=True)):
-        if stop is not None and i >= stop:
-            break
-        try:
-            entry = json.loads(line)
-        except ValueError:
-            raise IntegrityError(
-                f"{path}: log line {i + 1} is not valid JSON", code="E-LOG-TAMPERED"
-            ) from None
-        if (
-            not isinstance(entry, dict)
-            or entry.get("prev_sha256") != prev
-            or entry.get("seq") != i + 1
-        ):
-            raise IntegrityError(
-                f"{path}: log entry {i + 1} does not follow entry {i} (the log was edited)",
-                code="E-LOG-TAMPERED",
-            )
-        entries.append(entry)
-        prev = _line_hash(line)
-    return entries, prev
-
-
-def append_log(
-    path: str | os.PathLike,
-    action: str,
-    details: dict | None = None,
-    user: str | None = None,
-    time_utc: str | None = None,
-) -> dict:
-    """Append one entry to a log (chained to the last one) and fsync it."""
-    path = Path(path)
-    entries, prev = _check_chain(path)
-    entry = {
-        "seq": len(entries) + 1,
-        "time_utc": time_utc or utc_now(),
-        "user": user or current_user(),
-        "software": f"impress {__version__}",
-        "action": str(action),
-        "details": details or {},
-        "prev_sha256": prev,
-    }
-    line = (json.dumps(entry, sort_keys=True, allow_nan=False, default=str) + "\n").encode()
-    with open(path, "ab") as fh:
-        fh.write(line)
-        fh.flush()
-        os.fsync(fh.fileno())
-    return entry
+# re-exported: callers import the log functions from here
+__all__ = [
+    "CASE_FIELDS",
+    "LOG_FILE",
+    "PROJECT_FILE",
+    "PROJECT_FORMAT",
+    "Project",
+    "VideoRef",
+    "append_log",
+    "create_project",
+    "current_user",
+    "hash_file",
+    "read_log",
+    "verify_log",
+]
 
 
 # ----- the project --------------------------------------------------------------------------
@@ -447,7 +344,7 @@ class Project:
         if self.root is None:
             raise InputError("choose a folder for the new project", code="E-NO-FOLDER")
         self.log("project saved", {})
-        n, head = _log_tail(self.log_file)
+        n, head = log_tail(self.log_file)
         self._log_head = {"entries": n, "sha256": head}
         try:
             write_json(self.project_file, self.to_json())
@@ -526,11 +423,6 @@ def _typed(doc: dict, key: str, kind: type, where: str) -> Any:
     if not isinstance(value, kind):
         raise FormatError(f"{where}{key} must be a JSON {'object' if kind is dict else 'list'}")
     return value
-
-
-def _log_tail(path: Path) -> tuple[int, str]:
-    entries, last = _check_chain(path)
-    return len(entries), last
 
 
 def create_project(folder: str | os.PathLike, **case_info: str) -> Project:
