@@ -337,22 +337,23 @@ class Project:
                     self._relative(Path(self.video.path)),
                 )
             if first:
-                append_log(self.log_file, "project created", {"case_id": self.case_id})
+                append_log(new_root / LOG_FILE, "project created", {"case_id": self.case_id})
                 for action, details, when in self._pending_log:
-                    append_log(self.log_file, action, details, time_utc=when)
+                    append_log(new_root / LOG_FILE, action, details, time_utc=when)
                 self._pending_log.clear()
         if self.root is None:
             raise InputError("choose a folder for the new project", code="E-NO-FOLDER")
+        root = self.root
         self.log("project saved", {})
-        n, head = log_tail(self.log_file)
+        n, head = log_tail(root / LOG_FILE)
         self._log_head = {"entries": n, "sha256": head}
         try:
-            write_json(self.project_file, self.to_json())
+            write_json(root / PROJECT_FILE, self.to_json())
         except (OSError, ImpressError) as exc:
             self.log("project save failed", {"error": str(exc)})
             raise
         self.dirty = False
-        return self.project_file
+        return root / PROJECT_FILE
 
     @classmethod
     def load(cls, path: str | os.PathLike, verify: bool = True) -> Project:
@@ -399,7 +400,7 @@ class Project:
         except (ImpressError, TypeError, ValueError, KeyError, AttributeError) as exc:
             raise FormatError(f"{where}damaged project ({exc})") from None
         if verify:
-            verify_log(proj.log_file, proj._log_head)
+            verify_log(file.parent.resolve() / LOG_FILE, proj._log_head)
             _check_video_against_log(proj)
         return proj
 
