@@ -292,3 +292,24 @@ def test_the_dialog_runs_a_spec_and_shows_the_table(qtbot, run, tmp_path):
         assert "[E-JSON]" in win.messenger.last_text
     finally:
         win.shutdown()
+
+
+def test_incomplete_readings_fail_alone_and_serialise():
+    """A reading built in code without its bands fails by itself (not the whole run), and
+    the spec writer keeps whichever band is present (bugs found by mypy)."""
+    from impress_gui.core.validation_spec import reading_to_json
+
+    spec = GridSpec(0.0, 0.0, 0.1, (200, 200))
+    yy, xx = np.mgrid[0:200, 0:200]
+    height = np.where(xx < 100, 5.0, 0.0).astype(np.float32)  # a 5-mm step across x = 10 mm
+    base = dict(group="g", target="t", nominal_mm=5.0, start_mm=(2.0, 10.0), end_mm=(18.0, 10.0))
+    good = V.Reading(id="ok", kind="step", band_a_mm=(1.0, 6.0), band_b_mm=(10.0, 15.0), **base)
+    no_b = V.Reading(id="no_b", kind="step", band_a_mm=(1.0, 6.0), **base)
+    no_around = V.Reading(id="w", kind="width", band_a_mm=(1.0, 6.0), band_b_mm=(10.0, 15.0),
+                          **base)
+    results = V.measure_all(height, spec, [good, no_b, no_around])
+    assert results[0].measured_mm == pytest.approx(5.0, abs=1e-4)
+    assert math.isnan(results[1].measured_mm) and "band_b_mm" in results[1].note
+    assert math.isnan(results[2].measured_mm) and "around_mm" in results[2].note
+    doc = reading_to_json(no_b)
+    assert doc["band_a_mm"] == [1.0, 6.0] and "band_b_mm" not in doc
