@@ -20,9 +20,106 @@ class CornerRefinement:
     accepted: bool  # False: no clear corner near the click, the click is kept
 
 
+#: a laser stripe (saturated pixels, with a margin for its halo) hides the edges under it
+_SATURATED = 245
+#: an edge must stand out of the texture around it: median edge gradient / median gradient
+_MIN_CONTRAST = 3.0
+#: largest RMS distance (px) of an edge's points from its fitted line
+_MAX_RMS_PX = 0.4
+#: smallest share of an edge's profiles that agree with its line
+_MIN_INLIERS = 0.6
+
+
+def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a float32 image at (x, y) of any equal shapes."""
+    import cv2
+
+    x = np.asarray(x, np.float32)
+    y = np.asarray(y, np.float32)
+    n, cols = x.size, 1024
+    rows = -(-n // cols)
+    xx = np.zeros(rows * cols, np.float32)
+    yy = np.zeros(rows * cols, np.float32)
+    xx[:n], yy[:n] = x.ravel(), y.ravel()
+    out = cv2.remap(img, xx.reshape(rows, cols), yy.reshape(rows, cols), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.ravel()[:n].reshape(x.shape)
+
+
+def _wedge(gx, gy, centre, radius, spacing, click, d0, s):
+    """Best corner candidate on a grid around ``centre``: the mean gradient across rays from a
+    candidate, per direction, is positive along one edge and negative along the other (20-160
+    degrees apart). Scores are weighted down with the distance from the click."""
+    from scipy.ndimage import maximum_filter1d
+
+    nt = 180  # 2-degree bins
+    th = np.arange(nt) * (2 * np.pi / nt)
+    g = np.arange(-radius, radius + 1e-9, spacing)
+    qx, qy = np.meshgrid(g, g)
+    m = qx**2 + qy**2 <= radius * radius + 1e-9
+    q = centre[None, :] + np.column_stack([qx[m], qy[m]])
+    ex, ey = np.cos(th), np.sin(th)
+    px = q[:, 0, None, None] + s[None, None, :] * ex[None, :, None]
+    py = q[:, 1, None, None] + s[None, None, :] * ey[None, :, None]
+    a = (_sample(gx, px, py) * -ey[None, :, None] + _sample(gy, px, py) * ex[None, :, None]).mean(2)
+    pos, neg = np.maximum(a, 0.0), np.maximum(-a, 0.0)
+    nmax = maximum_filter1d(neg, 71, axis=1, mode="wrap")  # +-70 degrees around +-90
+    partner = np.maximum(np.roll(nmax, -45, axis=1), np.roll(nmax, 45, axis=1))
+    score = np.minimum(pos, partner)
+    dist = np.hypot(*(q - click).T)
+    k = int(np.argmax(score.max(1) / (1.0 + (dist / d0) ** 2)))
+    i1 = int(np.argmax(score[k]))
+    cand = (i1 + np.r_[10:81, -80:-9]) % nt
+    i2 = int(cand[np.argmax(neg[k, cand])])
+    return float(score[k, i1]), q[k], th[i1], th[i2]
+
+
+def _edge_points(gx, gy, bad, q, theta, sign, s0, s1, hw, step=0.25):
+    """Sub-pixel points of the edge leaving ``q`` in direction ``theta``: on profiles across
+    it, one per pixel of length, the centroid of the gradient's peak of the expected sign
+    (the part above half its height, within 1 px). Profiles touching ``bad`` are dropped."""
+    e = np.array([np.cos(theta), np.sin(theta)])
+    n = np.array([-e[1], e[0]])
+    s = np.arange(s0, s1 + 1e-9, 1.0)
+    t = np.arange(-hw, hw + 1e-9, step)
+    px = q[0] + s[:, None] * e[0] + t[None, :] * n[0]
+    py = q[1] + s[:, None] * e[1] + t[None, :] * n[1]
+    d = sign * (_sample(gx, px, py) * n[0] + _sample(gy, px, py) * n[1])
+    dirty = _sample(bad, px, py).max(1) > 0
+    j = np.argmax(d, axis=1)
+    peak = d[np.arange(len(s)), j]
+    win = np.abs(t[None, :] - t[j][:, None]) <= 1.0
+    wgt = np.where(win & (d >= 0.5 * peak[:, None]), d - 0.5 * peak[:, None], 0.0)
+    tc = (wgt * t[None, :]).sum(1) / np.maximum(wgt.sum(1), 1e-12)
+    pts = q[None, :] + s[:, None] * e[None, :] + tc[:, None] * n[None, :]
+    ok = (peak > 0) & ~dirty & (np.abs(tc) < hw - 0.5)
+    return pts, peak, ok
+
+
+def _fit_line(pts, w):
+    """Weighted total least squares line, refitted without points beyond 3 robust sigmas."""
+    keep = np.ones(len(pts), bool)
+    for _ in range(4):
+        ww = w * keep
+        c = (pts * ww[:, None]).sum(0) / ww.sum()
+        d = np.linalg.svd((pts - c) * np.sqrt(ww)[:, None], full_matrices=False)[2][0]
+        res = (pts - c) @ np.array([-d[1], d[0]])
+        sig = max(1.4826 * float(np.median(np.abs(res[keep]))), 0.15)
+        keep = np.abs(res) <= 3 * sig
+    return c, d, res, keep
+
+
 def refine_corner(rgb: np.ndarray, uv_px, radius_px: int | None = None) -> CornerRefinement:
-    """Refine a click to the sub-pixel corner nearby (OpenCV's cornerSubPix on the grey image,
-    started from the strongest Shi-Tomasi corner within ``radius_px``)."""
+    """Refine a click to the sub-pixel corner nearby: the intersection of the two straight
+    edges that meet there.
+
+    A coarse search (within ``radius_px`` of the click, nearer corners preferred) finds the
+    point from which two edges leave 20-160 degrees apart; each edge is then located to a
+    fraction of a pixel on profiles across it (gradient peak centroids on the luma, one per
+    pixel over about 2 x ``radius_px`` of its length), a robust line is fitted to each and
+    the two are intersected (three rounds). The click is kept (``accepted`` False) when an
+    edge is hidden by a laser stripe, does not stand out of the texture around it, or its
+    points do not lie on a line, and when the corner is further than ``radius_px``."""
     import cv2
 
     h, w = rgb.shape[:2]
@@ -31,22 +128,63 @@ def refine_corner(rgb: np.ndarray, uv_px, radius_px: int | None = None) -> Corne
         raise InputError(f"the click ({u:.1f}, {v:.1f}) is outside the {w}x{h} image",
                          code="E-PICKS")
     r = radius_px or max(6, w // 120)
-    grey = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY).astype(np.float32)
-    x0, y0 = int(max(0, u - 2 * r)), int(max(0, v - 2 * r))
-    x1, y1 = int(min(w, u + 2 * r + 1)), int(min(h, v + 2 * r + 1))
-    patch = grey[y0:y1, x0:x1]
-    resp = cv2.cornerMinEigenVal(patch, 5, 3)
-    yy, xx = np.mgrid[y0:y1, x0:x1]
-    resp[(xx - u) ** 2 + (yy - v) ** 2 > r * r] = 0
-    if resp.max() <= 1e-3 * max(1.0, float(patch.std())):
+    length = max(10, 2 * r)  # edge length used, px
+    pad = r + length + 8
+    x0, y0 = int(max(0, u - pad)), int(max(0, v - pad))
+    x1, y1 = int(min(w, u + pad + 1)), int(min(h, v + pad + 1))
+    sub = np.ascontiguousarray(rgb[y0:y1, x0:x1])
+    if sub.shape[0] < 8 or sub.shape[1] < 8:
         return CornerRefinement((u, v), 0.0, False)
-    iy, ix = np.unravel_index(int(np.argmax(resp)), resp.shape)
-    start = np.array([[[ix + x0, iy + y0]]], np.float32)
-    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 60, 1e-4)
-    win = max(3, r // 2)
-    ref = cv2.cornerSubPix(grey, start, (win, win), (-1, -1), crit)[0, 0]
+    grey = cv2.cvtColor(sub, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    gx = cv2.Scharr(grey, cv2.CV_32F, 1, 0) / 32.0
+    gy = cv2.Scharr(grey, cv2.CV_32F, 0, 1) / 32.0
+    rad = max(2, int(round(3 * w / 1920)))
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rad + 1, 2 * rad + 1))
+    bad = cv2.dilate((sub.max(axis=2) >= _SATURATED).astype(np.uint8), disk).astype(np.float32)
+    clean = bad == 0
+    if not clean.any():
+        return CornerRefinement((u, v), 0.0, False)
+    gxm = np.where(clean, gx, 0.0).astype(np.float32)
+    gym = np.where(clean, gy, 0.0).astype(np.float32)
+    noise = max(float(np.median(np.hypot(gx, gy)[clean])), 1e-3)
+
+    click = np.array([u - x0, v - y0])
+    s = np.arange(3.0, length + 1e-9, 1.0)
+    score, q, t1, t2 = _wedge(gxm, gym, click, r, 2.0, click, max(2.0, r / 3.0), s)
+    score, q, t1, t2 = _wedge(gxm, gym, q, 2.0, 0.5, click, max(2.0, r / 3.0), s)
+    if score <= 0:
+        return CornerRefinement((u, v), 0.0, False)
+    thetas, hw = [t1, t2], 3.0
+    for it in range(3):
+        hwi = hw + 1.0 if it == 0 else hw
+        ang = abs(float(np.angle(np.exp(1j * (thetas[0] - thetas[1])))))
+        if not np.radians(20) <= ang <= np.radians(160):
+            return CornerRefinement((u, v), 0.0, False)
+        s0 = hwi / np.sin(ang) + 1.5  # profiles clear of the other edge
+        lines, stats = [], []
+        for th, sign in zip(thetas, (1.0, -1.0)):
+            pts, peak, ok = _edge_points(gx, gy, bad, q, th, sign, s0, length + s0 - 3, hwi)
+            if ok.sum() < 6:
+                return CornerRefinement((u, v), 0.0, False)
+            c, d, res, keep = _fit_line(pts[ok], peak[ok])
+            if d @ [np.cos(th), np.sin(th)] < 0:
+                d = -d
+            lines.append((c, d))
+            stats.append((float(np.median(peak[ok][keep])) / noise,
+                          float(np.sqrt(np.mean(res[keep] ** 2))), keep.sum() / len(ok)))
+        (ca, da), (cb, db) = lines
+        m = np.column_stack([da, -db])
+        if abs(np.linalg.det(m)) < 0.3:
+            return CornerRefinement((u, v), 0.0, False)
+        q = ca + np.linalg.solve(m, cb - ca)[0] * da
+        thetas = [float(np.arctan2(da[1], da[0])), float(np.arctan2(db[1], db[0]))]
+    ref = q + [x0, y0]
     moved = float(np.hypot(ref[0] - u, ref[1] - v))
-    if moved > r:
+    contrast = min(st[0] for st in stats)
+    rms = max(st[1] for st in stats)
+    inliers = min(st[2] for st in stats)
+    if (moved > r or contrast < _MIN_CONTRAST or rms > _MAX_RMS_PX or inliers < _MIN_INLIERS
+            or not (0 <= ref[0] < w and 0 <= ref[1] < h)):
         return CornerRefinement((u, v), 0.0, False)
     return CornerRefinement((float(ref[0]), float(ref[1])), moved, True)
 
