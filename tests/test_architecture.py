@@ -15,6 +15,14 @@ def test_import_linter_contract_holds():
     assert "KEPT" in res.stdout
 
 
+def test_core_type_checks():
+    """mypy on the Qt-free core (configured in pyproject.toml): no errors."""
+    mypy = Path(sys.executable).with_name("mypy")
+    res = subprocess.run([str(mypy), "--no-error-summary", "--cache-dir", str(ROOT / ".mypy_cache")],
+                         cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stdout + res.stderr
+
+
 BLOCK_QT = """
 import sys, importlib, pkgutil
 class Block:

@@ -206,7 +206,7 @@ def propose_calibration_frames(video, sample_step: int | None = None,
     probe = [video.read(int(k)) for k in np.linspace(0, n - 1, 6).astype(int)]
     rois = auto_rois(probe, margin_px=probe[0].shape[0] // 6)
     params = StripeParams(rois=rois)
-    disp = {name: [] for name in LASERS}
+    disp: dict[str, list] = {name: [] for name in LASERS}
     frames = []
     for k, rgb in video.iter_frames(0, n):
         if k % step:
@@ -258,7 +258,7 @@ def three_point_plane(intr: Intrinsics, rotation: np.ndarray, travel_mm: float,
         pts.append(a + s * e)
     p = np.array(pts)
     n = np.cross(p[1] - p[0], p[2] - p[1])
-    spread = max(np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0]), 1e-9)
+    spread = max(float(np.linalg.norm(p[1] - p[0])), float(np.linalg.norm(p[2] - p[0])), 1e-9)
     if np.linalg.norm(n) < 1e-6 * spread**2 or spread < 1e-6:
         raise CalibrationError("the three stripe points are collinear: the plane is "
                                "undetermined", code="E-PLANE-UNDETERMINED")
