@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import CACHE, calibrate, edge_mask, scan, truth_on_grid, visible_mask
+from common import CACHE, CAL_KEY, calibrate, edge_mask, scan, truth_on_grid, visible_mask
 
 SCANS = {
     "flat": ("flat-1080p", dict(preset="flat", length_mm=120.0, width=1920, height=1080)),
@@ -34,12 +34,16 @@ EDGE_LEVELS = {"flat": [25.0], "blocks": [6.0, 15.2, 21.5, 27.9, 34.2],
 def calibration_for(name: str, d: Path):
     from impress_gui.core.calibration import SceneCalibration
 
-    path = d / "bench_calibration.json"
+    path = calibration_path(d)
     if path.exists():
         return SceneCalibration.load(path)
     cal = calibrate(d)
     cal.save(path)
     return cal
+
+
+def calibration_path(d: Path) -> Path:
+    return d / f"bench_calibration-{CAL_KEY}.json"
 
 
 def edge_error_mm(truth, height, levels, pixel_mm) -> float:
@@ -175,7 +179,7 @@ def main() -> None:
     print("each method: best of two runs, beside the best of two decode-only runs just before")
     for method in args.methods.split(","):
         dec = min(decode_only_seconds(video, start, stop) for _ in range(2))
-        r = min((run_isolated(video, d / "bench_calibration.json", start, stop, method)
+        r = min((run_isolated(video, calibration_path(d), start, stop, method)
                  for _ in range(2)), key=lambda x: x["total_s"])
         parts = ", ".join(f"{k} {v:.2f} s" for k, v in r["parts"].items())
         print(f"{method:9s} processing {r['fps']:.1f} frames/s (decoding alone {stop / dec:.1f}); "
@@ -183,8 +187,8 @@ def main() -> None:
               f"decode-only = {r['total_s'] / dec * per:.2f} (outside the loop: {parts}); "
               f"peak RSS {r['peak_mb']:.0f} MB", flush=True)
     half = start + (stop - start) // 4
-    a = run_isolated(video, d / "bench_calibration.json", start, half, "combined")
-    b = run_isolated(video, d / "bench_calibration.json", start, stop, "combined")
+    a = run_isolated(video, calibration_path(d), start, half, "combined")
+    b = run_isolated(video, calibration_path(d), start, stop, "combined")
     print(f"memory: {half - start} frames -> peak {a['peak_mb']:.0f} MB (output grids "
           f"{a['grid_mb']:.0f} MB); {stop - start} frames -> peak {b['peak_mb']:.0f} MB (grids "
           f"{b['grid_mb']:.0f} MB); per-frame working memory does not accumulate: the difference "

@@ -11,13 +11,36 @@ import numpy as np
 from impress_gui.sim.truth import truth_on_grid  # noqa: F401  (re-exported for the benchmarks)
 
 CACHE = Path(os.environ.get("IMPRESS_BENCH_CACHE", Path(__file__).parent / ".cache"))
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def source_key(*parts: str) -> str:
+    """Short hash of the source files (.py, .json) under ``parts`` (folders or files below the
+    project root): a cached result is reused only while the code that made it is unchanged."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for part in parts:
+        p = ROOT / part
+        files = [f for f in p.rglob("*") if f.suffix in (".py", ".json")] if p.is_dir() else [p]
+        for f in sorted(files):
+            h.update(f.relative_to(ROOT).as_posix().encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:10]
+
+
+SIM_KEY = source_key("impress_gui/sim", "impress_gui/core/target.py",
+                     "impress_gui/core/geometry.py", "resources")
+CAL_KEY = source_key("impress_gui/core/calibration.py", "impress_gui/core/calib_solve.py",
+                     "impress_gui/core/calib_planes.py", "impress_gui/core/stripes.py",
+                     "impress_gui/core/kernels.py", "impress_gui/core/geometry.py")
 
 
 def scan(name: str, **cfg) -> Path:
-    """Simulate (once) and return the scan folder."""
+    """Simulate (once per version of the simulator's code) and return the scan folder."""
     from impress_gui.sim.simulate import SimConfig, simulate
 
-    out = CACHE / name
+    out = CACHE / f"{name}-{SIM_KEY}"
     if not (out / "truth.json").exists():
         print(f"[simulating {name}: {cfg}]", flush=True)
         simulate(SimConfig(**cfg), out, workers=min(2, os.cpu_count() or 1))

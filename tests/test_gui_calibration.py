@@ -167,7 +167,10 @@ def calibrate(qtbot, tab, timeout=20000):
 def test_click_corners_and_calibrate_matches_truth(qtbot, tab, scan, truth, true_picks):
     load_video(qtbot, tab, scan / "scan.mp4")
     assert tab.video.frame_count == truth["frame_count"]
-    assert not tab.corners.snap_check.isChecked()  # the clicks themselves must land right
+    assert tab.corners.snap_check.isChecked()  # on by default; here the clicks must land right
+    box = tab.corners.snap_check
+    QTest.mouseClick(box, Qt.MouseButton.LeftButton, pos=QPoint(8, box.height() // 2))
+    assert not box.isChecked()
     tab.view.zoom_around(100, 100, span_px=16)
     resolution = 0.5 / tab.view.pixels_per_image_pixel()
     assert resolution < 0.02
@@ -207,10 +210,7 @@ def test_click_corners_and_calibrate_matches_truth(qtbot, tab, scan, truth, true
 
 def test_snap_is_visible_and_undoable_and_drag_moves_a_corner(qtbot, tab, scan, true_picks):
     load_video(qtbot, tab, scan / "scan.mp4")
-    assert not tab.corners.snap_check.isChecked()  # an aid the user turns on
-    box = tab.corners.snap_check
-    QTest.mouseClick(box, Qt.MouseButton.LeftButton, pos=QPoint(8, box.height() // 2))
-    assert box.isChecked()
+    assert tab.corners.snap_check.isChecked()  # on by default (the snap declines when unsure)
     t1 = true_picks["t1"]
     tab.go_to_frame(t1)
     true_a = np.array(true_picks["corners_t1"]["A"])

@@ -137,7 +137,7 @@ class CornerPanel(QGroupBox):
         self.counts_label = QLabel("")
         grid.addWidget(self.counts_label, 2, 0, 1, 2)
         self.snap_check = QCheckBox("Snap clicks to the corner")
-        self.snap_check.setChecked(False)
+        self.snap_check.setChecked(True)
         self.snap_check.setToolTip(
             "Move each click to the sub-pixel corner nearby; the click is "
             "shown as a white x and Undo snap puts the corner back there"
