@@ -4,23 +4,38 @@ calibrated from the simulator's picks and processed, in a scan project. Made onc
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 from impress_gui import __version__
 from impress_gui.core.progress import CancelToken, ProgressCallback, report, sub_progress
 
 SAMPLE_VERSION = 3  # bump when the sample's recipe changes, to rebuild caches
+#: set to 1 (tests only) for a tiny, fast sample instead of the README's one
+SMALL_ENV = "IMPRESS_SAMPLE_SMALL"
 
 
-def sample_config():
+def small_requested() -> bool:
+    return os.environ.get(SMALL_ENV, "").strip().lower() not in ("", "0", "no", "false")
+
+
+def sample_config(small: bool = False):
+    """The sample's simulation: the README's 960x540 shoe scan, or (``small``, for tests) a
+    short 320x180, 15 frames/s one on a 0.5 mm grid that builds in seconds."""
     from impress_gui.sim.simulate import SimConfig
 
+    if small:
+        return SimConfig(preset="shoe", length_mm=200.0, width=320, height=180, fps=15.0,
+                         grid_mm=0.5, seed=7, click_noise_px=0.0)
     return SimConfig(preset="shoe", width=960, height=540, seed=7, click_noise_px=0.0)
 
 
 def make_sample(cache_dir: Path, workers: int = 2, progress: ProgressCallback | None = None,
-                cancel: CancelToken | None = None) -> Path:
-    """Build (or reuse) the sample project under ``cache_dir``; return the project folder."""
+                cancel: CancelToken | None = None, small: bool | None = None) -> Path:
+    """Build (or reuse) the sample project under ``cache_dir``; return the project folder.
+
+    ``small`` (default: ``$IMPRESS_SAMPLE_SMALL``) builds a tiny sample for tests; the cache
+    records which one it holds, so neither is mistaken for the other."""
     from impress_gui.core.calibration import calibrate_scene
     from impress_gui.core.geometry import Intrinsics
     from impress_gui.core.picks import Picks
@@ -31,17 +46,22 @@ def make_sample(cache_dir: Path, workers: int = 2, progress: ProgressCallback | 
     from impress_gui.core.video import open_video
     from impress_gui.sim.simulate import simulate
 
+    if small is None:
+        small = small_requested()
     cache_dir = Path(cache_dir)
     stamp = cache_dir / "sample.json"
     project_dir = cache_dir / "project"
     if stamp.exists():
         try:
             info = json.loads(stamp.read_text())
-            if info.get("sample_version") == SAMPLE_VERSION and (project_dir / "project.json").exists():
+            if (info.get("sample_version") == SAMPLE_VERSION
+                    and bool(info.get("small", False)) == small
+                    and (project_dir / "project.json").exists()):
                 return project_dir
         except (OSError, ValueError):
             pass
-    cfg = sample_config()
+    cfg = sample_config(small)
+    stamp.unlink(missing_ok=True)  # rebuilt: stale until the new sample is complete
     scan = cache_dir / "scan"
     report(progress, 0.0, "simulating the sample scan")
     simulate(cfg, scan, workers=workers, progress=sub_progress(progress, 0.0, 0.7), cancel=cancel)
@@ -68,7 +88,7 @@ def make_sample(cache_dir: Path, workers: int = 2, progress: ProgressCallback | 
     proj.set_calibration(cal)
     cal_path = project_dir / "calibration.json"
     cal.save(cal_path)
-    params = ProcessParams()
+    params = ProcessParams(grid_mm=cfg.grid_mm) if small else ProcessParams()
     proj.set_processing(params.to_json())
     report(progress, 0.75, "processing")
     out = project_dir / "reconstruction"
@@ -76,6 +96,7 @@ def make_sample(cache_dir: Path, workers: int = 2, progress: ProgressCallback | 
                   progress=sub_progress(progress, 0.75, 1.0), cancel=cancel)
     proj.add_output(out / "metadata.json", "reconstruction")
     proj.save()
-    stamp.write_text(json.dumps({"sample_version": SAMPLE_VERSION, "software": __version__}))
+    stamp.write_text(json.dumps({"sample_version": SAMPLE_VERSION, "small": small,
+                                      "software": __version__}))
     report(progress, 1.0, "sample ready")
     return project_dir
