@@ -57,6 +57,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-motor", action="store_true", help="no motor panel")
     p.add_argument("--tab", choices=["calibration", "processing", "viewer"], default=None,
                    help="the tab to show first")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="open PATH, wait until it has loaded (with the reconstruction shown in the "
+        "viewer when the project has one), take the --screenshot if asked, and close: exit "
+        "status 0 if everything opened, 1 with the reasons on stderr if anything failed or "
+        "an error message was shown (for smoke tests; with QT_QPA_PLATFORM=offscreen no "
+        "display is needed)",
+    )
+    p.add_argument(
+        "--check-timeout",
+        type=float,
+        default=120.0,
+        metavar="SECONDS",
+        help="with --check: fail if loading takes longer than this (default 120)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -67,6 +83,9 @@ def run(args: argparse.Namespace) -> int:
         from impress_gui.core.errors import InputError
 
         raise InputError(f"{path}: no such project folder or video", code="E-FILE-MISSING")
+    extra = {}
+    if getattr(args, "check", False):
+        extra = {"check": True, "check_timeout_s": args.check_timeout}
     return run_gui(
         path,
         screenshot=args.screenshot,
@@ -75,4 +94,5 @@ def run(args: argparse.Namespace) -> int:
         settings_path=args.settings,
         with_motor=not args.no_motor,
         tab=args.tab,
+        **extra,
     )

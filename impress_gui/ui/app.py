@@ -4,13 +4,14 @@
 from __future__ import annotations
 
 import sys
+import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
 
 from PySide6.QtCore import QSettings, QTimer
 from PySide6.QtGui import QGuiApplication
-from PySide6.QtWidgets import QApplication, QWidget
+from PySide6.QtWidgets import QApplication, QMessageBox, QWidget
 
 from impress_gui import __version__
 
@@ -71,6 +72,88 @@ def grab(window: QWidget):
     return window.grab()
 
 
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+class OpenCheck:
+    """``impress gui --check``: everything the window reports while it opens a path.
+
+    Collects every error box the window's messenger shows (including internal errors from
+    slots), tabs that could not start, a path that did not open, and a project whose
+    reconstruction the viewer does not show once loading has finished."""
+
+    def __init__(self, window) -> None:
+        self.window = window
+        self.problems: list[str] = []
+        self.expected_recon: Path | None = None
+        window.messenger.shown.connect(self._on_shown)
+        for box in list(window.messenger.boxes):  # shown while the window was being built
+            if box.icon() == QMessageBox.Icon.Critical:
+                self.problems.append(_one_line(f"{box.windowTitle()}: {box.informativeText()}"))
+        for title, tab in getattr(window, "extra_tabs", {}).items():
+            if getattr(tab, "is_placeholder", False):
+                self.problems.append(f"the {title} tab cannot start")
+
+    def _on_shown(self, level: str, text: str) -> None:
+        box = self.window.messenger.last_box
+        title = box.windowTitle() if box is not None else level
+        if level == "error":
+            self.problems.append(_one_line(f"{title}: {text}"))
+        elif level == "warning":
+            print(f"impress gui --check: warning: {_one_line(f'{title}: {text}')}",
+                  file=sys.stderr)
+
+    def opened(self, path: str | Path, ok: bool) -> None:
+        """After ``window.open_path(path)``: note a refusal and what the viewer should show."""
+        if not ok:
+            if not self.problems:
+                self.problems.append(f"{path}: not opened")
+            return
+        project = self.window.project
+        if project.root is None:
+            return  # a video, opened in a new untitled project
+        recon_outputs = [o for o in project.outputs if o.get("kind") == "reconstruction"]
+        if not recon_outputs:
+            return
+        try:
+            from impress_gui.ui.viewer_tab import latest_reconstruction
+        except ImportError as exc:
+            self.problems.append(f"the viewer cannot start: {exc}")
+            return
+        self.expected_recon = latest_reconstruction(project)
+        if self.expected_recon is None:
+            where = recon_outputs[-1].get("relative_path") or recon_outputs[-1].get("path")
+            self.problems.append(f"the project's reconstruction ({where}) is missing")
+
+    def finished(self, still_busy: bool, timeout_s: float) -> None:
+        """Loading is over (or timed out): does the viewer show the reconstruction?"""
+        if still_busy:
+            self.problems.append(f"still loading after {timeout_s:g} s")
+            return
+        if self.expected_recon is None:
+            return
+        viewer = getattr(self.window, "extra_tabs", {}).get("Viewer")
+        data = getattr(viewer, "data", None)
+        folder = getattr(data, "folder", None)
+        if data is None or folder is None or Path(folder).resolve() != self.expected_recon.resolve():
+            if not self.problems:  # the reason, when there is one, was shown as an error
+                self.problems.append(
+                    f"the viewer does not show the reconstruction {self.expected_recon}"
+                )
+
+    def report(self, path: str | Path | None) -> int:
+        if self.problems:
+            for problem in self.problems:
+                print(f"impress gui --check: FAILED: {problem}", file=sys.stderr)
+            return 1
+        what = f"opened {path}" if path else "the window started"
+        if self.expected_recon is not None:
+            what += f"; the viewer shows {self.expected_recon}"
+        print(f"check passed: {what}")
+        return 0
+
+
 def run_gui(
     path: str | Path | None = None,
     screenshot: str | Path | None = None,
@@ -79,11 +162,17 @@ def run_gui(
     settings_path: str | Path | None = None,
     with_motor: bool = True,
     tab: str | None = None,
+    check: bool = False,
+    check_timeout_s: float = 120.0,
 ) -> int:
+    """Show the window (on ``path`` if given). ``check``: wait until the path and what it
+    holds (the viewer's reconstruction) have loaded, then close; exit status 1 with the
+    reasons on stderr if anything failed to open or an error message was shown, else 0."""
     app = create_app()
     window = build_main_window(make_settings(settings_path), with_motor=with_motor)
     window.resize(*size)
     window.show()
+    checker = OpenCheck(window) if check else None
     previous_hook = sys.excepthook
 
     def report_bug(kind, value, tb) -> None:
@@ -94,18 +183,25 @@ def run_gui(
 
     sys.excepthook = report_bug
     if path:
-        window.open_path(path)
+        ok = window.open_path(path)
+        if checker is not None:
+            checker.opened(path, ok)
     if tab:
         for i in range(window.tabs.count()):
             if window.tabs.tabText(i).lower() == tab.lower():
                 window.tabs.setCurrentIndex(i)
     result = {"code": 0}
+    deadline = time.monotonic() + check_timeout_s
 
     def finish() -> None:
         # a video is still being opened and checked, or a map still loading
-        if any(getattr(t, "is_busy", lambda: False)() for t in window.all_tabs()):
+        busy = any(getattr(t, "is_busy", lambda: False)() for t in window.all_tabs())
+        if busy and (checker is None or time.monotonic() < deadline):
             QTimer.singleShot(200, finish)
             return
+        if checker is not None:
+            app.processEvents()  # deliver what the last task reported
+            checker.finished(busy, check_timeout_s)
         if screenshot:
             app.processEvents()
             if not grab(window).save(str(screenshot)):
@@ -113,13 +209,16 @@ def run_gui(
                 result["code"] = 1
             else:
                 print(f"screenshot written to {screenshot}")
-        if quit_after_s is not None:
+        if checker is not None:
+            result["code"] = checker.report(path) or result["code"]
+        if quit_after_s is not None or checker is not None:
             window.shutdown()
             window.close()
             app.quit()
 
-    if screenshot or quit_after_s is not None:
-        QTimer.singleShot(int(1000 * (quit_after_s or 0.5)), finish)
+    if screenshot or quit_after_s is not None or checker is not None:
+        first = quit_after_s if quit_after_s is not None else (0.2 if checker else 0.5)
+        QTimer.singleShot(int(1000 * first), finish)
     try:
         code = app.exec()
     finally:
