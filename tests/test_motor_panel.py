@@ -10,6 +10,7 @@ from PySide6.QtCore import Qt
 
 from impress_gui.hardware.cool_muscle import CoolMuscle, MotorConfig
 from impress_gui.hardware.emulator import CM1Emulator, EmulatorConfig, PtyServer, emulated_port
+from impress_gui.hardware.rail import RAIL_TRAVEL_MM, SPEED_PRESETS_MM_S
 from impress_gui.ui.motor_panel import SIMULATED_LABEL, MotorPanel, MotorPanelSettings
 
 TIME_SCALE = 20.0
@@ -98,20 +99,22 @@ def test_connect_shows_version_state_and_position(rig):
 
 
 def test_scan_shows_positions_during_the_move_and_stops_on_stop(rig, qtbot):
-    panel = rig.connected_panel(short_scan_mm=500.0, speed_mm_s=5.0)
+    panel = rig.connected_panel(short_scan_mm=500.0, speed_mm_s=5.0, end_mm=100.0)
     motor = rig.motors[0]
     positions: list[float] = []
     panel.position_changed.connect(positions.append)
-    panel.short_button.click()
+    panel.short_button.click()  # a preset: fills the end position, does not move
+    assert panel.end_spin.value() == 500.0 and not panel.is_busy
+    panel.scan_button.click()
     qtbot.waitUntil(lambda: len({round(p, 1) for p in positions if 0.5 < p < 499.0}) >= 5)
     assert panel.is_busy and panel.state_label.text() == "moving"
-    assert not panel.short_button.isEnabled() and panel.stop_button.isEnabled()
+    assert not panel.scan_button.isEnabled() and panel.stop_button.isEnabled()
     assert positions == sorted(positions)  # the carriage advances
     qtbot.mouseClick(panel.stop_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: not panel.is_busy and panel.state_label.text() == "in position")
     assert not motor.moving
     assert 0.5 < motor.position_pulses / -78.0 < 499.0  # stopped part way
-    assert panel.short_button.isEnabled()
+    assert panel.scan_button.isEnabled()
     assert "# STOP" in panel.log_view.toPlainText()
 
 
@@ -195,7 +198,101 @@ def test_closing_the_panel_mid_scan_stops_the_motor(rig, qtbot):
     panel = rig.connected_panel(long_scan_mm=1700.0)
     motor = rig.motors[0]
     panel.long_button.click()
+    panel.scan_button.click()
     qtbot.waitUntil(lambda: panel.is_busy and motor.moving)
     panel.close()  # as when the window closes: stops the carriage, joins the worker thread
     assert panel._thread.isFinished()
     assert not motor.moving
+
+
+# ----------------------------------------------------------------------------- scan settings
+
+
+def choose(panel: MotorPanel, preset: str) -> None:
+    """Pick a speed preset the way a user does: through the combo box."""
+    panel.speed_preset_combo.setCurrentIndex(panel.speed_preset_combo.findData(preset))
+
+
+def test_speed_presets_set_the_speed_and_custom_enables_the_box(rig):
+    panel = rig.panel()  # defaults: medium, the rail's speed; no motor needed
+    assert panel.speed_preset_combo.currentData() == "medium"
+    assert panel.speed_spin.value() == pytest.approx(5.2552) and not panel.speed_spin.isEnabled()
+    assert [panel.speed_preset_combo.itemText(i) for i in range(4)] == [
+        "slow (1.3138 mm/s)", "medium (5.2552 mm/s)", "fast (13.138 mm/s)", "custom"]
+    for name, speed in SPEED_PRESETS_MM_S.items():
+        choose(panel, name)
+        assert panel.speed_spin.value() == pytest.approx(speed)
+        assert not panel.speed_spin.isEnabled()
+    assert panel.speed_note.text() == "motor runs at 12.82 mm/s (S = 10)"  # fast, default units
+    choose(panel, "custom")
+    assert panel.speed_spin.isEnabled()
+    panel.speed_spin.setValue(7.5)
+    choose(panel, "slow")
+    assert panel.speed_spin.value() == pytest.approx(1.3138)
+    choose(panel, "custom")  # the custom speed comes back
+    assert panel.speed_spin.value() == pytest.approx(7.5)
+    assert rig.panel(speed_mm_s=13.138).speed_preset_combo.currentData() == "fast"
+    assert rig.panel(speed_mm_s=10.0).speed_preset_combo.currentData() == "custom"
+
+
+def test_choices_round_trip_through_the_settings(rig):
+    panel = rig.panel()
+    choose(panel, "custom")
+    panel.speed_spin.setValue(3.25)
+    choose(panel, "slow")
+    panel.start_spin.setValue(40.0)
+    panel.long_button.click()
+    panel.jog_spin.setValue(2.5)
+    saved = panel.current_settings()
+    assert (saved.speed_preset, saved.speed_mm_s) == ("slow", pytest.approx(3.25))
+    assert (saved.start_mm, saved.end_mm, saved.jog_step_mm) == (40.0, 1740.0, 2.5)
+    again = rig.panel(**{k: getattr(saved, k) for k in
+                         ("speed_preset", "speed_mm_s", "start_mm", "end_mm", "jog_step_mm")})
+    assert again.current_settings() == saved
+    assert again.speed_spin.value() == pytest.approx(1.3138)
+
+
+def test_scan_runs_from_start_to_end_at_the_preset_speed(rig, qtbot):
+    panel = rig.connected_panel(start_mm=20.0, end_mm=120.0)
+    motor = rig.motors[0]
+    choose(panel, "fast")
+    assert panel.range_label.text() == "runs 100 mm in about 0 min 08 s"  # at 12.82 mm/s
+    with qtbot.waitSignal(panel.position_changed, timeout=3000):
+        assert panel.run_scan()
+    qtbot.waitUntil(lambda: not panel.is_busy and motor.position_pulses == -120 * 78, timeout=5000)
+    moves = [line for line in motor.received if line[0] in "PS" and "=" in line]
+    # to the start at travel speed (20 mm/s -> S = 16), then to the end at the fast preset (S = 10)
+    assert moves == ["S.1=16", "P.1=-1560", "S.1=10", "P.1=-9360"]
+    qtbot.waitUntil(lambda: panel.position_label.text() == "120.00 mm")
+    assert panel.error_label.text() == ""
+
+
+@pytest.mark.parametrize(("start", "end", "reason"), [
+    (0.0, RAIL_TRAVEL_MM + 30.0, "the end position 1800.00 mm is outside the rail's travel"),
+    (300.0, 300.0, "the end position equals the start position (300.00 mm)"),
+    (-10.0, 400.0, "the start position -10.00 mm is outside the rail's travel"),
+])
+def test_invalid_scan_is_refused_with_a_message_and_no_motion(rig, qtbot, start, end, reason):
+    panel = rig.connected_panel(start_mm=start, end_mm=end)
+    motor = rig.motors[0]
+    assert reason in panel.range_label.text() and panel.range_label.isVisibleTo(panel)  # before trying
+    with qtbot.waitSignal(panel.error, timeout=1000) as blocker:
+        panel.scan_button.click()
+    assert blocker.args[0] == "E-MOTOR-RANGE"
+    assert reason in panel.error_label.text() and panel.error_label.isVisibleTo(panel)
+    assert "E-MOTOR-RANGE" in panel.error_label.text()
+    qtbot.wait(100)
+    assert not panel.is_busy and not motor.moving
+    assert not [line for line in motor.received if line.startswith(("P", "S", "^"))]
+    assert motor.position_pulses == 0
+
+
+def test_long_preset_past_the_rail_end_is_flagged(rig, qtbot):
+    panel = rig.connected_panel(start_mm=100.0)
+    panel.long_button.click()
+    assert panel.end_spin.value() == 1800.0  # filled as asked, not clamped
+    assert panel.range_label.text().startswith("Cannot scan: the end position 1800.00 mm")
+    assert not panel.run_scan()
+    panel.start_spin.setValue(0.0)
+    panel.long_button.click()
+    assert panel.range_label.text().startswith("runs 1700 mm")

@@ -13,14 +13,13 @@ The window that hosts the panel must call :meth:`MotorPanel.shutdown` before it 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from PySide6.QtCore import QCoreApplication, QThread, Signal
 from PySide6.QtGui import QCloseEvent, QFont, QFontDatabase
 from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
-    QDoubleSpinBox,
     QFormLayout,
     QGridLayout,
     QGroupBox,
@@ -33,9 +32,10 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from impress_gui.core.errors import ImpressError
 from impress_gui.hardware.motor_link import MotorConfig, list_serial_ports
-from impress_gui.hardware.motor_status import MotorSnapshot
+from impress_gui.hardware.motor_status import MotorRangeError, MotorSnapshot
+from impress_gui.hardware.rail import RAIL_TRAVEL_MM, SCAN_LENGTHS_MM
+from impress_gui.ui.motor_scan_box import ScanSettingsBox
 from impress_gui.ui.motor_worker import DriverFactory, MotorWorker, Step, default_driver_factory
 
 __all__ = [
@@ -45,6 +45,7 @@ __all__ = [
     "MotorPanelSettings",
     "MotorWorker",
     "PortLister",
+    "ScanSettingsBox",
     "Step",
     "default_driver_factory",
 ]
@@ -55,14 +56,23 @@ PortLister = Callable[[], list[tuple[str, str]]]
 
 @dataclass(frozen=True)
 class MotorPanelSettings:
-    """What the panel starts with. Distances in mm, speeds in mm/s, times in s."""
+    """What the panel starts with. Distances in mm (from home), speeds in mm/s, times in s.
+
+    ``speed_preset``: ``slow``, ``medium``, ``fast`` (the rail's speeds,
+    :data:`~impress_gui.hardware.rail.SPEED_PRESETS_MM_S`) or ``custom`` (then ``speed_mm_s``);
+    ``None`` picks the preset whose speed is ``speed_mm_s``, else custom.
+    :meth:`MotorPanel.current_settings` gives the user's current choices, to save and restore.
+    """
 
     motor: MotorConfig = field(default_factory=MotorConfig)
-    speed_mm_s: float = 5.0
+    speed_preset: str | None = None
+    speed_mm_s: float = 5.2552  # the custom speed (the medium preset's speed by default)
     travel_speed_mm_s: float = 20.0
     start_mm: float = 0.0
-    short_scan_mm: float = 500.0
-    long_scan_mm: float = 1700.0
+    end_mm: float = 500.0
+    short_scan_mm: float = SCAN_LENGTHS_MM["short"]
+    long_scan_mm: float = SCAN_LENGTHS_MM["long"]
+    rail_travel_mm: float = RAIL_TRAVEL_MM
     jog_step_mm: float = 10.0
     idle_poll_s: float = 0.5
     sim_time_scale: float = 1.0
@@ -173,36 +183,37 @@ class MotorPanel(QWidget):
         form.addRow("Motor", self.version_label)
         root.addWidget(status)
 
-        params = QGroupBox("Scan")
-        pform = QFormLayout(params)
-        self.speed_spin = self._spin(0.1, 200.0, s.speed_mm_s, " mm/s")
-        self.speed_note = QLabel("")
-        self.start_spin = self._spin(-5000.0, 5000.0, s.start_mm, " mm")
-        self.jog_spin = self._spin(0.1, 1000.0, s.jog_step_mm, " mm")
-        pform.addRow("Scan speed", self.speed_spin)
-        pform.addRow("", self.speed_note)
-        pform.addRow("Start position", self.start_spin)
-        pform.addRow("Jog step", self.jog_spin)
-        root.addWidget(params)
+        self.scan_box = box = ScanSettingsBox(
+            self._units,
+            speed_preset=s.speed_preset,
+            speed_mm_s=s.speed_mm_s,
+            start_mm=s.start_mm,
+            end_mm=s.end_mm,
+            jog_step_mm=s.jog_step_mm,
+            short_scan_mm=s.short_scan_mm,
+            long_scan_mm=s.long_scan_mm,
+            travel_mm=s.rail_travel_mm,
+        )
+        self.speed_preset_combo, self.speed_spin = box.speed_preset_combo, box.speed_spin
+        self.speed_note, self.range_label = box.speed_note, box.range_label
+        self.start_spin, self.end_spin, self.jog_spin = box.start_spin, box.end_spin, box.jog_spin
+        self.short_button, self.long_button = box.short_button, box.long_button
+        root.addWidget(box)
 
         grid = QGridLayout()
         self.home_button = QPushButton("Home")
-        self.short_button = QPushButton(f"Short scan ({s.short_scan_mm / 10:g} cm)")
-        self.long_button = QPushButton(f"Long scan ({s.long_scan_mm / 10:g} cm)")
+        self.reset_button = QPushButton("Reset alarm")
+        self.scan_button = QPushButton("Run scan")
+        self.scan_button.setToolTip(
+            "Go to the start position at travel speed, then run to the end position at the scan speed"
+        )
         self.jog_minus_button = QPushButton("\u25c0 Jog \u2212")
         self.jog_plus_button = QPushButton("Jog + \u25b6")
-        self.reset_button = QPushButton("Reset alarm")
-        for i, b in enumerate(
-            [
-                self.home_button,
-                self.reset_button,
-                self.short_button,
-                self.long_button,
-                self.jog_minus_button,
-                self.jog_plus_button,
-            ]
-        ):
-            grid.addWidget(b, i // 2, i % 2)
+        grid.addWidget(self.home_button, 0, 0)
+        grid.addWidget(self.reset_button, 0, 1)
+        grid.addWidget(self.scan_button, 1, 0, 1, 2)
+        grid.addWidget(self.jog_minus_button, 2, 0)
+        grid.addWidget(self.jog_plus_button, 2, 1)
         root.addLayout(grid)
 
         self.log_polls_check = QCheckBox("Log status polls")
@@ -216,19 +227,10 @@ class MotorPanel(QWidget):
         self.connect_button.clicked.connect(self._toggle_connection)
         self.stop_button.clicked.connect(self.stop)
         self.home_button.clicked.connect(self.home)
-        self.short_button.clicked.connect(lambda: self.scan(s.short_scan_mm))
-        self.long_button.clicked.connect(lambda: self.scan(s.long_scan_mm))
+        self.scan_button.clicked.connect(self.run_scan)
         self.jog_minus_button.clicked.connect(lambda: self.jog(-self.jog_spin.value()))
         self.jog_plus_button.clicked.connect(lambda: self.jog(self.jog_spin.value()))
         self.reset_button.clicked.connect(lambda: self._reset_requested.emit())
-        self.speed_spin.valueChanged.connect(self._show_actual_speed)
-        self._show_actual_speed()
-
-    @staticmethod
-    def _spin(low: float, high: float, value: float, suffix: str) -> QDoubleSpinBox:
-        spin = QDoubleSpinBox(minimum=low, maximum=high, decimals=2, suffix=suffix)
-        spin.setValue(value)
-        return spin
 
     # ----------------------------------------------------------------- actions
 
@@ -276,14 +278,41 @@ class MotorPanel(QWidget):
     def home(self) -> None:
         self.run_plan([("home",)])
 
-    def scan(self, length_mm: float) -> None:
-        """Go to the start position at travel speed, then run ``length_mm`` at scan speed."""
-        start = self.start_spin.value()
+    def run_scan(self) -> bool:
+        """Go to the start position at travel speed, then to the end position at the scan speed.
+
+        A start or end outside the rail's travel, or an end equal to the start, is refused: the
+        reason is shown (``E-MOTOR-RANGE``), nothing moves, and ``False`` is returned.
+        """
+        start, end = self.start_spin.value(), self.end_spin.value()
+        problem = self.scan_box.problem()
+        if problem:
+            exc = MotorRangeError(problem)
+            self._on_failed(exc.code, f"scan refused: {exc}")
+            return False
         self.run_plan(
             [
                 ("move", start, self.settings.travel_speed_mm_s),
-                ("move", start + length_mm, self.speed_spin.value()),
+                ("move", end, self.scan_box.speed_mm_s()),
             ]
+        )
+        return True
+
+    def scan(self, length_mm: float) -> bool:
+        """Set the end position to start + ``length_mm`` (the short / long presets) and scan."""
+        self.scan_box.fill_length(length_mm)
+        return self.run_scan()
+
+    def current_settings(self) -> MotorPanelSettings:
+        """The panel's settings with the user's current choices (speed, positions, jog step)."""
+        box = self.scan_box
+        return replace(
+            self.settings,
+            speed_preset=box.speed_preset(),
+            speed_mm_s=box.custom_speed_mm_s,
+            start_mm=self.start_spin.value(),
+            end_mm=self.end_spin.value(),
+            jog_step_mm=self.jog_spin.value(),
         )
 
     def jog(self, distance_mm: float) -> None:
@@ -360,15 +389,6 @@ class MotorPanel(QWidget):
     def _log(self, line: str) -> None:
         self.log_view.appendPlainText(line)
 
-    def _show_actual_speed(self) -> None:
-        try:
-            units = self._units.speed_to_units(self.speed_spin.value())
-        except ImpressError:
-            self.speed_note.setText("")
-            return
-        actual = self._units.units_to_speed_mm_s(units)
-        self.speed_note.setText(f"motor runs at {actual:.2f} mm/s (S = {units})")
-
     def _update_enabled(self) -> None:
         self.connect_button.setEnabled(True)
         self.connect_button.setText("Disconnect" if self.is_connected else "Connect")
@@ -377,8 +397,7 @@ class MotorPanel(QWidget):
         can_move = self.is_connected and not self.is_busy
         for b in (
             self.home_button,
-            self.short_button,
-            self.long_button,
+            self.scan_button,
             self.jog_minus_button,
             self.jog_plus_button,
         ):
