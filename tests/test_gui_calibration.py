@@ -19,6 +19,7 @@ from PySide6.QtWidgets import QApplication, QMessageBox
 
 from impress_gui.core.target import CORNER_NAMES
 from impress_gui.ui import pyside_fix
+from impress_gui.ui.app import make_settings
 from impress_gui.ui.calibration_tab import CalibrationTab
 from impress_gui.ui.messages import Messenger
 
@@ -94,9 +95,10 @@ class FakeDialogs:
 
 
 @pytest.fixture
-def tab(qtbot):
+def tab(qtbot, tmp_path):
     messenger = Messenger(None)
-    widget = CalibrationTab(messenger, FakeDialogs())
+    settings = make_settings(tmp_path / "settings.ini")
+    widget = CalibrationTab(messenger, FakeDialogs(), settings=settings)
     qtbot.addWidget(widget)
     widget.resize(1600, 900)
     widget.show()
@@ -345,3 +347,103 @@ def test_a_bad_intrinsics_file_is_refused_with_its_reason(qtbot, tab, tmp_path):
     assert not tab.setup.load_intrinsics_file(str(bad))
     assert "image_size must be [width, height]" in tab.messenger.last_text
     assert tab.setup.intrinsics is None
+
+
+# ----- checkerboard calibration from the tab -------------------------------------------------------
+@pytest.fixture(scope="session")
+def board_views(tmp_path_factory):
+    """20 views of a 9x6 board with 25 mm squares through the simulator's 640x360 camera (the
+    set tests/test_calibrate_camera.py checks the core with), and the true intrinsics."""
+    from impress_gui.sim.checkerboard import Board, write_views
+    from impress_gui.sim.rig import default_intrinsics
+
+    truth = default_intrinsics(640, 360)
+    out = tmp_path_factory.mktemp("board")
+    return write_views(out, truth, Board(9, 6, 25.0), n_views=20, seed=7), truth
+
+
+def open_checkerboard_dialog(qtbot, tab):
+    QTest.mouseClick(tab.setup.checkerboard_button, Qt.MouseButton.LeftButton)
+    dlg = tab.checkerboard_dialog
+    assert dlg is not None
+    qtbot.waitExposed(dlg)
+    return dlg
+
+
+def fill_checkerboard_dialog(qtbot, tab, dlg, folder: Path, board, square_mm) -> None:
+    QTest.mouseClick(dlg.folder_radio, Qt.MouseButton.LeftButton)
+    tab.dialogs.answer = str(folder)
+    QTest.mouseClick(dlg.browse_button, Qt.MouseButton.LeftButton)
+    assert tab.dialogs.asked[-1] == "Folder of checkerboard images"
+    assert dlg.path_edit.text() == str(folder)
+    for spin, value in ((dlg.cols_spin, board[0]), (dlg.rows_spin, board[1])):
+        spin.lineEdit().selectAll()
+        QTest.keyClicks(spin, str(value))
+    dlg.square_spin.lineEdit().selectAll()
+    QTest.keyClicks(dlg.square_spin, f"{square_mm:g}")
+    assert dlg.request().board == tuple(board) and dlg.request().square_mm == square_mm
+
+
+def test_checkerboard_dialog_calibrates_the_camera_and_remembers_its_answers(
+    qtbot, tab, board_views
+):
+    from test_calibrate_camera import DIST_PX, F_REL, PP_PX, check_against_truth
+
+    folder, truth = board_views
+    assert "folder of images" in tab.setup.checkerboard_button.toolTip()
+    dlg = open_checkerboard_dialog(qtbot, tab)
+    assert dlg.video_radio.isChecked()  # first use: a video, 9x6, 25 mm
+    assert (dlg.cols_spin.value(), dlg.rows_spin.value(), dlg.square_spin.value()) == (9, 6, 25)
+    # the video chooser in video mode; OK with no source, or a folder as a video, is refused
+    tab.dialogs.answer = ""
+    QTest.mouseClick(dlg.browse_button, Qt.MouseButton.LeftButton)
+    assert tab.dialogs.asked[-1] == "Checkerboard video"
+    QTest.mouseClick(dlg.ok_button, Qt.MouseButton.LeftButton)
+    assert dlg.isVisible() and dlg.error_label.isVisible()
+    assert "Choose the checkerboard video" in dlg.error_label.text()
+    dlg.path_edit.setText(str(folder))
+    QTest.mouseClick(dlg.ok_button, Qt.MouseButton.LeftButton)
+    assert dlg.isVisible() and "is a folder" in dlg.error_label.text() and not tab.is_busy()
+    # a folder of images, 9x6 inner corners, 25 mm squares
+    fill_checkerboard_dialog(qtbot, tab, dlg, folder, (9, 6), 25.0)
+    with qtbot.waitSignal(tab.tasks.done, timeout=30000) as blocker:
+        QTest.mouseClick(dlg.ok_button, Qt.MouseButton.LeftButton)
+    assert blocker.args[1] == "finished", tab.messenger.last_text
+    assert not dlg.isVisible()
+    intr = tab.setup.intrinsics
+    assert intr is not None and "9x6 inner corners, 25 mm squares" in intr.source
+    check_against_truth(intr, truth, F_REL, PP_PX, DIST_PX)
+    assert f"{intr.fx:.1f} px" in tab.setup.intrinsics_label.text()
+    assert tab.dirty
+    tab.commit_to_project()
+    assert tab.project.intrinsics is intr
+    # the answers are remembered for next time
+    again = open_checkerboard_dialog(qtbot, tab)
+    assert again is not dlg and again.folder_radio.isChecked()
+    assert again.path_edit.text() == str(folder)
+    assert (again.cols_spin.value(), again.rows_spin.value(), again.square_spin.value()) == (
+        9,
+        6,
+        25.0,
+    )
+    QTest.mouseClick(
+        again.buttons.button(again.buttons.StandardButton.Cancel), Qt.MouseButton.LeftButton
+    )
+    assert not again.isVisible() and not tab.is_busy()
+
+
+def test_checkerboard_with_the_wrong_board_size_says_too_few_boards(qtbot, tab, board_views):
+    folder, _truth = board_views
+    dlg = open_checkerboard_dialog(qtbot, tab)
+    fill_checkerboard_dialog(qtbot, tab, dlg, folder, (8, 6), 25.0)
+    with qtbot.waitSignal(tab.tasks.done, timeout=30000) as blocker:
+        QTest.mouseClick(dlg.ok_button, Qt.MouseButton.LeftButton)
+    assert blocker.args[1] == "failed"
+    box = tab.messenger.last_box
+    assert box is not None and box.isVisible()
+    text = tab.messenger.last_text
+    assert text.startswith("Checkerboard calibration failed")
+    assert "found the 8x6 board (inner corners) in" in text and "at least 8 are needed" in text
+    assert "[E-TOO-FEW-BOARDS]" in text
+    assert "Traceback" not in text and not box.detailedText()
+    assert tab.setup.intrinsics is None and not tab.is_busy()

@@ -63,12 +63,14 @@ def calibrate_task(path: Path, intr, target, picks: Picks, speed_mm_s: float, in
     return task
 
 
-def checkerboard_task(path: Path):
+def checkerboard_task(source: Path, board: tuple[int, int] = (9, 6), square_mm: float = 25.0):
+    """Camera intrinsics from checkerboard views: ``source`` is a video file or a folder of
+    images, ``board`` the inner corners (columns, rows)."""
+
     def task(progress: ProgressCallback, cancel: CancelToken):
         from impress_gui.core.intrinsics_cal import calibrate_camera
 
-        with open_video(path) as video:
-            return calibrate_camera(video, progress=progress, cancel=cancel)
+        return calibrate_camera(Path(source), board, square_mm, progress=progress, cancel=cancel)
 
     return task
 

@@ -14,7 +14,7 @@ from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import QSettings, Qt, Signal
 from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QHBoxLayout,
@@ -29,11 +29,10 @@ from impress_gui.core.calibration import SceneCalibration, check_picks
 from impress_gui.core.errors import ImpressError
 from impress_gui.core.picks import Picks
 from impress_gui.core.project import Project
-from impress_gui.core.video import VIDEO_SUFFIXES, VideoSource
+from impress_gui.core.video import VideoSource
 from impress_gui.ui.calibration_io import (
     CalibrationFiles,
     calibrate_task,
-    checkerboard_task,
     open_evidence,
     propose_task,
 )
@@ -41,16 +40,16 @@ from impress_gui.ui.calibration_overlays import Overlays
 from impress_gui.ui.calibration_results import CalibrationResults, changed_inputs
 from impress_gui.ui.calibration_setup import SetupPanel, checkerboard_available
 from impress_gui.ui.calibration_widgets import ROLE, CalibrationSidebar, FrameNavigator
+from impress_gui.ui.checkerboard_dialog import VIDEO_FILTER, CheckerboardRuns
 from impress_gui.ui.frame_view import FRAME_COLOURS, FrameView
 from impress_gui.ui.messages import Dialogs, Messenger
 from impress_gui.ui.pick_editor import FRAMES, PickEditor
 from impress_gui.ui.task_bar import TaskBar
 
-VIDEO_FILTER = "Videos (" + " ".join(f"*{s}" for s in VIDEO_SUFFIXES) + ");;All files (*)"
 FRAME_CACHE = 12
 
 
-class CalibrationTab(CalibrationFiles, QWidget):
+class CalibrationTab(CalibrationFiles, CheckerboardRuns, QWidget):
     changed = Signal()  # something the project keeps changed
     status = Signal(str)  # a line for the status bar
     video_changed = Signal(str)  # path of the video shown ("" for none)
@@ -58,10 +57,16 @@ class CalibrationTab(CalibrationFiles, QWidget):
     calibrated = Signal(object)  # SceneCalibration
 
     def __init__(
-        self, messenger: Messenger, dialogs: Dialogs | None = None, parent: QWidget | None = None
+        self,
+        messenger: Messenger,
+        dialogs: Dialogs | None = None,
+        parent: QWidget | None = None,
+        settings: QSettings | None = None,
     ) -> None:
         super().__init__(parent)
         self.messenger, self.dialogs = messenger, dialogs or Dialogs(self)
+        self.settings = settings  # None: the window's settings (see _settings)
+        self.checkerboard_dialog = None
         self.project = Project()
         self.video: VideoSource | None = None
         self.video_path: Path | None = None
@@ -103,6 +108,11 @@ class CalibrationTab(CalibrationFiles, QWidget):
         self.setup = SetupPanel(self.messenger, self.dialogs)
         self.setup.changed.connect(self._on_setup_changed)
         self.setup.checkerboard_requested.connect(self.calibrate_camera)
+        if checkerboard_available():
+            self.setup.checkerboard_button.setToolTip(
+                "Calibrate the camera from a video or a folder of images of a checkerboard "
+                "(the board's inner corners and square size are asked first)"
+            )
         self.results = CalibrationResults()
         self.sidebar = sb = CalibrationSidebar(self.setup, self.results)
         split.addWidget(sb)
@@ -462,20 +472,6 @@ class CalibrationTab(CalibrationFiles, QWidget):
         )
         if cal.warnings:
             self.messenger.warning("Check the calibration", "\n\n".join(cal.warnings))
-
-    def calibrate_camera(self) -> bool:
-        path = self.dialogs.open_file(
-            "Checkerboard video (9x6 inner corners, 25 mm squares)", VIDEO_FILTER
-        )
-        if not path:
-            return False
-
-        return self._run(
-            "Calibrating the camera",
-            checkerboard_task(Path(path)),
-            self.setup.set_intrinsics,
-            "Checkerboard calibration failed",
-        )
 
     # ----- display ----------------------------------------------------------------------------
     def _refresh(self) -> None:
