@@ -14,6 +14,7 @@ import numpy as np
 
 from impress_gui.core.errors import InputError
 from impress_gui.core.measure import Profile, RulerResult, StepHeight
+from impress_gui.core.provenance import csv_header
 
 # ----- measurement records and CSV ------------------------------------------------------------
 MEASUREMENT_KINDS = ("point", "ruler", "profile", "annotation", "plane")
@@ -87,9 +88,12 @@ def _fmt(v) -> str:
     return str(v)
 
 
-def profile_csv(profile: Profile, step: StepHeight | None = None) -> str:
-    """Comment header (segment, width, bands) then ``distance_mm,x_mm,y_mm,height_mm,n_valid``
-    rows; missing heights are empty fields."""
+def profile_csv(
+    profile: Profile, step: StepHeight | None = None, provenance: Mapping | None = None
+) -> str:
+    """Comment header (segment, width, bands, then the ``# key: value`` lines of
+    ``provenance``: software version, source hashes, grid, parameters) then
+    ``distance_mm,x_mm,y_mm,height_mm,n_valid`` rows; missing heights are empty fields."""
     buf = io.StringIO()
     buf.write(
         f"# IMPREsS profile; start ({profile.start[0]:.4f}, {profile.start[1]:.4f}) mm; "
@@ -103,6 +107,7 @@ def profile_csv(profile: Profile, step: StepHeight | None = None) -> str:
                 f"{_fmt(b.mean_mm)} mm, SD {_fmt(b.sd_mm)} mm, n {b.n}\n"
             )
         buf.write(f"# step B - A: {_fmt(step.difference_mm)} mm, SD {_fmt(step.sd_mm)} mm\n")
+    buf.write(csv_header(provenance))
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["distance_mm", "x_mm", "y_mm", "height_mm", "n_valid"])
     for d, x, y, h, n in zip(
@@ -124,8 +129,10 @@ def read_profile_csv(text: str) -> tuple[np.ndarray, np.ndarray]:
     return d, h
 
 
-def measurements_csv(measurements: Sequence[Mapping]) -> str:
-    """One row per measurement: number, id, kind, label, note, points and every value."""
+def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None = None) -> str:
+    """Leading ``# key: value`` lines of ``provenance`` (software version, the open
+    reconstruction's hashes), then one row per measurement: number, id, kind, label, note,
+    points, every value, and the layer and heightmap SHA-256 it was measured on."""
     value_keys: list[str] = []
     n_pts = 0
     for m in measurements:
@@ -137,8 +144,9 @@ def measurements_csv(measurements: Sequence[Mapping]) -> str:
     for i in range(n_pts):
         head += [f"x{i + 1}_mm", f"y{i + 1}_mm"]
     buf = io.StringIO()
+    buf.write(csv_header(provenance))
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(head + value_keys)
+    w.writerow(head + value_keys + ["layer", "heightmap_sha256"])
     for k, m in enumerate(measurements, 1):
         row = [k, m.get("id", ""), m.get("kind", ""), m.get("label", ""), m.get("note", "")]
         pts = list(m.get("points_mm", []))
@@ -146,5 +154,7 @@ def measurements_csv(measurements: Sequence[Mapping]) -> str:
             row += [_fmt(float(pts[i][0])), _fmt(float(pts[i][1]))] if i < len(pts) else ["", ""]
         vals = m.get("values", {})
         row += [_fmt(vals.get(key)) for key in value_keys]
+        params = m.get("params") or {}
+        row += [params.get("layer") or "", params.get("heightmap_sha256") or ""]
         w.writerow(row)
     return buf.getvalue()

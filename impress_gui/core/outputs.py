@@ -13,6 +13,7 @@ import io
 import os
 import shutil
 import zipfile
+from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -93,8 +94,10 @@ def pseudo_colour(height: np.ndarray, vrange=None, bar: bool = True) -> np.ndarr
     return np.concatenate([rgb, panel], axis=1)
 
 
-def ply_bytes(spec, height: np.ndarray, texture: np.ndarray | None, step: int = 1) -> bytes:
-    """Binary little-endian PLY: float32 x, y, z (mm; z = height) and uchar RGB."""
+def ply_bytes(spec, height: np.ndarray, texture: np.ndarray | None, step: int = 1,
+              comments: Sequence[str] = ()) -> bytes:
+    """Binary little-endian PLY: float32 x, y, z (mm; z = height) and uchar RGB. Each of
+    ``comments`` (provenance lines) becomes one header ``comment`` line (ASCII, one line)."""
     hh = height[::step, ::step]
     ok = np.isfinite(hh)
     ii, jj = np.nonzero(ok)
@@ -111,14 +114,22 @@ def ply_bytes(spec, height: np.ndarray, texture: np.ndarray | None, step: int = 
         pts["red"] = pts["green"] = pts["blue"] = 200
     header = ("ply\nformat binary_little_endian 1.0\n"
               f"comment IMPREsS workstation {__version__}; units mm; z = height up\n"
+              + "".join(f"comment {_one_line(c)}\n" for c in comments) +
               f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
               "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
-    return header.encode("ascii") + pts.tobytes()
+    return header.encode("ascii", "backslashreplace") + pts.tobytes()
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
 
 
 def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "") -> bytes:
     """ISO 25178-72 (XML 3D surface profile) container: an areal surface, x/y incremental
-    axes in metres, z as float64 metres with NaN for invalid points."""
+    axes in metres, z as float64 metres with NaN for invalid points. ``comment`` (provenance
+    included) goes into Record2/Comment, XML-escaped."""
+    from xml.sax.saxutils import escape
+
     ny, nx = height.shape
     data = (height.astype(np.float64) * 1e-3).astype("<f8").tobytes()  # row by row: x fastest
     md5_data = hashlib.md5(data).hexdigest()
@@ -144,7 +155,7 @@ def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "") -> byte
     </Instrument>
     <CalibrationDate>{created}</CalibrationDate>
     <ProbingSystem><Type>NonContacting</Type><Identification>laser triangulation</Identification></ProbingSystem>
-    <Comment>{comment}</Comment>
+    <Comment>{escape(comment)}</Comment>
   </Record2>
   <Record3>
     <MatrixDimension><SizeX>{nx}</SizeX><SizeY>{ny}</SizeY><SizeZ>1</SizeZ></MatrixDimension>
@@ -185,6 +196,9 @@ def write_reconstruction(rec, out_dir: Path, metadata: dict, run_info: dict,
         shutil.rmtree(tmp)
     tmp.mkdir()
     created = run_info.get("date_utc") or datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    inputs = metadata.get("inputs") or {}
+    source = [f"source {k} sha256: {(inputs.get(k) or {}).get('sha256') or '-'}"
+              for k in ("video", "calibration")]
     files: dict[str, bytes] = {
         "heightmap.tif": _tiff_bytes(rec.height_mm.astype(np.float32)),
         "height_green.tif": _tiff_bytes(rec.per_laser_mm["green"].astype(np.float32)),
@@ -194,9 +208,11 @@ def write_reconstruction(rec, out_dir: Path, metadata: dict, run_info: dict,
         "contribution.png": _png_bytes(contribution_png(rec.contribution)),
         "heightmap_8bit.png": _png_bytes(grey8(rec.height_mm)),
         "heightmap_color.png": _png_bytes(pseudo_colour(rec.height_mm)),
-        "pointcloud.ply": ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step),
+        "pointcloud.ply": ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step,
+                                    source),
         "heightmap.x3p": x3p_bytes(rec.spec, rec.height_mm, created,
-                                   "IMPREsS reconstruction; see metadata.json"),
+                                   "IMPREsS reconstruction; " + "; ".join(source)
+                                   + "; parameters, grid and height convention: metadata.json"),
     }
     if rec.texture_rgb is not None:
         files["texture.png"] = _png_bytes(rec.texture_rgb)

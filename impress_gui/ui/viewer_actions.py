@@ -15,6 +15,7 @@ import pyqtgraph as pg
 from PySide6.QtCore import QBuffer, QByteArray, QIODevice
 
 from impress_gui.core import measure as M
+from impress_gui.core import provenance as P
 from impress_gui.core.fileio import atomic_write_bytes
 from impress_gui.core.grid import GridSpec
 from impress_gui.core.outputs import ply_bytes, x3p_bytes
@@ -40,13 +41,27 @@ def _now() -> str:
     return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def _tiff_bytes(arr: np.ndarray) -> bytes:
+def _tiff_bytes(arr: np.ndarray, prov: dict | None = None, spec: GridSpec | None = None) -> bytes:
+    """Float32 TIFF; with ``prov`` the provenance JSON is its ImageDescription and Software
+    names the version; with ``spec`` the resolution tags give the cell size (pixels per cm)."""
     import io
 
     import tifffile
 
+    extra: dict = {}
+    if spec is not None:
+        ppcm = 10.0 / spec.pixel_mm
+        extra = {"resolution": (ppcm, ppcm), "resolutionunit": "CENTIMETER"}
     buf = io.BytesIO()
-    tifffile.imwrite(buf, arr, compression="zlib", metadata=None, software=None)
+    tifffile.imwrite(
+        buf,
+        arr,
+        compression="zlib",
+        metadata=None,
+        software=P.SOFTWARE if prov is not None else None,
+        description=P.to_json(prov) if prov is not None else None,
+        **extra,
+    )
     return buf.getvalue()
 
 
@@ -102,6 +117,20 @@ class ViewerActions:
         note = f"layer {tab.measure_key()}" + ("; levelled" if tab.plane is not None else "")
         return tab.measure_height(), note
 
+    def provenance(self, export: str, parameters: dict | None = None, grid: bool = True) -> dict:
+        """The provenance dictionary of an export of the open reconstruction (built here, on
+        the GUI thread): version, source hashes, grid, levelling plane and ``parameters``."""
+        tab, data = self.tab, self.tab.data
+        source = None if data is None else P.reconstruction_source(data.metadata, data.folder)
+        plane = None if tab.plane is None else tab.plane.to_json()
+        return P.export_provenance(
+            export,
+            source,
+            spec=data.spec if grid and data is not None else None,
+            plane=plane,
+            parameters=parameters,
+        )
+
     # ----- map exports ---------------------------------------------------------------------------
     def export_tiff(self, path=None) -> bool:
         if not self._need_data() or not (
@@ -109,8 +138,15 @@ class ViewerActions:
         ):
             return False
         h, _note = self._height_for_export()
+        spec = self.tab.data.spec
+        prov = self.provenance(
+            "heightmap-tiff", {"layer": self.tab.measure_key(), "dtype": "float32, mm"}
+        )
         return self._write(
-            "heightmap TIFF", p, "heightmap-tiff", lambda: _tiff_bytes(np.asarray(h, np.float32))
+            "heightmap TIFF",
+            p,
+            "heightmap-tiff",
+            lambda: _tiff_bytes(np.asarray(h, np.float32), prov, spec),
         )
 
     def export_x3p(self, path=None) -> bool:
@@ -118,9 +154,9 @@ class ViewerActions:
             return False
         h, note = self._height_for_export()
         spec = self.tab.data.spec
-        return self._write(
-            "X3P", p, "x3p", lambda: x3p_bytes(spec, h, _now(), f"IMPREsS viewer export; {note}")
-        )
+        prov = self.provenance("x3p", {"layer": self.tab.measure_key()})
+        comment = f"IMPREsS viewer export; {note}; provenance {P.to_json(prov)}"
+        return self._write("X3P", p, "x3p", lambda: x3p_bytes(spec, h, _now(), comment))
 
     def export_ply(self, path=None) -> bool:
         if not self._need_data() or not (p := self._path(path, "Export PLY", "ply", ".ply")):
@@ -128,12 +164,28 @@ class ViewerActions:
         h, _note = self._height_for_export()
         data = self.tab.data
         step = max(1, int(np.ceil(np.sqrt(h.size / MAX_PLY_POINTS))))
-        return self._write("PLY", p, "ply", lambda: ply_bytes(data.spec, h, data.texture_rgb, step))
+        prov = self.provenance(
+            "ply",
+            {
+                "layer": self.tab.measure_key(),
+                "step_cells": step,
+                "colours": "texture" if data.texture_rgb is not None else "grey",
+            },
+        )
+        lines = P.comment_lines(prov)
+        return self._write(
+            "PLY", p, "ply", lambda: ply_bytes(data.spec, h, data.texture_rgb, step, lines)
+        )
 
     def figure_maker(self):
         """A function ``(max_px) -> RGB figure`` of the shown layer (title, measurements, scale
         bar, colour bar), with everything it needs captured here on the GUI thread so that
         it can run in a worker."""
+        return self._figure()[0]
+
+    def _figure(self):
+        """``(figure_maker, parameters)``: the maker and what shaped the figure (layer, colour
+        map, range, levelling) for its provenance."""
         tab = self.tab
         key = tab.display.layer_key()
         proj = tab.project
@@ -147,6 +199,12 @@ class ViewerActions:
             lut = pg.colormap.get(tab.display.cmap.currentText()).getLookupTable(nPts=256)
             vrange = tab.map.levels()
             unit = "green-red (mm)" if key == "difference" else "height (mm)"
+            params = {
+                "layer": key,
+                "colour_map": tab.display.cmap.currentText(),
+                "range_mm": [float(v) for v in vrange],
+                "levelled": tab.plane is not None and key != "difference",
+            }
             return lambda max_px=6000: figure(
                 spec,
                 height=arr,
@@ -156,7 +214,7 @@ class ViewerActions:
                 measurements=ms,
                 max_px=max_px,
                 unit_label=unit,
-            )
+            ), params
         rgb = {"texture": tab.data.texture_rgb, "contribution": tab._contribution_rgb}.get(key)
         if key == "hillshade" and tab._hillshade is not None:
             rgb = tab._hillshade[1]
@@ -164,6 +222,12 @@ class ViewerActions:
             arr = tab.measure_height("fused")
             lut = pg.colormap.get("turbo").getLookupTable(nPts=256)
             vrange = auto_levels(arr)
+            params = {
+                "layer": "fused",
+                "colour_map": "turbo",
+                "range_mm": [float(v) for v in vrange],
+                "levelled": tab.plane is not None,
+            }
             return lambda max_px=6000: figure(
                 spec,
                 height=arr,
@@ -172,16 +236,20 @@ class ViewerActions:
                 title=title,
                 measurements=ms,
                 max_px=max_px,
-            )
-        return lambda max_px=6000: figure(
-            spec, rgb=rgb, title=title, measurements=ms, max_px=max_px
-        )
+            ), params
+        return (
+            lambda max_px=6000: figure(spec, rgb=rgb, title=title, measurements=ms, max_px=max_px)
+        ), {"layer": key}
 
     def export_png(self, path=None) -> bool:
         if not self._need_data() or not (p := self._path(path, "Export a figure", "png", ".png")):
             return False
-        fig = self.figure_maker()
-        return self._write("figure", p, "figure-png", lambda: png_bytes(fig()))
+        fig, params = self._figure()
+        prov = self.provenance(
+            "figure-png",
+            params | {"measurements": len(self.tab.project.measurements), "max_px": 6000},
+        )
+        return self._write("figure", p, "figure-png", lambda: png_bytes(fig(), prov))
 
     # ----- profile -------------------------------------------------------------------------------
     def export_profile_csv(self, path=None) -> bool:
@@ -191,8 +259,19 @@ class ViewerActions:
             return False
         if not (p := self._path(path, "Export the profile", "csv", ".csv")):
             return False
-        text = M.profile_csv(tab.profile, tab.step)
+        text = M.profile_csv(tab.profile, tab.step, self._profile_provenance("profile-csv"))
         return self._write("profile CSV", p, "profile-csv", lambda: text.encode("utf-8"))
+
+    def _profile_provenance(self, export: str) -> dict:
+        pr = self.tab.profile
+        params: dict = {"layer": self.tab.measure_key()}
+        if pr is not None:
+            params |= {
+                "start_mm": [float(v) for v in pr.start],
+                "end_mm": [float(v) for v in pr.end],
+                "width_mm": float(pr.width_mm),
+            }
+        return self.provenance(export, params)
 
     def profile_png_bytes(self) -> bytes:
         pix = self.tab.profile_plot.grab()
@@ -209,13 +288,17 @@ class ViewerActions:
             return False
         if not (p := self._path(path, "Export the profile plot", "png", ".png")):
             return False
-        data = self.profile_png_bytes()
+        data = P.png_with_text(
+            self.profile_png_bytes(),
+            P.png_provenance_text(self._profile_provenance("profile-png")),
+        )
         return self._write("profile PNG", p, "profile-png", lambda: data)
 
     def export_measurements_csv(self, path=None) -> bool:
         if not (p := self._path(path, "Export the measurements", "csv", ".csv")):
             return False
-        text = M.measurements_csv(self.tab.project.measurements)
+        prov = self.provenance("measurements-csv", grid=False)
+        text = M.measurements_csv(self.tab.project.measurements, prov)
         return self._write("measurements CSV", p, "measurements-csv", lambda: text.encode("utf-8"))
 
     # ----- report --------------------------------------------------------------------------------

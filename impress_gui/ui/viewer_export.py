@@ -17,6 +17,7 @@ import numpy as np
 
 from impress_gui import __version__
 from impress_gui.core.grid import GridSpec
+from impress_gui.core.provenance import png_provenance_text, png_with_text
 
 NO_DATA_RGB = (0, 0, 0)
 MAX_FIGURE_PX = 6000
@@ -154,13 +155,17 @@ def _colour_bar(
     return panel
 
 
-def png_bytes(rgb: np.ndarray) -> bytes:
+def png_bytes(rgb: np.ndarray, provenance: Mapping | None = None) -> bytes:
+    """PNG of an RGB image; with ``provenance`` (an export's provenance dictionary) its
+    Software, Source and 'IMPREsS provenance' (JSON) tEXt chunks follow the header."""
     import cv2
 
     ok, data = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
     if not ok:
         raise OSError("PNG encoding failed")
-    return data.tobytes()
+    if provenance is None:
+        return data.tobytes()
+    return png_with_text(data.tobytes(), png_provenance_text(provenance))
 
 
 # ----- the report ----------------------------------------------------------------------------
