@@ -421,6 +421,7 @@ def test_cli_writes_truth_that_loads_and_agrees(tmp_path, fmt):
     (["--length-mm", "5000"], "--length-mm"),
     (["--format", "avi"], "--format"),
     (["--standoff-mm", "50"], "--standoff-mm"),
+    (["--seed", "-1"], "--seed"),
 ])
 def test_bad_option_is_a_clear_error(tmp_path, capsys, args, option):
     from impress_gui.cli import main
@@ -434,3 +435,36 @@ def test_bad_option_is_a_clear_error(tmp_path, capsys, args, option):
     assert option in err, err
     assert "Traceback" not in err
     assert not (tmp_path / "out").exists()
+
+
+def test_output_folder_is_replaced_whole_or_not_at_all(tmp_path):
+    """A re-simulation that is interrupted leaves the previous simulation whole; a folder that
+    holds something else is refused; a frame folder's truth carries its manifest hash."""
+    from impress_gui.core.errors import Cancelled, InputError
+    from impress_gui.core.fileio import sha256_path
+    from impress_gui.core.progress import CancelToken
+    from impress_gui.sim.simulate import SimConfig, simulate
+
+    small = dict(preset="flat", length_mm=60.0, width=160, height=90, speed_mm_s=40.0)
+    out = tmp_path / "scan"
+    simulate(SimConfig(video_format="frames", **small), out)
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["video_sha256"] == sha256_path(out / "frames") is not None
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    cancel = CancelToken()
+
+    def stop_half_way(frac, _msg):
+        if frac > 0.5:
+            cancel.cancel()
+
+    with pytest.raises(Cancelled):
+        simulate(SimConfig(video_format="mp4", seed=9, **small), out, progress=stop_half_way,
+                 cancel=cancel)
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+    assert [p.name for p in tmp_path.iterdir()] == ["scan"]  # no partial folder left behind
+    other = tmp_path / "notes"
+    other.mkdir()
+    (other / "case.txt").write_text("evidence notes")
+    with pytest.raises(InputError, match="other than a simulation"):
+        simulate(SimConfig(**small), other)
+    assert (other / "case.txt").read_text() == "evidence notes"

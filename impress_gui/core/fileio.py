@@ -33,6 +33,21 @@ def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+
+
+def sha256_path(path: str | os.PathLike) -> str:
+    """SHA-256 of a video file, or of a folder of frames: the hash of its manifest - one line
+    ``<sha256>  <name>`` per frame file (sorted by name), so renaming, removing, adding or
+    changing any frame changes it."""
+    p = Path(path)
+    if not p.is_dir():
+        return sha256_file(p)
+    lines = [f"{sha256_file(f)}  {f.name}\n" for f in sorted(p.iterdir())
+             if f.is_file() and f.suffix.lower() in FRAME_SUFFIXES]
+    return hashlib.sha256("".join(lines).encode()).hexdigest()
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, mode: str = "wb") -> Iterator[Any]:
     """Open a temporary file beside ``path``; on success fsync and rename it into place.

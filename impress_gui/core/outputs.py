@@ -228,16 +228,22 @@ def write_reconstruction(rec, out_dir: Path, metadata: dict, run_info: dict,
         for p in tmp.iterdir():
             with open(p, "rb") as fh:
                 os.fsync(fh.fileno())
-        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
-        if out_dir.exists():
-            out_dir.rename(old)
-        tmp.rename(out_dir)
-        if old.exists():
-            shutil.rmtree(old)
+        swap_into_place(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return digests
+
+
+def swap_into_place(tmp: Path, out_dir: Path) -> None:
+    """Replace the folder ``out_dir`` by the finished folder ``tmp`` (two renames; a kill
+    between them is repaired by :func:`recover_interrupted`)."""
+    old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
+    if out_dir.exists():
+        out_dir.rename(old)
+    tmp.rename(out_dir)
+    if old.exists():
+        shutil.rmtree(old)
 
 
 def _pid_alive(pid: int) -> bool:
@@ -252,10 +258,11 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def recover_interrupted(out_dir: Path) -> list[str]:
+def recover_interrupted(out_dir: Path, marker: str = "metadata.json") -> list[str]:
     """Clean up after a run that was killed while writing ``out_dir``: remove its hidden
     ``.NAME.partial-PID`` folders, and its ``.NAME.old-PID`` folders - after putting the newest
-    back in place if the kill came between the two renames of the swap (``out_dir`` missing).
+    back in place if the kill came between the two renames of the swap (``out_dir`` missing;
+    a folder counts as complete when it holds ``marker``).
     Folders of a process still alive are left alone. Returns what was done."""
     out_dir = Path(out_dir)
     done: list[str] = []
@@ -269,7 +276,7 @@ def recover_interrupted(out_dir: Path) -> list[str]:
                 if not _pid_alive(int(p.name[len(prefix):])):
                     stale.append((kind, p))
     olds = sorted((p for k, p in stale if k == "old"), key=lambda p: p.stat().st_mtime)
-    if olds and not out_dir.exists() and (olds[-1] / "metadata.json").is_file():
+    if olds and not out_dir.exists() and (olds[-1] / marker).is_file():
         olds[-1].rename(out_dir)
         done.append(f"restored {out_dir} from {olds[-1].name}")
         stale = [(k, p) for k, p in stale if p != olds[-1]]

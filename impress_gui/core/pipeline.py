@@ -21,7 +21,7 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
     from datetime import datetime, timezone
 
     from impress_gui.core.calibration import SceneCalibration
-    from impress_gui.core.fileio import sha256_file
+    from impress_gui.core.fileio import sha256_file, sha256_path
     from impress_gui.core.outputs import build_metadata, write_reconstruction
     from impress_gui.core.reconstruct import reconstruct
     from impress_gui.core.video import open_video
@@ -29,7 +29,8 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
     cal = SceneCalibration.load(calibration_path)
     inputs: dict[str, dict[str, str | None]] = {"calibration": {"path": str(calibration_path),
                               "sha256": sha256_file(calibration_path)}}
-    video_sha = sha256_file(video_path) if Path(video_path).is_file() else None
+    # a frame folder: the hash of its manifest; a missing file: open_video says so below
+    video_sha = sha256_path(video_path) if Path(video_path).exists() else None
     inputs["video"] = {"path": str(video_path), "sha256": video_sha}
     if expected_video_sha256 and video_sha != expected_video_sha256:
         from impress_gui.core.errors import IntegrityError

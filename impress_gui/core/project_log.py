@@ -40,7 +40,12 @@ def hash_file(
     cancel: CancelToken | None = None,
     chunk: int = 4 << 20,
 ) -> str:
-    """SHA-256 of a file read (never written) in chunks, with progress and cancel."""
+    """SHA-256 of a file read (never written) in chunks, with progress and cancel (a folder
+    of frames: the hash of its manifest, see :func:`~impress_gui.core.fileio.sha256_path`)."""
+    if os.path.isdir(path):
+        from impress_gui.core.fileio import sha256_path
+
+        return sha256_path(path)
     h = hashlib.sha256()
     total = max(1, os.path.getsize(path))
     done = 0

@@ -13,9 +13,10 @@ from pathlib import Path
 import numpy as np
 
 from impress_gui.core.errors import VideoError
+from impress_gui.core.fileio import FRAME_SUFFIXES
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mts", ".m2ts", ".ts", ".avi", ".mkv")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+IMAGE_SUFFIXES = FRAME_SUFFIXES
 
 
 class VideoSource:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -11,7 +13,8 @@ import numpy as np
 
 from impress_gui import __version__
 from impress_gui.core.errors import InputError
-from impress_gui.core.fileio import atomic_write_png, atomic_write_tiff, sha256_file, write_json
+from impress_gui.core.fileio import atomic_write_png, atomic_write_tiff, sha256_path, write_json
+from impress_gui.core.outputs import recover_interrupted, swap_into_place
 from impress_gui.core.picks import Picks
 from impress_gui.core.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
@@ -28,8 +31,8 @@ class SimConfig:
     length_mm: float | None = None
     speed_mm_s: float = 13.138
     fps: float = 30.0
-    width: int = 640
-    height: int = 360
+    width: int = 1920
+    height: int = 1080
     roll_deg: float = 1.2
     tilt_deg: float = -1.8
     standoff_mm: float = 300.0
@@ -72,6 +75,8 @@ class SimConfig:
             bad("--grid-mm must be between 0.02 and 1 mm")
         if not 0 <= self.click_noise_px <= 20:
             bad("--click-noise-px must be between 0 and 20")
+        if not 0 <= self.seed < 2**32:
+            bad("--seed must be between 0 and 4294967295")
         if self.blocks and self.preset != "blocks":
             bad("placement options (--rotate90, --lift-b-mm, --tilt-plates, --order) need "
                 "--preset blocks")
@@ -216,8 +221,31 @@ def simulate(cfg: SimConfig, out_dir: Path, workers: int = 1,
     """Render the scan into ``out_dir`` and write the ground truth; return a summary dict."""
     cfg.validate()
     cancel = cancel or CancelToken()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    final_dir = Path(out_dir)
+    if final_dir.is_dir() and any(final_dir.iterdir()) and not (final_dir / "truth.json").exists():
+        raise InputError(f"{final_dir} exists and holds something other than a simulation: "
+                         "choose a new or empty folder", code="E-SIM-OPTION")
+    final_dir.parent.mkdir(parents=True, exist_ok=True)
+    recover_interrupted(final_dir, marker="truth.json")
+    # everything is written into a hidden sibling folder that replaces the old one at the end:
+    # an interrupted run leaves the previous simulation whole
+    out_dir = final_dir.parent / f".{final_dir.name}.partial-{os.getpid()}"
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    out_dir.mkdir()
+    try:
+        res = _simulate_into(cfg, out_dir, workers, progress, cancel)
+        swap_into_place(out_dir, final_dir)
+    except BaseException:
+        shutil.rmtree(out_dir, ignore_errors=True)
+        raise
+    res["video"] = str(final_dir / Path(res["video"]).name)
+    res["out_dir"] = str(final_dir)
+    return res
+
+
+def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
+                   progress: ProgressCallback | None, cancel: CancelToken) -> dict:
     rig, motion, target = make_rig(cfg), make_motion(cfg), default_target()
     t1, t2 = calibration_frames(cfg, rig, motion, target)
     report(progress, 0.0, "building the scene")
@@ -261,7 +289,7 @@ def simulate(cfg: SimConfig, out_dir: Path, workers: int = 1,
         if cfg.click_noise_px > 0:
             uv = uv + rng.normal(0, cfg.click_noise_px, uv.shape)
         picks_doc[key] = (k, {c: uv[i].tolist() for i, c in enumerate(CORNER_NAMES)})
-    video_sha = None if cfg.video_format == "frames" else sha256_file(video_path)
+    video_sha = sha256_path(video_path)  # frames: the hash of the folder's manifest
     picks = Picks(video=video_path.name, video_sha256=video_sha,
                   t1=picks_doc["t1"][0], t2=picks_doc["t2"][0],
                   corners_t1={c: tuple(v) for c, v in picks_doc["t1"][1].items()},
