@@ -1,0 +1,85 @@
+"""``impress gui PATH --check`` (what packaging/smoke_test.sh relies on): exit status 0 when the
+project and its reconstruction opened, 1 with the reason on stderr when anything failed."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from PySide6.QtGui import QImage
+
+from impress_gui.core.project import PROJECT_FILE
+from impress_gui.sim.sample import make_sample
+
+
+@pytest.fixture(scope="module")
+def sample_project(tmp_path_factory) -> Path:
+    return make_sample(tmp_path_factory.mktemp("sample"), workers=1, small=True)
+
+
+def run_check(path: Path, tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "QT_QPA_PLATFORM": "offscreen", "HOME": str(tmp_path)}
+    cmd = [sys.executable, "-m", "impress_gui", "gui", str(path), "--check", "--no-motor",
+           "--settings", str(tmp_path / "settings.ini"), *extra]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=env)
+
+
+def test_check_passes_on_the_sample_and_takes_the_screenshot(sample_project, tmp_path):
+    shot = tmp_path / "window.png"
+    res = run_check(sample_project, tmp_path, "--tab", "viewer", "--screenshot", str(shot))
+    assert res.returncode == 0, res.stderr
+    recon = sample_project / "reconstruction"
+    assert f"check passed: opened {sample_project}; the viewer shows {recon}" in res.stdout
+    assert "FAILED" not in res.stderr and "Traceback" not in res.stderr
+    img = QImage(str(shot))
+    assert (img.width(), img.height()) == (1920, 1080)
+
+
+def test_check_fails_on_a_corrupt_project_json(tmp_path):
+    folder = tmp_path / "broken"
+    folder.mkdir()
+    (folder / PROJECT_FILE).write_text("{not json")
+    res = run_check(folder, tmp_path)
+    assert res.returncode == 1
+    assert "FAILED: Cannot open the project:" in res.stderr
+    assert "not valid JSON" in res.stderr and "E-JSON" in res.stderr
+    assert "check passed" not in res.stdout
+
+
+def test_check_fails_when_the_reconstruction_cannot_be_shown(tmp_path):
+    project = make_sample(tmp_path / "sample", workers=1, small=True)
+    recon = project / "reconstruction"
+    (recon / "heightmap.tif").write_bytes(b"not a TIFF")
+    res = run_check(project, tmp_path)
+    assert res.returncode == 1
+    assert "FAILED: Cannot open the reconstruction:" in res.stderr
+
+    # a project whose listed reconstruction has gone: nothing to show, no box, still a failure
+    moved = tmp_path / "moved-away"
+    recon.rename(moved)
+    res = run_check(project, tmp_path)
+    assert res.returncode == 1
+    assert "FAILED: the project's reconstruction" in res.stderr and "is missing" in res.stderr
+
+
+def test_check_fails_on_a_missing_path(tmp_path):
+    res = run_check(tmp_path / "nowhere", tmp_path)
+    assert res.returncode != 0
+    assert "no such project folder or video" in res.stderr
+
+
+def test_check_without_it_a_broken_project_still_exits_0(tmp_path):
+    """Why the option exists: without --check the window shows a box and exits 0."""
+    folder = tmp_path / "broken"
+    folder.mkdir()
+    (folder / PROJECT_FILE).write_text(json.dumps({"format": "impress.project", "version": 7}))
+    env = {**os.environ, "QT_QPA_PLATFORM": "offscreen", "HOME": str(tmp_path)}
+    cmd = [sys.executable, "-m", "impress_gui", "gui", str(folder), "--no-motor", "--quit-after",
+           "0.3", "--settings", str(tmp_path / "settings.ini")]
+    assert subprocess.run(cmd, capture_output=True, timeout=60, env=env).returncode == 0
+    res = run_check(folder, tmp_path)
+    assert res.returncode == 1 and "version 7 is not supported" in res.stderr
