@@ -6,11 +6,11 @@
 #   2. the simulated motor answers (`impress motor --port sim status`, a short move);
 #   3. the bundled `impress demo --no-gui` builds the sample project: a simulated shoe scan
 #      (rendered in spawned worker processes), calibrated and processed (2-4 minutes);
-#   4. `impress gui PROJECT --tab viewer --screenshot out.png --quit-after 2` opens it offscreen
-#      on the viewer tab (its reconstruction shown) and exits
-#      with status 0, no traceback, and a 1920x1080 picture of the window.
-#   (A message box the window might show is not in the picture and does not change the exit
-#   status: look at the picture, SCREENSHOT=out.png keeps it.)
+#   4. `impress gui PROJECT --tab viewer --check --screenshot out.png` opens it offscreen on the
+#      viewer tab, waits until the project and its reconstruction have loaded, and exits with
+#      status 0 only if everything opened and no error message was shown (otherwise status 1,
+#      the errors on stderr, which this script prints); no traceback, and a 1920x1080 picture
+#      of the window (SCREENSHOT=out.png keeps it).
 #
 #   packaging/smoke_test.sh                 # all of it, in a temporary folder
 #   packaging/smoke_test.sh PROJECT         # skip step 3: open this existing project
@@ -51,26 +51,27 @@ else
 fi
 [ -f "$project/project.json" ] || fail "$project is not a project folder"
 
-step "window: open the project offscreen, screenshot, quit"
+step "window: open the project offscreen, check it loaded, screenshot, quit"
 shot="$work/window.png"
 t_gui=$(date +%s)
+"$APP" gui --help | grep -q -- "--check" || fail "impress gui has no --check: an old build?"
 set +e
-tab=()
-# the viewer exercises pyqtgraph and the reconstruction readers in the frozen application
-if "$APP" gui --help | grep -q -- "--tab"; then tab=(--tab viewer); fi
-"$APP" gui "$project" "${tab[@]}" --settings "$settings" --screenshot "$shot" --quit-after 2 \
+# the viewer exercises pyqtgraph and the reconstruction readers in the frozen application;
+# --check fails on any error the window shows (project, evidence video, reconstruction)
+"$APP" gui "$project" --tab viewer --check --settings "$settings" --screenshot "$shot" \
   > "$work/gui.txt" 2> "$work/gui-err.txt"
 rc=$?
 set -e
 cat "$work/gui.txt"
-[ "$rc" = 0 ] || { cat "$work/gui-err.txt" >&2; fail "impress gui exited with status $rc"; }
+[ "$rc" = 0 ] || { cat "$work/gui-err.txt" >&2; fail "impress gui --check exited with status $rc"; }
+grep -q "^check passed" "$work/gui.txt" || fail "impress gui --check did not report a passed check"
 if grep -q "Traceback" "$work/gui-err.txt"; then cat "$work/gui-err.txt" >&2; fail "a traceback"; fi
 [ -s "$shot" ] || fail "no screenshot"
 size="$(od -An -tu1 -j16 -N8 "$shot" | awk '{printf "%dx%d", $1*16777216+$2*65536+$3*256+$4, $5*16777216+$6*65536+$7*256+$8}')"
 [ "$size" = "1920x1080" ] || fail "the screenshot is $size, not 1920x1080"
 bytes=$(wc -c < "$shot")
 [ "$bytes" -gt 20000 ] || fail "the screenshot is nearly empty ($bytes bytes)"
-echo "   window opened and closed in $(( $(date +%s) - t_gui )) s; screenshot $size"
+echo "   window opened, loaded and closed in $(( $(date +%s) - t_gui )) s; screenshot $size"
 if [ -n "${SCREENSHOT:-}" ]; then cp "$shot" "$SCREENSHOT"; echo "   copied to $SCREENSHOT"; fi
 
 echo "smoke test passed in $(( $(date +%s) - t0 )) s"
