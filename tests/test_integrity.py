@@ -159,10 +159,16 @@ def test_every_output_carries_inputs_parameters_and_version(good, flat_scan, fla
     run = json.loads((good / "run.json").read_text())
     assert run["date_utc"].endswith("Z") and run["python"]
     # the exports name the software version themselves and read back intact
+    # ... and the hashes of the video and calibration they were made from
     x3p = read_x3p(good / "heightmap.x3p")
     assert x3p.info["version"] == __version__
+    for name in ("video", "calibration"):
+        assert f"source {name} sha256: {meta['inputs'][name]['sha256']}" in x3p.info["comment"]
     ply = read_ply(good / "pointcloud.ply")
     assert any(__version__ in c for c in ply.comments) and len(ply.points_mm) > 1000
+    for name in ("video", "calibration"):
+        assert f"source {name} sha256: {meta['inputs'][name]['sha256']}" in ply.comments
+    # the viewer's exports: tests/test_export_provenance.py
 
 
 # ----- atomic outputs under SIGKILL -------------------------------------------------------------
