@@ -19,6 +19,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fps", type=float, default=None, help="frame rate (default: from the video)")
     p.add_argument("--plane-frames", type=int, default=15,
                    help="frames used per laser plane around t1/t2 (1 = the seed's single frame)")
+    p.add_argument("--planes", choices=("stripe-fit", "three-point"), default="stripe-fit",
+                   help="laser planes: fitted to each stripe on the target's faces (default), "
+                        "or the seed's fallback through three stripe points per laser picked "
+                        "on target edges (the picks' stripe_points)")
     p.add_argument("-o", "--output", type=Path, required=True, help="calibration JSON to write")
 
 
@@ -44,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
             print("warning: the picks were made on a different video (SHA-256 differs)")
     with open_video(args.video, fps=args.fps) as video:
         cal = calibrate_scene(video, intr, target, picks, args.speed, args.fps,
-                              plane_frames=args.plane_frames, inputs=inputs)
+                              plane_frames=args.plane_frames, inputs=inputs,
+                              plane_method=args.planes)
     cal.save(args.output)
     vp = cal.vanishing_point_px
     print(f"calibration written to {args.output}")
@@ -57,9 +62,13 @@ def run(args: argparse.Namespace) -> int:
           f"{cal.implied_speed_mm_s:.4f} mm/s")
     for name, f in cal.planes.items():
         n = f.plane.normal
+        if f.method == "three-point":
+            how = (f"three points (L, M, N) in frame {f.frames[0]}, rays missing their edges "
+                   f"by {f.rms_mm:.4f} mm RMS")
+        else:
+            how = f"RMS {f.rms_mm:.4f} mm over {f.n_points} points in {len(f.frames)} frames"
         print(f"  {name} plane: normal ({n[0]:+.5f}, {n[1]:+.5f}, {n[2]:+.5f}), offset "
-              f"{f.plane.offset_mm:.3f} mm, RMS {f.rms_mm:.4f} mm over {f.n_points} points in "
-              f"{len(f.frames)} frames")
+              f"{f.plane.offset_mm:.3f} mm, {how}")
     for w in cal.warnings:
         print(f"  WARNING: {w}")
     return 0 if np.all(np.isfinite(cal.corner_residuals_mm)) else 1

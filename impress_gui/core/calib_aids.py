@@ -3,14 +3,18 @@ calibration frames, and the seed's three-point laser plane as a fallback."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from impress_gui.core.calib_planes import LaserPlaneFit
 from impress_gui.core.errors import CalibrationError, InputError
 from impress_gui.core.geometry import Intrinsics, Plane
+from impress_gui.core.picks import LASER_NAMES, Picks
 from impress_gui.core.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.stripes import LASERS, StripeParams, auto_rois, detect
+from impress_gui.core.target import CORNER_NAMES, TargetModel
 
 
 @dataclass(frozen=True)
@@ -235,28 +239,34 @@ def propose_calibration_frames(video, sample_step: int | None = None,
     return out
 
 
-def three_point_plane(intr: Intrinsics, rotation: np.ndarray, travel_mm: float,
-                      pixels_lmn: np.ndarray, edges_rail: list[tuple[np.ndarray, np.ndarray]]
-                      ) -> Plane:
-    """The seed's method: rays through stripe pixels L, M, N that lie on three target edges,
-    intersected with those 3D edges (rail frame, each given by two points), give three points;
-    the plane through them in the camera-fixed ideal frame."""
-    rays = intr.rays(np.asarray(pixels_lmn, float)) @ rotation.T
-    pts = []
+def _rays_meet_edges(intr: Intrinsics, rotation: np.ndarray, travel_mm: float,
+                     pixels: np.ndarray, edges_rail):
+    """For each stripe pixel and its target edge (rail frame, two points): the point of the
+    edge nearest to the pixel's ray (camera-fixed ideal frame), the distance by which the ray
+    misses the edge (mm), the point's position along the edge (0 and 1 at its ends) and its
+    depth along the ray (camera z)."""
+    rays = intr.rays(np.asarray(pixels, float)) @ rotation.T
+    pts, miss, along, depth = [], [], [], []
     for ray, (a, b) in zip(rays, edges_rail):
         a = np.asarray(a, float) - [0.0, travel_mm, 0.0]
         b = np.asarray(b, float) - [0.0, travel_mm, 0.0]
         e = b - a
-        # closest point on the edge to the ray through the origin
+        # closest points of the ray through the origin (t) and the edge (s)
         A = np.array([[ray @ ray, -(ray @ e)], [ray @ e, -(e @ e)]])
         rhs = np.array([ray @ a, e @ a])
         try:
-            _, s = np.linalg.solve(A, rhs)
+            t, s = np.linalg.solve(A, rhs)
         except np.linalg.LinAlgError:
             raise CalibrationError("a pick ray is parallel to its target edge",
                                    code="E-PICKS") from None
         pts.append(a + s * e)
-    p = np.array(pts)
+        miss.append(float(np.linalg.norm(t * ray - (a + s * e))))
+        along.append(float(s))
+        depth.append(float(t))
+    return np.array(pts), np.array(miss), np.array(along), np.array(depth)
+
+
+def _plane_through(p: np.ndarray) -> Plane:
     n = np.cross(p[1] - p[0], p[2] - p[1])
     spread = max(float(np.linalg.norm(p[1] - p[0])), float(np.linalg.norm(p[2] - p[0])), 1e-9)
     if np.linalg.norm(n) < 1e-6 * spread**2 or spread < 1e-6:
@@ -266,3 +276,87 @@ def three_point_plane(intr: Intrinsics, rotation: np.ndarray, travel_mm: float,
     if n[2] < 0:
         n = -n
     return Plane(n, float(n @ p[0]))
+
+
+def three_point_plane(intr: Intrinsics, rotation: np.ndarray, travel_mm: float,
+                      pixels_lmn: np.ndarray, edges_rail: list[tuple[np.ndarray, np.ndarray]]
+                      ) -> Plane:
+    """The seed's method: rays through stripe pixels L, M, N that lie on three target edges,
+    intersected with those 3D edges (rail frame, each given by two points), give three points;
+    the plane through them in the camera-fixed ideal frame."""
+    pts = _rays_meet_edges(intr, rotation, travel_mm, pixels_lmn, edges_rail)[0]
+    return _plane_through(pts)
+
+
+def check_stripe_points(picks: Picks, intrinsics: Intrinsics, frame_count: int) -> None:
+    """The three stripe points of both lasers, as the three-point planes need them: present,
+    in a frame of the video and inside the image; each problem a clear error."""
+    w, h = intrinsics.image_size
+    missing = [n for n in LASER_NAMES if n not in picks.stripe_points]
+    if missing:
+        raise CalibrationError(
+            f"the picks have no stripe points (L, M, N) for the {' and '.join(missing)} "
+            f"laser{'s' if len(missing) > 1 else ''}; the three-point planes need three "
+            "points on target edges per laser (picks field 'stripe_points')",
+            code="E-PICKS-STRIPE")
+    for name in LASER_NAMES:
+        sp = picks.stripe_points[name]
+        if not 0 <= sp.frame < frame_count:
+            raise CalibrationError(f"the {name} stripe points' frame {sp.frame} is outside the "
+                                   f"video (0..{frame_count - 1})", code="E-FRAME-RANGE")
+        for lbl, p in zip("LMN", sp.points):
+            u, v = p.uv_px
+            if not (-0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5):
+                raise CalibrationError(f"the {name} stripe point {lbl} ({u:.1f}, {v:.1f}) is "
+                                       f"outside the {w}x{h} image", code="E-PICKS")
+
+
+#: largest distance (px) of a three-point stripe pick from its target edge's image
+MAX_EDGE_OFFSET_PX = 5.0
+
+
+def three_point_planes(intr: Intrinsics, rotation: np.ndarray, target: TargetModel,
+                       target_pose: tuple[np.ndarray, np.ndarray], picks: Picks,
+                       travel_mm: Callable[[int], float]) -> dict[str, LaserPlaneFit]:
+    """Both laser planes by the seed's three-point method from the picks' stripe points.
+
+    ``target_pose`` is the fitted target (object -> rail rotation, translation); ``travel_mm``
+    gives the camera's travel since frame t1 at a frame (the travel that matches the pose).
+    ``rms_mm`` of each fit is the RMS distance by which the three pick rays miss their edges
+    (0 for exact picks); ``heights_mm`` the target heights of the three points."""
+    r_o, t_o = target_pose
+    corners = target.corner_array() @ np.asarray(r_o).T + np.asarray(t_o)
+    obj = target.corner_array()
+    idx = {c: i for i, c in enumerate(CORNER_NAMES)}
+    out = {}
+    for name in LASER_NAMES:
+        sp = picks.stripe_points[name]
+        ia = [idx[p.edge[0]] for p in sp.points]
+        ib = [idx[p.edge[1]] for p in sp.points]
+        edges = [(corners[i], corners[j]) for i, j in zip(ia, ib)]
+        pts, miss, along, depth = _rays_meet_edges(intr, rotation, travel_mm(sp.frame),
+                                                   sp.pixels(), edges)
+        for lbl, p, s, m, z in zip("LMN", sp.points, along, miss, depth):
+            edge = f"{p.edge[0]}-{p.edge[1]}"
+            if not -0.1 <= s <= 1.1:
+                raise CalibrationError(
+                    f"the {name} stripe point {lbl} is beyond the ends of target edge {edge}: "
+                    "check the edge named for it", code="E-PICKS")
+            off_px = m * intr.fx / max(z, 1e-9)
+            if z <= 0 or off_px > MAX_EDGE_OFFSET_PX:
+                raise CalibrationError(
+                    f"the {name} stripe point {lbl} is {off_px:.1f} px off target edge {edge} "
+                    "(where the corner picks place it): check the edge named for it and that "
+                    "the point is where the stripe crosses that edge", code="E-PICKS")
+        heights = obj[ia, 2] + along * (obj[ib, 2] - obj[ia, 2])
+        levels = sorted({round(float(z), 3) for z in heights})
+        if max(levels) - min(levels) < 1.0:
+            raise CalibrationError(
+                f"the three {name} stripe points lie at one height of the target "
+                f"({levels[0]:g} mm); its plane is undetermined - pick them on edges at two "
+                "heights (the low face's outer edge and the high face's edges)",
+                code="E-PLANE-UNDETERMINED")
+        plane = _plane_through(pts)
+        out[name] = LaserPlaneFit(name, plane, float(np.sqrt(np.mean(miss**2))), 3,
+                                  (sp.frame,), tuple(levels), method="three-point")
+    return out

@@ -19,8 +19,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from impress_gui import __version__
+from impress_gui.core.calib_aids import check_stripe_points, three_point_planes
 from impress_gui.core.calib_planes import LaserPlaneFit, observe_stripes, refine_tilt
-from impress_gui.core.calib_solve import project_points, solve_pose, vanishing_point
+from impress_gui.core.calib_solve import (
+    SPEED_WARN_FRACTION,
+    project_points,
+    solve_pose,
+    vanishing_point,
+)
 from impress_gui.core.errors import CalibrationError, FormatError
 from impress_gui.core.fileio import float_array, read_json, require, write_json
 from impress_gui.core.geometry import Intrinsics, Plane
@@ -29,10 +35,12 @@ from impress_gui.core.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.target import CORNER_NAMES, TargetModel
 
 # public names (LaserPlaneFit, solve_pose and vanishing_point re-exported for the callers)
-__all__ = ["CALIBRATION_FORMAT", "LaserPlaneFit", "SceneCalibration", "calibrate_scene",
-           "check_picks", "solve_pose", "vanishing_point"]
+__all__ = ["CALIBRATION_FORMAT", "PLANE_METHODS", "LaserPlaneFit", "SceneCalibration",
+           "calibrate_scene", "check_picks", "solve_pose", "vanishing_point"]
 
 CALIBRATION_FORMAT = "impress.calibration"
+#: how the laser planes are found (recorded in each plane's ``method``)
+PLANE_METHODS = ("stripe-fit", "three-point")
 
 
 @dataclass(frozen=True)
@@ -215,31 +223,55 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
                     plane_span: int = 300, plane_travel_mm: float = 25.0,
                     refine_with_stripes: bool = True, click_sigma_px: float = 0.5,
                     progress: ProgressCallback | None = None,
-                    cancel: CancelToken | None = None, inputs: dict | None = None
-                    ) -> SceneCalibration:
-    """Calibrate the rig from one scan. ``video`` is an open :class:`VideoSource`."""
+                    cancel: CancelToken | None = None, inputs: dict | None = None,
+                    plane_method: str = "stripe-fit") -> SceneCalibration:
+    """Calibrate the rig from one scan. ``video`` is an open :class:`VideoSource`.
+
+    ``plane_method``: ``"stripe-fit"`` fits each laser plane to its stripe on the target's
+    faces (and refines the tilt with them); ``"three-point"`` is the seed's fallback, each
+    plane through three stripe points the user picked on target edges (``picks.stripe_points``),
+    with no stripe detection and the pose from the corner picks alone."""
     cancel = cancel or CancelToken()
+    if plane_method not in PLANE_METHODS:
+        raise CalibrationError(f"unknown laser plane method {plane_method!r} (known: "
+                               f"{', '.join(PLANE_METHODS)})", code="E-CALIB")
     if not np.isfinite(speed_mm_s) or not 0.01 <= speed_mm_s <= 1000:
         raise CalibrationError(f"rail speed {speed_mm_s} mm/s is not plausible", code="E-SPEED")
     w, h = video.size
     intrinsics.check_image_size(w, h)
     check_picks(picks, intrinsics, video.frame_count)
+    if plane_method == "three-point":
+        check_stripe_points(picks, intrinsics, video.frame_count)
     fps = float(fps or video.fps)
     times = video.times_s if fps == video.fps else np.arange(video.frame_count) / fps
     dt = float(times[picks.t2] - times[picks.t1])
     report(progress, 0.05, "motion direction and pose")
     pose = solve_pose(intrinsics, target, picks, speed_mm_s, dt)
     implied, warnings = pose.implied_speed_mm_s, list(pose.warnings)
-    # ----- stripes on the target around each calibration frame ----------------------------
-    obs = observe_stripes(video, times, intrinsics, target, picks, pose, fps, plane_frames,
-                          plane_span, plane_travel_mm, progress, cancel)
-    planes0 = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
-    if refine_with_stripes:
-        pose = refine_tilt(obs, planes0, intrinsics, target, picks, pose, speed_mm_s, dt,
-                           click_sigma_px)
+    if plane_method == "three-point":
+        report(progress, 0.5, "laser planes from the three stripe points")
+        # the travel the target's pose was fitted with: the entered speed once confirmed
+        v_pose = (speed_mm_s if abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s
+                  else implied)
+        planes = three_point_planes(
+            intrinsics, pose.rotation, target,
+            (pose.target_rotation, pose.target_translation_mm), picks,
+            lambda k: v_pose * float(times[k] - times[picks.t1]))
+        warnings.append("laser planes by the three-point method (three picked stripe points "
+                        "per laser): coarser than the stripe fit, with no residual check, and "
+                        "the tilt is not refined by the stripes")
+    else:
+        # ----- stripes on the target around each calibration frame ------------------------
+        obs = observe_stripes(video, times, intrinsics, target, picks, pose, fps, plane_frames,
+                              plane_span, plane_travel_mm, progress, cancel)
         planes0 = obs.fit_planes(pose.rotation,
                                  (pose.target_rotation, pose.target_translation_mm))
-    planes = {name: fit for name, (fit, _) in planes0.items()}
+        if refine_with_stripes:
+            pose = refine_tilt(obs, planes0, intrinsics, target, picks, pose, speed_mm_s, dt,
+                               click_sigma_px)
+            planes0 = obs.fit_planes(pose.rotation,
+                                     (pose.target_rotation, pose.target_translation_mm))
+        planes = {name: fit for name, (fit, _) in planes0.items()}
     report(progress, 1.0, "calibrated")
     return SceneCalibration(
         intrinsics=intrinsics, speed_mm_s=float(speed_mm_s), fps=fps, t1=picks.t1, t2=picks.t2,
