@@ -447,3 +447,136 @@ def test_checkerboard_with_the_wrong_board_size_says_too_few_boards(qtbot, tab, 
     assert "[E-TOO-FEW-BOARDS]" in text
     assert "Traceback" not in text and not box.detailedText()
     assert tab.setup.intrinsics is None and not tab.is_busy()
+
+
+# ----- marking aids and result display (docs/calibration-guide.md) ------------------------------
+def hover(qtbot, tab, u: float, v: float) -> None:
+    """The mouse moved (no button) to where image pixel (u, v) is drawn (after a pause longer
+    than pyqtgraph's mouse-rate limit, which drops moves closer than 10 ms together)."""
+    qtbot.wait(30)
+    vp = tab.view.viewport()
+    pos = QPointF(tab.view.map_to_viewport(u, v))
+    ev = QMouseEvent(
+        QEvent.Type.MouseMove,
+        pos,
+        QPointF(vp.mapToGlobal(pos.toPoint())),
+        Qt.MouseButton.NoButton,
+        Qt.MouseButton.NoButton,
+        Qt.KeyboardModifier.NoModifier,
+    )
+    QApplication.sendEvent(vp, ev)
+
+
+def test_the_loupe_magnifies_the_pixels_under_the_cursor(qtbot, tab, scan, true_picks):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    tab.go_to_frame(true_picks["t1"])
+    loupe, rgb = tab.loupe, tab.video.read(true_picks["t1"])
+    assert loupe.isVisible() and loupe.centre is None
+    for u, v in (true_picks["corners_t1"]["A"], (40.0, 150.0)):
+        hover(qtbot, tab, u, v)
+        assert loupe.centre is not None
+        assert np.allclose(loupe.centre, (u, v), atol=0.5 / tab.view.pixels_per_image_pixel())
+        patch, x0, y0 = loupe.crop()
+        cu, cv = round(loupe.centre[0]), round(loupe.centre[1])
+        r = loupe.radius_px
+        assert (x0, y0) == (cu - r, cv - r)
+        assert np.array_equal(patch, rgb[cv - r : cv + r + 1, cu - r : cu + r + 1])
+        # what is painted: those pixels eight times enlarged, the crosshair on the cursor
+        img = loupe.grab().toImage()
+        side = min(loupe.width(), loupe.height())
+        s = side / (2 * r + 1)
+        assert round(s) == 8
+        for du, dv in ((-4, -5), (3, -6), (-6, 2)):
+            c = img.pixelColor(int((r + du + 0.5) * s), int((r + dv + 0.5) * s))
+            want = rgb[cv + dv, cu + du].astype(int)
+            assert np.abs(np.array([c.red(), c.green(), c.blue()]) - want).max() <= 2
+        cx = int((loupe.centre[0] - x0 + 0.5) * s)
+        c = img.pixelColor(cx, 3)
+        assert (c.red(), c.green(), c.blue()) == (255, 0, 255)
+
+
+def test_the_diagram_shows_the_corner_to_click_next(qtbot, tab, scan, true_picks):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    diagram = tab.corners.diagram
+    assert diagram.isVisible() and diagram.target is tab.setup.target
+    tab.corners.snap_check.setChecked(False)
+    tab.go_to_frame(true_picks["t1"])
+    assert diagram.next_name == "A" and diagram.marked == set()
+    before = diagram.grab().toImage()
+    for i, name in enumerate(CORNER_NAMES):
+        click_image(qtbot, tab, *true_picks["corners_t1"][name])
+        done = set(CORNER_NAMES[: i + 1])
+        nxt = CORNER_NAMES[i + 1] if i + 1 < len(CORNER_NAMES) else None
+        assert diagram.marked == done and diagram.next_name == nxt
+        if nxt:
+            assert tab.corners.instruction.text() == f"t1: click corner {nxt}."
+        if name == "A":  # the ring moved from A to B: the drawing changed
+            assert diagram.grab().toImage() != before
+    assert tab.corners.instruction.text() == "All six corners marked in t1."
+    tab.editor.undo()
+    assert diagram.next_name == "F" and "F" not in diagram.marked
+
+
+def true_ground_rows(truth: dict, name: str, width: int) -> np.ndarray:
+    """Per image column, the row where the simulator's laser plane meets the flat ground (NaN
+    outside the image); the plane is fixed to the camera, so every frame has the same line."""
+    from impress_gui.sim.simulate import SimConfig, make_rig
+
+    rig = make_rig(SimConfig(**truth["config"]))
+    nrm, d = rig.laser(name).plane.normal, rig.laser(name).plane.offset_mm
+    z = rig.standoff_mm
+    direction = np.cross(nrm, [0.0, 0.0, 1.0])
+    p0 = np.array([0.0, (d - nrm[2] * z) / nrm[1], z])
+    pts = p0 + np.linspace(-400, 400, 20001)[:, None] * direction / np.linalg.norm(direction)
+    uv = rig.intrinsics.project(pts @ rig.rotation)
+    order = np.argsort(uv[:, 0])
+    cols = np.arange(width, dtype=float)
+    return np.interp(cols, uv[order, 0], uv[order, 1], left=np.nan, right=np.nan)
+
+
+def n_points(curve) -> int:
+    x = curve.getData()[0]
+    return 0 if x is None else len(x)
+
+
+def test_the_detected_stripes_are_drawn_where_the_lasers_are(qtbot, tab, scan, truth, true_picks):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    assert tab.overlay_stripes.isChecked()
+    tab.go_to_frame(true_picks["t1"])
+    curves = tab.view.stripes
+    qtbot.waitUntil(lambda: all(n_points(curves[n]) for n in curves), timeout=10000)
+    w = tab.video.size[0]
+    for name in ("green", "red"):
+        x, y = curves[name].getData()
+        want = true_ground_rows(truth, name, w)[np.round(x).astype(int)]
+        err = np.abs(y - want)
+        # most columns see the stripe on the ground; in t1 the green one also crosses the target
+        assert len(x) > 0.5 * w
+        assert np.median(err) < 0.25 and np.mean(err < 0.5) > 0.6, (name, np.median(err))
+    # where the green stripe crosses the target it is drawn on the target, off the ground line
+    x, y = curves["green"].getData()
+    assert np.sum(np.abs(y - true_ground_rows(truth, "green", w)[x.astype(int)]) > 2) > 20
+    # the overlay can be switched off and on
+    tab.overlay_stripes.setChecked(False)
+    assert all(n_points(curves[n]) == 0 for n in curves)
+    tab.overlay_stripes.setChecked(True)
+    assert all(n_points(curves[n]) for n in curves)
+
+
+def test_a_calibration_warning_is_shown_in_the_window(qtbot, tab, scan, truth, true_picks):
+    load_video(qtbot, tab, scan / "scan.mp4")
+    tab.corners.snap_check.setChecked(False)
+    mark_corners(qtbot, tab, true_picks, "t1")
+    mark_corners(qtbot, tab, true_picks, "t2")
+    wrong = round(truth["speed_mm_s"] * 1.03, 3)  # 3 % too fast, as in the guide
+    set_inputs(tab, scan, wrong)
+    cal = calibrate(qtbot, tab)
+    assert cal.warnings and any("speed" in w for w in cal.warnings)
+    label = tab.results.warnings_label
+    assert label.isVisible()
+    for w in cal.warnings:
+        assert w in label.text()
+    # and in a message box on top of the window
+    box = tab.messenger.last_box
+    assert box is not None and box.isVisible() and box.icon() == QMessageBox.Icon.Warning
+    assert box.windowTitle() == "Check the calibration" and cal.warnings[0] in box.informativeText()

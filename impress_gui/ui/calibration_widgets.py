@@ -166,12 +166,14 @@ class CornerPanel(QGroupBox):
         s = editor.state
         corners = s.corners(which) if which else {}
         nxt = editor.next_corner(which) if which else None
+        free = next((f for f in FRAMES if s.frame(f) is None), None)
         self.loupe.set_marks(corners, s.raw(which) if which else {})
-        self.diagram.set_state(set(corners), nxt)
+        # a frame that is neither t1 nor t2 becomes the free one with a click on corner A
+        ring = nxt if which else (CORNER_NAMES[0] if has_video and free else None)
+        self.diagram.set_state(set(corners), ring)
         if not has_video:
             text = "Load the scan video."
         elif which is None:
-            free = next((f for f in FRAMES if s.frame(f) is None), None)
             text = (
                 f"Click corner A to make this frame {free}, or use Find t1 and t2."
                 if free
