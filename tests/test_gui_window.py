@@ -352,3 +352,16 @@ def test_latest_only_delivers_just_the_newest_request(qtbot):
     release.set()
     qtbot.waitUntil(lambda: not latest.is_running(), timeout=5000)
     assert results == [2]
+
+
+def test_motor_choices_are_kept_between_sessions(make_window):
+    first = make_window()
+    box = first.motor_panel.scan_box
+    box.speed_preset_combo.setCurrentIndex(box.speed_preset_combo.findData("fast"))
+    box.end_spin.setValue(812.5)
+    first.shutdown()
+    second = make_window()
+    box2 = second.motor_panel.scan_box
+    assert box2.speed_preset_combo.currentData() == "fast"
+    assert second.motor_panel.speed_spin.value() == pytest.approx(13.138, abs=0.01)
+    assert box2.end_spin.value() == pytest.approx(812.5)

@@ -55,9 +55,10 @@ def build_main_window(
 
     motor = None
     if with_motor:
+        from impress_gui.ui.motor_choices import load_motor_choices
         from impress_gui.ui.motor_panel import MotorPanel
 
-        motor = MotorPanel(port_lister=port_lister)
+        motor = MotorPanel(settings=load_motor_choices(settings), port_lister=port_lister)
     return MainWindow(settings, motor_panel=motor)
 
 

@@ -397,6 +397,10 @@ class MainWindow(QMainWindow):
         for tab in self.all_tabs():
             if hasattr(tab, "shutdown"):
                 tab.shutdown()
+        if self.motor_panel is not None and hasattr(self.motor_panel, "current_settings"):
+            from impress_gui.ui.motor_choices import save_motor_choices
+
+            save_motor_choices(self.settings, self.motor_panel.current_settings())
         if self.motor_panel is not None and hasattr(self.motor_panel, "shutdown"):
             self.motor_panel.shutdown()
         if getattr(self, "validation_dialog", None) is not None:
