@@ -102,7 +102,10 @@ def test_csv_exports_lead_with_provenance_lines_and_still_read_back(tmp_path):
     meta = make_recon(folder)
     plane = {"a": 0.02, "b": -0.01, "c": 1.5, "rms_mm": 0.0, "n": 3}
     prov = P.export_provenance(
-        "profile-csv", P.reconstruction_source(meta, folder), spec=SPEC, plane=plane,
+        "profile-csv",
+        P.reconstruction_source(meta, folder),
+        spec=SPEC,
+        plane=plane,
         parameters={"layer": "fused", "width_mm": 0.5},
     )
     h = M.levelled(_heights(), SPEC, M.Plane(0.02, -0.01, 1.5))
@@ -119,7 +122,9 @@ def test_csv_exports_lead_with_provenance_lines_and_still_read_back(tmp_path):
     assert got["parameters.levelling.a"] == "0.02" and got["parameters.width_mm"] == "0.5"
     assert "levelling plane" in got["grid.height"]
     m = M.new_measurement(
-        "ruler", [(0, 25), (3, 25)], {"xy_mm": 3.0},
+        "ruler",
+        [(0, 25), (3, 25)],
+        {"xy_mm": 3.0},
         params={"layer": "fused", "heightmap_sha256": meta["files"]["heightmap.tif"]},
     )
     rows = M.measurements_csv([m], prov).splitlines()
@@ -189,11 +194,12 @@ def test_every_viewer_export_records_version_source_grid_and_parameters(qtbot, v
     raw = _export(qtbot, v, a.export_tiff, tmp_path / "h.tif")
     with tifffile.TiffFile(tmp_path / "h.tif") as tif:
         page = tif.pages[0]
-        _check(json.loads(page.description), v, "heightmap-tiff")
+        _check(json.loads(page.description.split("provenance ", 1)[1]), v, "heightmap-tiff")
         assert page.software == P.SOFTWARE
         assert page.tags["XResolution"].value == (100, 1)  # 100 cells per cm: 0.1 mm
         assert page.tags["ResolutionUnit"].value == 3  # centimetre
         np.testing.assert_array_equal(page.asarray(), v.measure_height())
+    np.testing.assert_array_equal(tifffile.imread(tmp_path / "h.tif"), v.measure_height())
     assert _export(qtbot, v, a.export_tiff, tmp_path / "h2.tif") == raw  # deterministic
 
     _export(qtbot, v, a.export_x3p, tmp_path / "h.x3p")

@@ -42,7 +42,7 @@ def _now() -> str:
 
 
 def _tiff_bytes(arr: np.ndarray, prov: dict | None = None, spec: GridSpec | None = None) -> bytes:
-    """Float32 TIFF; with ``prov`` the provenance JSON is its ImageDescription and Software
+    """Float32 TIFF; with ``prov`` its ImageDescription is ``... provenance {JSON}``, Software
     names the version; with ``spec`` the resolution tags give the cell size (pixels per cm)."""
     import io
 
@@ -59,7 +59,8 @@ def _tiff_bytes(arr: np.ndarray, prov: dict | None = None, spec: GridSpec | None
         compression="zlib",
         metadata=None,
         software=P.SOFTWARE if prov is not None else None,
-        description=P.to_json(prov) if prov is not None else None,
+        # a description starting with "{" is taken by tifffile for its own shaped metadata
+        description=f"{P.SOFTWARE} heightmap; provenance {P.to_json(prov)}" if prov else None,
         **extra,
     )
     return buf.getvalue()
