@@ -299,3 +299,18 @@ def test_proposed_frames_have_each_stripe_on_the_target(flat_scan):
     run_frames = 70.0 / truth["speed_mm_s"] * fps
     for key in ("t1", "t2"):
         assert abs(prop[key] - sim[key]) < 0.5 * run_frames, (key, prop, sim)
+
+
+def test_the_windows_pick_editor_keeps_the_stripe_points(flat_scan):
+    """Picks imported into the calibration tab's editor and exported again keep the
+    three-point stripe points (the window never drops what a file holds)."""
+    from impress_gui.ui.pick_editor import PickEditor
+
+    picks = _stripe_picks(flat_scan)
+    assert picks.stripe_points
+    editor = PickEditor()
+    editor.import_picks(picks)
+    out = editor.to_picks(picks.video, picks.video_sha256)
+    assert out is not None and out.stripe_points == picks.stripe_points
+    editor.undo()  # back to the empty state: no stray stripe points either
+    assert editor.state.stripe_points == {}

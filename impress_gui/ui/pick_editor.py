@@ -28,6 +28,8 @@ class PickState:
     corners_t2: dict[str, Point] = field(default_factory=dict)
     raw_t1: dict[str, Point] = field(default_factory=dict)  # clicks before a snap
     raw_t2: dict[str, Point] = field(default_factory=dict)
+    # the three-point fallback's stripe points of an imported picks file, kept unchanged
+    stripe_points: dict = field(default_factory=dict)
 
     def frame(self, which: str) -> int | None:
         return self.t1 if which == "t1" else self.t2
@@ -176,7 +178,8 @@ class PickEditor:
     # ----- conversion ----------------------------------------------------------------------
     @staticmethod
     def state_of(picks: Picks) -> PickState:
-        return PickState(picks.t1, picks.t2, dict(picks.corners_t1), dict(picks.corners_t2))
+        return PickState(picks.t1, picks.t2, dict(picks.corners_t1), dict(picks.corners_t2),
+                         stripe_points=dict(picks.stripe_points))
 
     def load_picks(self, picks: Picks) -> None:
         """Start a fresh history from saved picks."""
@@ -199,4 +202,5 @@ class PickEditor:
             dict(s.corners_t2),
             video_sha256=video_sha256,
             note=note,
+            stripe_points=dict(s.stripe_points),
         )
