@@ -1,13 +1,14 @@
 """The calibration tab's input and output: the worker tasks that open the scan video
-(each on its own video object), and the import/export of picks and calibrations as files (for
-the command line and for exchange; the project keeps them too)."""
+(each on its own video object), the Calibrate action (inputs checked, then the core in the
+worker), and the import/export of picks and calibrations as files (for the command line and for
+exchange; the project keeps them too)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from impress_gui.core.calib_aids import propose_calibration_frames
-from impress_gui.core.calibration import calibrate_scene
+from impress_gui.core.calibration import SceneCalibration, calibrate_scene, check_picks
 from impress_gui.core.errors import ImpressError, InputError
 from impress_gui.core.picks import Picks
 from impress_gui.core.progress import CancelToken, ProgressCallback, sub_progress
@@ -120,3 +121,61 @@ class CalibrationFiles:
             return False
         self.project.log(f"{what} exported", {"path": str(path)})
         return True
+
+
+class SceneCalibrationRuns:
+    """The tab's Calibrate action (mixed into the tab). Needs ``setup``, ``editor``, ``video``,
+    ``video_path``, ``video_sha256``, ``project``, ``results``, ``messenger``, ``status``,
+    ``calibrated``, ``_run``, ``_mark_dirty`` and ``_refresh``."""
+
+    def calibrate(self) -> bool:
+        intr, target, speed = self.setup.intrinsics, self.setup.target, self.setup.speed_mm_s()
+        picks = self.editor.to_picks(str(self.video_path), self.video_sha256)
+        problem = None
+        if self.video is None:
+            problem = "Load the scan video first."
+        elif intr is None:
+            problem = "Camera intrinsics are missing: load, enter or calibrate them."
+        elif target is None:
+            problem = "Choose the target model."
+        elif speed <= 0:
+            problem = "Enter the rail speed of this scan (mm/s)."
+        elif picks is None:
+            problem = "Choose the frames t1 and t2 and mark the six corners in each."
+        if problem:
+            self.messenger.error("Cannot calibrate yet", problem, "E-CALIB-INPUT")
+            return False
+        try:
+            intr.check_image_size(*self.video.size)
+            check_picks(picks, intr, self.video.frame_count)
+        except ImpressError as exc:
+            self.messenger.exception("Cannot calibrate yet", exc)
+            return False
+        path, state = self.video_path, self.editor.state
+        inputs = {
+            "video": {"path": str(path), "sha256": self.video_sha256},
+            "intrinsics": {"source": intr.source},
+            "target": {"name": target.name},
+        }
+
+        return self._run(
+            "Calibrating",
+            calibrate_task(path, intr, target, picks, speed, inputs),
+            lambda cal: self._on_calibrated(cal, picks, state),
+            "Calibration failed",
+        )
+
+    def _on_calibrated(self, cal: SceneCalibration, picks: Picks, state) -> None:
+        self.calibration, self._cal_state = cal, state
+        self.project.set_picks(picks)
+        self.project.set_calibration(cal)
+        self.results.show_calibration(cal)
+        self._mark_dirty()
+        self._refresh()
+        self.calibrated.emit(cal)
+        self.status.emit(
+            f"Calibrated: roll {cal.roll_deg:+.3f} deg, tilt {cal.tilt_deg:+.3f} "
+            f"deg, reprojection RMS {cal.reprojection_rms_px:.2f} px"
+        )
+        if cal.warnings:
+            self.messenger.warning("Check the calibration", "\n\n".join(cal.warnings))

@@ -25,14 +25,13 @@ from PySide6.QtWidgets import (
 )
 
 from impress_gui.core.calib_aids import refine_corner
-from impress_gui.core.calibration import SceneCalibration, check_picks
+from impress_gui.core.calibration import SceneCalibration
 from impress_gui.core.errors import ImpressError
-from impress_gui.core.picks import Picks
 from impress_gui.core.project import Project
 from impress_gui.core.video import VideoSource
 from impress_gui.ui.calibration_io import (
     CalibrationFiles,
-    calibrate_task,
+    SceneCalibrationRuns,
     open_evidence,
     propose_task,
 )
@@ -49,7 +48,7 @@ from impress_gui.ui.task_bar import TaskBar
 FRAME_CACHE = 12
 
 
-class CalibrationTab(CalibrationFiles, CheckerboardRuns, QWidget):
+class CalibrationTab(CalibrationFiles, SceneCalibrationRuns, CheckerboardRuns, QWidget):
     changed = Signal()  # something the project keeps changed
     status = Signal(str)  # a line for the status bar
     video_changed = Signal(str)  # path of the video shown ("" for none)
@@ -420,58 +419,6 @@ class CalibrationTab(CalibrationFiles, CheckerboardRuns, QWidget):
             if self.editor.count(which) == 0:
                 self.editor.set_frame(which, out[which])
         self.go_to_pick("t1")
-
-    def calibrate(self) -> bool:
-        intr, target, speed = self.setup.intrinsics, self.setup.target, self.setup.speed_mm_s()
-        picks = self.editor.to_picks(str(self.video_path), self.video_sha256)
-        problem = None
-        if self.video is None:
-            problem = "Load the scan video first."
-        elif intr is None:
-            problem = "Camera intrinsics are missing: load, enter or calibrate them."
-        elif target is None:
-            problem = "Choose the target model."
-        elif speed <= 0:
-            problem = "Enter the rail speed of this scan (mm/s)."
-        elif picks is None:
-            problem = "Choose the frames t1 and t2 and mark the six corners in each."
-        if problem:
-            self.messenger.error("Cannot calibrate yet", problem, "E-CALIB-INPUT")
-            return False
-        try:
-            intr.check_image_size(*self.video.size)
-            check_picks(picks, intr, self.video.frame_count)
-        except ImpressError as exc:
-            self.messenger.exception("Cannot calibrate yet", exc)
-            return False
-        path, state = self.video_path, self.editor.state
-        inputs = {
-            "video": {"path": str(path), "sha256": self.video_sha256},
-            "intrinsics": {"source": intr.source},
-            "target": {"name": target.name},
-        }
-
-        return self._run(
-            "Calibrating",
-            calibrate_task(path, intr, target, picks, speed, inputs),
-            lambda cal: self._on_calibrated(cal, picks, state),
-            "Calibration failed",
-        )
-
-    def _on_calibrated(self, cal: SceneCalibration, picks: Picks, state) -> None:
-        self.calibration, self._cal_state = cal, state
-        self.project.set_picks(picks)
-        self.project.set_calibration(cal)
-        self.results.show_calibration(cal)
-        self._mark_dirty()
-        self._refresh()
-        self.calibrated.emit(cal)
-        self.status.emit(
-            f"Calibrated: roll {cal.roll_deg:+.3f} deg, tilt {cal.tilt_deg:+.3f} "
-            f"deg, reprojection RMS {cal.reprojection_rms_px:.2f} px"
-        )
-        if cal.warnings:
-            self.messenger.warning("Check the calibration", "\n\n".join(cal.warnings))
 
     # ----- display ----------------------------------------------------------------------------
     def _refresh(self) -> None:
