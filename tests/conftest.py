@@ -22,6 +22,35 @@ def pytest_configure(config):
     subprocess.run([sys.executable, "-c", "import impress_gui.core.kernels"], check=True)
 
 
+def _new_threads(before: set, ignore_dummy: bool) -> set:
+    import threading
+
+    left = set(threading.enumerate()) - before
+    return {t for t in left if not (ignore_dummy and isinstance(t, threading._DummyThread))}
+
+
+@pytest.fixture
+def no_stray_threads():
+    """The test leaves no thread running (modules opt in through ``pytestmark``)."""
+    import threading
+
+    before = set(threading.enumerate())
+    yield
+    assert _new_threads(before, ignore_dummy=False) == set()
+
+
+@pytest.fixture
+def no_stray_python_threads():
+    """As :func:`no_stray_threads`, not counting the ``_DummyThread`` entries Python registers
+    for a QThread that runs Python code (e.g. the reconstruction's decoder) and never
+    unregisters: those are not threads; the workers' own state is checked by the tests."""
+    import threading
+
+    before = set(threading.enumerate())
+    yield
+    assert _new_threads(before, ignore_dummy=True) == set()
+
+
 def _simulate(out: Path, **kw) -> Path:
     from impress_gui.sim.simulate import SimConfig, simulate
 

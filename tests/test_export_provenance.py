@@ -9,7 +9,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import threading
 
 import cv2
 import numpy as np
@@ -23,7 +22,8 @@ from impress_gui.core.grid import GridSpec
 from impress_gui.core.outputs import HEIGHT_CONVENTION, RECON_FORMAT
 from impress_gui.core.readers import read_ply, read_x3p
 
-pytestmark = pytest.mark.qt_log_ignore("propagateSizeHints")
+pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
+              pytest.mark.usefixtures("no_stray_python_threads")]
 SPEC = GridSpec(-8.0, 20.0, 0.1, (120, 160))
 VIDEO_SHA = "a" * 64
 CAL_SHA = "b" * 64
@@ -147,16 +147,6 @@ def viewer(qtbot, tmp_path):
     yield v
     v.shutdown()
     v.messenger.close_all()
-
-
-@pytest.fixture(autouse=True)
-def no_stray_threads():
-    before = set(threading.enumerate())
-    yield
-    left = {
-        t for t in set(threading.enumerate()) - before if not isinstance(t, threading._DummyThread)
-    }
-    assert left == set()
 
 
 def _export(qtbot, v, action, path) -> bytes:

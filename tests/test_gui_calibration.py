@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +23,8 @@ from impress_gui.ui.calibration_tab import CalibrationTab
 from impress_gui.ui.messages import Messenger
 
 pyside_fix.guard()
-pytestmark = pytest.mark.qt_log_ignore("propagateSizeHints")
+pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
+              pytest.mark.usefixtures("no_stray_threads")]
 _SCANS: dict[str, Path] = {}
 
 
@@ -67,13 +67,6 @@ def truth(scan) -> dict:
 @pytest.fixture(scope="session")
 def true_picks(scan) -> dict:
     return json.loads((scan / "picks.json").read_text())
-
-
-@pytest.fixture(autouse=True)
-def no_stray_threads():
-    before = set(threading.enumerate())
-    yield
-    assert set(threading.enumerate()) - before == set()
 
 
 class FakeDialogs:

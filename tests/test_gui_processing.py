@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import threading
 import time
 
 import numpy as np
@@ -25,7 +24,8 @@ from impress_gui.ui.processing_tab import ProcessingTab
 
 pyside_fix.guard()
 guard_pyside_none()
-pytestmark = pytest.mark.qt_log_ignore("propagateSizeHints")
+pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
+              pytest.mark.usefixtures("no_stray_python_threads")]
 
 
 class FakeDialogs:
@@ -39,19 +39,6 @@ class FakeDialogs:
 
     def directory(self, title, start=""):
         return self.answer
-
-
-@pytest.fixture(autouse=True)
-def no_stray_threads():
-    """No thread left running. Python registers a ``_DummyThread`` for a QThread that starts a
-    Python thread (the reconstruction's decoder) and never unregisters it; those entries are
-    not threads, the workers' own state is checked by the tests."""
-    before = set(threading.enumerate())
-    yield
-    left = {
-        t for t in set(threading.enumerate()) - before if not isinstance(t, threading._DummyThread)
-    }
-    assert left == set()
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import threading
 
 import cv2
 import numpy as np
@@ -28,7 +27,8 @@ from impress_gui.ui.viewer_tab import ViewerTab
 
 pyside_fix.guard()
 guard_pyside_none()
-pytestmark = pytest.mark.qt_log_ignore("propagateSizeHints")
+pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
+              pytest.mark.usefixtures("no_stray_python_threads")]
 STEP = 6.35
 
 
@@ -43,16 +43,6 @@ class FakeDialogs:
 
     def directory(self, title, start=""):
         return self.answer
-
-
-@pytest.fixture(autouse=True)
-def no_stray_threads():
-    before = set(threading.enumerate())
-    yield
-    left = {
-        t for t in set(threading.enumerate()) - before if not isinstance(t, threading._DummyThread)
-    }
-    assert left == set()
 
 
 @pytest.fixture(scope="module")

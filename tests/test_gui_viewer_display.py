@@ -31,11 +31,11 @@ from test_gui_viewer import click_map, wait_idle, zoom_to
 
 from impress_gui.core import measure as M
 
-pytestmark = pytest.mark.qt_log_ignore("propagateSizeHints")
+pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
+              pytest.mark.usefixtures("no_stray_python_threads")]
 # the fixtures of test_gui_viewer: the blocks scan and its reconstruction (made once per
-# session), the widest slot's truth, a viewer showing the reconstruction, no stray threads
-no_stray_threads, scan, recon, slot, viewer = (
-    base.no_stray_threads,
+# session), the widest slot's truth, a viewer showing the reconstruction
+scan, recon, slot, viewer = (
     base.scan,
     base.recon,
     base.slot,

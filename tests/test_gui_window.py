@@ -27,7 +27,8 @@ from impress_gui.ui.motor_panel import MotorPanel
 from impress_gui.ui.worker import LatestOnly, Worker
 
 pyside_fix.guard()
-pytestmark = pytest.mark.qt_log_ignore("propagateSizeHints")
+pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
+              pytest.mark.usefixtures("no_stray_threads")]
 Button = QMessageBox.StandardButton
 CASE = {"case_id": "2024-00117", "evidence_id": "EV-3", "examiner": "J. Doe", "notes": "left shoe"}
 
@@ -35,13 +36,6 @@ CASE = {"case_id": "2024-00117", "evidence_id": "EV-3", "examiner": "J. Doe", "n
 @pytest.fixture(scope="session")
 def scan(tmp_path_factory) -> Path:
     return render_scan(tmp_path_factory)
-
-
-@pytest.fixture(autouse=True)
-def no_stray_threads():
-    before = set(threading.enumerate())
-    yield
-    assert set(threading.enumerate()) - before == set()
 
 
 @pytest.fixture

@@ -39,14 +39,10 @@ from impress_gui.hardware.units import (
     speed_unit_from_measurement,
 )
 
+pytestmark = pytest.mark.usefixtures("no_stray_threads")
+
+
 TIME_SCALE = 50.0  # emulated seconds per wall second
-
-
-@pytest.fixture(autouse=True)
-def no_stray_threads():
-    before = set(threading.enumerate())
-    yield
-    assert set(threading.enumerate()) - before == set()
 
 
 @pytest.fixture

@@ -4,7 +4,6 @@ and the ``impress motor`` command."""
 from __future__ import annotations
 
 import os
-import threading
 
 import pytest
 import serial
@@ -24,14 +23,10 @@ from impress_gui.hardware.emulator import (
     emulated_port,
 )
 
+pytestmark = pytest.mark.usefixtures("no_stray_threads")
+
+
 posix_only = pytest.mark.skipif(os.name != "posix", reason="pseudo-terminals are POSIX only")
-
-
-@pytest.fixture(autouse=True)
-def no_stray_threads():
-    before = set(threading.enumerate())
-    yield
-    assert set(threading.enumerate()) - before == set()
 
 
 class Clock:

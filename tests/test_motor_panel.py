@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import threading
 
 import pytest
 from PySide6.QtCore import Qt
@@ -13,15 +12,11 @@ from impress_gui.hardware.emulator import CM1Emulator, EmulatorConfig, PtyServer
 from impress_gui.hardware.rail import RAIL_TRAVEL_MM, SPEED_PRESETS_MM_S
 from impress_gui.ui.motor_panel import SIMULATED_LABEL, MotorPanel, MotorPanelSettings
 
+pytestmark = pytest.mark.usefixtures("no_stray_threads")
+
+
 TIME_SCALE = 20.0
 FAST = MotorConfig(poll_interval_s=0.01, reply_timeout_s=0.3)
-
-
-@pytest.fixture(autouse=True)
-def no_stray_threads():
-    before = set(threading.enumerate())
-    yield
-    assert set(threading.enumerate()) - before == set()
 
 
 class Rig:
