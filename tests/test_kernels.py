@@ -119,12 +119,8 @@ def _texture_inputs(n_rows=300, n_pts=600):
     spec = GridSpec(-130.0, -30.0, 0.25, (800, 1040))
     height = np.where(rng.random(spec.shape) < 0.7, rng.normal(5, 2, spec.shape), np.nan)
 
-    class Cal:  # a flat reference 400 mm below the camera
-        @staticmethod
-        def reference_depth(x, y):
-            return 400.0 + 0.0 * x + 0.0 * y
-
-    return spool, rays, travel, height.astype(np.float32), spec, Cal(), ColorAccumulator(spec, 1.6)
+    ref = np.array([400.0, 0.0, 0.0])  # a flat reference 400 mm below the camera
+    return spool, rays, travel, height.astype(np.float32), spec, ref, ColorAccumulator(spec, 1.6)
 
 
 def test_texture_mapping_split_between_threads_equals_one_thread(monkeypatch):
@@ -133,7 +129,7 @@ def test_texture_mapping_split_between_threads_equals_one_thread(monkeypatch):
 
     results = []
     for plan in ("auto", "single", "too tight"):
-        spool, rays, travel, height, spec, cal, acc = _texture_inputs()
+        spool, rays, travel, height, spec, ref, acc = _texture_inputs()
         ranges = set()
 
         def spy(*args, _real=kernels.texture_rows, _seen=ranges):
@@ -151,7 +147,7 @@ def test_texture_mapping_split_between_threads_equals_one_thread(monkeypatch):
         else:
             assert rc.texture_split(travel, rays[:, 0], rays[:, 1], np.array([400.0, 0, 0]),
                                      spec, 1.6) is not None
-        tex = rc.map_texture(spool, rays, travel, height, spec, cal, acc, chunk=16)
+        tex = rc.map_texture(spool, rays, travel, height, spec, ref, acc, chunk=16)
         results.append((tex, acc.sum.copy(), acc.count.copy()))
         whole = (0, spec.shape[0])
         # split: two halves and no rerun; too tight: the halves, then one thread over all

@@ -77,6 +77,12 @@ class HeightAccumulator:
         kernels().mean_heights(self.sum, self.count, out)
         return out
 
+    def mean_rows(self, rows: slice, out: np.ndarray) -> None:
+        """:meth:`mean` of grid rows ``rows`` into the same rows of ``out``."""
+        from impress_gui.core.compiled import kernels
+
+        kernels().mean_heights(self.sum[rows], self.count[rows], out[rows])
+
 
 class ColorAccumulator:
     """Sum and count of colours per cell (the registered texture); filled by
@@ -95,17 +101,40 @@ class ColorAccumulator:
         kernels().mean_colours(self.sum, self.count, out)
         return out
 
+    def mean_rows(self, rows: slice, out: np.ndarray) -> None:
+        """:meth:`mean` of grid rows ``rows`` into the same rows of ``out``."""
+        from impress_gui.core.compiled import kernels
+
+        kernels().mean_colours(self.sum[rows], self.count[rows], out[rows])
+
 
 def fuse(h_green: np.ndarray, h_red: np.ndarray, tol_mm: float):
     """Fuse two per-laser maps. Returns (fused, difference green - red, contribution) where
     contribution is 0 none, 1 green only, 2 red only, 3 both agreeing (mean), 4 both
     disagreeing (the value nearer the local consensus: the mean of the cells fused from
     agreeing or single lasers in the 7 x 7 square around it)."""
-    from impress_gui.core.compiled import kernels
-
     fused = np.empty(h_green.shape, np.float32)
     diff = np.empty(h_green.shape, np.float32)
     contrib = np.empty(h_green.shape, np.uint8)
-    kernels().fuse_maps(np.ascontiguousarray(h_green, np.float32), np.ascontiguousarray(h_red, np.float32),
-              float(tol_mm), 3, fused, diff, contrib)
+    fuse_rows(np.ascontiguousarray(h_green, np.float32), np.ascontiguousarray(h_red, np.float32),
+              tol_mm, fused, diff, contrib, 0, h_green.shape[0])
     return fused, diff, contrib
+
+
+#: half size of the square whose consensus decides between disagreeing lasers
+FUSE_RADIUS = 3
+
+
+def fuse_rows(h_green, h_red, tol_mm: float, fused, diff, contrib, lo: int, hi: int,
+              resolve: tuple[int, int] | None = None) -> None:
+    """:func:`fuse` on rows ``lo .. hi - 1`` of preallocated maps, then the conflicts of rows
+    ``resolve`` (default the same rows; they need the first pass :data:`FUSE_RADIUS` rows
+    beyond them). Fusing a map band by band gives the same result as all at once."""
+    from impress_gui.core.compiled import kernels
+
+    k = kernels()
+    conflicts = k.fuse_rows(h_green, h_red, float(tol_mm), fused, diff, contrib, lo, hi) \
+        if hi > lo else 0
+    a, b = resolve if resolve is not None else (lo, hi)
+    if b > a and (conflicts or resolve is not None):
+        k.resolve_conflicts(h_green, h_red, FUSE_RADIUS, fused, contrib, a, b)

@@ -479,16 +479,15 @@ def _reflect(i, n):
 
 
 @_kernel(
-    "int64(float32[:, :], float32[:, :], float64, int64, float32[:, :], float32[:, :], uint8[:, :])"
+    "int64(float32[:, :], float32[:, :], float64, float32[:, :], float32[:, :], uint8[:, :], int64, int64)"
 )
-def fuse_maps(hg, hr, tol, radius, fused, diff, contrib):
-    """Fuse the two lasers' maps (see ``grid.fuse`` for the codes). Where both have data but
-    disagree by more than ``tol``, the value nearer the local consensus wins: the mean of the
-    already fused cells in the ``(2 radius + 1)`` square around it."""
-    hh, ww = hg.shape
+def fuse_rows(hg, hr, tol, fused, diff, contrib, lo, hi):
+    """First pass of the fusion (see ``grid.fuse`` for the codes) over rows ``lo .. hi - 1``:
+    single lasers and agreeing pairs are fused; where both have data but disagree by more
+    than ``tol`` the cell is marked 4 (NaN) for :func:`resolve_conflicts`. Returns how many."""
     conflicts = 0
-    for i in range(hh):
-        for j in range(ww):
+    for i in range(lo, hi):
+        for j in range(hg.shape[1]):
             g, r = hg[i, j], hr[i, j]
             g_ok, r_ok = not math.isnan(g), not math.isnan(r)
             diff[i, j] = g - r if (g_ok and r_ok) else np.nan
@@ -504,12 +503,20 @@ def fuse_maps(hg, hr, tol, radius, fused, diff, contrib):
                 fused[i, j], contrib[i, j] = r, 2
             else:
                 fused[i, j], contrib[i, j] = np.nan, 0
-    if conflicts == 0:
-        return 0
-    # the consensus is taken over the cells fused before any conflict is decided
-    pick = np.empty(conflicts, np.float32)
-    q = 0
-    for i in range(hh):
+    return conflicts
+
+
+@_kernel(
+    "void(float32[:, :], float32[:, :], int64, float32[:, :], uint8[:, :], int64, int64)"
+)
+def resolve_conflicts(hg, hr, radius, fused, contrib, lo, hi):
+    """Second pass over rows ``lo .. hi - 1`` (the first must have covered ``radius`` rows
+    more on each side): each disagreeing cell takes the laser's value nearer the local
+    consensus, the mean of the cells fused from agreeing or single lasers (codes 1-3) in the
+    ``(2 radius + 1)`` square around it (reflected at the grid's border). Conflict cells
+    never count, decided or not, so the result does not depend on the order of the rows."""
+    hh, ww = fused.shape
+    for i in range(lo, hi):
         for j in range(ww):
             if contrib[i, j] != 4:
                 continue
@@ -518,18 +525,37 @@ def fuse_maps(hg, hr, tol, radius, fused, diff, contrib):
             for di in range(-radius, radius + 1):
                 ii = _reflect(i + di, hh)
                 for dj in range(-radius, radius + 1):
-                    v = fused[ii, _reflect(j + dj, ww)]
-                    if not math.isnan(v):
-                        s += v
+                    jj = _reflect(j + dj, ww)
+                    c = contrib[ii, jj]
+                    if c != 0 and c != 4:
+                        s += fused[ii, jj]
                         n += 1.0
             local = s / n if n > 0 else 0.0
             g, r = hg[i, j], hr[i, j]
-            pick[q] = g if abs(g - local) <= abs(r - local) else r
-            q += 1
-    q = 0
-    for i in range(hh):
-        for j in range(ww):
-            if contrib[i, j] == 4:
-                fused[i, j] = pick[q]
-                q += 1
-    return conflicts
+            fused[i, j] = g if abs(g - local) <= abs(r - local) else r
+
+
+@_kernel(
+    "void(float64[:], float64[:], float64[:], boolean, float64[:], float64[:])"
+)
+def undistort(xd, yd, coeffs, rational, x_out, y_out):
+    """Normalized distorted coordinates -> undistorted (OpenCV's model, ``coeffs`` k1 k2 p1 p2
+    k3 [k4 k5 k6]): fixed-point iteration per point until it moves less than 1e-13 (at most
+    100 times), as :meth:`impress_gui.core.geometry.Intrinsics.undistort_points`."""
+    k1, k2, p1, p2, k3 = coeffs[0], coeffs[1], coeffs[2], coeffs[3], coeffs[4]
+    for i in range(xd.shape[0]):
+        x, y = xd[i], yd[i]
+        for _ in range(100):
+            r2 = x * x + y * y
+            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            if rational:
+                radial = radial / (1 + r2 * (coeffs[5] + r2 * (coeffs[6] + r2 * coeffs[7])))
+            dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+            dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+            xn, yn = (xd[i] - dx) / radial, (yd[i] - dy) / radial
+            delta = max(abs(xn - x), abs(yn - y))
+            x, y = xn, yn
+            if delta < 1e-13:
+                break
+        x_out[i] = x
+        y_out[i] = y

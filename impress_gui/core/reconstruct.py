@@ -1,9 +1,11 @@
 """Reconstruction: scan video + scene calibration -> per-laser and fused heightmaps, registered
 texture and point cloud on one rail-frame grid.
 
-Streaming: a decoder thread feeds a bounded queue; each frame is reduced at once to two stripe
-profiles and one texture row, so memory does not grow with the video's length (only the output
-grids, which grow with the scanned area).
+Streaming: a decoder thread feeds a bounded queue (it starts at once, while the run's tables
+are prepared); each frame is reduced at once to two stripe profiles and one texture row, so
+memory does not grow with the video's length (only the output grids, which grow with the
+scanned area). Grid rows the lasers have left behind are finished - means, fusion, texture -
+by a worker thread during the loop (:mod:`impress_gui.core.finish`).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -18,12 +21,8 @@ import numpy as np
 from impress_gui.core.calibration import SceneCalibration
 from impress_gui.core.compiled import kernels as _kernels
 from impress_gui.core.errors import InputError, ReconstructionError, VideoError
-from impress_gui.core.grid import (
-    ColorAccumulator,
-    GridSpec,
-    HeightAccumulator,
-    fuse,
-)
+from impress_gui.core.finish import RowFinisher, TextureInputs, stripe_offsets
+from impress_gui.core.grid import ColorAccumulator, GridSpec, HeightAccumulator
 from impress_gui.core.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.stripes import (
     LASERS,
@@ -33,7 +32,7 @@ from impress_gui.core.stripes import (
     StripeParams,
     detect_planes,
 )
-from impress_gui.core.texture import RowSpool, map_texture, reference_coeffs
+from impress_gui.core.texture import RowSpool, reference_coeffs
 
 
 @dataclass(frozen=True)
@@ -162,6 +161,7 @@ class _Frames:
     """Decoded frames as (index, rgb band getter, luma) in a background thread."""
 
     def __init__(self, video, start: int, stop: int, cancel: CancelToken, depth: int = 6):
+        """Start decoding ``video`` (owned from now on: closed by :meth:`close`)."""
         self.q: queue.Queue = queue.Queue(maxsize=depth)
         self.video, self.start, self.stop, self.cancel = video, start, stop, cancel
         self.error: BaseException | None = None
@@ -189,6 +189,11 @@ class _Frames:
                 return
             yield item
 
+    def limit(self, depth: int) -> None:
+        """Hold at most ``depth`` decoded frames from now on."""
+        with self.q.mutex:
+            self.q.maxsize = depth
+
     def close(self) -> None:
         self._stop = True
         while self.thread.is_alive():
@@ -197,6 +202,7 @@ class _Frames:
             except queue.Empty:
                 pass
         self.thread.join()
+        self.video.close()
 
 
 def learn_background(video, start: int, stop: int, rois: dict, n_frames: int,
@@ -263,15 +269,37 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
     rois = dict(params.rois) or laser_rois(cal, (w, h), params.height_range_mm)
     sp = StripeParams(method=params.method, rois=rois, min_peak=params.min_peak)
     sp.validate(h)
+    # decoding starts at once, into a deeper queue while the tables below are prepared; the
+    # background tables (the seed's LUT method) are learned beside them, from keyframes
+    # spread over the range, through the caller's reader
+    frames = _Frames(video.clone(DECODE_THREADS), start, stop, cancel, SETUP_QUEUE_FRAMES)
+    try:
+        with ThreadPoolExecutor(1, thread_name_prefix="impress-lut") as pool:
+            lut = pool.submit(learn_background, video, start, stop, rois, params.lut_frames,
+                              cancel) if params.method in ("lut", "combined") else None
+            return _process(video, cal, params, progress, cancel, spool, preview,
+                            preview_every_s, frames, (start, stop), rois, sp, t_start, lut)
+    finally:
+        frames.close()
+
+
+#: decoding threads of the main pass: frame threading with more threads than cores keeps both
+#: cores busy while the frame loop competes for them (bench_reconstruct.py compares)
+DECODE_THREADS = 4
+#: frames decoded ahead while the run is being prepared (~3 MB each at 1080p), and after
+SETUP_QUEUE_FRAMES = 24
+LOOP_QUEUE_FRAMES = 8
+
+
+def _process(video, cal, params, progress, cancel, spool, preview, preview_every_s, frames,
+             frame_range, rois, sp, t_start, lut_job) -> Reconstruction:
+    """The run after the decoder has started: tables, the frame loop, the finish."""
+    start, stop = frame_range
+    w, h = video.size
+    _kernels()
     times = video.times_s
     travel = cal.travel_mm(times)
     intr, rot = cal.intrinsics, cal.rotation
-
-    # ----- background tables (the seed's LUT method) from frames spread over the range -------
-    lut = None
-    if params.method in ("lut", "combined"):
-        lut = learn_background(video, start, stop, rois, params.lut_frames, cancel)
-    report(progress, 0.03, "background learned")
 
     # ----- grid extent and sampling ----------------------------------------------------------
     per_frame_travel = float(np.median(np.abs(np.diff(travel[start:stop])))) if stop - start > 1 else 0.1
@@ -317,7 +345,15 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
     ref = reference_coeffs(cal)
     profile = {n: _Profile(w, k_up) for n in LASERS}
     min_cols = int(0.02 * w)
-    frames = _Frames(video, start, stop, cancel)
+    offsets = {n: stripe_offsets(rays[n], cal.planes[n].plane.normal,
+                                 float(cal.planes[n].plane.offset_mm)) for n in LASERS}
+    finisher = RowFinisher(spec, acc, params.fuse_tolerance_mm, offsets,
+                           _direction(travel[start:stop]),
+                           TextureInputs(tex_rows, tex_rays, travel, ref, tex_acc)
+                           if tex_rows is not None and tex_acc is not None else None)
+    lut = lut_job.result() if lut_job is not None else None
+    report(progress, 0.03, "background learned")
+    frames.limit(LOOP_QUEUE_FRAMES)
     frames_seen = [0]
     last_preview = [time.perf_counter()]
     n_total = stop - start
@@ -343,12 +379,16 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
                                     float(plane.offset_mm), s_k, ref, pr.x, pr.y, pr.h)
                 hgt = _despike(pr.h, params.max_step_mm)
                 ok = valid & np.isfinite(hgt)
-                acc[name].add_profile(*pr.upsampled(hgt, ok, params.max_step_mm))
+                up = pr.upsampled(hgt, ok, params.max_step_mm)
+                acc[name].add_profile(*up)
+                finisher.check_profile(name, s_k, up[1], up[3])
             if params.texture:
                 _kernels().sample_rgb(planes.y, planes.cb, planes.cr, planes.chroma_step,
                                    *tex_sample, tex_colours)
                 tex_rows.append(k, tex_colours)
             i = k - start + 1
+            if i % 8 == 0:
+                finisher.post(s_k)
             if preview is not None and time.perf_counter() - last_preview[0] > preview_every_s:
                 last_preview[0] = time.perf_counter()
                 preview(_preview_map(acc))
@@ -358,6 +398,7 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
                        f"frame {i}/{n_total} ({i / max(el, 1e-9):.1f} frames/s)")
     finally:
         frames.close()
+        finisher.close()
     cancel.check()  # the reader stops early on cancel: never take that as a finished run
     if frames_seen[0] < n_total:
         raise VideoError(f"the video ended at frame {start + frames_seen[0]} before frame "
@@ -372,14 +413,10 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
         if found_frames[name] < 0.5 * n_total:
             warnings.append(f"the {name} stripe was found in only {found_frames[name]} of "
                             f"{n_total} frames")
-    t_fuse = time.perf_counter()
-    per = {n: acc[n].mean() for n in LASERS}
-    fused, diff, contrib = fuse(per["green"], per["red"], params.fuse_tolerance_mm)
-    t_tex = time.perf_counter()
-    report(progress, 0.93, "mapping the texture")
-    texture = None
-    if tex_rows is not None and tex_acc is not None:
-        texture = map_texture(tex_rows, tex_rays, travel, fused, spec, cal, tex_acc)
+    t_finish = time.perf_counter()
+    report(progress, 0.93, "finishing the maps and the texture")
+    finisher.finish()
+    per, fused = finisher.per, finisher.fused
     total_s = time.perf_counter() - t_start
     stats = {
         "frames_processed": n_total,
@@ -391,13 +428,25 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
         "seconds_total": round(total_s, 3),
         "seconds_setup": round(t_loop - t_start, 3),
         "seconds_frame_loop": round(loop_s, 3),
-        "seconds_fusion": round(t_tex - t_fuse, 3),
-        "seconds_texture": round(time.perf_counter() - t_tex, 3),
+        "seconds_finish": round(time.perf_counter() - t_finish, 3),
+        "rows_finished_in_loop": round(finisher.rows_during_loop / spec.shape[0], 3),
         "frames_per_second": round(n_total / max(loop_s, 1e-9), 2),
     }
     report(progress, 1.0, "done")
-    return Reconstruction(spec, fused, per, diff, contrib, texture, (start, stop), rois, stats,
-                          warnings)
+    if finisher.broken:
+        stats["finished_after_loop"] = finisher.broken
+    return Reconstruction(spec, fused, per, finisher.diff, finisher.contrib, finisher.tex,
+                          (start, stop), rois, stats, warnings)
+
+
+def _direction(travel: np.ndarray) -> int:
+    """+1 / -1 when the camera moves one way frame by frame, else 0."""
+    d = np.diff(travel)
+    if len(d) and (d > 0).all():
+        return 1
+    if len(d) and (d < 0).all():
+        return -1
+    return 0
 
 
 def _connected(rows: np.ndarray, tol_px: float = 2.0) -> np.ndarray:
@@ -430,7 +479,7 @@ def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int)
     rows = np.minimum(b0[:, None] + np.arange(bh + 1)[None, :], height - 1).astype(np.float64)
     cols = np.broadcast_to(np.arange(w, dtype=np.float64)[:, None], rows.shape)
     uv = np.column_stack([cols.ravel(), rows.ravel()])
-    rays = cal.intrinsics.rays(uv) @ cal.rotation.T
+    rays = cal.intrinsics.rays_compiled(uv) @ cal.rotation.T
     return np.ascontiguousarray(rays.reshape(w, bh + 1, 3))
 
 

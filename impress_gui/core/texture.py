@@ -48,6 +48,13 @@ class RowSpool:
     def frames(self) -> np.ndarray:
         return np.array(self._frames, np.int64)
 
+    def frames_between(self, a: int, b: int) -> np.ndarray:
+        """Frame indices of rows ``a .. b - 1`` (while rows are still being appended)."""
+        return np.array(self._frames[a:b], np.int64)
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
     def rows(self, a: int, b: int) -> np.ndarray:
         """Rows ``a .. b - 1`` as ``(b - a, width, 3)`` uint8 (safe from several threads)."""
         size = self._width * 3
@@ -60,8 +67,47 @@ class RowSpool:
         self._fh.close()
 
 
-def map_texture(rows, rays, travel, height, spec: GridSpec, cal: SceneCalibration,
-                 acc: ColorAccumulator, chunk: int = 128) -> np.ndarray:
+def filled_heights(height: np.ndarray) -> np.ndarray:
+    """The surface the texture rays meet: the fused heights, missing cells at the reference."""
+    return np.where(np.isfinite(height), height, 0.0).astype(np.float32)
+
+
+def texture_reach(ay: np.ndarray, ref: np.ndarray, max_gap: float) -> float:
+    """How far (mm along Y) from its camera position a texture row's samples can land: the
+    footprint of the row's rays at the deepest plausible surface (heights within +-200 mm of
+    the reference, grid within 2 m of the origin) plus the fill towards the previous row."""
+    z_far = abs(ref[0]) + 200.0 + abs(ref[1]) * 2000 + abs(ref[2]) * 2000
+    return float(np.max(np.abs(ay))) * z_far + max_gap + 5.0
+
+
+class TextureMapper:
+    """Maps texture rows, in scan order, onto the grid: each row's rays meet the surface
+    (fixed-point iteration on ``filled``), then the colours are splatted, filling the strip
+    towards the previous row (which the mapper remembers between calls)."""
+
+    def __init__(self, rays: np.ndarray, ref: np.ndarray, spec: GridSpec,
+                 acc: ColorAccumulator, filled: np.ndarray) -> None:
+        self.ax = np.ascontiguousarray(rays[:, 0] / rays[:, 2])
+        self.ay = np.ascontiguousarray(rays[:, 1] / rays[:, 2])
+        self.ref, self.spec, self.acc, self.filled = ref, spec, acc, filled
+        n = len(self.ax)
+        self.state = (np.zeros(n), np.zeros(n), np.zeros((n, 3)), np.zeros(1, np.bool_))
+
+    def map(self, travels: np.ndarray, colours: np.ndarray, i_lo: int = 0,
+            i_hi: int | None = None) -> int:
+        """Map rows (camera travel ``travels``, colours ``(n, N, 3)`` uint8) onto grid rows
+        ``i_lo .. i_hi - 1``; returns how many samples fell on other rows (not added).
+        ``i_lo == i_hi`` only moves the remembered previous row."""
+        sp, acc = self.spec, self.acc
+        hi = sp.shape[0] if i_hi is None else i_hi
+        return int(_kernels().texture_rows(self.ax, self.ay, np.ascontiguousarray(travels, np.float64),
+                                           self.ref, self.filled, sp.x0_mm, sp.y0_mm, sp.pixel_mm,
+                                           colours, acc.sum, acc.count, float(acc.max_gap_mm),
+                                           *self.state, i_lo, hi))
+
+
+def map_texture(rows, rays, travel, height, spec: GridSpec, ref: np.ndarray,
+                acc: ColorAccumulator, chunk: int = 128) -> np.ndarray:
     """Each texture row's rays meet the reconstructed surface (fixed-point iteration on the
     fused heightmap, missing cells taken at the reference); colours are splatted there.
 
@@ -73,10 +119,7 @@ def map_texture(rows, rays, travel, height, spec: GridSpec, cal: SceneCalibratio
     is redone in one thread."""
     from concurrent.futures import ThreadPoolExecutor
 
-    filled = np.where(np.isfinite(height), height, 0.0).astype(np.float32)
-    ax = np.ascontiguousarray(rays[:, 0] / rays[:, 2])
-    ay = np.ascontiguousarray(rays[:, 1] / rays[:, 2])
-    ref = reference_coeffs(cal)
+    filled = filled_heights(height)
     frames = rows.frames
     s = np.asarray(travel, np.float64)[frames]
     n_rows = len(frames)
@@ -84,24 +127,19 @@ def map_texture(rows, rays, travel, height, spec: GridSpec, cal: SceneCalibratio
     def run(lo: int, hi: int, i_lo: int, i_hi: int, exclusive: tuple[int, int]) -> int:
         """Map spool rows lo..hi-1 (after one unsplatted row to start the fill) onto grid
         rows i_lo..i_hi-1; return samples of the ``exclusive`` rows that fell elsewhere."""
-        n = len(ax)
-        state = (np.zeros(n), np.zeros(n), np.zeros((n, 3)), np.zeros(1, np.bool_))
+        mapper = TextureMapper(rays, ref, spec, acc, filled)
         if lo > 0:
-            _kernels().texture_rows(ax, ay, s[lo - 1 : lo], ref, filled, spec.x0_mm, spec.y0_mm,
-                                 spec.pixel_mm, rows.rows(lo - 1, lo), acc.sum, acc.count,
-                                 float(acc.max_gap_mm), *state, 0, 0)
+            mapper.map(s[lo - 1 : lo], rows.rows(lo - 1, lo), 0, 0)
         stray = 0
         for a in range(lo, hi, chunk):
             b = min(hi, a + chunk)
             for c0, c1 in _split(a, b, exclusive):
-                miss = _kernels().texture_rows(ax, ay, s[c0:c1], ref, filled, spec.x0_mm,
-                                            spec.y0_mm, spec.pixel_mm, rows.rows(c0, c1),
-                                            acc.sum, acc.count, float(acc.max_gap_mm), *state,
-                                            i_lo, i_hi)
+                miss = mapper.map(s[c0:c1], rows.rows(c0, c1), i_lo, i_hi)
                 if exclusive[0] <= c0 and c1 <= exclusive[1]:
                     stray += miss
         return stray
 
+    ax, ay = rays[:, 0] / rays[:, 2], rays[:, 1] / rays[:, 2]
     plan = texture_split(s, ax, ay, ref, spec, float(acc.max_gap_mm)) if n_rows > 4 * chunk \
         else None
     if plan is not None:
@@ -127,14 +165,11 @@ def _split(a: int, b: int, cut: tuple[int, int]):
 def texture_split(s, ax, ay, ref, spec: GridSpec, max_gap: float):
     """Two halves of the texture mapping: ``((rows, exclusive rows, grid rows), ...)`` or
     None when the camera's travel is not monotonic. A texture row's samples lie within
-    ``reach`` mm (along Y) of its camera position: the footprint of the row's rays at the
-    deepest plausible surface plus the fill towards the previous row; generous, and checked
-    by the caller."""
+    :func:`texture_reach` of its camera position; generous, and checked by the caller."""
     d = np.diff(s)
     if not (np.all(d > 0) or np.all(d < 0)):
         return None
-    z_far = abs(ref[0]) + 200.0 + abs(ref[1]) * 2000 + abs(ref[2]) * 2000
-    reach = float(np.max(np.abs(ay))) * z_far + max_gap + 5.0
+    reach = texture_reach(ay, ref, max_gap)
     n = len(s)
     mid = n // 2
     i_mid = int(np.clip(np.rint((s[mid] - spec.y0_mm) / spec.pixel_mm), 1, spec.shape[0] - 1))

@@ -43,6 +43,13 @@ class VideoSource:
         (in a compressed video: keyframes, which decode without their predecessors)."""
         return sorted({int(k) for k in np.linspace(start, stop - 1, max(1, min(n, stop - start)))})
 
+    def clone(self, threads: int | None = None) -> VideoSource:
+        """Another reader of the same source, for use beside this one in another thread
+        (frame folders read each frame on its own, so a shallow copy will do)."""
+        import copy
+
+        return copy.copy(self)
+
     def check_index(self, k: int) -> int:
         if not isinstance(k, (int, np.integer)) or not 0 <= k < self.frame_count:
             raise VideoError(f"frame {k} is outside the video (0..{self.frame_count - 1})",
@@ -116,6 +123,27 @@ class AVVideo(VideoSource):
             if abs(float(rate) - self.fps) / float(rate) < 0.002:
                 self.fps = float(rate)
         self._decoder: Iterator | None = None
+
+    def clone(self, threads: int | None = None) -> AVVideo:
+        """Another reader of the same file with its own decoder (``threads`` decoding threads),
+        sharing this one's frame index: the file is not indexed again."""
+        import copy
+
+        import av
+
+        other = copy.copy(self)
+        other._threads = threads or self._threads
+        try:
+            other._container = av.open(str(self.path), "r")
+        except (av.error.FFmpegError, OSError, ValueError) as exc:
+            raise VideoError(f"{self.path}: not a readable video ({exc})",
+                             code="E-VIDEO-OPEN") from None
+        st = other._container.streams.video[0]
+        st.codec_context.thread_type = "AUTO"
+        st.codec_context.thread_count = other._threads
+        other._stream = st
+        other._decoder = None
+        return other
 
     def quick_frames(self, start: int, stop: int, n: int) -> list[int]:
         keys = np.searchsorted(self._pts, self._keys)

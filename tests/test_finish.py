@@ -1,0 +1,123 @@
+"""Finishing the grid during the frame loop (core/finish.py): the same result as finishing
+everything after the loop, bit for bit, and the fallback when an assumption fails."""
+
+import numpy as np
+import pytest
+
+from impress_gui.core import finish as fin
+from impress_gui.core import reconstruct as rc
+from impress_gui.core.calibration import SceneCalibration
+from impress_gui.core.grid import fuse, fuse_rows
+from impress_gui.core.reconstruct import ProcessParams, reconstruct
+from impress_gui.core.video import open_video
+
+pytestmark = pytest.mark.usefixtures("no_stray_threads")
+
+
+def _maps(seed=7, shape=(90, 70)):
+    rng = np.random.default_rng(seed)
+    g = rng.normal(5.0, 0.1, shape).astype(np.float32)
+    r = (g + rng.normal(0, 0.3, shape)).astype(np.float32)  # many disagreements
+    g[rng.random(shape) < 0.2] = np.nan
+    r[rng.random(shape) < 0.2] = np.nan
+    return g, r
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_fusing_band_by_band_equals_fusing_at_once(direction):
+    g, r = _maps()
+    whole = fuse(g, r, 0.5)
+    assert (whole[2] == 4).sum() > 100  # the consensus pass matters here
+    out = [np.full(g.shape, 77, t) for t in (np.float32, np.float32, np.uint8)]
+    h = g.shape[0]
+    edges = [0, 5, 6, 31, 47, 80, h]
+    bands = list(zip(edges[:-1], edges[1:]))
+    if direction < 0:
+        bands = [(h - b, h - a) for a, b in bands]
+    done = 0  # rows whose first pass is complete, in band order
+    resolved = 0
+    for a, b in bands:
+        fuse_rows(g, r, 0.5, *out, a, b, resolve=(0, 0))
+        done += b - a
+        ready = done - 3 if done < h else h  # conflicts need 3 rows beyond them
+        lo, hi = (resolved, ready) if direction > 0 else (h - ready, h - resolved)
+        if ready > resolved:
+            fuse_rows(g, r, 0.5, *out, 0, 0, resolve=(lo, hi))
+            resolved = ready
+    for a, b in zip(whole, out):
+        assert np.array_equal(a, b, equal_nan=True)
+
+
+def _run(flat_scan, flat_calibration, monkeypatch, mode):
+    if mode == "after the loop":
+        monkeypatch.setattr(rc, "_direction", lambda travel: 0)
+    elif mode == "offsets too narrow":
+        real = fin.stripe_offsets
+        monkeypatch.setattr(rc, "stripe_offsets",  # as if all points lay on one line
+                            lambda *a: (lambda lo, hi: (0.5 * (lo + hi),) * 2)(*real(*a)))
+    elif mode == "texture reach too short":
+        monkeypatch.setattr(fin, "texture_reach", lambda *a: -2.0)
+    cal = SceneCalibration.load(flat_calibration)
+    with open_video(flat_scan / "scan.mp4") as v:
+        rec = reconstruct(v, cal, ProcessParams())
+    monkeypatch.undo()
+    return rec
+
+
+def test_finishing_during_the_loop_equals_finishing_after_it(flat_scan, flat_calibration,
+                                                              monkeypatch):
+    runs = {m: _run(flat_scan, flat_calibration, monkeypatch, m)
+            for m in ("during the loop", "after the loop", "offsets too narrow",
+                      "texture reach too short")}
+    streamed = runs["during the loop"]
+    # most of the grid was finished while frames were still being read
+    assert streamed.stats["rows_finished_in_loop"] > 0.3
+    assert "finished_after_loop" not in streamed.stats
+    assert runs["after the loop"].stats["rows_finished_in_loop"] == 0
+    # a profile outside its laser's offsets is noticed, and everything is redone afterwards
+    assert "outside its offsets" in runs["offsets too narrow"].stats["finished_after_loop"]
+    # texture rows averaged too early get late samples: noticed, and redone afterwards
+    assert "texture samples" in runs["texture reach too short"].stats["finished_after_loop"]
+    for other in ("after the loop", "offsets too narrow", "texture reach too short"):
+        rec = runs[other]
+        for a, b in [(streamed.height_mm, rec.height_mm), (streamed.difference_mm, rec.difference_mm),
+                     (streamed.contribution, rec.contribution), (streamed.texture_rgb, rec.texture_rgb),
+                     *[(streamed.per_laser_mm[n], rec.per_laser_mm[n]) for n in rc.LASERS]]:
+            assert np.array_equal(a, b, equal_nan=True), other
+    assert np.isfinite(streamed.height_mm).mean() > 0.3
+    assert streamed.texture_rgb.any()
+
+
+def test_stripe_offsets_bound_every_triangulated_point(flat_scan, flat_calibration):
+    """The offsets from the ray tables contain every stripe point the loop produced."""
+    cal = SceneCalibration.load(flat_calibration)
+    seen = {}
+    real = fin.RowFinisher.check_profile
+
+    def spy(self, name, travel, y, valid):
+        if valid.any():
+            d = y[valid] - travel
+            lo, hi = seen.get(name, (np.inf, -np.inf))
+            seen[name] = (min(lo, d.min()), max(hi, d.max()))
+        return real(self, name, travel, y, valid)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(fin.RowFinisher, "check_profile", spy)
+    captured = {}
+    real_init = fin.RowFinisher.__init__
+
+    def init(self, spec, acc, tol, offsets, direction, texture=None):
+        captured.update(offsets)
+        real_init(self, spec, acc, tol, offsets, direction, texture)
+
+    mp.setattr(fin.RowFinisher, "__init__", init)
+    try:
+        with open_video(flat_scan / "scan.mp4") as v:
+            reconstruct(v, cal, ProcessParams(texture=False))
+    finally:
+        mp.undo()
+    for name, (lo, hi) in seen.items():
+        off_lo, off_hi = captured[name]
+        assert off_lo <= lo and hi <= off_hi
+        # and the bound is tight enough to be useful (within a few cm of what was seen)
+        assert (lo - off_lo) + (off_hi - hi) < 60.0
