@@ -291,3 +291,12 @@ def test_long_preset_past_the_rail_end_is_flagged(rig, qtbot):
     panel.start_spin.setValue(0.0)
     panel.long_button.click()
     assert panel.range_label.text().startswith("runs 1700 mm")
+
+
+def test_the_simulator_the_calibration_tab_and_the_rail_share_the_speeds():
+    from impress_gui.sim.rig import SPEED_PRESETS_MM_S as SIM_RIG
+    from impress_gui.sim.simulate import SPEED_NAMES
+    from impress_gui.ui.calibration_setup import SPEED_PRESETS
+
+    assert SPEED_NAMES == SPEED_PRESETS_MM_S == SPEED_PRESETS
+    assert sorted(SIM_RIG) == sorted(SPEED_PRESETS_MM_S.values())

@@ -305,8 +305,7 @@ def build_metadata(rec, cal, params, inputs: dict) -> dict:
         "calibration": {"roll_deg": cal.roll_deg, "tilt_deg": cal.tilt_deg,
                         "speed_mm_s": cal.speed_mm_s,
                         "implied_speed_mm_s": cal.implied_speed_mm_s},
-        "stats": {k: v for k, v in rec.stats.items() if not k.startswith("seconds")
-                  and k != "frames_per_second"},
+        "stats": rec.result_stats(),
         "warnings": list(rec.warnings),
     }
 

@@ -52,8 +52,7 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
     meta = build_metadata(rec, cal, params, inputs)
     run = {"date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
            "host": platform.node(), "python": platform.python_version(),
-           "timings": {k: v for k, v in rec.stats.items() if k.startswith("seconds")
-                       or k == "frames_per_second"},
+           "timings": rec.run_stats(),
            "wall_seconds": round(time.perf_counter() - t0, 3)}
     meta["files"] = write_reconstruction(rec, out_dir, meta, run)
     return meta | {"run": run}

@@ -75,6 +75,10 @@ class ProcessParams:
 
 @dataclass
 class Reconstruction:
+    """A finished reconstruction. ``stats`` mixes figures of the result (deterministic) and of
+    the run (timings, how far the finishing got during the loop): :meth:`run_stats` and
+    :meth:`result_stats` separate them."""
+
     spec: GridSpec
     height_mm: np.ndarray  # fused, float32, NaN = no data
     per_laser_mm: dict[str, np.ndarray]
@@ -85,6 +89,17 @@ class Reconstruction:
     rois: dict[str, tuple[int, int]]
     stats: dict
     warnings: list[str]
+
+    #: statistics that depend on the run (timing, machine load), not only on the inputs
+    RUN_KEYS = ("frames_per_second", "rows_finished_in_loop", "finished_after_loop")
+
+    def run_stats(self) -> dict:
+        return {k: v for k, v in self.stats.items() if k.startswith("seconds")
+                or k in self.RUN_KEYS}
+
+    def result_stats(self) -> dict:
+        run = self.run_stats()
+        return {k: v for k, v in self.stats.items() if k not in run}
 
 
 def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) -> dict:

@@ -2,8 +2,10 @@
 check of a scan's start and end positions.
 
 Positions are millimetres from home along the scan direction, as everywhere in the motor code.
-The same three speeds also appear in ``impress_gui.ui.calibration_setup`` and ``impress_gui.sim``
-(defined there independently); the values must stay equal.
+The window takes the speeds from here. The simulator (``impress_gui.sim``) keeps its own copy:
+it models the physical rail independently of the software that drives it (and its source is
+the key of the benchmarks' cached renders); the values must stay equal, which
+``tests/test_motor_panel.py`` checks.
 """
 
 from __future__ import annotations

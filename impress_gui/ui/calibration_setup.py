@@ -24,9 +24,9 @@ from PySide6.QtWidgets import (
 from impress_gui.core.errors import ImpressError, InputError
 from impress_gui.core.geometry import Intrinsics
 from impress_gui.core.target import TargetModel, default_target
+from impress_gui.hardware.rail import SPEED_PRESETS_MM_S as SPEED_PRESETS
 from impress_gui.ui.messages import Dialogs, Messenger
 
-SPEED_PRESETS = {"slow": 1.3138, "medium": 5.2552, "fast": 13.138}  # mm/s, the rail's banks
 JSON_FILTER = "JSON files (*.json);;All files (*)"
 LOAD_TARGET = "Load a target file..."
 
