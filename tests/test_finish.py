@@ -1,6 +1,8 @@
 """Finishing the grid during the frame loop (core/finish.py): the same result as finishing
 everything after the loop, bit for bit, and the fallback when an assumption fails."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -121,3 +123,55 @@ def test_stripe_offsets_bound_every_triangulated_point(flat_scan, flat_calibrati
         assert off_lo <= lo and hi <= off_hi
         # and the bound is tight enough to be useful (within a few cm of what was seen)
         assert (lo - off_lo) + (off_hi - hi) < 60.0
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_finisher_in_either_direction_equals_finishing_at_once(direction):
+    """Synthetic accumulators already holding every sample; the finisher is told the camera's
+    travel frame by frame (forwards or backwards) and must end with what finishing everything
+    at once gives, having done most rows before the end."""
+    from impress_gui.core.grid import ColorAccumulator, GridSpec, HeightAccumulator
+    from impress_gui.core.texture import RowSpool
+
+    rng = np.random.default_rng(11)
+    spec = GridSpec(-60.0, -40.0, 0.25, (1200, 480))
+    n_frames = 500
+    travel = np.arange(n_frames) * 0.5
+    if direction < 0:
+        travel = travel[::-1].copy()
+    results = []
+    for streamed in (True, False):
+        rng = np.random.default_rng(11)
+        acc = {n: HeightAccumulator(spec, 1.6, 2.0) for n in rc.LASERS}
+        for a in acc.values():
+            a.count[:] = rng.integers(0, 3, spec.shape)
+            a.sum[:] = a.count * rng.normal(5, 0.4, spec.shape)
+        spool = RowSpool()
+        n_pts = 300
+        for k in range(n_frames):
+            spool.append(k, rng.uniform(0, 255, (n_pts, 3)))
+        xn = np.linspace(-0.1, 0.1, n_pts)
+        rays = np.column_stack([xn, np.full(n_pts, 0.01), np.ones(n_pts)])
+        tex = fin.TextureInputs(spool, rays, travel, np.array([300.0, 0.0, 0.0]),
+                                ColorAccumulator(spec, 1.6))
+        f = fin.RowFinisher(spec, acc, 0.5, {"green": (-30.0, -10.0), "red": (10.0, 30.0)},
+                            direction if streamed else 0, tex)
+        try:
+            for k in range(n_frames):
+                f.post(float(travel[k]))
+                while streamed and k % 25 == 0 and f._pending is not None:  # step by step
+                    time.sleep(0.001)
+            deadline = time.monotonic() + 20
+            while streamed and f.n_mean < 0.5 * spec.shape[0] and time.monotonic() < deadline:
+                time.sleep(0.01)
+            f.finish()
+        finally:
+            f.close()
+            spool.close()
+        assert f.broken is None
+        if streamed:
+            assert f.rows_during_loop > 0.5 * spec.shape[0]
+        results.append((f.per["green"], f.per["red"], f.fused, f.diff, f.contrib, f.tex))
+    for a, b in zip(*results):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert (results[0][4] == 4).any() and np.isfinite(results[0][2]).mean() > 0.5
