@@ -216,10 +216,11 @@ class RowFinisher:
         can reach."""
         tx = self.texture
         assert tx is not None
+        if self._filled is None:  # no row fused yet
+            if not final:
+                return
+            self._filled = np.zeros(self.spec.shape, np.float32)
         if self._mapper is None:
-            assert self._filled is not None or final
-            if self._filled is None:
-                self._filled = np.zeros(self.spec.shape, np.float32)
             self._mapper = TextureMapper(tx.rays, tx.ref, self.spec, tx.acc, self._filled)
         j0 = self.j_tex
         s = np.asarray(tx.travel, np.float64)[tx.spool.frames_between(j0, n_rows)]
