@@ -147,6 +147,9 @@ def test_run_from_the_window_records_outputs_and_opens_the_viewer(qtbot, scan, t
         assert entry["sha256"] == hashlib.sha256((out / "metadata.json").read_bytes()).hexdigest()
         assert project.processing["frame_start"] == start and project.dirty
         assert proc.run_panel.frames_per_second > 0 and "frames/s" in proc.run_panel.rate.text()
+        # at the end the panel shows the frame loop's rate, as recorded with the run
+        run = json.loads((out / "run.json").read_text())
+        assert proc.run_panel.frames_per_second == run["timings"]["frames_per_second"]
         assert proc.run_panel.bar.value() == 1000
         assert window.tabs.currentWidget() is viewer and viewer.data.folder == out.resolve()
         # saved and reopened, the viewer finds the reconstruction again

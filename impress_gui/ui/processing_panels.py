@@ -320,7 +320,10 @@ class RunPanel(QGroupBox):
             f"{self.frames_per_second:.1f} frames/s, elapsed {elapsed:.0f} s, about {rem} remaining"
         )
 
-    def stop(self, outcome: str) -> None:
+    def stop(self, outcome: str, frames_per_second: float | None = None) -> None:
+        """The run ended; ``frames_per_second``, when known, replaces the running estimate."""
+        if frames_per_second:
+            self.frames_per_second = float(frames_per_second)
         self.run_button.setEnabled(True)
         self.cancel_button.setEnabled(False)
         self.rate.setText(

@@ -451,7 +451,10 @@ class ProcessingTab(QWidget):
     def _on_finished(self, result) -> None:
         meta, sha = result
         out = self._out
-        self.run_panel.stop("finished")
+        # the frame loop's own rate (the bar's estimate needs two progress messages, and a
+        # short run may send only one)
+        self.run_panel.stop("finished", meta.get("run", {}).get("timings", {})
+                            .get("frames_per_second"))
         self._refresh()
         self.project.set_processing(self.params.params().to_json() | {"output": str(out)})
         self.project.add_output(out / "metadata.json", "reconstruction", sha256=sha)
