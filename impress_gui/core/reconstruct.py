@@ -173,7 +173,7 @@ def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
 
 
 class _Frames:
-    """Decoded frames as (index, rgb band getter, luma) in a background thread."""
+    """Decoded frames as ``(index, frame)`` from a background thread, through a bounded queue."""
 
     def __init__(self, video, start: int, stop: int, cancel: CancelToken, depth: int = 6):
         """Start decoding ``video`` (owned from now on: closed by :meth:`close`)."""
@@ -299,7 +299,8 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
 
 
 #: decoding threads of the main pass: frame threading with more threads than cores keeps both
-#: cores busy while the frame loop competes for them (bench_reconstruct.py compares)
+#: cores busy while the frame loop competes for them (on this 2-core machine 4 gave a faster
+#: frame loop than 2 or 3; docs/accuracy.md)
 DECODE_THREADS = 4
 #: frames decoded ahead while the run is being prepared (~3 MB each at 1080p), and after
 SETUP_QUEUE_FRAMES = 24
