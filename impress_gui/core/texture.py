@@ -2,8 +2,10 @@
 heightmap's grid after the heights are known.
 
 During the frame loop each frame's row is sampled and spooled to a temporary file
-(:class:`RowSpool`, memory stays flat); afterwards :func:`map_texture` casts every row's rays
-onto the fused surface and splats the colours into the grid.
+(:class:`RowSpool`, memory stays flat). A :class:`TextureMapper` casts each row's rays onto the
+fused surface and splats the colours into the grid, in scan order: during the loop for rows
+whose surface is already final (:mod:`impress_gui.core.finish`), or all at once afterwards
+(:func:`map_texture`, on two threads).
 """
 
 from __future__ import annotations
