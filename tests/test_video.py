@@ -66,3 +66,30 @@ def test_damaged_inputs(tmp_path, tiny):
     assert 0 < v.frame_count < open_video(tiny["mts"] / "scan.mts").frame_count
     frames = [k for k, _ in v.iter_frames(0)]
     assert frames == list(range(len(frames)))
+
+
+@pytest.mark.parametrize("fmt", ["mts", "mp4"])
+def test_keyframes_read_on_their_own_equal_sequential_decoding(tmp_path, tiny, fmt):
+    if fmt == "mp4":
+        d = tmp_path / "mp4"
+        simulate(SimConfig(preset="flat", length_mm=60.0, width=320, height=180,
+                           speed_mm_s=40.0, ramp_s=0.1), d)
+        path = d / "scan.mp4"
+    else:
+        path = tiny["mts"] / "scan.mts"
+    v = open_video(path)
+    keys = np.searchsorted(v._pts, v._keys)
+    assert len(keys) >= 2
+    seq = dict(v.iter_frames(0))
+    calls = []
+    decode_keyframe = v._decode_keyframe
+    v._decode_keyframe = lambda k: calls.append(k) or decode_keyframe(k)
+    for k in keys:
+        got = decode_keyframe(int(k))
+        assert got is not None, f"keyframe {k} was not decoded on its own"
+        assert np.array_equal(v.read(int(k)), seq[int(k)])
+    # a frame that is not a keyframe takes the decoder's path and still agrees
+    other = int(keys[0]) + 1
+    assert decode_keyframe(other) is None
+    assert np.array_equal(v.read(other), seq[other])
+    assert calls == [int(k) for k in keys] + [other]

@@ -17,6 +17,9 @@ from impress_gui.core.fileio import FRAME_SUFFIXES
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mts", ".m2ts", ".ts", ".avi", ".mkv")
 IMAGE_SUFFIXES = FRAME_SUFFIXES
+#: packets demuxed after a seek while looking for a keyframe's own packet (a seek can land on
+#: an earlier keyframe in some containers)
+KEY_SEEK_PACKETS = 300
 
 
 class VideoSource:
@@ -123,6 +126,7 @@ class AVVideo(VideoSource):
             if abs(float(rate) - self.fps) / float(rate) < 0.002:
                 self.fps = float(rate)
         self._decoder: Iterator | None = None
+        self._key_container = None  # opened on the first keyframe read on its own
 
     def clone(self, threads: int | None = None) -> AVVideo:
         """Another reader of the same file with its own decoder (``threads`` decoding threads),
@@ -143,6 +147,7 @@ class AVVideo(VideoSource):
         st.codec_context.thread_count = other._threads
         other._stream = st
         other._decoder = None
+        other._key_container = None
         return other
 
     def quick_frames(self, start: int, stop: int, n: int) -> list[int]:
@@ -225,12 +230,65 @@ class AVVideo(VideoSource):
                              f"{len(self._pts)} frames were indexed (truncated?)",
                              code="E-VIDEO-TRUNCATED")
 
+    def _decode_keyframe(self, k: int):
+        """Frame ``k`` decoded from its packet alone when it is a keyframe (an intra-coded
+        picture decodes the same without its neighbours), else None. A frame-threaded decoder
+        positioned at a keyframe would decode several more frames before returning this one;
+        any surprise here (no such packet, not exactly one picture) falls back to that path."""
+        import av
+
+        pts = int(self._pts[k])
+        i = int(np.searchsorted(self._keys, pts))
+        if i >= len(self._keys) or self._keys[i] != pts:
+            return None
+        try:
+            packet = self._keyframe_packet(pts, i)
+            if packet is None:
+                return None
+            st = self._key_container.streams.video[0]
+            ctx = av.CodecContext.create(st.codec_context.name, "r")
+            if st.codec_context.extradata:
+                ctx.extradata = st.codec_context.extradata
+            ctx.thread_count = 1
+            out = list(ctx.decode(packet)) + list(ctx.decode(None))
+        except (av.error.FFmpegError, ValueError):
+            return None
+        if len(out) != 1 or out[0].width != self.size[0] or out[0].height < self.size[1]:
+            return None
+        return out[0]
+
+    def _keyframe_packet(self, pts: int, i: int):
+        """The packet of keyframe ``i`` (stamp ``pts``): after a seek to it, or to one of the
+        two keyframes before it (an MPEG-TS seek can land late), or from the file's start."""
+        import av
+
+        for attempt in range(4):
+            if self._key_container is None or attempt == 3:
+                if self._key_container is not None:
+                    self._key_container.close()
+                self._key_container = av.open(str(self.path), "r")
+            c = self._key_container
+            st = c.streams.video[0]
+            if attempt < 3:
+                c.seek(int(self._keys[max(0, i - attempt)]), stream=st, backward=True,
+                       any_frame=False)
+            for n, pkt in enumerate(c.demux(st)):
+                if pkt.pts == pts and pkt.size:
+                    return pkt
+                late = pkt.dts is not None and pkt.dts > pts
+                if late or (attempt < 3 and n > KEY_SEEK_PACKETS):
+                    break
+        return None
+
     def _to_rgb(self, frame) -> np.ndarray:
         rgb = frame.to_ndarray(format="rgb24")
         return rgb[: self.size[1]]
 
     def read(self, k: int) -> np.ndarray:
         k = self.check_index(k)
+        frame = self._decode_keyframe(k)
+        if frame is not None:
+            return self._to_rgb(frame)
         gen = self._frames_from(k)
         try:
             idx, frame = next(gen)
@@ -259,6 +317,9 @@ class AVVideo(VideoSource):
 
     def close(self) -> None:
         self._container.close()
+        if self._key_container is not None:
+            self._key_container.close()
+            self._key_container = None
 
 
 class FrameFolder(VideoSource):
