@@ -94,17 +94,16 @@ def test_stripe_offsets_bound_every_triangulated_point(flat_scan, flat_calibrati
     """The offsets from the ray tables contain every stripe point the loop produced."""
     cal = SceneCalibration.load(flat_calibration)
     seen = {}
-    real = fin.RowFinisher.check_profile
+    real = fin.RowFinisher.check_range
 
-    def spy(self, name, travel, y, valid):
-        if valid.any():
-            d = y[valid] - travel
+    def spy(self, name, travel, y_range):
+        if np.isfinite(y_range[0]):
             lo, hi = seen.get(name, (np.inf, -np.inf))
-            seen[name] = (min(lo, d.min()), max(hi, d.max()))
-        return real(self, name, travel, y, valid)
+            seen[name] = (min(lo, y_range[0] - travel), max(hi, y_range[1] - travel))
+        return real(self, name, travel, y_range)
 
     mp = pytest.MonkeyPatch()
-    mp.setattr(fin.RowFinisher, "check_profile", spy)
+    mp.setattr(fin.RowFinisher, "check_range", spy)
     captured = {}
     real_init = fin.RowFinisher.__init__
 

@@ -55,6 +55,90 @@ def test_detect_kernel_equals_numpy_reference(frames, method):
     assert found > 0.5 * len(planes) * len(LASERS) * planes[0].y.shape[1]
 
 
+def _profile_reference(rows, tri, max_step, k, min_cols, upsample):
+    """The numpy steps the compiled ``stripe_profile`` replaces: connected columns, then
+    (``tri`` triangulates) single-column spikes dropped, then the upsampled profile."""
+    d = np.abs(np.diff(rows))
+    link = np.isfinite(d) & (d <= 2.0)
+    valid = np.zeros(rows.shape, bool)
+    valid[:-1] |= link
+    valid[1:] |= link
+    if valid.sum() < min_cols:
+        return valid, None
+    x, y, h = tri(valid)
+    a, b, c = h[:-2], h[1:-1], h[2:]
+    med = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
+    hd = h.copy()
+    hd[1:-1][(np.abs(b - med) > max_step) & np.isfinite(med)] = np.nan
+    return valid, upsample(x, y, hd, valid & np.isfinite(hd), k, max_step)
+
+
+def test_stripe_profile_kernel_equals_numpy_steps(frames, flat_calibration):
+    """Connected columns, triangulation, despiking and upsampling in one compiled call give
+    what the numpy steps give, bit for bit - on real stripes, and with spikes, gaps and
+    isolated hits added."""
+    from impress_gui.core.compiled import kernels
+    from impress_gui.core.reconstruct import _band_rays
+    from impress_gui.core.texture import reference_coeffs
+
+    kern = kernels()
+    cal = SceneCalibration.load(flat_calibration)
+    rois, bands, lut, planes = frames
+    params = StripeParams(method="combined", rois=rois)
+    h_img, w = planes[0].y.shape
+    ref = reference_coeffs(cal)
+    rng = np.random.default_rng(3)
+    k, max_step = 3, 0.8
+    n_up = (w - 1) * k + 1
+    checked = 0
+    for p in planes[:3]:
+        for name in LASERS:
+            b0, bh = bands[name]
+            rays = _band_rays(cal, bands[name], h_img)
+            plane = cal.planes[name].plane
+            rows = detect_planes(name, p, b0, bh, params, lut).rows.copy()
+            variants = [rows]
+            noisy = rows.copy()
+            hit = rng.choice(w, 40, replace=False)
+            noisy[hit] += rng.choice([-9.0, 9.0], 40)  # spikes
+            noisy[rng.choice(w, 60, replace=False)] = np.nan  # gaps
+            variants.append(noisy)
+            sparse = np.full(w, np.nan)
+            sparse[::7] = rows[::7]  # isolated hits only: no stripe
+            variants.append(sparse)
+            for r in variants:
+                def tri(valid, r=r):
+                    x, y, hh = np.empty(w), np.empty(w), np.empty(w)
+                    kern.triangulate(r, valid, b0, rays, plane.normal, float(plane.offset_mm),
+                                     12.5, ref, x, y, hh)
+                    return x, y, hh
+
+                def ups(x, y, hh, ok, k_, step):
+                    out = (np.empty(n_up), np.empty(n_up), np.empty(n_up), np.empty(n_up, bool))
+                    kern.upsample(x, y, hh, ok, k_, step, *out)
+                    return out
+
+                min_cols = int(0.02 * w)
+                want_valid, want = _profile_reference(r, tri, max_step, k, min_cols, ups)
+                valid, x, y, hh = np.empty(w, bool), np.empty(w), np.empty(w), np.empty(w)
+                got = (np.empty(n_up), np.empty(n_up), np.empty(n_up), np.empty(n_up, bool))
+                y_range = np.empty(2)
+                n_ok = kern.stripe_profile(r, 2.0, min_cols, b0, rays, plane.normal,
+                                           float(plane.offset_mm), 12.5, ref, max_step, k,
+                                           valid, x, y, hh, *got, y_range)
+                assert n_ok == want_valid.sum()
+                assert np.array_equal(valid, want_valid)
+                if want is None:
+                    assert n_ok < min_cols and np.isnan(y_range).all()
+                    continue
+                for a_, b_ in zip(got, want):
+                    assert np.array_equal(a_, b_, equal_nan=True)
+                yv = want[1][want[3]]
+                assert tuple(y_range) == (yv.min(), yv.max())
+                checked += 1
+    assert checked == 12  # two variants with a stripe, per laser and frame
+
+
 def test_detect_kernel_refuses_lut_without_background(frames):
     rois, bands, _, planes = frames
     b0, bh = bands["red"]

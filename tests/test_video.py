@@ -93,3 +93,7 @@ def test_keyframes_read_on_their_own_equal_sequential_decoding(tmp_path, tiny, f
     assert decode_keyframe(other) is None
     assert np.array_equal(v.read(other), seq[other])
     assert calls == [int(k) for k in keys] + [other]
+    # several at once (keyframes decoded on two threads, the other frame as read() does)
+    ks = [int(keys[-1]), other, int(keys[0])]
+    for got, k in zip(v.read_many(ks, threads=2), ks):
+        assert np.array_equal(got, seq[k])

@@ -101,13 +101,13 @@ class RowFinisher:
             self._thread.start()
 
     # ----- called by the frame loop ---------------------------------------------------------
-    def check_profile(self, name: str, travel: float, y: np.ndarray, valid: np.ndarray) -> None:
-        """Note a profile whose points lie outside the laser's offsets (never expected)."""
-        if self.direction == 0 or self.broken or not valid.any():
+    def check_range(self, name: str, travel: float, y_range: np.ndarray) -> None:
+        """Note a profile whose valid points (least and greatest Y in ``y_range``, NaN when it
+        has none) lie outside the laser's offsets (never expected)."""
+        if self.direction == 0 or self.broken or not np.isfinite(y_range[0]):
             return
-        yv = y[valid]
         lo, hi = self.offsets[name]
-        if yv.min() < travel + lo - 1e-6 or yv.max() > travel + hi + 1e-6:
+        if y_range[0] < travel + lo - 1e-6 or y_range[1] > travel + hi + 1e-6:
             self.broken = f"a {name} profile outside its offsets at travel {travel:.3f} mm"
 
     def post(self, travel: float) -> None:

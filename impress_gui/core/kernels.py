@@ -111,23 +111,38 @@ def detect_stripe(y, cb, cr, s, band_start, band_height, sign, ch, o1, o2, min_p
     # second row of the column's band (row-major: memory is read in order)
     # the score and (4095 - the row's index) packed in one integer: a plain running maximum,
     # which compiles to vector instructions, picks the first row of equal maxima
+    # rows inside every column's band skip the per-column band test
     best = np.full(w, np.int32(-(1 << 30)), np.int32)
     crx = np.empty(w, np.int32)
     lo = band_start.astype(np.int32)
     hi = lo + np.int32(band_height)
     sg = np.int32(sign)
-    cidx = np.arange(w) >> sh
+    all_lo = band_start.max()
+    all_hi = band_start.min() + band_height
     for i, r in enumerate(range(r0, r1, 2)):
         yr = y[r]
         crr = cr[r >> sh]
-        for c in range(w):
-            crx[c] = np.int32(crr[cidx[c]]) - np.int32(128)
+        if sh:  # 4:2:0: one chroma sample for two columns
+            for c in range(w >> 1):
+                q = sg * (np.int32(crr[c]) - np.int32(128))
+                crx[2 * c] = q
+                crx[2 * c + 1] = q
+            if w & 1:
+                crx[w - 1] = sg * (np.int32(crr[(w - 1) >> 1]) - np.int32(128))
+        else:
+            for c in range(w):
+                crx[c] = sg * (np.int32(crr[c]) - np.int32(128))
         r32 = np.int32(r)
         tag = np.int32(4095 - i)
-        for c in range(w):
-            v = np.int32(yr[c]) + sg * crx[c]
-            v = v if (r32 >= lo[c]) & (r32 < hi[c]) else np.int32(-1000)
-            best[c] = max(best[c], v * np.int32(4096) + tag)
+        if all_lo <= r < all_hi:
+            for c in range(w):
+                v = np.int32(yr[c]) + crx[c]
+                best[c] = max(best[c], v * np.int32(4096) + tag)
+        else:
+            for c in range(w):
+                v = np.int32(yr[c]) + crx[c]
+                v = v if (r32 >= lo[c]) & (r32 < hi[c]) else np.int32(-1000)
+                best[c] = max(best[c], v * np.int32(4096) + tag)
     for c in range(w):
         rows_out[c] = np.nan
         strength_out[c] = 0.0
@@ -177,14 +192,16 @@ def detect_stripe(y, cb, cr, s, band_start, band_height, sign, ch, o1, o2, min_p
             rgb = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
             rf = rgb[ch]
             of = max(rgb[o1], rgb[o2])
+            # the three tests are alternatives: the cheapest first
+            if use_tint and rf - of >= min_tint and rf >= min_value:
+                colour = True
+                break
             if use_hue:
                 hh, ss, vv = _hsv8(int(rgb[0]), int(rgb[1]), int(rgb[2]), sdiv, hdiv)
                 if ss >= min_sat and vv >= min_value:
                     for q in range(hue_lo.shape[0]):
                         if hue_lo[q] <= hh <= hue_hi[q]:
                             colour = True
-            if use_tint and rf - of >= min_tint and rf >= min_value:
-                colour = True
             if use_lut:
                 q0 = int(min(max(rgb[o1] + 0.5, 0.0), 255.0)) >> 2
                 q1 = int(min(max(rgb[o2] + 0.5, 0.0), 255.0)) >> 2
@@ -260,6 +277,75 @@ def upsample(x, y, h, valid, k, max_step, xo, yo, ho, vo):
 
 
 @_jit
+def _nanmin(a, b):
+    return np.nan if (math.isnan(a) or math.isnan(b)) else min(a, b)
+
+
+@_jit
+def _nanmax(a, b):
+    return np.nan if (math.isnan(a) or math.isnan(b)) else max(a, b)
+
+
+@_kernel(
+    "int64(float64[:], float64, int64, int64[:], float64[:, :, :], float64[:], float64, float64, float64[:], float64, int64, boolean[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], boolean[:], float64[:])"
+)
+def stripe_profile(rows, tol_px, min_cols, band_start, rays, normal, offset, travel, ref,
+                   max_step, k, valid, x, y, h, xo, yo, ho, vo, y_range):
+    """One laser's stripe rows -> the upsampled profile to add to its heightmap, in one call:
+
+    * ``valid``: columns whose row continues into a neighbouring column within ``tol_px``
+      (a stripe is a curve, isolated hits are noise); fewer than ``min_cols`` of them: no
+      stripe in this frame, nothing else is done;
+    * :func:`triangulate` into ``x``/``y``/``h``; single-column spikes dropped (a height farther
+      than ``max_step`` from the median of itself and its two neighbours: steps survive, at a
+      step the median follows one side);
+    * :func:`upsample` into ``xo``/``yo``/``ho``/``vo``, and ``y_range`` = the least and
+      greatest Y of the valid upsampled points (NaN if none).
+
+    Returns the number of connected columns."""
+    n = rows.shape[0]
+    for c in range(n):
+        valid[c] = False
+    for c in range(n - 1):
+        d = abs(rows[c + 1] - rows[c])
+        if not math.isnan(d) and d <= tol_px:  # NaN rows never link
+            valid[c] = True
+            valid[c + 1] = True
+    n_ok = 0
+    for c in range(n):
+        if valid[c]:
+            n_ok += 1
+    y_range[0] = np.nan
+    y_range[1] = np.nan
+    if n_ok < min_cols:
+        return n_ok
+    triangulate(rows, valid, band_start, rays, normal, offset, travel, ref, x, y, h)
+    # despiked heights; the columns kept are those with a finite one
+    hd = np.empty(n)
+    for c in range(n):
+        hd[c] = h[c]
+    for c in range(1, n - 1):
+        a, b, e = h[c - 1], h[c], h[c + 1]
+        med = _nanmax(_nanmin(a, b), _nanmin(_nanmax(a, b), e))
+        if not math.isnan(med) and abs(b - med) > max_step:
+            hd[c] = np.nan
+    ok = np.empty(n, np.bool_)
+    for c in range(n):
+        ok[c] = valid[c] and not math.isnan(hd[c])
+    upsample(x, y, hd, ok, k, max_step, xo, yo, ho, vo)
+    lo = np.inf
+    hi = -np.inf
+    for i in range(vo.shape[0]):
+        if vo[i]:
+            lo = min(lo, yo[i])
+            hi = max(hi, yo[i])
+    if lo <= hi:
+        y_range[0] = lo
+        y_range[1] = hi
+    return n_ok
+
+
+@_jit
 def _add(total, count, x0, y0, g, x, y, v):
     j = int(np.rint((x - x0) / g))
     i = int(np.rint((y - y0) / g))
@@ -329,6 +415,6 @@ from impress_gui.core.kernels_grid import (  # noqa: E402
     undistort,
 )
 
-__all__ = ["detect_stripe", "triangulate", "upsample", "splat_heights", "sample_rgb",
+__all__ = ["detect_stripe", "triangulate", "upsample", "stripe_profile", "splat_heights", "sample_rgb",
            "hsv_tables", "fuse_rows", "mean_colours", "mean_heights", "resolve_conflicts",
            "texture_rows", "undistort"]

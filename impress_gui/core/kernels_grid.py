@@ -52,10 +52,10 @@ def surface_hits(ax, ay, travel, ref, height, x0, y0, g, iterations, x_out, y_ou
 def splat_colours(total, count, x0, y0, g, x, y, rgb, px, py, prgb, has_prev, max_gap, i_lo,
                   i_hi):
     """Add one texture row's colours (``(N, 3)``) to the per-cell sums, filling the strip
-    towards the previous row like :func:`splat_heights` (linear colours). Only grid rows
-    ``i_lo <= i < i_hi`` are touched; returns how many samples fell on other rows of the grid
-    (threads sharing the grid by row ranges use it to check their split)."""
-    lim = 0.7 * g
+    towards the previous row (linear colours): at most one cell apart along each axis, so
+    the strip has no gaps (a texture is a picture: fewer samples than the heights need). Only
+    grid rows ``i_lo <= i < i_hi`` are touched; returns how many samples fell on other rows of
+    the grid (threads sharing the grid by row ranges use it to check their split)."""
     hgt, wid = count.shape
     skipped = 0
     for i in range(x.shape[0]):
@@ -67,9 +67,8 @@ def splat_colours(total, count, x0, y0, g, x, y, rgb, px, py, prgb, has_prev, ma
         if has_prev and not (math.isnan(px[i]) or math.isnan(py[i])):
             dx = x[i] - px[i]
             dy = y[i] - py[i]
-            gap = math.hypot(dx, dy)
-            if gap <= max_gap:
-                n = max(1, int(math.ceil(gap / lim)))
+            if math.hypot(dx, dy) <= max_gap:
+                n = max(1, int(math.ceil(max(abs(dx), abs(dy)) / g)))
         for m in range(n):  # m = 0 is this row's own point; the others fill towards the previous
             t = m / n
             jj = int(np.rint((x[i] - t * dx - x0) / g))

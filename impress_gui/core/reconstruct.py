@@ -225,10 +225,12 @@ def learn_background(video, start: int, stop: int, rois: dict, n_frames: int,
     """The background lookup tables from about ``n_frames`` frames spread over the range
     (keyframes: cheap to read), outside the lasers' regions of interest."""
     lut = BackgroundLUT()
-    for k in video.quick_frames(start, stop, n_frames):
+    ks = video.quick_frames(start, stop, n_frames)
+    for a in range(0, len(ks), 4):  # a few at a time: a cancel is seen soon
         if cancel is not None:
             cancel.check()
-        lut.learn(video.read(k), list(rois.values()))
+        for rgb in video.read_many(ks[a : a + 4]):
+            lut.learn(rgb, list(rois.values()))
     return lut
 
 
@@ -360,7 +362,7 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
     rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
     ref = reference_coeffs(cal)
     profile = {n: _Profile(w, k_up) for n in LASERS}
-    min_cols = int(0.02 * w)
+    min_cols = max(2, int(0.02 * w))
     offsets = {n: stripe_offsets(rays[n], cal.planes[n].plane.normal,
                                  float(cal.planes[n].plane.offset_mm)) for n in LASERS}
     finisher = RowFinisher(spec, acc, params.fuse_tolerance_mm, offsets,
@@ -384,20 +386,20 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
             for name in LASERS:
                 b0, bh = bands[name]
                 res = detect_planes(name, planes, b0, bh, sp, lut)
-                valid = _connected(res.rows)
-                if valid.sum() < max(2, min_cols):  # a few isolated hits are not a stripe
+                pr = profile[name]
+                up = pr.next()
+                plane = cal.planes[name].plane
+                n_ok = _kernels().stripe_profile(
+                    res.rows, CONNECT_PX, min_cols, b0, rays[name], plane.normal,
+                    float(plane.offset_mm), s_k, ref, params.max_step_mm, pr.k, pr.valid,
+                    pr.x, pr.y, pr.h, *up, pr.y_range)
+                if n_ok < min_cols:  # a few isolated hits are not a stripe
                     acc[name].reset_chain()
                     continue
                 found_frames[name] += 1
-                pr = profile[name]
-                plane = cal.planes[name].plane
-                _kernels().triangulate(res.rows, valid, b0, rays[name], plane.normal,
-                                    float(plane.offset_mm), s_k, ref, pr.x, pr.y, pr.h)
-                hgt = _despike(pr.h, params.max_step_mm)
-                ok = valid & np.isfinite(hgt)
-                up = pr.upsampled(hgt, ok, params.max_step_mm)
+                pr.used()
                 acc[name].add_profile(*up)
-                finisher.check_profile(name, s_k, up[1], up[3])
+                finisher.check_range(name, s_k, pr.y_range)
             if params.texture:
                 _kernels().sample_rgb(planes.y, planes.cb, planes.cr, planes.chroma_step,
                                    *tex_sample, tex_colours)
@@ -465,28 +467,6 @@ def _direction(travel: np.ndarray) -> int:
     return 0
 
 
-def _connected(rows: np.ndarray, tol_px: float = 2.0) -> np.ndarray:
-    """Stripe columns that continue into a neighbouring column (within ``tol_px`` rows): a
-    stripe is a curve, isolated hits are noise."""
-    d = np.abs(np.diff(rows))
-    link = np.isfinite(d) & (d <= tol_px)
-    out = np.zeros(rows.shape, bool)
-    out[:-1] |= link
-    out[1:] |= link
-    return out
-
-
-def _despike(h: np.ndarray, tol_mm: float) -> np.ndarray:
-    """Drop single-column spikes: a height farther than ``tol_mm`` from the median of itself and
-    its two neighbours (steps survive: at a step the median follows one side)."""
-    a, b, c = h[:-2], h[1:-1], h[2:]
-    med = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
-    spike = np.abs(b - med) > tol_mm
-    out = h.copy()
-    out[1:-1][spike & np.isfinite(med)] = np.nan
-    return out
-
-
 def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int) -> np.ndarray:
     """Rail-frame ray directions ``(W, band height + 1, 3)`` through every column at the
     integer rows of its band (lens distortion undone once here, not per frame)."""
@@ -499,17 +479,28 @@ def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int)
     return np.ascontiguousarray(rays.reshape(w, bh + 1, 3))
 
 
+#: stripe rows of neighbouring columns closer than this (pixels) belong to one curve
+CONNECT_PX = 2.0
+
+
 class _Profile:
-    """Per-laser scratch arrays of one frame's profile, reused from frame to frame."""
+    """Per-laser arrays of one frame's profile, reused from frame to frame: the upsampled
+    profile alternates between two sets, as the accumulator keeps the previous frame's."""
 
     def __init__(self, w: int, k_up: int) -> None:
         self.x, self.y, self.h = (np.empty(w) for _ in range(3))
+        self.valid = np.empty(w, bool)
+        self.y_range = np.empty(2)
         self.k = k_up
+        n = (w - 1) * k_up + 1
+        self._sets = [(np.empty(n), np.empty(n), np.empty(n), np.empty(n, bool))
+                      for _ in range(2)]
+        self._i = 0
 
-    def upsampled(self, hgt: np.ndarray, ok: np.ndarray, max_step_mm: float):
-        """New arrays (the accumulator keeps the previous frame's) of the upsampled profile."""
-        n = (len(hgt) - 1) * self.k + 1
-        xo, yo, ho = np.empty(n), np.empty(n), np.empty(n)
-        vo = np.empty(n, bool)
-        _kernels().upsample(self.x, self.y, hgt, ok, self.k, max_step_mm, xo, yo, ho, vo)
-        return xo, yo, ho, vo
+    def next(self):
+        """The set to fill with this frame's upsampled profile (x, y, height, valid)."""
+        return self._sets[self._i]
+
+    def used(self) -> None:
+        """The set was handed to the accumulator: the next frame fills the other one."""
+        self._i ^= 1

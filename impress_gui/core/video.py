@@ -46,6 +46,11 @@ class VideoSource:
         (in a compressed video: keyframes, which decode without their predecessors)."""
         return sorted({int(k) for k in np.linspace(start, stop - 1, max(1, min(n, stop - start)))})
 
+    def read_many(self, ks, threads: int = 2) -> list[np.ndarray]:
+        """Frames ``ks`` (in that order); a video decodes its keyframes on ``threads``
+        threads."""
+        return [self.read(k) for k in ks]
+
     def clone(self, threads: int | None = None) -> VideoSource:
         """Another reader of the same source, for use beside this one in another thread
         (frame folders read each frame on its own, so a shallow copy will do)."""
@@ -243,9 +248,17 @@ class AVVideo(VideoSource):
             return None
         try:
             packet = self._keyframe_packet(pts, i)
-            if packet is None:
-                return None
-            st = self._key_container.streams.video[0]
+        except (av.error.FFmpegError, ValueError):
+            return None
+        return None if packet is None else self._decode_alone(packet)
+
+    def _decode_alone(self, packet):
+        """The one picture of a keyframe's packet, by a decoder of its own (None if it does
+        not give exactly one picture of the video's size)."""
+        import av
+
+        st = self._stream
+        try:
             ctx = av.CodecContext.create(st.codec_context.name, "r")
             if st.codec_context.extradata:
                 ctx.extradata = st.codec_context.extradata
@@ -256,6 +269,32 @@ class AVVideo(VideoSource):
         if len(out) != 1 or out[0].width != self.size[0] or out[0].height < self.size[1]:
             return None
         return out[0]
+
+    def read_many(self, ks, threads: int = 2) -> list[np.ndarray]:
+        """Frames ``ks``: the keyframes' packets are read here, then decoded on their own on
+        ``threads`` threads (decoding releases the GIL); other frames as :meth:`read`."""
+        import av
+
+        ks = [self.check_index(k) for k in ks]
+        packets = {}
+        for k in ks:
+            pts = int(self._pts[k])
+            i = int(np.searchsorted(self._keys, pts))
+            if i < len(self._keys) and self._keys[i] == pts:
+                try:
+                    packets[k] = self._keyframe_packet(pts, i)
+                except (av.error.FFmpegError, ValueError):
+                    packets[k] = None
+        order = [k for k in ks if packets.get(k) is not None]
+        decoded: dict[int, object] = {}
+        if order:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(max(1, threads), thread_name_prefix="impress-keys") as pool:
+                decoded = dict(zip(order, pool.map(lambda k: self._decode_alone(packets[k]),
+                                                   order)))
+        return [self._to_rgb(decoded[k]) if decoded.get(k) is not None else self.read(k)
+                for k in ks]
 
     def _keyframe_packet(self, pts: int, i: int):
         """The packet of keyframe ``i`` (stamp ``pts``): after a seek to it, or to one of the
