@@ -361,9 +361,9 @@ def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev,
                   max_step):
     """Add one upsampled profile to the per-cell sums and counts, filling the strip towards
     the previous profile: each point pairs with the same point of the previous frame when both
-    are valid and closer than ``max_gap``; the segment between them is sampled at 0.7 cell
-    (linear heights, or the nearer end's across a step). Unpaired points are added alone."""
-    lim = 0.7 * g
+    are valid and closer than ``max_gap``; the segment between them is sampled at most one
+    cell apart along each axis, so it leaves no cell out (linear heights, or the nearer end's
+    across a step). Unpaired points are added alone."""
     for i in range(x.shape[0]):
         if not v[i]:
             continue
@@ -373,7 +373,7 @@ def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev,
         if not (has_prev and pv[i] and gap <= max_gap):
             _add(total, count, x0, y0, g, x[i], y[i], h[i])
             continue
-        n = int(math.ceil(gap / lim)) + 1
+        n = max(1, int(math.ceil(max(abs(dx), abs(dy)) / g)))
         step = abs(h[i] - ph[i]) > max_step
         for m in range(1, n + 1):  # the previous end was added with the previous frame
             t = m / n

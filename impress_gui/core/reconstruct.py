@@ -301,9 +301,9 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
 
 
 #: decoding threads of the main pass: frame threading with more threads than cores keeps both
-#: cores busy while the frame loop competes for them (on this 2-core machine 4 gave a faster
-#: frame loop than 2 or 3; docs/accuracy.md)
-DECODE_THREADS = 4
+#: cores busy (H.264 frames wait on their references; on this 2-core machine decoding alone
+#: uses 1.6 cores with 2-4 threads, 1.9 with 8; docs/accuracy.md)
+DECODE_THREADS = 8
 #: frames decoded ahead while the run is being prepared (~3 MB each at 1080p), and after
 SETUP_QUEUE_FRAMES = 24
 LOOP_QUEUE_FRAMES = 8
