@@ -221,15 +221,16 @@ class _Frames:
 
 
 def learn_background(video, start: int, stop: int, rois: dict, n_frames: int,
-                     cancel: CancelToken | None = None) -> BackgroundLUT:
+                     cancel: CancelToken | None = None, threads: int = 1) -> BackgroundLUT:
     """The background lookup tables from about ``n_frames`` frames spread over the range
-    (keyframes: cheap to read), outside the lasers' regions of interest."""
+    (keyframes: cheap to read, decoded on ``threads`` threads), outside the lasers' regions
+    of interest."""
     lut = BackgroundLUT()
     ks = video.quick_frames(start, stop, n_frames)
     for a in range(0, len(ks), 4):  # a few at a time: a cancel is seen soon
         if cancel is not None:
             cancel.check()
-        for rgb in video.read_many(ks[a : a + 4]):
+        for rgb in video.read_many(ks[a : a + 4], threads):
             lut.learn(rgb, list(rois.values()))
     return lut
 
@@ -293,7 +294,7 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
     try:
         with ThreadPoolExecutor(1, thread_name_prefix="impress-lut") as pool:
             lut = pool.submit(learn_background, video, start, stop, rois, params.lut_frames,
-                              cancel) if params.method in ("lut", "combined") else None
+                              cancel, 2) if params.method in ("lut", "combined") else None
             return _process(video, cal, params, progress, cancel, spool, preview,
                             preview_every_s, frames, (start, stop), rois, sp, t_start, lut)
     finally:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -46,7 +47,7 @@ class VideoSource:
         (in a compressed video: keyframes, which decode without their predecessors)."""
         return sorted({int(k) for k in np.linspace(start, stop - 1, max(1, min(n, stop - start)))})
 
-    def read_many(self, ks, threads: int = 2) -> list[np.ndarray]:
+    def read_many(self, ks, threads: int = 1) -> list[np.ndarray]:
         """Frames ``ks`` (in that order); a video decodes its keyframes on ``threads``
         threads."""
         return [self.read(k) for k in ks]
@@ -131,7 +132,7 @@ class AVVideo(VideoSource):
             if abs(float(rate) - self.fps) / float(rate) < 0.002:
                 self.fps = float(rate)
         self._decoder: Iterator | None = None
-        self._key_container = None  # opened on the first keyframe read on its own
+        self._key_container: Any = None  # opened on the first keyframe read on its own
 
     def clone(self, threads: int | None = None) -> AVVideo:
         """Another reader of the same file with its own decoder (``threads`` decoding threads),
@@ -270,7 +271,7 @@ class AVVideo(VideoSource):
             return None
         return out[0]
 
-    def read_many(self, ks, threads: int = 2) -> list[np.ndarray]:
+    def read_many(self, ks, threads: int = 1) -> list[np.ndarray]:
         """Frames ``ks``: the keyframes' packets are read here, then decoded on their own on
         ``threads`` threads (decoding releases the GIL); other frames as :meth:`read`."""
         import av
@@ -287,7 +288,9 @@ class AVVideo(VideoSource):
                     packets[k] = None
         order = [k for k in ks if packets.get(k) is not None]
         decoded: dict[int, object] = {}
-        if order:
+        if len(order) == 1 or threads <= 1:  # no pool (a pool made from a QThread leaves a
+            decoded = {k: self._decode_alone(packets[k]) for k in order}  # dummy entry behind)
+        elif order:
             from concurrent.futures import ThreadPoolExecutor
 
             with ThreadPoolExecutor(max(1, threads), thread_name_prefix="impress-keys") as pool:
