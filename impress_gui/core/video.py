@@ -241,6 +241,11 @@ class AVVideo(VideoSource):
         picture decodes the same without its neighbours), else None. A frame-threaded decoder
         positioned at a keyframe would decode several more frames before returning this one;
         any surprise here (no such packet, not exactly one picture) falls back to that path."""
+        packet = self._own_packet(k)
+        return None if packet is None else self._decode_alone(packet)
+
+    def _own_packet(self, k: int):
+        """The packet of frame ``k`` if it is a keyframe and can be found, else None."""
         import av
 
         pts = int(self._pts[k])
@@ -248,10 +253,9 @@ class AVVideo(VideoSource):
         if i >= len(self._keys) or self._keys[i] != pts:
             return None
         try:
-            packet = self._keyframe_packet(pts, i)
+            return self._keyframe_packet(pts, i)
         except (av.error.FFmpegError, ValueError):
             return None
-        return None if packet is None else self._decode_alone(packet)
 
     def _decode_alone(self, packet):
         """The one picture of a keyframe's packet, by a decoder of its own (None if it does
@@ -274,22 +278,13 @@ class AVVideo(VideoSource):
     def read_many(self, ks, threads: int = 1) -> list[np.ndarray]:
         """Frames ``ks``: the keyframes' packets are read here, then decoded on their own on
         ``threads`` threads (decoding releases the GIL); other frames as :meth:`read`."""
-        import av
-
         ks = [self.check_index(k) for k in ks]
-        packets = {}
-        for k in ks:
-            pts = int(self._pts[k])
-            i = int(np.searchsorted(self._keys, pts))
-            if i < len(self._keys) and self._keys[i] == pts:
-                try:
-                    packets[k] = self._keyframe_packet(pts, i)
-                except (av.error.FFmpegError, ValueError):
-                    packets[k] = None
+        packets = {k: self._own_packet(k) for k in ks}
         order = [k for k in ks if packets.get(k) is not None]
         decoded: dict[int, object] = {}
-        if len(order) == 1 or threads <= 1:  # no pool (a pool made from a QThread leaves a
-            decoded = {k: self._decode_alone(packets[k]) for k in order}  # dummy entry behind)
+        # no pool for one thread: a pool made from a QThread leaves a dummy thread entry behind
+        if len(order) == 1 or threads <= 1:
+            decoded = {k: self._decode_alone(packets[k]) for k in order}
         elif order:
             from concurrent.futures import ThreadPoolExecutor
 
