@@ -194,3 +194,22 @@ def test_no_stripe_is_reported_with_laser_and_frames(flat_calibration, tmp_path)
                       ProcessParams(frame_start=0, frame_stop=20, texture=False))
     assert not (tmp_path / "out").exists()
     shutil.rmtree(frames)
+
+
+def test_upsampling_puts_neighbouring_points_at_most_one_cell_apart(flat_calibration):
+    """The points per pixel step are the fewest that keep neighbouring profile points within
+    one cell along each axis on the deepest surface of the height range."""
+    from impress_gui.core.reconstruct import _band_rays, column_bands, laser_rois, upsampling
+
+    cal = SceneCalibration.load(flat_calibration)
+    w, h = cal.intrinsics.image_size
+    rois = laser_rois(cal, (w, h), (-40.0, 60.0))
+    rays = _band_rays(cal, column_bands(cal, (w, h), (-40.0, 60.0), rois)["red"], h)
+    depth = float(cal.reference_depth(np.array(0.0), np.array(0.0))) + 40.0
+    plan = rays[..., :2] / rays[..., 2:3] * depth
+    widest = np.abs(np.diff(plan, axis=0)).max()
+    for grid in (0.05, 0.1, 0.25):
+        k = upsampling(rays, depth, grid)
+        assert widest / k <= grid < widest / max(k - 1, 1e-9)
+    # a coarse grid needs no upsampling
+    assert upsampling(rays, depth, 10.0) == 1

@@ -323,15 +323,17 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
     # ----- grid extent and sampling ----------------------------------------------------------
     per_frame_travel = float(np.median(np.abs(np.diff(travel[start:stop])))) if stop - start > 1 else 0.1
     z_ref0 = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
-    footprint = z_ref0 / intr.fx
-    k_up = max(1, int(np.ceil(footprint / (0.7 * params.grid_mm))))
+    # the deepest surface of the height range: where neighbouring pixels lie farthest apart
+    z_deep = z_ref0 - min(params.height_range_mm[0], 0.0)
+    bands = column_bands(cal, (w, h), params.height_range_mm, rois)
+    rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
+    k_up = max(upsampling(rays[n], z_deep, params.grid_mm) for n in LASERS)
     # grid extent from the bands' rays at the height range
     xs_all, ys_all = [], []
     for name in LASERS:
         a, b = rois[name]
         uv = np.array([[u, v] for u in (0, w - 1, w // 2) for v in (a, b - 1)], float)
-        rays = intr.rays(uv) @ rot.T
-        pts = cal.planes[name].plane.intersect_rays(rays)
+        pts = cal.planes[name].plane.intersect_rays(intr.rays(uv) @ rot.T)
         xs_all.extend(pts[:, 0])
         ys_all.extend(pts[:, 1])
     x_rng = (min(xs_all) - 2, max(xs_all) + 2)
@@ -349,7 +351,10 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
     tex_acc = ColorAccumulator(spec, max_gap) if params.texture else None
     tex_rows = spool
     if params.texture:
-        xn = np.linspace(-(intr.cx) / intr.fx, (w - 1 - intr.cx) / intr.fx, w * k_up)
+        x_px = (np.arange(w) - intr.cx) / intr.fx
+        px_rays = np.column_stack([x_px, np.zeros(w), np.ones(w)]) @ rot.T
+        k_tex = upsampling(px_rays[:, None, :], z_deep, params.grid_mm)
+        xn = np.linspace(-(intr.cx) / intr.fx, (w - 1 - intr.cx) / intr.fx, w * k_tex)
         tu, tv = intr.distort_normalized(xn, np.zeros_like(xn))
         tex_ok = (tu >= 0) & (tu <= w - 1) & (tv >= 0) & (tv <= h - 1)
         tu, tv = tu[tex_ok], tv[tex_ok]
@@ -359,8 +364,6 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
         tex_sample = (u0, v0, tu - u0, tv - v0)
         tex_colours = np.empty((len(tu), 3), np.float64)
 
-    bands = column_bands(cal, (w, h), params.height_range_mm, rois)
-    rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
     ref = reference_coeffs(cal)
     profile = {n: _Profile(w, k_up) for n in LASERS}
     min_cols = max(2, int(0.02 * w))
@@ -466,6 +469,17 @@ def _direction(travel: np.ndarray) -> int:
     if len(d) and (d < 0).all():
         return -1
     return 0
+
+
+def upsampling(rays: np.ndarray, depth_mm: float, grid_mm: float) -> int:
+    """Points per pixel step (``k``) that put neighbouring points of a profile at most one grid
+    cell apart along each axis, for a surface ``depth_mm`` deep: ``rays`` ``(W, n, 3)`` are
+    rail-frame directions through neighbouring columns (axis 0). One cell apart along each axis
+    leaves no cell of a row out, and the fill towards the previous row (at most one cell per
+    step too) then covers the strip between two rows."""
+    plan = rays[..., :2] / rays[..., 2:3]
+    step = float(np.abs(np.diff(plan, axis=0)).max()) * depth_mm
+    return max(1, int(np.ceil(step / grid_mm)))
 
 
 def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int) -> np.ndarray:
