@@ -210,10 +210,15 @@ def resolve_conflicts(hg, hr, radius, fused, contrib, lo, hi):
 def undistort(xd, yd, coeffs, rational, x_out, y_out):
     """Normalized distorted coordinates -> undistorted (OpenCV's model, ``coeffs`` k1 k2 p1 p2
     k3 [k4 k5 k6]): fixed-point iteration per point until it moves less than 1e-13 (at most
-    100 times), as :meth:`impress_gui.core.geometry.Intrinsics.undistort_points`."""
+    100 times), as :meth:`impress_gui.core.geometry.Intrinsics.undistort_points`; each point
+    starts from the previous point's correction, which is close for neighbouring pixels.
+    ``x_out``/``y_out`` must not alias ``xd``/``yd``."""
     k1, k2, p1, p2, k3 = coeffs[0], coeffs[1], coeffs[2], coeffs[3], coeffs[4]
     for i in range(xd.shape[0]):
         x, y = xd[i], yd[i]
+        if i > 0:  # start from the previous point's correction (neighbouring pixels: close)
+            x += x_out[i - 1] - xd[i - 1]
+            y += y_out[i - 1] - yd[i - 1]
         for _ in range(100):
             r2 = x * x + y * y
             radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -132,7 +131,6 @@ class AVVideo(VideoSource):
             if abs(float(rate) - self.fps) / float(rate) < 0.002:
                 self.fps = float(rate)
         self._decoder: Iterator | None = None
-        self._key_container: Any = None  # opened on the first keyframe read on its own
 
     def clone(self, threads: int | None = None) -> AVVideo:
         """Another reader of the same file with its own decoder (``threads`` decoding threads),
@@ -153,7 +151,6 @@ class AVVideo(VideoSource):
         st.codec_context.thread_count = other._threads
         other._stream = st
         other._decoder = None
-        other._key_container = None
         return other
 
     def quick_frames(self, start: int, stop: int, n: int) -> list[int]:
@@ -168,21 +165,25 @@ class AVVideo(VideoSource):
         """Position the decoder before frame ``k``: at the keyframe before it, or ``attempt``
         keyframes earlier (some containers, e.g. MPEG-TS, seek imprecisely), or - as the last
         resort - by reopening the file and decoding from its start."""
-        import av
-
         target_pts = int(self._pts[k])
         key = self._keys[self._keys <= target_pts]
         if attempt >= 3 or key.size <= attempt:
-            self._container.close()
-            self._container = av.open(str(self.path), "r")
-            st = self._container.streams.video[0]
-            st.codec_context.thread_type = "AUTO"
-            st.codec_context.thread_count = self._threads
-            self._stream = st
+            self._reopen()
         else:
             seek_pts = int(key[-1 - attempt])
             self._container.seek(seek_pts, stream=self._stream, backward=True, any_frame=False)
         self._decoder = self._container.decode(self._stream)
+
+    def _reopen(self) -> None:
+        """Open the file again (positioned at its start)."""
+        import av
+
+        self._container.close()
+        self._container = av.open(str(self.path), "r")
+        st = self._container.streams.video[0]
+        st.codec_context.thread_type = "AUTO"
+        st.codec_context.thread_count = self._threads
+        self._stream = st
 
     def _indexed(self, want: int):
         """(index, frame) pairs from the positioned decoder, skipping frames before ``want``."""
@@ -295,17 +296,14 @@ class AVVideo(VideoSource):
                 for k in ks]
 
     def _keyframe_packet(self, pts: int, i: int):
-        """The packet of keyframe ``i`` (stamp ``pts``): after a seek to it, or to one of the
-        two keyframes before it (an MPEG-TS seek can land late), or from the file's start."""
-        import av
-
+        """The packet of keyframe ``i`` (stamp ``pts``), demuxed by this reader's container
+        (which every read positions anew): after a seek to it, or to one of the two keyframes
+        before it (an MPEG-TS seek can land late), or from the file's start."""
+        self._decoder = None
         for attempt in range(4):
-            if self._key_container is None or attempt == 3:
-                if self._key_container is not None:
-                    self._key_container.close()
-                self._key_container = av.open(str(self.path), "r")
-            c = self._key_container
-            st = c.streams.video[0]
+            if attempt == 3:
+                self._reopen()
+            c, st = self._container, self._stream
             if attempt < 3:
                 c.seek(int(self._keys[max(0, i - attempt)]), stream=st, backward=True,
                        any_frame=False)
@@ -354,9 +352,6 @@ class AVVideo(VideoSource):
 
     def close(self) -> None:
         self._container.close()
-        if self._key_container is not None:
-            self._key_container.close()
-            self._key_container = None
 
 
 class FrameFolder(VideoSource):
