@@ -161,9 +161,9 @@ def detect_stripe(y, cb, cr, s, band_start, band_height, sign, ch, o1, o2, min_p
                 peak = r
         # 2. centre of mass of the luma above half maximum, in a window re-centred once
         top, wsum, centre = _window(y, c, peak, k, rr, sig)
-        if not math.isnan(centre):
+        if not math.isnan(centre) and int(np.rint(centre)) != peak:  # else: the same window
             peak = int(np.rint(centre))
-        top, wsum, centre = _window(y, c, peak, k, rr, sig)
+            top, wsum, centre = _window(y, c, peak, k, rr, sig)
         pi = peak - b0
         if not (top >= min_peak and wsum > 0 and pi >= k and pi < band_height - k):
             continue

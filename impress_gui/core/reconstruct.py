@@ -287,18 +287,18 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
     rois = dict(params.rois) or laser_rois(cal, (w, h), params.height_range_mm)
     sp = StripeParams(method=params.method, rois=rois, min_peak=params.min_peak)
     sp.validate(h)
-    # decoding starts at once, into a deeper queue while the tables below are prepared; the
-    # background tables (the seed's LUT method) are learned beside them, from keyframes
-    # spread over the range, through the caller's reader
-    frames = _Frames(video.clone(DECODE_THREADS), start, stop, cancel, SETUP_QUEUE_FRAMES)
-    try:
-        with ThreadPoolExecutor(1, thread_name_prefix="impress-lut") as pool:
-            lut = pool.submit(learn_background, video, start, stop, rois, params.lut_frames,
-                              cancel, 2) if params.method in ("lut", "combined") else None
+    # the background tables (the seed's LUT method) are learned from keyframes spread over
+    # the range, through the caller's reader, beside everything else; decoding starts at once
+    # on a second reader, into a deeper queue while the run's tables are prepared
+    with ThreadPoolExecutor(1, thread_name_prefix="impress-lut") as pool:
+        lut = pool.submit(learn_background, video, start, stop, rois, params.lut_frames,
+                          cancel, 2) if params.method in ("lut", "combined") else None
+        frames = _Frames(video.clone(DECODE_THREADS), start, stop, cancel, SETUP_QUEUE_FRAMES)
+        try:
             return _process(video, cal, params, progress, cancel, spool, preview,
                             preview_every_s, frames, (start, stop), rois, sp, t_start, lut)
-    finally:
-        frames.close()
+        finally:
+            frames.close()
 
 
 #: decoding threads of the main pass: frame threading with more threads than cores keeps both
