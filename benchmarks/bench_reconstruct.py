@@ -107,9 +107,11 @@ def accuracy(name: str, d: Path, method: str) -> dict:
     return out
 
 
-#: decoder thread counts tried for the decode-only time (the fastest counts, whatever the
-#: processing itself uses)
+#: decoder thread counts tried for the decode-only time (the fastest one is the reference,
+#: whatever the processing itself uses)
 DECODE_THREADS = (2, 4, 6, 8)
+#: paired rounds (decode-only, then processing) per method
+ROUNDS = 3
 
 
 def decode_only_seconds(video_path: Path, start: int, stop: int, threads: int) -> float:
@@ -188,20 +190,28 @@ def main() -> None:
     n = truth["frame_count"]
     start, stop = 15, n - 15
     per = stop / (stop - start)  # decode-only times frames 0..stop, processing start..stop
-    print(f"each method: best of two runs, beside the fastest of decode-only runs just before "
-          f"(twice with each of {', '.join(map(str, DECODE_THREADS))} decoding threads)")
+    # the machine's speed drifts by 5-10 % over minutes: each processing run is paired with a
+    # decode-only run made just before it, and the ratio is taken within the pair
+    threads = min(DECODE_THREADS, key=lambda t: decode_only_seconds(video, start, stop, t))
+    print(f"each method: {ROUNDS} rounds of a decode-only run (the fastest decoder here: "
+          f"{threads} threads, of {', '.join(map(str, DECODE_THREADS))}) followed by a "
+          f"processing run; ratios within a round; the median round is printed")
     one = decode_only_seconds(video, start, stop, 1)
     print(f"(decoding on one thread, which the issue's 'near 100 frames/s' describes: "
           f"{stop / one:.1f} frames/s)")
     for method in args.methods.split(","):
-        dec = min(decode_only_seconds(video, start, stop, t) for t in DECODE_THREADS
-                  for _ in range(2))
-        r = min((run_isolated(video, calibration_path(d), start, stop, method)
-                 for _ in range(2)), key=lambda x: x["total_s"])
+        rounds = []
+        for _ in range(ROUNDS):
+            dec = decode_only_seconds(video, start, stop, threads)
+            r = run_isolated(video, calibration_path(d), start, stop, method)
+            rounds.append((r["total_s"] / dec * per, dec, r))
+        rounds.sort(key=lambda x: x[0])
+        ratio, dec, r = rounds[len(rounds) // 2]
         parts = ", ".join(f"{k} {v:.2f} s" for k, v in r["parts"].items())
         print(f"{method:9s} processing {r['fps']:.1f} frames/s (decoding alone {stop / dec:.1f}); "
               f"frame loop / decode-only = {r['loop_s'] / dec * per:.2f}; whole run / "
-              f"decode-only = {r['total_s'] / dec * per:.2f} (outside the loop: {parts}; "
+              f"decode-only = {ratio:.2f} (rounds {rounds[0][0]:.2f}-{rounds[-1][0]:.2f}; "
+              f"outside the loop: {parts}; "
               f"{100 * r['rows_in_loop']:.0f} % of the grid finished during the loop); "
               f"with the kernels' loading in a fresh process ({r['load_s']:.2f} s) "
               f"{(r['total_s'] + r['load_s']) / dec * per:.2f}; "
