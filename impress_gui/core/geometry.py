@@ -153,23 +153,6 @@ class Intrinsics:
         n = self.undistort_points(pts_px)
         return np.column_stack([n, np.ones(len(n))])
 
-    def rays_compiled(self, pts_px: np.ndarray) -> np.ndarray:
-        """:meth:`rays` for many points at once, through a compiled kernel (each point is
-        iterated to its own convergence; the results agree to about 1e-13)."""
-        from impress_gui.core.compiled import kernels
-
-        pts = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2)
-        k = self.camera_matrix
-        yd = np.ascontiguousarray((pts[:, 1] - k[1, 2]) / k[1, 1])
-        xd = np.ascontiguousarray((pts[:, 0] - k[0, 2] - k[0, 1] * yd) / k[0, 0])
-        out = np.ones((len(pts), 3))
-        x, y = np.empty(len(pts)), np.empty(len(pts))
-        coeffs = np.zeros(8)
-        coeffs[: self.dist_coeffs.size] = self.dist_coeffs[:8]
-        kernels().undistort(xd, yd, coeffs, self.dist_coeffs.size == 8, x, y)
-        out[:, 0], out[:, 1] = x, y
-        return out
-
     def check_image_size(self, width: int, height: int, what: str = "the video") -> None:
         w, h = self.image_size
         if (w, h) == (width, height):

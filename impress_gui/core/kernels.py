@@ -364,6 +364,8 @@ def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev,
     are valid and closer than ``max_gap``; the segment between them is sampled at most one
     cell apart along each axis, so it leaves no cell out (linear heights, or the nearer end's
     across a step). Unpaired points are added alone."""
+    hgt, wid = count.shape
+    ig = 1.0 / g
     for i in range(x.shape[0]):
         if not v[i]:
             continue
@@ -373,15 +375,23 @@ def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev,
         if not (has_prev and pv[i] and gap <= max_gap):
             _add(total, count, x0, y0, g, x[i], y[i], h[i])
             continue
-        n = max(1, int(math.ceil(max(abs(dx), abs(dy)) / g)))
+        n = max(1, int(math.ceil(max(abs(dx), abs(dy)) * ig)))
         step = abs(h[i] - ph[i]) > max_step
+        # in cells: the previous end, and the step towards this point
+        fx, fy = (px[i] - x0) * ig, (py[i] - y0) * ig
+        sx, sy = dx * ig / n, dy * ig / n
         for m in range(1, n + 1):  # the previous end was added with the previous frame
+            jj = int(np.rint(fx + m * sx))
+            ii = int(np.rint(fy + m * sy))
+            if not (0 <= ii < hgt and 0 <= jj < wid) or count[ii, jj] == 65535:
+                continue
             t = m / n
             if step:
                 hv = ph[i] if t < 0.5 else h[i]
             else:
                 hv = ph[i] + t * (h[i] - ph[i])
-            _add(total, count, x0, y0, g, px[i] + t * dx, py[i] + t * dy, hv)
+            total[ii, jj] += hv
+            count[ii, jj] += 1
 
 
 @_kernel(
@@ -407,14 +417,14 @@ def sample_rgb(y, cb, cr, s, u0, v0, fu, fv, out):
 
 # the grid's kernels
 from impress_gui.core.kernels_grid import (  # noqa: E402
+    band_rays,
     fuse_rows,
     mean_colours,
     mean_heights,
     resolve_conflicts,
     texture_rows,
-    undistort,
 )
 
 __all__ = ["detect_stripe", "triangulate", "upsample", "stripe_profile", "splat_heights", "sample_rgb",
            "hsv_tables", "fuse_rows", "mean_colours", "mean_heights", "resolve_conflicts",
-           "texture_rows", "undistort"]
+           "texture_rows", "band_rays"]

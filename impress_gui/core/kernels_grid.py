@@ -13,6 +13,9 @@ import numpy as np
 from impress_gui.core.jit import helper as _jit
 from impress_gui.core.jit import kernel as _kernel
 
+#: a texture ray's hit on the surface is final once refining it moves it less than this
+HIT_TOLERANCE_MM = 1e-3
+
 
 @_jit
 def _bilinear_clamped(img, fx, fy):
@@ -33,17 +36,22 @@ def _bilinear_clamped(img, fx, fy):
 @_jit
 def surface_hits(ax, ay, travel, ref, height, x0, y0, g, iterations, x_out, y_out):
     """Where the texture row's rays meet the reconstructed surface: the ray through
-    ``(ax, ay, 1)`` from the camera at ``travel``, depth refined ``iterations`` times on the
-    heightmap (bilinear, clamped at its border; missing cells filled at 0 beforehand)."""
+    ``(ax, ay, 1)`` from the camera at ``travel``, depth refined on the heightmap (bilinear,
+    clamped at its border; missing cells filled at 0 beforehand) at most ``iterations``
+    times, and no more once an iteration moves it by less than :data:`HIT_TOLERANCE_MM`
+    (further iterations would not move the hit)."""
+    ig = 1.0 / g
     for i in range(ax.shape[0]):
         z = ref[0] + ref[2] * travel
-        x = 0.0
-        y = 0.0
         for _ in range(iterations):
             x = ax[i] * z
             y = travel + ay[i] * z
-            hv = _bilinear_clamped(height, (x - x0) / g, (y - y0) / g)
-            z = ref[0] + ref[1] * x + ref[2] * y - hv
+            hv = _bilinear_clamped(height, (x - x0) * ig, (y - y0) * ig)
+            zn = ref[0] + ref[1] * x + ref[2] * y - hv
+            moved = abs(zn - z)
+            z = zn
+            if moved < HIT_TOLERANCE_MM:
+                break
         x_out[i] = ax[i] * z
         y_out[i] = travel + ay[i] * z
 
@@ -57,6 +65,7 @@ def splat_colours(total, count, x0, y0, g, x, y, rgb, px, py, prgb, has_prev, ma
     grid rows ``i_lo <= i < i_hi`` are touched; returns how many samples fell on other rows of
     the grid (threads sharing the grid by row ranges use it to check their split)."""
     hgt, wid = count.shape
+    ig = 1.0 / g
     skipped = 0
     for i in range(x.shape[0]):
         if math.isnan(x[i]) or math.isnan(y[i]):
@@ -68,17 +77,20 @@ def splat_colours(total, count, x0, y0, g, x, y, rgb, px, py, prgb, has_prev, ma
             dx = x[i] - px[i]
             dy = y[i] - py[i]
             if math.hypot(dx, dy) <= max_gap:
-                n = max(1, int(math.ceil(max(abs(dx), abs(dy)) / g)))
+                n = max(1, int(math.ceil(max(abs(dx), abs(dy)) * ig)))
+        # in cells: this row's point and the step back towards the previous row's
+        fx, fy = (x[i] - x0) * ig, (y[i] - y0) * ig
+        sx, sy = dx * ig / n, dy * ig / n
         for m in range(n):  # m = 0 is this row's own point; the others fill towards the previous
-            t = m / n
-            jj = int(np.rint((x[i] - t * dx - x0) / g))
-            ii = int(np.rint((y[i] - t * dy - y0) / g))
+            jj = int(np.rint(fx - m * sx))
+            ii = int(np.rint(fy - m * sy))
             if not (0 <= ii < hgt and 0 <= jj < wid):
                 continue
             if not (i_lo <= ii < i_hi):
                 skipped += 1
                 continue
             if count[ii, jj] < 65535:
+                t = m / n
                 for q in range(3):
                     c = rgb[i, q]
                     total[ii, jj, q] += c if m == 0 else c - t * (c - prgb[i, q])
@@ -204,32 +216,51 @@ def resolve_conflicts(hg, hr, radius, fused, contrib, lo, hi):
             fused[i, j] = g if abs(g - local) <= abs(r - local) else r
 
 
-@_kernel(
-    "void(float64[:], float64[:], float64[:], boolean, float64[:], float64[:])"
-)
-def undistort(xd, yd, coeffs, rational, x_out, y_out):
+@_jit
+def _undistort_point(xd, yd, x, y, coeffs, rational):
     """Normalized distorted coordinates -> undistorted (OpenCV's model, ``coeffs`` k1 k2 p1 p2
-    k3 [k4 k5 k6]): fixed-point iteration per point until it moves less than 1e-13 (at most
-    100 times), as :meth:`impress_gui.core.geometry.Intrinsics.undistort_points`; each point
-    starts from the previous point's correction, which is close for neighbouring pixels.
-    ``x_out``/``y_out`` must not alias ``xd``/``yd``."""
+    k3 [k4 k5 k6]): fixed-point iteration from the guess ``(x, y)`` until it moves less than
+    1e-13 (at most 100 times), as :meth:`impress_gui.core.geometry.Intrinsics.undistort_points`."""
     k1, k2, p1, p2, k3 = coeffs[0], coeffs[1], coeffs[2], coeffs[3], coeffs[4]
-    for i in range(xd.shape[0]):
-        x, y = xd[i], yd[i]
-        if i > 0:  # start from the previous point's correction (neighbouring pixels: close)
-            x += x_out[i - 1] - xd[i - 1]
-            y += y_out[i - 1] - yd[i - 1]
-        for _ in range(100):
-            r2 = x * x + y * y
-            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            if rational:
-                radial = radial / (1 + r2 * (coeffs[5] + r2 * (coeffs[6] + r2 * coeffs[7])))
-            dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-            dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-            xn, yn = (xd[i] - dx) / radial, (yd[i] - dy) / radial
-            delta = max(abs(xn - x), abs(yn - y))
-            x, y = xn, yn
-            if delta < 1e-13:
-                break
-        x_out[i] = x
-        y_out[i] = y
+    for _ in range(100):
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        if rational:
+            radial = radial / (1 + r2 * (coeffs[5] + r2 * (coeffs[6] + r2 * coeffs[7])))
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        xn, yn = (xd - dx) / radial, (yd - dy) / radial
+        delta = max(abs(xn - x), abs(yn - y))
+        x, y = xn, yn
+        if delta < 1e-13:
+            break
+    return x, y
+
+
+@_kernel(
+    "void(int64[:], int64, float64[:, :], float64[:], boolean, float64[:, :], float64[:, :, :])"
+)
+def band_rays(band_start, height, camera, coeffs, rational, rot, out):
+    """Rail-frame ray directions ``out[c, j]`` through column ``c`` at image row
+    ``min(band_start[c] + j, height - 1)``: the pixel undistorted (:func:`_undistort_point`,
+    each point starting from the correction extrapolated from the two above it), then the camera ray
+    ``(x, y, 1)`` turned by ``rot`` - ``Intrinsics.rays(uv) @ rot.T`` in one pass."""
+    fx, skew, cx = camera[0, 0], camera[0, 1], camera[0, 2]
+    fy, cy = camera[1, 1], camera[1, 2]
+    for c in range(out.shape[0]):
+        # each point starts from its neighbours' corrections, extrapolated along the column
+        ax = ay = bx = by = 0.0  # the corrections of the two previous points
+        for j in range(out.shape[1]):
+            yd = (min(band_start[c] + j, height - 1) - cy) / fy
+            xd = (c - cx - skew * yd) / fx
+            if j >= 2:
+                x, y = xd + 2 * ax - bx, yd + 2 * ay - by
+            elif j == 1:
+                x, y = xd + ax, yd + ay
+            else:
+                x, y = xd, yd
+            x, y = _undistort_point(xd, yd, x, y, coeffs, rational)
+            bx, by = ax, ay
+            ax, ay = x - xd, y - yd
+            for m in range(3):
+                out[c, j, m] = rot[m, 0] * x + rot[m, 1] * y + rot[m, 2]

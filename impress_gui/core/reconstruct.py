@@ -486,12 +486,15 @@ def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int)
     """Rail-frame ray directions ``(W, band height + 1, 3)`` through every column at the
     integer rows of its band (lens distortion undone once here, not per frame)."""
     b0, bh = band
-    w = len(b0)
-    rows = np.minimum(b0[:, None] + np.arange(bh + 1)[None, :], height - 1).astype(np.float64)
-    cols = np.broadcast_to(np.arange(w, dtype=np.float64)[:, None], rows.shape)
-    uv = np.column_stack([cols.ravel(), rows.ravel()])
-    rays = cal.intrinsics.rays_compiled(uv) @ cal.rotation.T
-    return np.ascontiguousarray(rays.reshape(w, bh + 1, 3))
+    intr = cal.intrinsics
+    coeffs = np.zeros(8)
+    coeffs[: intr.dist_coeffs.size] = intr.dist_coeffs[:8]
+    rays = np.empty((len(b0), bh + 1, 3))
+    _kernels().band_rays(np.ascontiguousarray(b0, np.int64), int(height),
+                         np.ascontiguousarray(intr.camera_matrix, np.float64), coeffs,
+                         intr.dist_coeffs.size == 8,
+                         np.ascontiguousarray(cal.rotation, np.float64), rays)
+    return rays
 
 
 #: stripe rows of neighbouring columns closer than this (pixels) belong to one curve
