@@ -52,6 +52,7 @@ class HeightAccumulator:
         self.max_gap_mm = max_gap_mm
         self.max_step_mm = max_step_mm
         self._prev: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._splat = None  # the compiled kernel, looked up on first use
 
     def reset_chain(self) -> None:
         self._prev = None
@@ -60,15 +61,17 @@ class HeightAccumulator:
         """Add one frame's (upsampled) profile; fill towards the previous one: each point
         pairs with the same point of the previous profile when both are valid and closer
         than ``max_gap_mm`` (see :func:`impress_gui.core.kernels.splat_heights`)."""
-        from impress_gui.core.compiled import kernels
+        if self._splat is None:
+            from impress_gui.core.compiled import kernels
 
+            self._splat = kernels().splat_heights
         prev = self._prev
         self._prev = (x, y, h, valid)
         s = self.spec
         has_prev = prev is not None
         px, py, ph, pv = prev if prev is not None else (x, y, h, valid)
-        kernels().splat_heights(self.sum, self.count, s.x0_mm, s.y0_mm, s.pixel_mm, x, y, h, valid,
-                      px, py, ph, pv, has_prev, float(self.max_gap_mm), float(self.max_step_mm))
+        self._splat(self.sum, self.count, s.x0_mm, s.y0_mm, s.pixel_mm, x, y, h, valid,
+                    px, py, ph, pv, has_prev, float(self.max_gap_mm), float(self.max_step_mm))
 
     def mean(self) -> np.ndarray:
         from impress_gui.core.compiled import kernels

@@ -395,24 +395,27 @@ def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev,
 
 
 @_kernel(
-    "void(uint8[:, :], uint8[:, :], uint8[:, :], int64, int64[:], int64[:], float64[:], float64[:], float64[:, :])"
+    "void(uint8[:, :], uint8[:, :], uint8[:, :], int64, int64[:], int64[:], float64[:], float64[:], uint8[:, :])"
 )
 def sample_rgb(y, cb, cr, s, u0, v0, fu, fv, out):
     """Bilinear RGB of a frame's YCbCr planes at fixed sub-pixel positions (the texture row):
-    ``u0``/``v0`` the top-left pixel, ``fu``/``fv`` the fractions."""
+    ``u0``/``v0`` the top-left pixel, ``fu``/``fv`` the fractions; rounded to 8 bits."""
     sh = 1 if s == 2 else 0
+    acc = np.empty(3)
     for i in range(u0.shape[0]):
         a, b = u0[i], v0[i]
         wu, wv = fu[i], fv[i]
         for q in range(3):
-            out[i, q] = 0.0
+            acc[q] = 0.0
         for dv in range(2):
             for du in range(2):
                 wgt = (wu if du else 1.0 - wu) * (wv if dv else 1.0 - wv)
                 r, c = b + dv, a + du
                 rgb = _rgb(float(y[r, c]), float(cb[r >> sh, c >> sh]), float(cr[r >> sh, c >> sh]))
                 for q in range(3):
-                    out[i, q] += wgt * rgb[q]
+                    acc[q] += wgt * rgb[q]
+        for q in range(3):  # as np.clip(acc + 0.5, 0, 255).astype(np.uint8)
+            out[i, q] = np.uint8(min(max(acc[q] + 0.5, 0.0), 255.0))
 
 
 # the grid's kernels

@@ -29,8 +29,8 @@ from impress_gui.core.stripes import (
     METHODS,
     BackgroundLUT,
     Planes,
+    StripeDetector,
     StripeParams,
-    detect_planes,
 )
 from impress_gui.core.texture import RowSpool, reference_coeffs
 
@@ -362,9 +362,10 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
         u0 = np.clip(np.floor(tu).astype(np.int64), 0, w - 2)
         v0 = np.clip(np.floor(tv).astype(np.int64), 0, h - 2)
         tex_sample = (u0, v0, tu - u0, tv - v0)
-        tex_colours = np.empty((len(tu), 3), np.float64)
+        tex_colours = np.empty((len(tu), 3), np.uint8)
 
     ref = reference_coeffs(cal)
+    kern = _kernels()
     profile = {n: _Profile(w, k_up) for n in LASERS}
     min_cols = max(2, int(0.02 * w))
     offsets = {n: stripe_offsets(rays[n], cal.planes[n].plane.normal,
@@ -374,6 +375,8 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
                            TextureInputs(tex_rows, tex_rays, travel, ref, tex_acc)
                            if tex_rows is not None and tex_acc is not None else None)
     lut = lut_job.result() if lut_job is not None else None
+    detect = {n: StripeDetector(n, *bands[n], sp, lut) for n in LASERS}
+    plane = {n: cal.planes[n].plane for n in LASERS}
     report(progress, 0.03, "background learned")
     frames.limit(LOOP_QUEUE_FRAMES)
     frames_seen = [0]
@@ -388,14 +391,13 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
                 Planes.from_rgb(frame)
             s_k = float(travel[k])
             for name in LASERS:
-                b0, bh = bands[name]
-                res = detect_planes(name, planes, b0, bh, sp, lut)
+                res = detect[name](planes)
                 pr = profile[name]
                 up = pr.next()
-                plane = cal.planes[name].plane
-                n_ok = _kernels().stripe_profile(
-                    res.rows, CONNECT_PX, min_cols, b0, rays[name], plane.normal,
-                    float(plane.offset_mm), s_k, ref, params.max_step_mm, pr.k, pr.valid,
+                pl = plane[name]
+                n_ok = kern.stripe_profile(
+                    res.rows, CONNECT_PX, min_cols, bands[name][0], rays[name], pl.normal,
+                    float(pl.offset_mm), s_k, ref, params.max_step_mm, pr.k, pr.valid,
                     pr.x, pr.y, pr.h, *up, pr.y_range)
                 if n_ok < min_cols:  # a few isolated hits are not a stripe
                     acc[name].reset_chain()
@@ -405,8 +407,8 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
                 acc[name].add_profile(*up)
                 finisher.check_range(name, s_k, pr.y_range)
             if params.texture:
-                _kernels().sample_rgb(planes.y, planes.cb, planes.cr, planes.chroma_step,
-                                   *tex_sample, tex_colours)
+                kern.sample_rgb(planes.y, planes.cb, planes.cr, planes.chroma_step,
+                                *tex_sample, tex_colours)
                 tex_rows.append(k, tex_colours)
             i = k - start + 1
             if i % 8 == 0:

@@ -130,6 +130,9 @@ class StripeResult:
     def found(self) -> np.ndarray:
         return np.isfinite(self.rows)
 
+    def copy(self) -> StripeResult:
+        return StripeResult(self.rows.copy(), self.strength.copy())
+
 
 def _dilate_rows(mask: np.ndarray, k: int) -> np.ndarray:
     import cv2
@@ -200,30 +203,44 @@ def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height
     """Detect one laser's stripe; column ``c`` is searched in rows
     ``band_start[c] .. band_start[c] + band_height``. The compiled kernel
     (:func:`impress_gui.core.kernels.detect_stripe`) of :func:`detect_planes_numpy`."""
-    from impress_gui.core.compiled import kernels as load
+    return StripeDetector(name, band_start, band_height, params, lut)(planes).copy()
 
-    kernels = load()
-    method = params.method
-    if method == "lut" and lut is None:
-        raise InputError("the lookup-table method needs a learned background", code="E-PARAM")
-    w = planes.y.shape[1]
-    ranges = params.hue_ranges[name]
-    table = lut.tables[name] if (lut is not None and method in ("lut", "combined")) else \
-        np.zeros((0, 0), np.int16)
-    sdiv, hdiv = _hsv_tables()
-    rows = np.empty(w, np.float64)
-    strength = np.empty(w, np.float32)
-    o1, o2 = _OTHERS[name]
-    kernels.detect_stripe(
-        planes.y, planes.cb, planes.cr, planes.chroma_step,
-        np.ascontiguousarray(band_start, dtype=np.int64), int(band_height),
-        1 if name == "red" else -1, _CH[name], o1, o2, float(params.min_peak),
-        int(params.half_window_px), int(params.max_width_px), float(params.max_wrong_lean),
-        method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
-        np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
-        int(params.min_value), method == "combined", float(params.min_tint), table,
-        int(params.lut_margin), sdiv, hdiv, rows, strength)
-    return StripeResult(rows, strength)
+
+class StripeDetector:
+    """:func:`detect_planes` for one laser, frame after frame: the kernel's arguments are
+    prepared once, and each call's result is in arrays the next call overwrites."""
+
+    def __init__(self, name: str, band_start: np.ndarray, band_height: int,
+                 params: StripeParams, lut: BackgroundLUT | None) -> None:
+        from impress_gui.core.compiled import kernels
+
+        method = params.method
+        if method == "lut" and lut is None:
+            raise InputError("the lookup-table method needs a learned background",
+                             code="E-PARAM")
+        w = len(band_start)
+        ranges = params.hue_ranges[name]
+        table = lut.tables[name] if (lut is not None and method in ("lut", "combined")) else \
+            np.zeros((0, 0), np.int16)
+        sdiv, hdiv = _hsv_tables()
+        o1, o2 = _OTHERS[name]
+        self.result = StripeResult(np.empty(w, np.float64), np.empty(w, np.float32))
+        self._kernel = kernels().detect_stripe
+        self._args = (
+            np.ascontiguousarray(band_start, dtype=np.int64), int(band_height),
+            1 if name == "red" else -1, _CH[name], o1, o2, float(params.min_peak),
+            int(params.half_window_px), int(params.max_width_px), float(params.max_wrong_lean),
+            method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
+            np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
+            int(params.min_value), method == "combined", float(params.min_tint), table,
+            int(params.lut_margin), sdiv, hdiv, self.result.rows, self.result.strength)
+
+    def __call__(self, planes: Planes) -> StripeResult:
+        if planes.y.shape[1] != len(self.result.rows):
+            raise InputError(f"a frame {planes.y.shape[1]} pixels wide, bands for "
+                             f"{len(self.result.rows)}", code="E-SIZE-MISMATCH")
+        self._kernel(planes.y, planes.cb, planes.cr, planes.chroma_step, *self._args)
+        return self.result
 
 
 _HSV_TABLES: tuple | None = None

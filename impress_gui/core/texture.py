@@ -39,11 +39,13 @@ class RowSpool:
         self._width = 0
 
     def append(self, k: int, colours: np.ndarray) -> None:
-        row = np.clip(colours + 0.5, 0, 255).astype(np.uint8)
+        """Spool frame ``k``'s row: ``(N, 3)`` uint8, or floats (rounded, clipped to 0..255)."""
+        row = colours if colours.dtype == np.uint8 else \
+            np.clip(colours + 0.5, 0, 255).astype(np.uint8)
         self._width = len(row)
         with self._lock:
             self._fh.seek(0, 2)
-            self._fh.write(row.tobytes())
+            self._fh.write(np.ascontiguousarray(row).data)
         self._frames.append(k)
 
     @property
