@@ -31,7 +31,6 @@ from impress_gui.core.grid import (
 from impress_gui.core.texture import (
     RowSpool,
     TextureMapper,
-    filled_heights,
     map_texture,
     texture_reach,
 )
@@ -73,7 +72,10 @@ class RowFinisher:
         self.offsets = offsets
         self.direction = direction
         self.per = {n: np.empty(spec.shape, np.float32) for n in self.names}
-        self.fused = np.empty(spec.shape, np.float32)
+        # the texture's rays read the fused map near the rows already finished: the rest
+        # must read as missing (at the reference), never as stale memory
+        self.fused = np.full(spec.shape, np.nan, np.float32) if texture is not None else \
+            np.empty(spec.shape, np.float32)
         self.diff = np.empty(spec.shape, np.float32)
         self.contrib = np.empty(spec.shape, np.uint8)
         self.tex: np.ndarray | None = None
@@ -84,7 +86,6 @@ class RowFinisher:
         self.n_mean = self.n_fused = self.n_tex = self.j_tex = 0  # rows done, in scan order
         self.rows_during_loop = 0
         self._mapper: TextureMapper | None = None
-        self._filled: np.ndarray | None = None
         self._reach = 0.0
         if texture is not None:
             rays = texture.rays
@@ -205,10 +206,6 @@ class RowFinisher:
         band = self.fused[sl]
         if (np.abs(band) > _HEIGHT_LIMIT_MM).any():
             self.broken = "heights beyond the texture's reach"
-        if self._filled is None and self.texture is not None:
-            self._filled = np.zeros(self.spec.shape, np.float32)
-        if self._filled is not None:
-            self._filled[sl] = filled_heights(band)
         self.n_fused = target
 
     def _map_texture(self, n_rows: int, final: bool) -> None:
@@ -216,12 +213,10 @@ class RowFinisher:
         can reach."""
         tx = self.texture
         assert tx is not None
-        if self._filled is None:  # no row fused yet
-            if not final:
-                return
-            self._filled = np.zeros(self.spec.shape, np.float32)
+        if self.n_fused == 0 and not final:  # no row fused yet
+            return
         if self._mapper is None:
-            self._mapper = TextureMapper(tx.rays, tx.ref, self.spec, tx.acc, self._filled)
+            self._mapper = TextureMapper(tx.rays, tx.ref, self.spec, tx.acc, self.fused)
         j0 = self.j_tex
         s = np.asarray(tx.travel, np.float64)[tx.spool.frames_between(j0, n_rows)]
         H = self.spec.shape[0]

@@ -18,7 +18,16 @@ HIT_TOLERANCE_MM = 1e-3
 
 
 @_jit
+def _height(img, i, j):
+    """A cell of the heightmap; a missing one (NaN) at the reference, 0."""
+    v = img[i, j]
+    return 0.0 if math.isnan(v) else v
+
+
+@_jit
 def _bilinear_clamped(img, fx, fy):
+    """The heightmap at fractional cell ``(fy, fx)``: bilinear, clamped at its border,
+    missing cells at 0."""
     hh, ww = img.shape
     fx = min(max(fx, 0.0), ww - 1.0)
     fy = min(max(fy, 0.0), hh - 1.0)
@@ -28,8 +37,8 @@ def _bilinear_clamped(img, fx, fy):
     b = fy - i
     j1 = min(j + 1, ww - 1)
     i1 = min(i + 1, hh - 1)
-    top = img[i, j] * (1 - a) + img[i, j1] * a
-    bot = img[i1, j] * (1 - a) + img[i1, j1] * a
+    top = _height(img, i, j) * (1 - a) + _height(img, i, j1) * a
+    bot = _height(img, i1, j) * (1 - a) + _height(img, i1, j1) * a
     return top * (1 - b) + bot * b
 
 
@@ -37,7 +46,7 @@ def _bilinear_clamped(img, fx, fy):
 def surface_hits(ax, ay, travel, ref, height, x0, y0, g, iterations, x_out, y_out):
     """Where the texture row's rays meet the reconstructed surface: the ray through
     ``(ax, ay, 1)`` from the camera at ``travel``, depth refined on the heightmap (bilinear,
-    clamped at its border; missing cells filled at 0 beforehand) at most ``iterations``
+    clamped at its border; missing cells at the reference) at most ``iterations``
     times, and no more once an iteration moves it by less than :data:`HIT_TOLERANCE_MM`
     (further iterations would not move the hit)."""
     ig = 1.0 / g

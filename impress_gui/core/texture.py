@@ -71,11 +71,6 @@ class RowSpool:
         self._fh.close()
 
 
-def filled_heights(height: np.ndarray) -> np.ndarray:
-    """The surface the texture rays meet: the fused heights, missing cells at the reference."""
-    return np.where(np.isfinite(height), height, 0.0).astype(np.float32)
-
-
 def texture_reach(ay: np.ndarray, ref: np.ndarray, max_gap: float) -> float:
     """How far (mm along Y) from its camera position a texture row's samples can land: the
     footprint of the row's rays at the deepest plausible surface (heights within +-200 mm of
@@ -86,14 +81,15 @@ def texture_reach(ay: np.ndarray, ref: np.ndarray, max_gap: float) -> float:
 
 class TextureMapper:
     """Maps texture rows, in scan order, onto the grid: each row's rays meet the surface
-    (fixed-point iteration on ``filled``), then the colours are splatted, filling the strip
-    towards the previous row (which the mapper remembers between calls)."""
+    (fixed-point iteration on ``height``, the fused heightmap: float32, missing cells NaN and
+    taken at the reference), then the colours are splatted, filling the strip towards the
+    previous row (which the mapper remembers between calls)."""
 
     def __init__(self, rays: np.ndarray, ref: np.ndarray, spec: GridSpec,
-                 acc: ColorAccumulator, filled: np.ndarray) -> None:
+                 acc: ColorAccumulator, height: np.ndarray) -> None:
         self.ax = np.ascontiguousarray(rays[:, 0] / rays[:, 2])
         self.ay = np.ascontiguousarray(rays[:, 1] / rays[:, 2])
-        self.ref, self.spec, self.acc, self.filled = ref, spec, acc, filled
+        self.ref, self.spec, self.acc, self.height = ref, spec, acc, height
         n = len(self.ax)
         self.state = (np.zeros(n), np.zeros(n), np.zeros((n, 3)), np.zeros(1, np.bool_))
 
@@ -105,7 +101,7 @@ class TextureMapper:
         sp, acc = self.spec, self.acc
         hi = sp.shape[0] if i_hi is None else i_hi
         return int(_kernels().texture_rows(self.ax, self.ay, np.ascontiguousarray(travels, np.float64),
-                                           self.ref, self.filled, sp.x0_mm, sp.y0_mm, sp.pixel_mm,
+                                           self.ref, self.height, sp.x0_mm, sp.y0_mm, sp.pixel_mm,
                                            colours, acc.sum, acc.count, float(acc.max_gap_mm),
                                            *self.state, i_lo, hi))
 
@@ -123,7 +119,7 @@ def map_texture(rows, rays, travel, height, spec: GridSpec, ref: np.ndarray,
     is redone in one thread."""
     from concurrent.futures import ThreadPoolExecutor
 
-    filled = filled_heights(height)
+    height = np.ascontiguousarray(height, np.float32)
     frames = rows.frames
     s = np.asarray(travel, np.float64)[frames]
     n_rows = len(frames)
@@ -131,7 +127,7 @@ def map_texture(rows, rays, travel, height, spec: GridSpec, ref: np.ndarray,
     def run(lo: int, hi: int, i_lo: int, i_hi: int, exclusive: tuple[int, int]) -> int:
         """Map spool rows lo..hi-1 (after one unsplatted row to start the fill) onto grid
         rows i_lo..i_hi-1; return samples of the ``exclusive`` rows that fell elsewhere."""
-        mapper = TextureMapper(rays, ref, spec, acc, filled)
+        mapper = TextureMapper(rays, ref, spec, acc, height)
         if lo > 0:
             mapper.map(s[lo - 1 : lo], rows.rows(lo - 1, lo), 0, 0)
         stray = 0
