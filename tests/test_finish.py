@@ -54,9 +54,13 @@ def _run(flat_scan, flat_calibration, monkeypatch, mode):
     if mode == "after the loop":
         monkeypatch.setattr(rc, "_direction", lambda travel: 0)
     elif mode == "offsets too narrow":
-        real = fin.stripe_offsets
-        monkeypatch.setattr(rc, "stripe_offsets",  # as if all points lay on one line
-                            lambda *a: (lambda lo, hi: (0.5 * (lo + hi),) * 2)(*real(*a)))
+        real = fin.RowFinisher.__init__
+
+        def narrow(self, spec, acc, tol, offsets, *a):  # as if all points lay on one line
+            real(self, spec, acc, tol, {n: (0.5 * (lo + hi),) * 2
+                                        for n, (lo, hi) in offsets.items()}, *a)
+
+        monkeypatch.setattr(fin.RowFinisher, "__init__", narrow)
     elif mode == "texture reach too short":
         monkeypatch.setattr(fin, "texture_reach", lambda *a: -2.0)
     cal = SceneCalibration.load(flat_calibration)

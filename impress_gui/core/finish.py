@@ -39,15 +39,17 @@ from impress_gui.core.texture import (
 _HEIGHT_LIMIT_MM = 190.0
 
 
-def stripe_offsets(rays: np.ndarray, normal: np.ndarray, offset_mm: float) -> tuple[float, float]:
-    """Range of ``y - travel`` of a laser's stripe points: where the band's rays (a table from
-    ``reconstruct._band_rays``) meet the laser plane; sub-pixel rows interpolate between
-    neighbouring rays, so their points lie between these."""
+def stripe_footprint(rays: np.ndarray, normal: np.ndarray,
+                     offset_mm: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Ranges of ``x`` and of ``y - travel`` of a laser's stripe points: where the band's rays
+    (a table from ``reconstruct._band_rays``) meet the laser plane; sub-pixel rows interpolate
+    between neighbouring rays, so their points lie between these."""
     den = rays @ np.asarray(normal, np.float64)
     ok = np.abs(den) > 1e-12
     lam = offset_mm / den[ok]
+    x = lam * rays[..., 0][ok]
     y = lam * rays[..., 1][ok]
-    return float(y.min()), float(y.max())
+    return (float(x.min()), float(x.max())), (float(y.min()), float(y.max()))
 
 
 class TextureInputs:

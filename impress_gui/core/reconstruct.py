@@ -21,7 +21,7 @@ import numpy as np
 from impress_gui.core.calibration import SceneCalibration
 from impress_gui.core.compiled import kernels as _kernels
 from impress_gui.core.errors import InputError, ReconstructionError, VideoError
-from impress_gui.core.finish import RowFinisher, TextureInputs, stripe_offsets
+from impress_gui.core.finish import RowFinisher, TextureInputs, stripe_footprint
 from impress_gui.core.grid import ColorAccumulator, GridSpec, HeightAccumulator
 from impress_gui.core.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.stripes import (
@@ -328,17 +328,14 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
     bands = column_bands(cal, (w, h), params.height_range_mm, rois)
     rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
     k_up = max(upsampling(rays[n], z_deep, params.grid_mm) for n in LASERS)
-    # grid extent from the bands' rays at the height range
-    xs_all, ys_all = [], []
-    for name in LASERS:
-        a, b = rois[name]
-        uv = np.array([[u, v] for u in (0, w - 1, w // 2) for v in (a, b - 1)], float)
-        pts = cal.planes[name].plane.intersect_rays(intr.rays(uv) @ rot.T)
-        xs_all.extend(pts[:, 0])
-        ys_all.extend(pts[:, 1])
-    x_rng = (min(xs_all) - 2, max(xs_all) + 2)
+    # grid extent: wherever a stripe point can land (the bands' rays on the laser planes,
+    # along the travel of the frame range), and 2 mm more
+    foot = [stripe_footprint(rays[n], cal.planes[n].plane.normal,
+                             float(cal.planes[n].plane.offset_mm)) for n in LASERS]
+    x_rng = (min(f[0][0] for f in foot) - 2, max(f[0][1] for f in foot) + 2)
     t0, t1 = travel[start], travel[stop - 1]
-    y_rng = (min(t0, t1) + min(ys_all) - 2, max(t0, t1) + max(ys_all) + 2)
+    y_rng = (min(t0, t1) + min(f[1][0] for f in foot) - 2,
+             max(t0, t1) + max(f[1][1] for f in foot) + 2)
     spec = GridSpec.covering(x_rng, y_rng, params.grid_mm)
     if spec.shape[0] * spec.shape[1] > 400e6:
         raise InputError("the output grid would exceed 400 million cells; use a coarser grid",
@@ -368,8 +365,7 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
     kern = _kernels()
     profile = {n: _Profile(w, k_up) for n in LASERS}
     min_cols = max(2, int(0.02 * w))
-    offsets = {n: stripe_offsets(rays[n], cal.planes[n].plane.normal,
-                                 float(cal.planes[n].plane.offset_mm)) for n in LASERS}
+    offsets = dict(zip(LASERS, (f[1] for f in foot)))
     finisher = RowFinisher(spec, acc, params.fuse_tolerance_mm, offsets,
                            _direction(travel[start:stop]),
                            TextureInputs(tex_rows, tex_rays, travel, ref, tex_acc)
