@@ -10,6 +10,7 @@ surface.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -52,7 +53,7 @@ class HeightAccumulator:
         self.max_gap_mm = max_gap_mm
         self.max_step_mm = max_step_mm
         self._prev: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._splat = None  # the compiled kernel, looked up on first use
+        self._splat: Any = None  # the compiled kernel, looked up on first use
 
     def reset_chain(self) -> None:
         self._prev = None

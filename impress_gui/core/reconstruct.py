@@ -371,7 +371,7 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
                            TextureInputs(tex_rows, tex_rays, travel, ref, tex_acc)
                            if tex_rows is not None and tex_acc is not None else None)
     lut = lut_job.result() if lut_job is not None else None
-    detect = {n: StripeDetector(n, *bands[n], sp, lut) for n in LASERS}
+    detect = {n: StripeDetector(n, bands[n][0], bands[n][1], sp, lut) for n in LASERS}
     plane = {n: cal.planes[n].plane for n in LASERS}
     report(progress, 0.03, "background learned")
     frames.limit(LOOP_QUEUE_FRAMES)
