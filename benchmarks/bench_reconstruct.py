@@ -145,7 +145,10 @@ with open_video(sys.argv[1]) as v:
     rec = reconstruct(v, cal, ProcessParams(frame_start=int(sys.argv[3]), frame_stop=int(sys.argv[4]), method=sys.argv[5]))
 hwm = [l for l in open("/proc/self/status") if l.startswith("VmHWM")][0].split()[1]
 print(json.dumps({"peak_mb": int(hwm) / 1024, "load_s": load_s,
-                  "grid_mb": rec.height_mm.nbytes * 13 / 2**20,
+                  # bytes per grid cell during a run: per laser a float32 sum and a uint16 count,
+                  # the texture's 3 float32 sums and count, the per-laser maps, fused map and
+                  # difference (float32), contribution codes and texture (uint8): 46
+                  "grid_mb": rec.height_mm.size * 46 / 2**20,
                   "fps": rec.stats["frames_per_second"], "loop_s": rec.stats["seconds_frame_loop"],
                   "total_s": rec.stats["seconds_total"],
                   "parts": {k: rec.stats["seconds_" + k] for k in ("setup", "finish")},
