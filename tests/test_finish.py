@@ -63,6 +63,8 @@ def _run(flat_scan, flat_calibration, monkeypatch, mode):
         monkeypatch.setattr(fin.RowFinisher, "__init__", narrow)
     elif mode == "texture reach too short":
         monkeypatch.setattr(fin, "texture_reach", lambda *a: -2.0)
+    elif mode == "texture ring too small":
+        monkeypatch.setattr(fin.RowFinisher, "_texture_ring", lambda self, travel: 16)
     cal = SceneCalibration.load(flat_calibration)
     with open_video(flat_scan / "scan.mp4") as v:
         rec = reconstruct(v, cal, ProcessParams())
@@ -74,7 +76,7 @@ def test_finishing_during_the_loop_equals_finishing_after_it(flat_scan, flat_cal
                                                               monkeypatch):
     runs = {m: _run(flat_scan, flat_calibration, monkeypatch, m)
             for m in ("during the loop", "after the loop", "offsets too narrow",
-                      "texture reach too short")}
+                      "texture reach too short", "texture ring too small")}
     streamed = runs["during the loop"]
     # most of the grid was finished while frames were still being read
     assert streamed.stats["rows_finished_in_loop"] > 0.3
@@ -84,7 +86,10 @@ def test_finishing_during_the_loop_equals_finishing_after_it(flat_scan, flat_cal
     assert "outside its offsets" in runs["offsets too narrow"].stats["finished_after_loop"]
     # texture rows averaged too early get late samples: noticed, and redone afterwards
     assert "texture samples" in runs["texture reach too short"].stats["finished_after_loop"]
-    for other in ("after the loop", "offsets too narrow", "texture reach too short"):
+    # colour sums held for too few rows: samples beyond them are noticed, everything redone
+    assert "beyond the rows held" in runs["texture ring too small"].stats["finished_after_loop"]
+    for other in ("after the loop", "offsets too narrow", "texture reach too short",
+                  "texture ring too small"):
         rec = runs[other]
         for a, b in [(streamed.height_mm, rec.height_mm), (streamed.difference_mm, rec.difference_mm),
                      (streamed.contribution, rec.contribution), (streamed.texture_rgb, rec.texture_rgb),
@@ -174,7 +179,10 @@ def test_finisher_in_either_direction_equals_finishing_at_once(direction):
         assert f.broken is None
         if streamed:
             assert f.rows_during_loop > 0.5 * spec.shape[0]
+            # the colour sums were held for a few hundred rows at a time, not the whole grid
+            assert f._tex_acc is not None and f._tex_acc.rows < spec.shape[0] // 2
         results.append((f.per["green"], f.per["red"], f.fused, f.diff, f.contrib, f.tex))
     for a, b in zip(*results):
         assert np.array_equal(a, b, equal_nan=True)
     assert (results[0][4] == 4).any() and np.isfinite(results[0][2]).mean() > 0.5
+    assert (results[0][5] > 0).mean() > 0.3  # a texture was mapped

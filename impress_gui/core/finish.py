@@ -89,11 +89,19 @@ class RowFinisher:
         self.rows_during_loop = 0
         self._mapper: TextureMapper | None = None
         self._reach = 0.0
+        self._tex_acc: ColorAccumulator | None = None
         if texture is not None:
             rays = texture.rays
             self._reach = texture_reach(rays[:, 1] / rays[:, 2], texture.ref,
                                         float(texture.acc.max_gap_mm)) / g
             self.tex = np.empty((*spec.shape, 3), np.uint8)
+            self._tex_acc = texture.acc
+            ring = self._texture_ring(np.asarray(texture.travel, np.float64))
+            if direction != 0 and ring < spec.shape[0]:
+                # colour sums for the rows being mapped only, reused row after row: 14 bytes
+                # per cell of the whole grid are never touched (texture.acc, the whole grid's
+                # sums, is used only if everything has to be mapped again after the loop)
+                self._tex_acc = ColorAccumulator(spec, float(texture.acc.max_gap_mm), ring)
         self._cond = threading.Condition()
         self._pending: float | None = None
         self._stop = False
@@ -102,6 +110,18 @@ class RowFinisher:
         if direction != 0:
             self._thread = threading.Thread(target=self._run, name="impress-finish", daemon=True)
             self._thread.start()
+
+    #: texture rows mapped per call (between two averagings of the rows left behind)
+    TEXTURE_CHUNK = 64
+
+    def _texture_ring(self, travel: np.ndarray) -> int:
+        """Rows of colour sums the mapping needs at once: from the oldest row not yet averaged
+        (a reach behind the last row mapped) to the farthest a chunk of rows can reach, with a
+        margin; as a power of two."""
+        step = float(np.max(np.abs(np.diff(travel)))) / self.spec.pixel_mm if len(travel) > 1 \
+            else 0.0
+        need = 2 * self._reach + self.TEXTURE_CHUNK * step + 32
+        return 1 << max(4, math.ceil(math.log2(need)))
 
     # ----- called by the frame loop ---------------------------------------------------------
     def check_range(self, name: str, travel: float, y_range: np.ndarray) -> None:
@@ -217,39 +237,48 @@ class RowFinisher:
         assert tx is not None
         if self.n_fused == 0 and not final:  # no row fused yet
             return
-        if self._mapper is None:
-            self._mapper = TextureMapper(tx.rays, tx.ref, self.spec, tx.acc, self.fused)
+        acc = self._tex_acc
+        assert acc is not None
         j0 = self.j_tex
         s = np.asarray(tx.travel, np.float64)[tx.spool.frames_between(j0, n_rows)]
+        if not len(s):
+            return
+        if self._mapper is None:
+            self._mapper = TextureMapper(tx.rays, tx.ref, self.spec, acc, self.fused)
+            # rows before the first texture row's reach get no sample
+            first = math.floor(float(self._q(s[0])) - self._reach) - 3
+            self._texture_means(min(max(first, 0), self.n_fused))
         H = self.spec.shape[0]
         if final:
             j_end = n_rows
         else:
             ready = self._q(s) + self._reach + 3 < self.n_fused
             j_end = j0 + (int(np.argmin(ready)) if not ready.all() else len(ready))
-        chunk = 64
-        for a in range(j0, j_end, chunk):
+        for a in range(j0, j_end, self.TEXTURE_CHUNK):
             if self._stop and not final:
                 return
-            b = min(j_end, a + chunk)
-            keep = self._rows(self.n_tex, H)
+            b = min(j_end, a + self.TEXTURE_CHUNK)
+            # the rows not yet averaged, as far as the sums hold them
+            keep = self._rows(self.n_tex, min(H, self.n_tex + acc.rows))
             stray = self._mapper.map(s[a - j0 : b - j0], tx.spool.rows(a, b), keep.start,
                                      keep.stop)
             if stray:
-                self.broken = f"{stray} texture samples in rows already averaged"
+                self.broken = f"{stray} texture samples in rows already averaged or beyond " \
+                              f"the rows held"
                 return
             self.j_tex = b
-            if not final:
-                done = math.floor(float(self._q(s[b - 1 - j0])) - self._reach) - 3
-                self._texture_means(min(max(done, 0), self.n_fused))
+            # rows no later texture row can reach are final
+            done = math.floor(float(self._q(s[b - 1 - j0])) - self._reach) - 3
+            self._texture_means(min(max(done, 0), self.n_fused))
 
     def _texture_means(self, target: int) -> None:
         tx = self.texture
         assert tx is not None and self.tex is not None
         if target <= self.n_tex:
             return
+        assert self._tex_acc is not None
         sl = self._rows(self.n_tex, target)
-        tx.acc.mean_rows(sl, self.tex)
+        self._tex_acc.take_rows(sl, self.tex)
         self.n_tex = target
 
     def _finish_all(self) -> None:

@@ -90,26 +90,55 @@ class HeightAccumulator:
 
 class ColorAccumulator:
     """Sum and count of colours per cell (the registered texture); filled by
-    :func:`impress_gui.core.kernels.texture_rows`."""
+    :func:`impress_gui.core.kernels.texture_rows`.
 
-    def __init__(self, spec: GridSpec, max_gap_mm: float) -> None:
+    With ``ring_rows`` (a power of two) the sums hold only that many grid rows at a time:
+    grid row ``i`` in row ``i & mask``. Rows are then taken out in scan order
+    (:meth:`take_rows`), which frees theirs for the rows that follow; the caller keeps every
+    row it still adds to within one ring."""
+
+    def __init__(self, spec: GridSpec, max_gap_mm: float, ring_rows: int | None = None) -> None:
         self.spec = spec
-        self.sum = np.zeros((*spec.shape, 3), np.float32)
-        self.count = np.zeros(spec.shape, np.uint16)
+        rows = spec.shape[0] if ring_rows is None else ring_rows
+        if ring_rows is not None and (ring_rows <= 0 or ring_rows & (ring_rows - 1)):
+            raise ValueError("ring_rows must be a power of two")
+        self.rows = rows
+        self.mask = -1 if ring_rows is None else ring_rows - 1
+        self.sum = np.zeros((rows, spec.shape[1], 3), np.float32)
+        self.count = np.zeros((rows, spec.shape[1]), np.uint16)
         self.max_gap_mm = max_gap_mm
 
     def mean(self) -> np.ndarray:
         from impress_gui.core.compiled import kernels
 
+        assert self.mask == -1, "a ring's rows are taken out with take_rows"
         out = np.empty((*self.spec.shape, 3), np.uint8)
         kernels().mean_colours(self.sum, self.count, out)
         return out
 
     def mean_rows(self, rows: slice, out: np.ndarray) -> None:
-        """:meth:`mean` of grid rows ``rows`` into the same rows of ``out``."""
+        """:meth:`mean` of grid rows ``rows`` into the same rows of ``out`` (whole-grid sums)."""
         from impress_gui.core.compiled import kernels
 
+        assert self.mask == -1, "a ring's rows are taken out with take_rows"
         kernels().mean_colours(self.sum[rows], self.count[rows], out[rows])
+
+    def take_rows(self, rows: slice, out: np.ndarray) -> None:
+        """The mean colours of grid rows ``rows`` into the same rows of ``out``; in a ring,
+        their sums are then cleared for the rows that follow."""
+        from impress_gui.core.compiled import kernels
+
+        if self.mask == -1:
+            self.mean_rows(rows, out)
+            return
+        a = rows.start
+        while a < rows.stop:
+            r = a & self.mask
+            n = min(rows.stop - a, self.rows - r)
+            kernels().mean_colours(self.sum[r : r + n], self.count[r : r + n], out[a : a + n])
+            self.sum[r : r + n] = 0
+            self.count[r : r + n] = 0
+            a += n
 
 
 def fuse(h_green: np.ndarray, h_red: np.ndarray, tol_mm: float):

@@ -66,14 +66,17 @@ def surface_hits(ax, ay, travel, ref, height, x0, y0, g, iterations, x_out, y_ou
 
 
 @_jit
-def splat_colours(total, count, x0, y0, g, x, y, rgb, px, py, prgb, has_prev, max_gap, i_lo,
-                  i_hi):
+def splat_colours(total, count, hgt, mask, x0, y0, g, x, y, rgb, px, py, prgb, has_prev,
+                  max_gap, i_lo, i_hi):
     """Add one texture row's colours (``(N, 3)``) to the per-cell sums, filling the strip
     towards the previous row (linear colours): at most one cell apart along each axis, so
     the strip has no gaps (a texture is a picture: fewer samples than the heights need). Only
     grid rows ``i_lo <= i < i_hi`` are touched; returns how many samples fell on other rows of
-    the grid (threads sharing the grid by row ranges use it to check their split)."""
-    hgt, wid = count.shape
+    the grid (threads sharing the grid by row ranges use it to check their split). The grid
+    has ``hgt`` rows; grid row ``i`` is stored in row ``i & mask`` of the sums (``mask`` -1:
+    the sums cover the whole grid; ``2**k - 1``: a ring of ``2**k`` rows, which must hold
+    every row from ``i_lo`` to ``i_hi - 1``)."""
+    wid = count.shape[1]
     ig = 1.0 / g
     skipped = 0
     for i in range(x.shape[0]):
@@ -98,24 +101,26 @@ def splat_colours(total, count, x0, y0, g, x, y, rgb, px, py, prgb, has_prev, ma
             if not (i_lo <= ii < i_hi):
                 skipped += 1
                 continue
-            if count[ii, jj] < 65535:
+            ri = ii & mask
+            if count[ri, jj] < 65535:
                 t = m / n
                 for q in range(3):
                     c = rgb[i, q]
-                    total[ii, jj, q] += c if m == 0 else c - t * (c - prgb[i, q])
-                count[ii, jj] += 1
+                    total[ri, jj, q] += c if m == 0 else c - t * (c - prgb[i, q])
+                count[ri, jj] += 1
     return skipped
 
 
 @_kernel(
-    "int64(float64[:], float64[:], float64[:], float64[:], float32[:, :], float64, float64, float64, uint8[:, :, :], float32[:, :, :], uint16[:, :], float64, float64[:], float64[:], float64[:, :], boolean[:], int64, int64)"
+    "int64(float64[:], float64[:], float64[:], float64[:], float32[:, :], float64, float64, float64, uint8[:, :, :], float32[:, :, :], uint16[:, :], int64, float64, float64[:], float64[:], float64[:, :], boolean[:], int64, int64)"
 )
-def texture_rows(ax, ay, travels, ref, height, x0, y0, g, colours, total, count, max_gap,
+def texture_rows(ax, ay, travels, ref, height, x0, y0, g, colours, total, count, mask, max_gap,
                  prev_x, prev_y, prev_rgb, has_prev, i_lo, i_hi):
     """Map a run of texture rows (``colours`` ``(n, N, 3)`` uint8, camera travel of each in
     ``travels``) onto grid rows ``i_lo .. i_hi - 1``: :func:`surface_hits` then
-    :func:`splat_colours` per row. The previous row's state (``prev_*``; ``has_prev[0]``) is
-    carried in and out. Returns the number of samples that fell on other grid rows."""
+    :func:`splat_colours` per row (the sums cover the grid of ``height``, or a ring of its rows:
+    ``mask``). The previous row's state (``prev_*``; ``has_prev[0]``) is carried in and out.
+    Returns the number of samples that fell on other grid rows."""
     n_pts = ax.shape[0]
     x = np.empty(n_pts)
     y = np.empty(n_pts)
@@ -126,8 +131,8 @@ def texture_rows(ax, ay, travels, ref, height, x0, y0, g, colours, total, count,
         for i in range(n_pts):
             for q in range(3):
                 rgb[i, q] = colours[r, i, q]
-        skipped += splat_colours(total, count, x0, y0, g, x, y, rgb, prev_x, prev_y, prev_rgb,
-                                 has_prev[0], max_gap, i_lo, i_hi)
+        skipped += splat_colours(total, count, height.shape[0], mask, x0, y0, g, x, y, rgb,
+                                 prev_x, prev_y, prev_rgb, has_prev[0], max_gap, i_lo, i_hi)
         prev_x[:] = x
         prev_y[:] = y
         prev_rgb[:, :] = rgb

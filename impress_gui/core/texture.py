@@ -102,8 +102,8 @@ class TextureMapper:
         hi = sp.shape[0] if i_hi is None else i_hi
         return int(_kernels().texture_rows(self.ax, self.ay, np.ascontiguousarray(travels, np.float64),
                                            self.ref, self.height, sp.x0_mm, sp.y0_mm, sp.pixel_mm,
-                                           colours, acc.sum, acc.count, float(acc.max_gap_mm),
-                                           *self.state, i_lo, hi))
+                                           colours, acc.sum, acc.count, acc.mask,
+                                           float(acc.max_gap_mm), *self.state, i_lo, hi))
 
 
 def map_texture(rows, rays, travel, height, spec: GridSpec, ref: np.ndarray,
