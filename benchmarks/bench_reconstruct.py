@@ -146,9 +146,9 @@ with open_video(sys.argv[1]) as v:
 hwm = [l for l in open("/proc/self/status") if l.startswith("VmHWM")][0].split()[1]
 print(json.dumps({"peak_mb": int(hwm) / 1024, "load_s": load_s,
                   # bytes per grid cell during a run: per laser a float32 sum and a uint16 count,
-                  # the texture's 3 float32 sums and count, the per-laser maps, fused map and
-                  # difference (float32), contribution codes and texture (uint8): 46
-                  "grid_mb": rec.height_mm.size * 46 / 2**20,
+                  # the per-laser maps, fused map and difference (float32), contribution codes
+                  # and texture (uint8): 32 (the texture's sums are a ring of rows)
+                  "grid_mb": rec.height_mm.size * 32 / 2**20,
                   "fps": rec.stats["frames_per_second"], "loop_s": rec.stats["seconds_frame_loop"],
                   "total_s": rec.stats["seconds_total"],
                   "parts": {k: rec.stats["seconds_" + k] for k in ("setup", "finish")},
