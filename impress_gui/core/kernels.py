@@ -69,20 +69,20 @@ def _window(y, c, centre, k, rr, sig):
     h = y.shape[0]
     n = 2 * k + 1
     lo = 1e9
+    hi = -1e9
     for j in range(n):
         r = min(max(centre + j - k, 0), h - 1)
         rr[j] = r
         v = float(y[r, c])
         sig[j] = v
         lo = min(lo, v)
-    top = 0.0
-    for j in range(n):
-        sig[j] -= lo
-        top = max(top, sig[j])
+        hi = max(hi, v)
+    top = hi - lo
     half = 0.5 * top
     wsum = 0.0
     acc = 0.0
     for j in range(n):
+        sig[j] -= lo
         a = sig[j] - half
         if a > 0:
             wsum += a
