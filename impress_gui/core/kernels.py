@@ -169,12 +169,13 @@ def detect_stripe(y, cb, cr, s, band_start, band_height, sign, ch, o1, o2, min_p
             continue
         if not (sig[0] < 0.7 * top and sig[n - 1] < 0.7 * top):
             continue  # an edge, not a peak
-        width = 0
-        for j in range(n):
-            if sig[j] > 0.5 * top:
-                width += 1
-        if width > max_width:
-            continue
+        if n > max_width:  # else the window cannot hold a stripe wider than max_width
+            width = 0
+            for j in range(n):
+                if sig[j] > 0.5 * top:
+                    width += 1
+            if width > max_width:
+                continue
         # 3. the halo leans to this laser's colour (judged against the window's ends)
         bg = 0.5 * (float(cr[rr[0] >> sh, cc]) + float(cr[rr[n - 1] >> sh, cc]))
         lean = 0.0
