@@ -111,7 +111,7 @@ def accuracy(name: str, d: Path, method: str) -> dict:
 #: whatever the processing itself uses)
 DECODE_THREADS = (2, 4, 6, 8)
 #: paired rounds (decode-only, then processing) per method
-ROUNDS = 3
+ROUNDS = 5
 
 
 def decode_only_seconds(video_path: Path, start: int, stop: int, threads: int) -> float:

@@ -97,3 +97,9 @@ def test_keyframes_read_on_their_own_equal_sequential_decoding(tmp_path, tiny, f
     ks = [int(keys[-1]), other, int(keys[0])]
     for got, k in zip(v.read_many(ks, threads=2), ks):
         assert np.array_equal(got, seq[k])
+    # a clone (opened without probing a picture, decoding on 4 threads) gives the same frames
+    with v.clone(4) as c:
+        assert c.frame_count == v.frame_count and c.size == v.size
+        cloned = dict(c.iter_frames(0))
+    assert cloned.keys() == seq.keys()
+    assert all(np.array_equal(cloned[k], seq[k]) for k in seq)

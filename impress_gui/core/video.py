@@ -141,8 +141,15 @@ class AVVideo(VideoSource):
 
         other = copy.copy(self)
         other._threads = threads or self._threads
+        # this reader knows the stream already: the clone's probe decodes no picture (opening
+        # otherwise decodes the first one, ~60 ms at 1080p); the decoder is opened anew, with
+        # the same frames (tested)
+        quick = [{"skip_frame": "all"}] * len(self._container.streams)
         try:
-            other._container = av.open(str(self.path), "r")
+            try:
+                other._container = av.open(str(self.path), "r", stream_options=quick)
+            except ValueError:  # a format whose streams appear only while probing (MPEG-PS)
+                other._container = av.open(str(self.path), "r")
         except (av.error.FFmpegError, OSError, ValueError) as exc:
             raise VideoError(f"{self.path}: not a readable video ({exc})",
                              code="E-VIDEO-OPEN") from None
