@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -144,7 +145,8 @@ class AVVideo(VideoSource):
         # this reader knows the stream already: the clone's probe decodes no picture (opening
         # otherwise decodes the first one, ~60 ms at 1080p); the decoder is opened anew, with
         # the same frames (tested)
-        quick = [{"skip_frame": "all"}] * len(self._container.streams)
+        # (PyAV's type stubs say list[str]; the library takes one dict per stream)
+        quick: Any = [{"skip_frame": "all"}] * len(self._container.streams)
         try:
             try:
                 other._container = av.open(str(self.path), "r", stream_options=quick)
