@@ -145,22 +145,35 @@ class AVVideo(VideoSource):
         # this reader knows the stream already: the clone's probe decodes no picture (opening
         # otherwise decodes the first one, ~60 ms at 1080p); the decoder is opened anew, with
         # the same frames (tested)
-        # (PyAV's type stubs say list[str]; the library takes one dict per stream)
-        quick: Any = [{"skip_frame": "all"}] * len(self._container.streams)
         try:
-            try:
-                other._container = av.open(str(self.path), "r", stream_options=quick)
-            except ValueError:  # a format whose streams appear only while probing (MPEG-PS)
-                other._container = av.open(str(self.path), "r")
+            other._container, other._stream = other._open_for_decoding(probe_pictures=False)
         except (av.error.FFmpegError, OSError, ValueError) as exc:
             raise VideoError(f"{self.path}: not a readable video ({exc})",
                              code="E-VIDEO-OPEN") from None
-        st = other._container.streams.video[0]
-        st.codec_context.thread_type = "AUTO"
-        st.codec_context.thread_count = other._threads
-        other._stream = st
         other._decoder = None
         return other
+
+    def _open_for_decoding(self, probe_pictures: bool = True):
+        """The file opened again for decoding on this reader's threads: (container, video
+        stream). Without ``probe_pictures`` the stream probe decodes no picture (for a reader
+        that knows the stream; a format whose streams appear only while probing, such as
+        MPEG-PS, is probed in full all the same)."""
+        import av
+
+        container = None
+        if not probe_pictures:
+            # (PyAV's type stubs say list[str]; the library takes one dict per stream)
+            quick: Any = [{"skip_frame": "all"}] * len(self._container.streams)
+            try:
+                container = av.open(str(self.path), "r", stream_options=quick)
+            except ValueError:
+                container = None
+        if container is None:
+            container = av.open(str(self.path), "r")
+        st = container.streams.video[0]
+        st.codec_context.thread_type = "AUTO"
+        st.codec_context.thread_count = self._threads
+        return container, st
 
     def quick_frames(self, start: int, stop: int, n: int) -> list[int]:
         keys = np.searchsorted(self._pts, self._keys)
@@ -185,14 +198,8 @@ class AVVideo(VideoSource):
 
     def _reopen(self) -> None:
         """Open the file again (positioned at its start)."""
-        import av
-
         self._container.close()
-        self._container = av.open(str(self.path), "r")
-        st = self._container.streams.video[0]
-        st.codec_context.thread_type = "AUTO"
-        st.codec_context.thread_count = self._threads
-        self._stream = st
+        self._container, self._stream = self._open_for_decoding()
 
     def _indexed(self, want: int):
         """(index, frame) pairs from the positioned decoder, skipping frames before ``want``."""
