@@ -315,7 +315,7 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
     """The run after the decoder has started: tables, the frame loop, the finish."""
     start, stop = frame_range
     w, h = video.size
-    _kernels()
+    kern = _kernels()  # loaded (or waited for) before the tables that use them
     times = video.times_s
     travel = cal.travel_mm(times)
     intr, rot = cal.intrinsics, cal.rotation
@@ -362,7 +362,6 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
         tex_colours = np.empty((len(tu), 3), np.uint8)
 
     ref = reference_coeffs(cal)
-    kern = _kernels()
     profile = {n: _Profile(w, k_up) for n in LASERS}
     min_cols = max(2, int(0.02 * w))
     offsets = dict(zip(LASERS, (f[1] for f in foot)))
