@@ -8,6 +8,16 @@ cd "$here"
 
 # open3d needs libusb and libgomp; Qt (offscreen and xcb) needs GL/EGL, fontconfig, xkbcommon, dbus
 SYSTEM_PACKAGES=(libusb-1.0-0 libgomp1 libgl1 libegl1 libglib2.0-0 libfontconfig1 libxkbcommon0 libdbus-1-3)
+# Qt 6's xcb platform plugin (a real X display): everything `ldd` lists for the wheel's
+# plugins/platforms/libqxcb.so, lib/libQt6XcbQpa.so.6 and plugins/xcbglintegrations/*.so,
+# plus libxcb-cursor0 (loaded at start-up; without it Qt refuses xcb and asks for it by name,
+# even when the real gap is another library) and the X client libraries the wheels load
+SYSTEM_PACKAGES+=(libx11-6 libx11-xcb1 libxcb1 libxcb-cursor0 libxcb-icccm4 libxcb-image0
+  libxcb-keysyms1 libxcb-randr0 libxcb-render0 libxcb-render-util0 libxcb-shape0 libxcb-shm0
+  libxcb-sync1 libxcb-util1 libxcb-xfixes0 libxcb-xinerama0 libxcb-xkb1 libxkbcommon-x11-0
+  libxext6 libxrender1 libxi6 libsm6 libice6 libfreetype6)
+# Xvfb: the test suite starts the window on a virtual X display with the xcb platform
+SYSTEM_PACKAGES+=(xvfb)
 missing=()
 if command -v dpkg >/dev/null 2>&1; then
   for p in "${SYSTEM_PACKAGES[@]}"; do
