@@ -14,11 +14,17 @@ def _speed(text: str) -> float:
 
     if text in SPEED_NAMES:
         return SPEED_NAMES[text]
+    import math
+
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"{text!r} is not a speed: give mm/s or one of slow, medium, fast") from None
+    if not (math.isfinite(value) and 0.01 <= value <= 1000.0):
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a possible rail speed (0.01 to 1000 mm/s)")
+    return value
 
 
 def _resolution(text: str) -> tuple[int, int]:

@@ -148,8 +148,16 @@ class SceneCalibration:
             cr = require(doc, "corner_residuals_mm", dict, where)
             speed = float(require(doc, "speed_mm_s", float, where))
             fps = float(require(doc, "fps", float, where))
-            if speed <= 0 or fps <= 0:
-                raise FormatError(f"{where}speed and fps must be positive")
+            check_range(speed, SPEED_RANGE_MM_S, "the rail speed (mm/s)", where)
+            check_range(fps, FPS_RANGE, "the frame rate (frames/s)", where)
+            for key in ("t1", "t2"):
+                check_range(require(doc, key, int, where), FRAME_RANGE, f"frame {key}", where)
+            check_range(require(doc, "t_ref_s", float, where), TIME_RANGE_S,
+                        "the reference time (s)", where)
+            check_range(require(doc, "implied_speed_mm_s", float, where), (0.0, 1e4),
+                        "the implied speed (mm/s)", where)
+            check_range(require(doc, "reprojection_rms_px", float, where), (0.0, 1e4),
+                        "the reprojection RMS (px)", where)
             return cls(
                 intrinsics=intr, speed_mm_s=speed, fps=fps,
                 t1=int(require(doc, "t1", int, where)), t2=int(require(doc, "t2", int, where)),
@@ -176,8 +184,29 @@ class SceneCalibration:
         write_json(path, self.to_json())
 
     @classmethod
+    def from_bytes(cls, raw: bytes, path) -> SceneCalibration:
+        from impress_gui.core.fileio import parse_json
+
+        return cls.from_json(parse_json(raw, path, CALIBRATION_FORMAT), f"{path}: ")
+
+    @classmethod
     def load(cls, path) -> SceneCalibration:
         return cls.from_json(read_json(path, CALIBRATION_FORMAT), f"{path}: ")
+
+
+#: physical ranges of a calibration's numbers: a value outside is a damaged or forged file
+SPEED_RANGE_MM_S = (0.01, 1000.0)  # the rail's slowest crawl to far beyond its fastest
+FPS_RANGE = (0.5, 1000.0)
+FRAME_RANGE = (0, 10_000_000)  # ~4 days at 30 frames/s
+TIME_RANGE_S = (-1e6, 1e6)
+
+
+def check_range(value, bounds: tuple[float, float], what: str, where: str = "") -> None:
+    """FormatError ``E-VALUE`` unless ``bounds[0] <= value <= bounds[1]``."""
+    lo, hi = bounds
+    if not (lo <= float(value) <= hi):
+        raise FormatError(f"{where}{what} is {value:g}, outside the possible range "
+                          f"{lo:g} to {hi:g}", code="E-VALUE")
 
 
 def check_picks(picks: Picks, intrinsics: Intrinsics, frame_count: int) -> None:

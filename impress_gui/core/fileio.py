@@ -33,6 +33,59 @@ def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+def open_regular(path: str | os.PathLike, what: str, max_bytes: int) -> int:
+    """Open ``path`` read-only after checking it is a regular, non-empty file of at most
+    ``max_bytes``; return the descriptor. A FIFO, device, folder or socket is refused without
+    blocking (FormatError ``E-NOT-A-FILE``), as are a missing (``E-FILE-MISSING``), empty
+    (``E-FILE-EMPTY``), oversized (``E-TOO-LARGE``) or unreadable (``E-FILE-READ``) file."""
+    import stat
+
+    p = Path(path)
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    except FileNotFoundError:
+        raise FormatError(f"{p}: no such {what} file", code="E-FILE-MISSING") from None
+    except IsADirectoryError:
+        raise FormatError(f"{p} is a folder, not a {what} file", code="E-NOT-A-FILE") from None
+    except OSError as exc:
+        raise FormatError(f"{p}: the {what} file cannot be read ({_os_reason(exc)})",
+                          code="E-FILE-READ") from None
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise FormatError(f"{p} is a folder, not a {what} file", code="E-NOT-A-FILE")
+        if not stat.S_ISREG(st.st_mode):
+            raise FormatError(f"{p} is not a regular file (a device, pipe or socket): give a "
+                              f"{what} file", code="E-NOT-A-FILE")
+        if st.st_size == 0:
+            raise FormatError(f"{p}: the {what} file is empty", code="E-FILE-EMPTY")
+        if st.st_size > max_bytes:
+            raise FormatError(f"{p}: {st.st_size} bytes is too large for a {what} file",
+                              code="E-TOO-LARGE")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def _os_reason(exc: OSError) -> str:
+    from impress_gui.core.outdir import reason
+
+    return reason(exc)
+
+
+def read_regular(path: str | os.PathLike, what: str, max_bytes: int) -> bytes:
+    """The bytes of a regular file checked as in :func:`open_regular`."""
+    fd = open_regular(path, what, max_bytes)
+    with os.fdopen(fd, "rb") as fh:
+        data = fh.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise FormatError(f"{path}: too large for a {what} file", code="E-TOO-LARGE")
+    return data
+
+
 FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 
@@ -103,19 +156,25 @@ def _reject_constant(name: str) -> None:
 def read_json(path: str | os.PathLike, fmt: str, versions: tuple[int, ...] = (1,)) -> dict:
     """Read a versioned JSON document of kind ``fmt``; raise FormatError on any problem."""
     path = Path(path)
+    return parse_json(read_regular(path, fmt, MAX_JSON_BYTES), path, fmt, versions)
+
+
+def parse_json(raw: bytes, path: str | os.PathLike, fmt: str,
+               versions: tuple[int, ...] = (1,)) -> dict:
+    """As :func:`read_json`, from bytes already read (``path`` names them in messages)."""
     try:
-        size = path.stat().st_size
-    except FileNotFoundError:
-        raise FormatError(f"{path}: file not found", code="E-FILE-MISSING") from None
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
-    if size > MAX_JSON_BYTES:
-        raise FormatError(f"{path}: {size} bytes is too large for a {fmt} file")
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(f"{path}: not a text file (byte {exc.start} is not UTF-8)",
+                          code="E-JSON") from None
     try:
-        text = path.read_bytes().decode("utf-8")
         doc = json.loads(text, parse_constant=_reject_constant)
-    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise FormatError(f"{path}: not valid JSON ({exc})", code="E-JSON") from None
+    except json.JSONDecodeError as exc:
+        raise FormatError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}, column "
+                          f"{exc.colno})", code="E-JSON") from None
+    except (ValueError, RecursionError):
+        raise FormatError(f"{path}: not valid JSON (too deeply nested, or a number or "
+                          "constant that is not allowed)", code="E-JSON") from None
     if not isinstance(doc, dict):
         raise FormatError(f"{path}: expected a JSON object for a {fmt} file")
     got = doc.get("format")

@@ -94,18 +94,34 @@ def pseudo_colour(height: np.ndarray, vrange=None, bar: bool = True) -> np.ndarr
     return np.concatenate([rgb, panel], axis=1)
 
 
+EXPORT_FRAME = (
+    "right-handed, in mm: x = across the rail (the image's columns, to the right), y = against "
+    "the carriage's motion (y = -rail Y, so the image's first row has the largest y), z = height "
+    "up, towards the camera; seen from above (+z) with y up the surface looks as the camera and "
+    "texture.png show it: a left shoe stays a left shoe"
+)
+
+
+def export_xy(spec, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Grid cells ``(rows, cols)`` -> the right-handed export frame's (x, y) in mm (see
+    :data:`EXPORT_FRAME`): x = rail X, y = -rail Y."""
+    x = spec.x0_mm + cols * spec.pixel_mm
+    y = -(spec.y0_mm + rows * spec.pixel_mm)
+    return x, y
+
+
 def ply_bytes(spec, height: np.ndarray, texture: np.ndarray | None, step: int = 1,
               comments: Sequence[str] = ()) -> bytes:
-    """Binary little-endian PLY: float32 x, y, z (mm; z = height) and uchar RGB. Each of
-    ``comments`` (provenance lines) becomes one header ``comment`` line (ASCII, one line)."""
+    """Binary little-endian PLY: float32 x, y, z (mm, the right-handed :data:`EXPORT_FRAME`)
+    and uchar RGB. Each of ``comments`` (provenance lines) becomes one header ``comment`` line
+    (ASCII, one line)."""
     hh = height[::step, ::step]
     ok = np.isfinite(hh)
     ii, jj = np.nonzero(ok)
     n = len(ii)
     pts = np.empty(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
                              ("red", "u1"), ("green", "u1"), ("blue", "u1")])
-    pts["x"] = spec.x0_mm + jj * step * spec.pixel_mm
-    pts["y"] = spec.y0_mm + ii * step * spec.pixel_mm
+    pts["x"], pts["y"] = export_xy(spec, ii * step, jj * step)
     pts["z"] = hh[ok]
     if texture is not None:
         tex = texture[::step, ::step][ok]
@@ -113,7 +129,8 @@ def ply_bytes(spec, height: np.ndarray, texture: np.ndarray | None, step: int = 
     else:
         pts["red"] = pts["green"] = pts["blue"] = 200
     header = ("ply\nformat binary_little_endian 1.0\n"
-              f"comment IMPREsS workstation {__version__}; units mm; z = height up\n"
+              f"comment IMPREsS workstation {__version__}; units mm\n"
+              f"comment frame: {EXPORT_FRAME}\n"
               + "".join(f"comment {_one_line(c)}\n" for c in comments) +
               f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
               "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
@@ -124,14 +141,22 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
-def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "") -> bytes:
+def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "",
+              calibrated: str | None = None) -> bytes:
     """ISO 25178-72 (XML 3D surface profile) container: an areal surface, x/y incremental
-    axes in metres, z as float64 metres with NaN for invalid points. ``comment`` (provenance
-    included) goes into Record2/Comment, XML-escaped."""
+    axes in metres, z as float64 metres with NaN for invalid points, in the right-handed
+    :data:`EXPORT_FRAME` (the grid's rows are stored last first, so that y increases with the
+    point index). ``comment`` (provenance included) goes into Record2/Comment, XML-escaped.
+    ``created`` and ``calibrated`` are ISO 8601 dates; for reproducible files pass dates that
+    come from the inputs (the calibration's date), not the time of writing."""
     from xml.sax.saxutils import escape
 
     ny, nx = height.shape
-    data = (height.astype(np.float64) * 1e-3).astype("<f8").tobytes()  # row by row: x fastest
+    # x fastest, rows from the last grid row (smallest export y) to the first
+    data = (height[::-1].astype(np.float64) * 1e-3).astype("<f8").tobytes()
+    y_offset_mm = -(spec.y0_mm + (ny - 1) * spec.pixel_mm)
+    comment = f"frame: {EXPORT_FRAME}; {comment}" if comment else f"frame: {EXPORT_FRAME}"
+    calibrated = calibrated or created
     md5_data = hashlib.md5(data).hexdigest()
     xml = f"""<?xml version="1.0" encoding="UTF-8"?>
 <p:ISO5436_2 xmlns:p="http://www.opengps.eu/2008/ISO5436_2" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:schemaLocation="http://www.opengps.eu/2008/ISO5436_2 http://www.opengps.eu/2008/ISO5436_2/ISO5436_2_XML.xsd">
@@ -140,7 +165,7 @@ def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "") -> byte
     <FeatureType>SUR</FeatureType>
     <Axes>
       <CX><AxisType>I</AxisType><DataType>D</DataType><Increment>{spec.pixel_mm * 1e-3:.12g}</Increment><Offset>{spec.x0_mm * 1e-3:.12g}</Offset></CX>
-      <CY><AxisType>I</AxisType><DataType>D</DataType><Increment>{spec.pixel_mm * 1e-3:.12g}</Increment><Offset>{spec.y0_mm * 1e-3:.12g}</Offset></CY>
+      <CY><AxisType>I</AxisType><DataType>D</DataType><Increment>{spec.pixel_mm * 1e-3:.12g}</Increment><Offset>{y_offset_mm * 1e-3:.12g}</Offset></CY>
       <CZ><AxisType>A</AxisType><DataType>D</DataType></CZ>
     </Axes>
   </Record1>
@@ -153,7 +178,7 @@ def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "") -> byte
       <Serial>not available</Serial>
       <Version>{__version__}</Version>
     </Instrument>
-    <CalibrationDate>{created}</CalibrationDate>
+    <CalibrationDate>{calibrated}</CalibrationDate>
     <ProbingSystem><Type>NonContacting</Type><Identification>laser triangulation</Identification></ProbingSystem>
     <Comment>{escape(comment)}</Comment>
   </Record2>
@@ -176,26 +201,65 @@ def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "") -> byte
     return buf.getvalue()
 
 
+def _iso(ts: float) -> str:
+    return datetime.fromtimestamp(ts, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def input_dates(video, calibration_path) -> dict[str, str]:
+    """The X3P's dates, taken from the inputs so that identical inputs give identical files:
+    ``measured`` = the recording date the video's container states, else the video file's
+    modification time; ``calibrated`` = the same when the calibration was made on this video
+    (the rig calibrates itself from each scan), else the calibration file's modification
+    time."""
+    measured = None
+    if getattr(video, "recorded_utc", None):
+        measured = str(video.recorded_utc)[:19].replace(" ", "T") + "Z"
+    if measured is None:
+        try:
+            measured = _iso(os.stat(video.path).st_mtime)
+        except OSError:
+            measured = "1970-01-01T00:00:00Z"
+    calibrated = measured
+    try:
+        import json
+
+        doc = json.loads(Path(calibration_path).read_bytes())
+        made_on = ((doc.get("inputs") or {}).get("video") or {}).get("sha256")
+        if made_on != video.sha256():
+            calibrated = _iso(os.stat(calibration_path).st_mtime)
+    except (OSError, ValueError, AttributeError):
+        pass
+    return {"measured": measured, "calibrated": calibrated}
+
+
 def contribution_png(contrib: np.ndarray) -> np.ndarray:
     lut = np.array([[0, 0, 0], [40, 200, 40], [220, 40, 40], [230, 230, 230], [240, 160, 0]],
                    np.uint8)
     return lut[np.clip(contrib, 0, 4)]
 
 
-def write_reconstruction(rec, out_dir: Path, metadata: dict, run_info: dict,
-                         ply_step: int = 2) -> dict[str, str]:
-    """Write every output into ``out_dir`` atomically; return {file: sha256}.
+RECON_FILES = ("heightmap.tif", "height_green.tif", "height_red.tif", "difference.tif",
+               "contribution.tif", "contribution.png", "heightmap_8bit.png",
+               "heightmap_color.png", "pointcloud.ply", "heightmap.x3p", "texture.png",
+               "metadata.json", "run.json")
+
+
+def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
+                         ply_step: int = 2, dates: dict | None = None) -> dict[str, str]:
+    """Write every output into ``out_dir`` (a path, or an
+    :class:`~impress_gui.core.outdir.OutputFolder` already checked) atomically; return
+    {file: sha256}. ``dates`` (``measured``, ``calibrated``: see :func:`input_dates`) go into
+    the X3P; without them the run's date is used (the file then differs between runs).
 
     The point cloud takes every ``ply_step``-th cell in each direction (default 2: 0.2 mm
     spacing on the default grid, a quarter of the cells; 1 keeps every cell)."""
-    out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    recover_interrupted(out_dir)
-    tmp = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    created = run_info.get("date_utc") or datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    from impress_gui.core.outdir import OutputFolder, writing
+
+    folder = out_dir if isinstance(out_dir, OutputFolder) else OutputFolder(
+        out_dir, "reconstruction", allowed=RECON_FILES)
+    run_date = run_info.get("date_utc") or datetime.now(timezone.utc).strftime(
+        "%Y-%m-%dT%H:%M:%SZ")
+    dates = dates or {"measured": run_date, "calibrated": run_date}
     inputs = metadata.get("inputs") or {}
     source = [f"source {k} sha256: {(inputs.get(k) or {}).get('sha256') or '-'}"
               for k in ("video", "calibration")]
@@ -210,27 +274,26 @@ def write_reconstruction(rec, out_dir: Path, metadata: dict, run_info: dict,
         "heightmap_color.png": _png_bytes(pseudo_colour(rec.height_mm)),
         "pointcloud.ply": ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step,
                                     source),
-        "heightmap.x3p": x3p_bytes(rec.spec, rec.height_mm, created,
+        "heightmap.x3p": x3p_bytes(rec.spec, rec.height_mm, dates["measured"],
                                    "IMPREsS reconstruction; " + "; ".join(source)
-                                   + "; parameters, grid and height convention: metadata.json"),
+                                   + "; parameters, grid and height convention: metadata.json",
+                                   calibrated=dates["calibrated"]),
     }
     if rec.texture_rgb is not None:
         files["texture.png"] = _png_bytes(rec.texture_rgb)
     digests = {}
     try:
-        for name, payload in files.items():
-            (tmp / name).write_bytes(payload)
-            digests[name] = hashlib.sha256(payload).hexdigest()
-        meta = dict(metadata)
-        meta["files"] = digests
-        (tmp / "metadata.json").write_text(dumps_json(meta))
-        (tmp / "run.json").write_text(dumps_json(run_info))
-        for p in tmp.iterdir():
-            with open(p, "rb") as fh:
-                os.fsync(fh.fileno())
-        swap_into_place(tmp, out_dir)
+        with writing(folder.final):
+            for name, payload in files.items():
+                folder.path(name).write_bytes(payload)
+                digests[name] = hashlib.sha256(payload).hexdigest()
+            meta = dict(metadata)
+            meta["files"] = digests
+            folder.path("metadata.json").write_text(dumps_json(meta))
+            folder.path("run.json").write_text(dumps_json(run_info))
+        folder.commit()
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        folder.abort()
         raise
     return digests
 
@@ -297,7 +360,10 @@ def build_metadata(rec, cal, params, inputs: dict) -> dict:
         "regions_of_interest": {k: list(v) for k, v in rec.rois.items()},
         "grid": rec.spec.to_json() | {
             "convention": "cell [i, j] centred at rail (x0 + j*pixel, y0 + i*pixel) mm; rail "
-                          "frame origin = optical centre at calibration frame t1; +Y = motion"},
+                          "frame origin = optical centre at calibration frame t1; +Y = motion; "
+                          "row 0 is the first row of every image file (as the camera sees it)"},
+        "export_frame": {"files": ["pointcloud.ply", "heightmap.x3p"], "frame": EXPORT_FRAME,
+                         "x_mm": "x0 + j*pixel", "y_mm": "-(y0 + i*pixel)", "z_mm": "height"},
         "height": HEIGHT_CONVENTION,
         "grey8": {"file": "heightmap_8bit.png", "mm_per_level": 0.1, "reference_level":
                   GREY_OFFSET, "no_data_level": 0},

@@ -9,52 +9,75 @@ import time
 from pathlib import Path
 
 
+def check_process_output(out_dir: Path, video_path: Path, calibration_path: Path):
+    """The output folder checked (and its hidden work folder made) before any work: see
+    :class:`~impress_gui.core.outdir.OutputFolder`."""
+    from impress_gui.core.outdir import OutputFolder
+    from impress_gui.core.outputs import RECON_FILES
+
+    return OutputFolder(out_dir, "reconstruction", inputs=(video_path, calibration_path),
+                        allowed=RECON_FILES)
+
+
 def process_files(video_path: Path, calibration_path: Path, out_dir: Path, params,
                   fps: float | None = None, progress=None, cancel=None,
                   expected_video_sha256: str | None = None, preview=None) -> dict:
     """Core entry shared by the CLI and the GUI: read, reconstruct, write; return metadata.
 
-    ``expected_video_sha256`` (the hash recorded when the evidence was added to a project):
-    processing is refused with IntegrityError ``E-EVIDENCE-CHANGED`` when the video's hash
-    differs."""
+    The output folder is checked before any work (nothing that is not a previous result of
+    this product is ever replaced: ``E-OUTPUT-*`` errors). The video is opened once and the
+    hash recorded is that of the open file that is decoded; a file written to during the run
+    is refused (``E-EVIDENCE-CHANGED``). ``expected_video_sha256`` (the hash recorded when the
+    evidence was added to a project): processing is refused with IntegrityError
+    ``E-EVIDENCE-CHANGED`` when the video's hash differs."""
+    import hashlib
     import platform
     from datetime import datetime, timezone
 
     from impress_gui.core.calibration import SceneCalibration
-    from impress_gui.core.fileio import sha256_file, sha256_path
-    from impress_gui.core.outputs import build_metadata, write_reconstruction
+    from impress_gui.core.errors import IntegrityError
+    from impress_gui.core.fileio import read_regular
+    from impress_gui.core.outputs import build_metadata, input_dates, write_reconstruction
     from impress_gui.core.reconstruct import reconstruct
     from impress_gui.core.video import open_video
 
-    cal = SceneCalibration.load(calibration_path)
-    inputs: dict[str, dict[str, str | None]] = {"calibration": {"path": str(calibration_path),
-                              "sha256": sha256_file(calibration_path)}}
-    # a frame folder: the hash of its manifest; a missing file: open_video says so below
-    video_sha = sha256_path(video_path) if Path(video_path).exists() else None
-    inputs["video"] = {"path": str(video_path), "sha256": video_sha}
-    if expected_video_sha256 and video_sha != expected_video_sha256:
-        from impress_gui.core.errors import IntegrityError
-
-        raise IntegrityError(
-            f"the evidence video {video_path} has changed since it was added to the project "
-            f"(SHA-256 {str(video_sha)[:12]}... instead of {expected_video_sha256[:12]}...); "
-            "processing refused", code="E-EVIDENCE-CHANGED")
-    warnings = []
-    recorded = cal.inputs.get("video", {}).get("sha256") if cal.inputs else None
-    if recorded and video_sha and recorded != video_sha:
-        warnings.append("the video differs from the one the calibration was made on "
-                        "(SHA-256 mismatch)")
-    t0 = time.perf_counter()
-    with open_video(video_path, fps=fps) as video:
-        rec = reconstruct(video, cal, params, progress=progress, cancel=cancel,
-                          preview=preview)
-    rec.warnings[:0] = warnings
-    meta = build_metadata(rec, cal, params, inputs)
-    run = {"date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-           "host": platform.node(), "python": platform.python_version(),
-           "timings": rec.run_stats(),
-           "wall_seconds": round(time.perf_counter() - t0, 3)}
-    meta["files"] = write_reconstruction(rec, out_dir, meta, run)
+    video_path, calibration_path = Path(video_path), Path(calibration_path)
+    params.validate()
+    folder = check_process_output(Path(out_dir), video_path, calibration_path)
+    try:
+        # the calibration's bytes are read once: the hash recorded is of what is parsed
+        cal_bytes = read_regular(calibration_path, "calibration", 50 << 20)
+        cal = SceneCalibration.from_bytes(cal_bytes, calibration_path)
+        inputs: dict[str, dict[str, str | None]] = {"calibration": {
+            "path": str(calibration_path), "sha256": hashlib.sha256(cal_bytes).hexdigest()}}
+        t0 = time.perf_counter()
+        with open_video(video_path, fps=fps) as video:
+            video_sha = video.sha256()
+            inputs["video"] = {"path": str(video_path), "sha256": video_sha}
+            if expected_video_sha256 and video_sha != expected_video_sha256:
+                raise IntegrityError(
+                    f"the evidence video {video_path} has changed since it was added to the "
+                    f"project (SHA-256 {video_sha[:12]}... instead of "
+                    f"{expected_video_sha256[:12]}...); processing refused",
+                    code="E-EVIDENCE-CHANGED")
+            warnings = []
+            recorded = cal.inputs.get("video", {}).get("sha256") if cal.inputs else None
+            if recorded and recorded != video_sha:
+                warnings.append("W-CALIB-OTHER-VIDEO: the video differs from the one the "
+                                "calibration was made on (SHA-256 mismatch)")
+            rec = reconstruct(video, cal, params, progress=progress, cancel=cancel,
+                              preview=preview)
+            video.check_unchanged()
+            warnings += video.damage_warnings()
+            dates = input_dates(video, calibration_path)
+        rec.warnings[:0] = warnings
+        meta = build_metadata(rec, cal, params, inputs)
+        run = {"date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+               "host": platform.node(), "python": platform.python_version(),
+               "timings": rec.run_stats(),
+               "wall_seconds": round(time.perf_counter() - t0, 3)}
+        meta["files"] = write_reconstruction(rec, folder, meta, run, dates=dates)
+    except BaseException:
+        folder.abort()
+        raise
     return meta | {"run": run}
-
-

@@ -378,6 +378,10 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
     last_preview = [time.perf_counter()]
     n_total = stop - start
     t_loop = time.perf_counter()
+    # frames the decoder reports as damaged (filled in by the decoding thread before a frame
+    # is queued) give no stripe points: their rows are left to the neighbouring frames
+    damage = getattr(frames.video, "damage", {})
+    skipped = [0]
     try:
         for k, frame in frames:
             cancel.check()
@@ -385,7 +389,13 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
             planes = Planes.from_av(frame) if not isinstance(frame, np.ndarray) else \
                 Planes.from_rgb(frame)
             s_k = float(travel[k])
+            bad = k in damage
+            skipped[0] += bad
             for name in LASERS:
+                if bad:
+                    profile[name].next()
+                    acc[name].reset_chain()
+                    continue
                 res = detect[name](planes)
                 pr = profile[name]
                 up = pr.next()
@@ -450,6 +460,7 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
         "seconds_finish": round(time.perf_counter() - t_finish, 3),
         "rows_finished_in_loop": round(finisher.rows_during_loop / spec.shape[0], 3),
         "frames_per_second": round(n_total / max(loop_s, 1e-9), 2),
+        "frames_damaged_skipped": skipped[0],
     }
     report(progress, 1.0, "done")
     if finisher.broken:

@@ -7,6 +7,7 @@ Files are opened read-only; nothing here ever writes to an evidence file.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,18 @@ from typing import Any
 import numpy as np
 
 from impress_gui.core.errors import VideoError
-from impress_gui.core.fileio import FRAME_SUFFIXES
+from impress_gui.core.fileio import FRAME_SUFFIXES, open_regular
+
+
+def _open_regular(path: Path, what: str, max_bytes: int) -> int:
+    """A read-only descriptor of the regular file ``path`` (VideoError codes otherwise)."""
+    from impress_gui.core.errors import FormatError
+
+    try:
+        return open_regular(path, what, max_bytes)
+    except FormatError as exc:
+        code = "E-VIDEO-EMPTY" if exc.code == "E-FILE-EMPTY" else exc.code
+        raise VideoError(str(exc), code=code) from None
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mts", ".m2ts", ".ts", ".avi", ".mkv")
 IMAGE_SUFFIXES = FRAME_SUFFIXES
@@ -59,6 +71,47 @@ class VideoSource:
 
         return copy.copy(self)
 
+    #: problems found when the source was opened (timestamp gaps, a cut-off file): plain text
+    open_warnings: list[str]
+    #: frame index -> what is wrong with it, filled in while frames are decoded (shared by clones)
+    damage: dict[int, str]
+
+    #: the recording date the container states (ISO 8601), if any
+    recorded_utc: str | None = None
+
+    def frame_damage(self, k: int) -> str | None:
+        """What is known to be wrong with frame ``k`` once it has been decoded (None: nothing)."""
+        return self.damage.get(int(k))
+
+    def damage_warnings(self, limit: int = 12) -> list[str]:
+        """The source's problems as warnings: those found on opening, then the damaged frames
+        (runs of consecutive frames in one line)."""
+        out = list(self.open_warnings)
+        ks = sorted(self.damage)
+        runs: list[tuple[int, int, str]] = []
+        for k in ks:
+            why = self.damage[k]
+            if runs and runs[-1][1] == k - 1 and runs[-1][2] == why:
+                runs[-1] = (runs[-1][0], k, why)
+            else:
+                runs.append((k, k, why))
+        for a, b, why in runs[:limit]:
+            frames = f"frame {a}" if a == b else f"frames {a}-{b}"
+            out.append(f"W-VIDEO-DAMAGED: {frames} of {self.path.name}: {why}")
+        if len(runs) > limit:
+            out.append(f"W-VIDEO-DAMAGED: {len(runs) - limit} more damaged stretches "
+                       f"({len(ks)} damaged frames in all)")
+        return out
+
+    def sha256(self) -> str:
+        """SHA-256 of exactly what this source decodes (a file: the bytes of the open file;
+        a frame folder: the hash of its manifest)."""
+        raise NotImplementedError
+
+    def check_unchanged(self) -> None:
+        """Raise IntegrityError ``E-EVIDENCE-CHANGED`` if the source was written to since it
+        was opened (its bytes may then differ from those hashed)."""
+
     def check_index(self, k: int) -> int:
         if not isinstance(k, (int, np.integer)) or not 0 <= k < self.frame_count:
             raise VideoError(f"frame {k} is outside the video (0..{self.frame_count - 1})",
@@ -75,28 +128,95 @@ class VideoSource:
         self.close()
 
 
+#: a scan video larger than this is refused before opening (a 1.77 m scan at 1080p is ~1 GB)
+MAX_VIDEO_BYTES = 64 << 30
+#: a gap between frame stamps longer than this many frame intervals is reported
+GAP_FRAMES = 1.5
+
+
+def _pinned_name(fd: int, path: Path) -> str:
+    """A name that opens the very file behind ``fd`` even if ``path`` is replaced meanwhile
+    (Linux: /proc/self/fd/N); elsewhere the path itself."""
+    proc = f"/proc/self/fd/{fd}"
+    return proc if os.path.exists(proc) else str(path)
+
+
+def _stat_key(st: os.stat_result) -> tuple:
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
 class AVVideo(VideoSource):
     def __init__(self, path: Path, threads: int = 2) -> None:
         import av
 
         self.path = Path(path)
         self._threads = threads
+        self.open_warnings = []
+        self.damage = {}
+        # the file is opened once; every decoder reads this open file (never the path again),
+        # so the bytes hashed by sha256() are the bytes decoded
+        self._fd = _open_regular(self.path, "video", MAX_VIDEO_BYTES)
+        self._owner = True
+        self._stat = _stat_key(os.fstat(self._fd))
+        self._name = _pinned_name(self._fd, self.path)
         try:
-            self._container = av.open(str(self.path), "r")
-        except (av.error.FFmpegError, OSError, ValueError) as exc:
-            raise VideoError(f"{self.path}: not a readable video ({exc})",
-                             code="E-VIDEO-OPEN") from None
+            self._container = av.open(self._name, "r")
+        except (av.error.FFmpegError, OSError, ValueError):
+            self._close_fd()
+            raise VideoError(f"{self.path}: not a readable video (the container is damaged, cut "
+                             "short or of an unknown kind)", code="E-VIDEO-OPEN") from None
+        try:
+            self._index()
+        except BaseException:
+            self.close()
+            raise
+
+    def _close_fd(self) -> None:
+        if getattr(self, "_owner", False) and self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+    def sha256(self) -> str:
+        import hashlib
+
+        h = hashlib.sha256()
+        off, chunk = 0, 4 << 20
+        while block := os.pread(self._fd, chunk, off):
+            h.update(block)
+            off += len(block)
+        return h.hexdigest()
+
+    def check_unchanged(self) -> None:
+        now = _stat_key(os.fstat(self._fd))
+        moved = False
+        try:
+            moved = _stat_key(os.stat(self.path))[:2] != self._stat[:2]
+        except OSError:
+            moved = True
+        if now != self._stat:
+            from impress_gui.core.errors import IntegrityError
+
+            raise IntegrityError(f"{self.path} was written to while it was being read: the "
+                                 "result is not kept", code="E-EVIDENCE-CHANGED")
+        if moved:
+            self.open_warnings.append(
+                f"W-VIDEO-REPLACED: {self.path} was replaced or removed while it was read; "
+                "the file that was opened and hashed was processed")
+
+    def _index(self) -> None:
+        import av
+
+        tag = str((self._container.metadata or {}).get("creation_time") or "")
+        self.recorded_utc = tag if len(tag) >= 10 and tag[:4].isdigit() else None
         streams = self._container.streams.video
         if not streams:
-            self._container.close()
             raise VideoError(f"{self.path}: the file has no video stream", code="E-VIDEO-OPEN")
         st = streams[0]
         if st.codec_context is None:
-            self._container.close()
             raise VideoError(f"{self.path}: the video stream cannot be decoded",
                              code="E-VIDEO-OPEN")
         st.codec_context.thread_type = "AUTO"
-        st.codec_context.thread_count = threads
+        st.codec_context.thread_count = self._threads
         self._stream = st
         self._tb = float(st.time_base) if st.time_base else 1.0 / 90000
         cc = st.codec_context
@@ -113,11 +233,17 @@ class AVVideo(VideoSource):
                 pts.append(pkt.pts)
                 if pkt.is_keyframe:
                     keys.append(pkt.pts)
-        except av.error.FFmpegError as exc:
-            raise VideoError(f"{self.path}: damaged after {len(pts)} frames ({exc})",
+        except av.error.FFmpegError:
+            raise VideoError(f"{self.path}: the file is damaged after {len(pts)} frames",
                              code="E-VIDEO-TRUNCATED") from None
         if not pts:
             raise VideoError(f"{self.path}: the video has no frames", code="E-VIDEO-EMPTY")
+        if len(set(pts)) != len(pts):
+            self.open_warnings.append(f"W-VIDEO-STAMPS: {self.path.name}: "
+                                      f"{len(pts) - len(set(pts))} frames share a time stamp "
+                                      "with another frame (only one of each is used)")
+            pts = sorted(set(pts))
+            keys = sorted(set(keys))
         self._pts = np.array(sorted(pts), dtype=np.int64)
         self._keys = np.array(sorted(keys), dtype=np.int64)
         t = (self._pts - self._pts[0]) * self._tb
@@ -132,6 +258,46 @@ class AVVideo(VideoSource):
             if abs(float(rate) - self.fps) / float(rate) < 0.002:
                 self.fps = float(rate)
         self._decoder: Iterator | None = None
+        self._taint: int | None = None
+        self._check_completeness(st)
+
+    def _check_completeness(self, st) -> None:
+        """Warnings for a stream that is shorter than its container says, a file cut off in
+        the middle of a transport packet, and gaps in the frame stamps."""
+        declared = int(st.frames or 0)
+        n = len(self._pts)
+        if declared > n:
+            self.open_warnings.append(
+                f"W-VIDEO-TRUNCATED: {self.path.name}: the container declares {declared} frames "
+                f"but only {n} are in the file (cut short?)")
+        if self.path.suffix.lower() in (".mts", ".m2ts", ".ts"):
+            size = os.fstat(self._fd).st_size
+            if size % 188 and size % 192:
+                self.open_warnings.append(
+                    f"W-VIDEO-TRUNCATED: {self.path.name}: the file ends in the middle of a "
+                    "transport packet (cut short?); its last frames may be incomplete")
+        if n > 2:
+            dt = np.diff(self._pts.astype(np.float64))
+            step = float(np.median(dt))
+            if step > 0:
+                for i in np.nonzero(dt > GAP_FRAMES * step)[0][:10]:
+                    missing = int(round(dt[i] / step)) - 1
+                    self.open_warnings.append(
+                        f"W-VIDEO-GAP: {self.path.name}: about {max(1, missing)} frame(s) "
+                        f"missing between frames {i} and {i + 1} "
+                        f"({dt[i] * self._tb * 1000:.0f} ms instead of "
+                        f"{step * self._tb * 1000:.0f} ms)")
+
+    def _note_damage(self, idx: int, frame) -> None:
+        """Record frame ``idx`` as damaged when the decoder flags it, and the frames after it
+        up to the next keyframe as depending on it."""
+        if frame.is_corrupt:
+            self.damage[idx] = "the decoder found damaged data in it"
+            self._taint = idx
+        elif frame.key_frame:
+            self._taint = None
+        elif self._taint is not None and idx > self._taint:
+            self.damage.setdefault(idx, f"decoded from damaged frame {self._taint}")
 
     def clone(self, threads: int | None = None) -> AVVideo:
         """Another reader of the same file with its own decoder (``threads`` decoding threads),
@@ -141,14 +307,15 @@ class AVVideo(VideoSource):
         import av
 
         other = copy.copy(self)
+        other._owner = False  # the original keeps (and closes) the open file
         other._threads = threads or self._threads
         # this reader knows the stream already: the clone's probe decodes no picture (opening
         # otherwise decodes the first one, ~60 ms at 1080p); the decoder is opened anew, with
         # the same frames (tested)
         try:
             other._container, other._stream = other._open_for_decoding(probe_pictures=False)
-        except (av.error.FFmpegError, OSError, ValueError) as exc:
-            raise VideoError(f"{self.path}: not a readable video ({exc})",
+        except (av.error.FFmpegError, OSError, ValueError):
+            raise VideoError(f"{self.path}: the video cannot be opened again for decoding",
                              code="E-VIDEO-OPEN") from None
         other._decoder = None
         return other
@@ -165,11 +332,11 @@ class AVVideo(VideoSource):
             # (PyAV's type stubs say list[str]; the library takes one dict per stream)
             quick: Any = [{"skip_frame": "all"}] * len(self._container.streams)
             try:
-                container = av.open(str(self.path), "r", stream_options=quick)
+                container = av.open(self._name, "r", stream_options=quick)
             except ValueError:
                 container = None
         if container is None:
-            container = av.open(str(self.path), "r")
+            container = av.open(self._name, "r")
         st = container.streams.video[0]
         st.codec_context.thread_type = "AUTO"
         st.codec_context.thread_count = self._threads
@@ -195,6 +362,7 @@ class AVVideo(VideoSource):
             seek_pts = int(key[-1 - attempt])
             self._container.seek(seek_pts, stream=self._stream, backward=True, any_frame=False)
         self._decoder = self._container.decode(self._stream)
+        self._taint = None
 
     def _reopen(self) -> None:
         """Open the file again (positioned at its start)."""
@@ -208,8 +376,10 @@ class AVVideo(VideoSource):
             if frame.pts is None:
                 continue
             idx = int(np.searchsorted(self._pts, frame.pts))
-            if idx < len(self._pts) and self._pts[idx] == frame.pts and idx >= want:
-                yield idx, frame
+            if idx < len(self._pts) and self._pts[idx] == frame.pts:
+                self._note_damage(idx, frame)
+                if idx >= want:
+                    yield idx, frame
 
     def _frames_from(self, k: int):
         """Decoded frames (PyAV objects) from frame ``k`` on, in order.
@@ -245,9 +415,9 @@ class AVVideo(VideoSource):
                     yield idx, frame
                     want = idx + 1
                 break
-        except av.error.FFmpegError as exc:
-            raise VideoError(f"{self.path}: decoding failed at frame {want} ({exc})",
-                             code="E-VIDEO-TRUNCATED") from None
+        except av.error.FFmpegError:
+            raise VideoError(f"{self.path}: frame {want} cannot be decoded (damaged data)",
+                             code="E-VIDEO-DAMAGED") from None
         if want < len(self._pts):
             raise VideoError(f"{self.path}: the video ends at frame {want} although "
                              f"{len(self._pts)} frames were indexed (truncated?)",
@@ -290,6 +460,9 @@ class AVVideo(VideoSource):
             return None
         if len(out) != 1 or out[0].width != self.size[0] or out[0].height < self.size[1]:
             return None
+        if out[0].is_corrupt:
+            idx = int(np.searchsorted(self._pts, packet.pts))
+            self.damage[idx] = "the decoder found damaged data in it"
         return out[0]
 
     def read_many(self, ks, threads: int = 1) -> list[np.ndarray]:
@@ -367,7 +540,10 @@ class AVVideo(VideoSource):
             gen.close()
 
     def close(self) -> None:
-        self._container.close()
+        container = getattr(self, "_container", None)
+        if container is not None:
+            container.close()
+        self._close_fd()
 
 
 class FrameFolder(VideoSource):
@@ -375,16 +551,45 @@ class FrameFolder(VideoSource):
         import cv2
 
         self.path = Path(path)
-        self._files = sorted(p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        self.open_warnings = []
+        self.damage = {}
+        try:
+            self._files = sorted(p for p in self.path.iterdir()
+                                 if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+        except OSError:
+            raise VideoError(f"{self.path}: the folder cannot be read", code="E-VIDEO-OPEN") from None
         if not self._files:
             raise VideoError(f"{self.path}: the folder holds no frames (.png, .jpg, .tif)",
                              code="E-VIDEO-EMPTY")
+        self._manifest = self._stats()
         first = cv2.imread(str(self._files[0]), cv2.IMREAD_COLOR)
         if first is None:
             raise VideoError(f"{self._files[0]}: not a readable image", code="E-VIDEO-OPEN")
         self.size = (first.shape[1], first.shape[0])
         self.fps = float(fps)
         self.times_s = np.arange(len(self._files)) / self.fps
+
+    def _stats(self) -> list[tuple]:
+        out = []
+        for f in self._files:
+            try:
+                st = os.stat(f)
+                out.append((f.name, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns))
+            except OSError:
+                out.append((f.name, None))
+        return out
+
+    def sha256(self) -> str:
+        from impress_gui.core.fileio import sha256_path
+
+        return sha256_path(self.path)
+
+    def check_unchanged(self) -> None:
+        if self._stats() != self._manifest:
+            from impress_gui.core.errors import IntegrityError
+
+            raise IntegrityError(f"{self.path}: frames were changed while they were being read: "
+                                 "the result is not kept", code="E-EVIDENCE-CHANGED")
 
     def read(self, k: int) -> np.ndarray:
         import cv2
@@ -410,10 +615,11 @@ def open_video(path: str | Path, fps: float | None = None) -> VideoSource:
     path = Path(path)
     if not path.exists():
         raise VideoError(f"{path}: no such file or folder", code="E-FILE-MISSING")
+    if fps is not None and not (np.isfinite(fps) and 0.5 <= fps <= 1000):
+        raise VideoError(f"a frame rate of {fps} frames/s is not possible (0.5 to 1000)",
+                         code="E-VALUE")
     if path.is_dir():
         return FrameFolder(path, fps or 30.0)
-    if path.stat().st_size == 0:
-        raise VideoError(f"{path}: the file is empty", code="E-VIDEO-EMPTY")
     src = AVVideo(path)
     if fps:
         src.fps = float(fps)

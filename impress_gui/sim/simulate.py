@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,7 +12,7 @@ import numpy as np
 from impress_gui import __version__
 from impress_gui.core.errors import InputError
 from impress_gui.core.fileio import atomic_write_png, atomic_write_tiff, sha256_path, write_json
-from impress_gui.core.outputs import recover_interrupted, swap_into_place
+from impress_gui.core.outdir import OutputFolder
 from impress_gui.core.picks import Picks
 from impress_gui.core.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
@@ -222,26 +220,38 @@ def simulate(cfg: SimConfig, out_dir: Path, workers: int = 1,
     cfg.validate()
     cancel = cancel or CancelToken()
     final_dir = Path(out_dir)
-    if final_dir.is_dir() and any(final_dir.iterdir()) and not (final_dir / "truth.json").exists():
-        raise InputError(f"{final_dir} exists and holds something other than a simulation: "
-                         "choose a new or empty folder", code="E-SIM-OPTION")
-    final_dir.parent.mkdir(parents=True, exist_ok=True)
-    recover_interrupted(final_dir, marker="truth.json")
+    _adopt_legacy(final_dir)
     # everything is written into a hidden sibling folder that replaces the old one at the end:
-    # an interrupted run leaves the previous simulation whole
-    out_dir = final_dir.parent / f".{final_dir.name}.partial-{os.getpid()}"
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    out_dir.mkdir()
-    try:
-        res = _simulate_into(cfg, out_dir, workers, progress, cancel)
-        swap_into_place(out_dir, final_dir)
-    except BaseException:
-        shutil.rmtree(out_dir, ignore_errors=True)
-        raise
+    # an interrupted run leaves the previous simulation whole; a folder that is not a previous
+    # simulation is refused before any work (E-OUTPUT-*)
+    with OutputFolder(final_dir, "simulation", allowed=SIM_FILES) as folder:
+        res = _simulate_into(cfg, folder.tmp, workers, progress, cancel)
+        folder.commit()
     res["video"] = str(final_dir / Path(res["video"]).name)
     res["out_dir"] = str(final_dir)
     return res
+
+
+#: every name a simulation folder may hold
+SIM_FILES = ("scan.mp4", "scan.mov", "scan.mts", "frames", "intrinsics.json", "target.json",
+             "picks.json", "truth_height.tif", "truth_texture.png", "truth.json",
+             "simulator.txt")
+
+
+def _adopt_legacy(folder: Path) -> None:
+    """A simulation written before folders were marked (truth.json, nothing but simulator
+    files, no links) gets the mark, so that it can be replaced like a marked one."""
+    from impress_gui.core.outdir import MARK_FILE, mark_bytes, read_mark
+
+    try:
+        if (folder.is_symlink() or not folder.is_dir() or read_mark(folder) is not None
+                or not (folder / "truth.json").is_file()):
+            return
+        names = [p for p in folder.iterdir()]
+        if all(p.name in SIM_FILES and not p.is_symlink() for p in names):
+            (folder / MARK_FILE).write_bytes(mark_bytes("simulation"))
+    except OSError:
+        return
 
 
 def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
