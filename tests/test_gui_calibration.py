@@ -573,3 +573,34 @@ def test_a_calibration_warning_is_shown_in_the_window(qtbot, tab, scan, truth, t
     box = tab.messenger.last_box
     assert box is not None and box.isVisible() and box.icon() == QMessageBox.Icon.Warning
     assert box.windowTitle() == "Check the calibration" and cal.warnings[0] in box.informativeText()
+
+
+def test_corners_can_be_marked_again_on_the_fitted_target_after_clear_frame(
+    qtbot, tab, scan, truth, true_picks
+):
+    """Issue 21 item 3: once calibrated, 'Show the fitted target' (on by default) draws a
+    circle on each corner; a click there must still mark the corner (the circles used to take
+    the click and nothing happened), e.g. after 'Clear frame'."""
+    load_video(qtbot, tab, scan / "scan.mp4")
+    mark_corners(qtbot, tab, true_picks, "t1")
+    mark_corners(qtbot, tab, true_picks, "t2")
+    set_inputs(tab, scan, truth["speed_mm_s"])
+    calibrate(qtbot, tab)
+    assert tab.overlay_target.isChecked()
+    tab.go_to_frame(true_picks["t2"])
+    QTest.mouseClick(tab.corners.clear_button, Qt.MouseButton.LeftButton)
+    assert tab.editor.count("t2") == 0 and not tab.view.markers
+    # the fitted target's circles lie on the corners, where the user clicks
+    x, y = tab.view.reproj_points.getData()
+    fitted = np.column_stack([x, y])
+    want = np.array([true_picks["corners_t2"][c] for c in CORNER_NAMES])
+    assert len(fitted) == 6 and np.abs(fitted - want).max() < 1.0
+    for k, name in enumerate(CORNER_NAMES):
+        tab.view.zoom_around(*fitted[k], span_px=16)
+        assert len(tab.view.reproj_points.pointsAt(QPointF(*fitted[k]))) > 0  # on a circle
+        click_image(qtbot, tab, *fitted[k])
+        assert tab.editor.count("t2") == k + 1, f"the click on {name} was ignored"
+    tab.view.fit()
+    got = np.array([tab.editor.state.corners("t2")[c] for c in CORNER_NAMES])
+    assert np.abs(got - want).max() < 1.5
+    assert set(tab.view.markers) == set(CORNER_NAMES)

@@ -20,6 +20,16 @@ REPROJ_COLOUR = (255, 0, 255)
 OUTLINE = ((0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 0), (2, 5))
 
 
+class PassiveScatter(pg.ScatterPlotItem):
+    """A scatter drawn for information only (the fitted target's corners, the original click
+    of a snapped corner, levelling marks): pyqtgraph's ScatterPlotItem accepts a left click on
+    any of its symbols and so swallows it; this one lets the click go on to the view (marking
+    a corner) or to what lies under it."""
+
+    def mouseClickEvent(self, ev) -> None:  # noqa: N802 - pyqtgraph override
+        ev.ignore()
+
+
 class _ClickViewBox(pg.ViewBox):
     """A ViewBox whose left click reports the image position instead of doing nothing."""
 
@@ -62,10 +72,10 @@ class FrameView(pg.GraphicsView):
         self.reproj_lines = pg.PlotCurveItem(
             pen=pg.mkPen(REPROJ_COLOUR, width=1.5, style=Qt.PenStyle.DashLine), connect="pairs"
         )
-        self.reproj_points = pg.ScatterPlotItem(
+        self.reproj_points = PassiveScatter(
             symbol="o", size=11, brush=None, pen=pg.mkPen(REPROJ_COLOUR, width=1.5)
         )
-        self.raw_points = pg.ScatterPlotItem(
+        self.raw_points = PassiveScatter(
             symbol="x", size=9, pen=pg.mkPen("w"), brush=pg.mkBrush("w")
         )
         self.snap_lines = pg.PlotCurveItem(pen=pg.mkPen("w", width=1), connect="pairs")
