@@ -20,8 +20,10 @@ from impress_gui.hardware.cool_muscle import (
     MotorNotConnected,
     MotorPortError,
     MotorRangeError,
+    MotorSettingsError,
     MotorStatus,
     MotorTimeout,
+    RailLimits,
     scanner_program,
 )
 from impress_gui.hardware.emulator import (
@@ -479,3 +481,234 @@ def test_line_endings_stray_lines_and_bad_values():
     with pytest.raises(MotorGarbage):
         driver.position_pulses()
     assert port.written[-1] == b"].1\r"  # stop sent after the error
+
+
+# ----------------------------------------------------------------- limits
+
+NAN, INF = float("nan"), float("inf")
+#: words a message for the user must not contain (Python type names, errno text)
+NOT_PLAIN = ("float", "int(", "str", "NoneType", "Error", "Errno", "Traceback")
+
+
+def assert_refused(emu: CM1Emulator, driver: CoolMuscle, call, code: str) -> ImpressError:
+    """``call()`` raises ``code``, and the emulated motor received nothing at all."""
+    before = list(emu.received)
+    with pytest.raises(MotorRangeError) as info:
+        call()
+    assert info.value.code == code, str(info.value)
+    assert emu.received == before  # not a query, not a stop: nothing reached the motor
+    assert not emu.moving and driver.connected
+    assert not any(word in str(info.value) for word in NOT_PLAIN), str(info.value)
+    return info.value
+
+
+@pytest.mark.parametrize(
+    ("position", "speed", "code"),
+    [
+        (5000.0, 5.0, "E-MOTOR-LIMIT"),  # past the far end of the 1770 mm rail
+        (-300.0, 5.0, "E-MOTOR-LIMIT"),  # behind home
+        (1770.01, 5.0, "E-MOTOR-LIMIT"),
+        (1e9, 5.0, "E-MOTOR-LIMIT"),  # would overflow the controller's 32-bit position
+        (1e300, 5.0, "E-MOTOR-LIMIT"),
+        (NAN, 5.0, "E-MOTOR-VALUE"),
+        (INF, 5.0, "E-MOTOR-VALUE"),
+        (-INF, 5.0, "E-MOTOR-VALUE"),
+        ("100", 5.0, "E-MOTOR-VALUE"),
+        (None, 5.0, "E-MOTOR-VALUE"),
+        (10.0, 1e9, "E-MOTOR-SPEED"),
+        (10.0, 100.5, "E-MOTOR-SPEED"),  # the rail's maximum is 100 mm/s
+        (10.0, 0.0, "E-MOTOR-SPEED"),
+        (10.0, -5.0, "E-MOTOR-SPEED"),
+        (10.0, 0.3, "E-MOTOR-SPEED"),  # less than half of one speed unit (1.28 mm/s)
+        (10.0, NAN, "E-MOTOR-VALUE"),
+        (10.0, INF, "E-MOTOR-VALUE"),
+        (10.0, True, "E-MOTOR-VALUE"),
+    ],
+)
+def test_moves_outside_the_limits_are_refused_and_send_nothing(rig, position, speed, code):
+    emu, driver = rig()
+    error = assert_refused(emu, driver, lambda: driver.start_move_mm(position, speed), code)
+    assert isinstance(error, ImpressError)
+    assert_refused(emu, driver, lambda: driver.move_to_mm(position, speed), code)
+    assert driver.move_to_mm(3.0, 5.0).position_mm == pytest.approx(3.0, abs=0.02)  # still works
+
+
+def test_refused_move_messages_say_why(rig):
+    emu, driver = rig()
+    texts = {}
+    for name, call in {
+        "far": lambda: driver.start_move_mm(5000.0, 5.0),
+        "nan": lambda: driver.start_move_mm(NAN, 5.0),
+        "fast": lambda: driver.start_move_mm(10.0, 1e9),
+        "slow": lambda: driver.start_move_mm(10.0, 0.3),
+    }.items():
+        with pytest.raises(MotorRangeError) as info:
+            call()
+        texts[name] = str(info.value)
+    assert texts["far"] == (
+        "the target position 5000.00 mm is outside the rail's travel (0 to 1770 mm from home)"
+    )
+    assert texts["nan"] == "the target position must be a finite number of mm, got nan"
+    assert texts["fast"] == (
+        "the speed 1e+09 mm/s is faster than the rail's maximum of 100 mm/s"
+    )
+    assert "slowest speed is one speed unit, 1.28 mm/s" in texts["slow"]
+
+
+@pytest.mark.parametrize(
+    ("pulses", "speed_units", "code"),
+    [
+        (2**31, 4, "E-MOTOR-LIMIT"),  # one past the controller's 32-bit position register
+        (-(2**31) - 1, 4, "E-MOTOR-LIMIT"),
+        (-(2**40), 4, "E-MOTOR-LIMIT"),
+        (-138_061, 4, "E-MOTOR-LIMIT"),  # one pulse past 1770 mm (78 pulses/mm, direction -1)
+        (1000, 4, "E-MOTOR-LIMIT"),  # positive pulses lie behind home
+        (-780.5, 4, "E-MOTOR-VALUE"),
+        (NAN, 4, "E-MOTOR-VALUE"),
+        (-780, 0, "E-MOTOR-SPEED"),
+        (-780, -4, "E-MOTOR-SPEED"),
+        (-780, 79, "E-MOTOR-SPEED"),  # 101.3 mm/s
+        (-780, 2**40, "E-MOTOR-SPEED"),
+        (-780, 4.0, "E-MOTOR-VALUE"),
+    ],
+)
+def test_moves_in_pulses_obey_the_same_limits(rig, pulses, speed_units, code):
+    emu, driver = rig()
+    assert_refused(emu, driver, lambda: driver.start_move_pulses(pulses, speed_units), code)
+
+
+def test_the_ends_of_the_travel_are_reachable(rig):
+    emu, driver = rig(time_scale=1000.0)
+    assert driver.move_to_mm(1770.0, 100.0).position_pulses == -138_060
+    assert driver.move_to_mm(0.0, 100.0).position_pulses == 0
+
+
+@pytest.mark.parametrize(
+    ("distance", "code"),
+    [(5000.0, "E-MOTOR-LIMIT"), (-1771.0, "E-MOTOR-LIMIT"), (NAN, "E-MOTOR-VALUE"),
+     (INF, "E-MOTOR-VALUE")],
+)  # fmt: skip
+def test_relative_moves_longer_than_the_rail_send_nothing(rig, distance, code):
+    emu, driver = rig()
+    assert_refused(emu, driver, lambda: driver.move_by_mm(distance, 5.0), code)
+    assert_refused(emu, driver, lambda: driver.start_move_by_mm(distance, 5.0), code)
+
+
+def test_relative_move_past_an_end_is_refused_by_where_it_ends(rig):
+    emu, driver = rig(time_scale=1000.0)
+    driver.move_to_mm(1765.0, 50.0)
+    before = len(emu.received)
+    with pytest.raises(MotorRangeError) as info:
+        driver.move_by_mm(10.0, 5.0)
+    assert info.value.code == "E-MOTOR-LIMIT"
+    assert str(info.value) == (
+        "a move by +10.00 mm from 1765.00 mm would end at 1775.00 mm, outside the rail's "
+        "travel (0 to 1770 mm from home)"
+    )
+    assert emu.received[before:] == ["?96.1"]  # the position was read; no move was sent
+    with pytest.raises(MotorRangeError):
+        driver.move_by_mm(-1766.0, 5.0)  # behind home
+    assert [line for line in emu.received[before:] if line != "?96.1"] == []
+    assert driver.move_by_mm(5.0, 5.0).position_pulses == -138_060  # to the end exactly
+    assert_stopped(emu)
+
+
+def test_banks_programs_and_raw_commands_are_checked(rig):
+    emu, driver = rig()
+    assert_refused(emu, driver, lambda: driver.start_bank(0), "E-MOTOR-RANGE")
+    assert_refused(emu, driver, lambda: driver.start_bank(31), "E-MOTOR-RANGE")
+    assert_refused(emu, driver, lambda: driver.start_bank(2.5), "E-MOTOR-VALUE")
+    far = scanner_program(long_end_pulses=-200_000)  # 2564 mm: past the rail's end
+    error = assert_refused(emu, driver, lambda: driver.write_program(far), "E-MOTOR-LIMIT")
+    assert "P3.1=-200000" in str(error)
+    fast = scanner_program(speed_units=1000)  # 1282 mm/s
+    assert_refused(emu, driver, lambda: driver.write_program(fast), "E-MOTOR-SPEED")
+    behind = scanner_program(home_pulses=1000)  # 12.8 mm behind home
+    assert_refused(emu, driver, lambda: driver.write_program(behind), "E-MOTOR-LIMIT")
+    assert emu.saved == 0
+    for line, code in [
+        ("P.1=99999999999", "E-MOTOR-LIMIT"),
+        ("P.1=-200000", "E-MOTOR-LIMIT"),
+        ("P.1=12.5", "E-MOTOR-VALUE"),
+        ("S.1=0", "E-MOTOR-SPEED"),
+        ("A.1=4294967296", "E-MOTOR-VALUE"),
+    ]:
+        assert_refused(emu, driver, lambda line=line: driver.send(line), code)
+    driver.send("P.1=-780")  # within the limits: sent
+    assert emu.received[-1] == "P.1=-780"
+
+
+def test_a_smaller_configured_travel_and_speed_are_honoured(rig):
+    limits = RailLimits(travel_mm=100.0, max_speed_mm_s=12.2)
+    emu, driver = rig(limits=limits, time_scale=200.0)
+    assert driver.limits == limits
+    assert driver.move_to_mm(100.0, 10.0).position_mm == pytest.approx(100.0, abs=0.02)
+    error = assert_refused(emu, driver, lambda: driver.start_move_mm(100.5, 10.0), "E-MOTOR-LIMIT")
+    assert "(0 to 100 mm from home)" in str(error)
+    assert_refused(emu, driver, lambda: driver.start_move_pulses(-7801, 4), "E-MOTOR-LIMIT")
+    assert_refused(emu, driver, lambda: driver.move_by_mm(150.0, 10.0), "E-MOTOR-LIMIT")
+    assert_refused(emu, driver, lambda: driver.start_move_mm(50.0, 13.138), "E-MOTOR-SPEED")
+    # 12.2 mm/s rounds to S = 10, 12.82 mm/s: faster than the maximum, so refused too
+    error = assert_refused(emu, driver, lambda: driver.start_move_mm(50.0, 12.2), "E-MOTOR-SPEED")
+    assert "runs at 12.82 mm/s" in str(error)
+    assert_refused(emu, driver, lambda: driver.write_program(scanner_program()), "E-MOTOR-LIMIT")
+    assert driver.move_by_mm(-50.0, 11.0).position_mm == pytest.approx(50.0, abs=0.02)
+
+
+def test_rail_limits_are_validated_and_round_trip():
+    assert RailLimits() == RailLimits(travel_mm=1770.0, max_speed_mm_s=100.0)
+    limits = RailLimits(travel_mm=1200.0, max_speed_mm_s=20.0)
+    assert RailLimits.from_dict(limits.to_dict()) == limits
+    assert RailLimits.from_dict({"travel_mm": "1200", "max_speed_mm_s": "20"}) == limits
+    assert RailLimits.from_dict({"travel_mm": 500}) == RailLimits(travel_mm=500.0)
+    bad = [
+        {"travel_mm": 0.0},
+        {"travel_mm": -5.0},
+        {"travel_mm": NAN},
+        {"travel_mm": INF},
+        {"travel_mm": 20_000.0},
+        {"travel_mm": "long"},
+        {"max_speed_mm_s": 0.0},
+        {"max_speed_mm_s": 5000.0},
+        {"colour": 1.0},
+    ]
+    for values in bad:
+        with pytest.raises(MotorSettingsError) as info:
+            RailLimits.from_dict(values)
+        assert info.value.code == "E-MOTOR-SETTINGS"
+        assert not any(word in str(info.value) for word in NOT_PLAIN), str(info.value)
+    with pytest.raises(MotorSettingsError):
+        RailLimits(travel_mm=True)
+    # a travel whose far end in pulses the controller's 32-bit counter cannot hold
+    with pytest.raises(MotorSettingsError) as info:
+        MotorConfig(units=MotorUnits(pulses_per_mm=2e6), limits=RailLimits(travel_mm=1770.0))
+    assert "position counter" in str(info.value)
+    assert MotorConfig().limits == RailLimits()
+
+
+def test_any_exception_during_a_move_stops_the_motor(rig):
+    emu, driver = rig()
+
+    def on_update(snap):
+        if snap.position_mm > 1.0:
+            raise RuntimeError("a bug in the caller")
+
+    with pytest.raises(RuntimeError):
+        driver.move_to_mm(1000.0, 5.0, on_update=on_update)
+    assert_stopped(emu, short_of_mm=1000.0)
+    last_start = max(i for i, line in enumerate(emu.received) if line == "^.1")
+    assert "].1" in emu.received[last_start:]
+    # an exception inside a driver call (here: while the position is parsed) stops it as well
+    watch = driver.start_move_mm(1000.0, 5.0)
+    driver.check(watch)
+    original = driver._classify
+
+    def broken(line):
+        raise ValueError("broken parser")
+
+    driver._classify = broken  # type: ignore[method-assign]
+    with pytest.raises(ValueError):
+        driver.wait(watch)
+    driver._classify = original  # type: ignore[method-assign]
+    assert_stopped(emu, short_of_mm=1000.0)
+    assert emu.received[-1] == "].1" and emu.received.count("].1") >= 2

@@ -7,14 +7,21 @@ are CR/LF-terminated lines, echoed commands and unsolicited status lines (``Ux.1
 recognised and skipped. The protocol knowledge and its uncertainties are in ``docs/motor.md``.
 
 Every failure raises a :class:`MotorError` subclass with a stable code, and before it propagates
-the driver sends a stop where the link still allows it, so an error never leaves the carriage
-moving under software control. Public methods are serialised by a lock, so one driver may be
-used from a worker thread while another thread asks it to :meth:`CoolMuscle.stop`.
+the driver sends a stop where the link still allows it, so an error (or any other exception,
+Ctrl-C included) never leaves the carriage moving under software control. Public methods are
+serialised by a lock, so one driver may be used from a worker thread while another thread asks
+it to :meth:`CoolMuscle.stop`.
+
+Every move is checked against the rail's limits (``MotorConfig.limits``: the travel, 0 to
+1770 mm from home by default, and the maximum speed) and the controller's 32-bit registers
+before anything is sent: a refused move raises ``E-MOTOR-LIMIT``, ``E-MOTOR-SPEED``,
+``E-MOTOR-VALUE`` or ``E-MOTOR-RANGE`` and sends nothing (:mod:`impress_gui.hardware.motor_limits`).
 
 The errors, the status word and the move watch are in :mod:`impress_gui.hardware.motor_status`;
 the settings, opening a port and the line level (``MotorLink``, the base of :class:`CoolMuscle`)
 in :mod:`impress_gui.hardware.motor_link`; the stored program in
-:mod:`impress_gui.hardware.motor_program`. All are re-exported here.
+:mod:`impress_gui.hardware.motor_program`; the rail's limits in
+:mod:`impress_gui.hardware.rail`. All are re-exported here.
 """
 
 from __future__ import annotations
@@ -25,8 +32,18 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from impress_gui.core.errors import Cancelled, ImpressError
 from impress_gui.core.progress import CancelToken
+from impress_gui.hardware.motor_limits import (
+    check_bank,
+    check_distance_mm,
+    check_move_by_mm,
+    check_position_mm,
+    check_program,
+    check_program_line,
+    check_speed_mm_s,
+    check_speed_units,
+    check_target_pulses,
+)
 from impress_gui.hardware.motor_link import (
     EMULATOR_SCHEME,
     SIMULATED_PORT_NAMES,
@@ -47,14 +64,20 @@ from impress_gui.hardware.motor_status import (
     MotorDisconnected,
     MotorError,
     MotorGarbage,
+    MotorInterrupted,
+    MotorLimitError,
     MotorNotConnected,
     MotorPortError,
     MotorRangeError,
+    MotorSettingsError,
     MotorSnapshot,
+    MotorSpeedError,
     MotorStatus,
     MotorTimeout,
+    MotorValueError,
     MoveWatch,
 )
+from impress_gui.hardware.rail import RailLimits
 from impress_gui.hardware.units import move_duration_s
 
 __all__ = [
@@ -68,13 +91,19 @@ __all__ = [
     "MotorDisconnected",
     "MotorError",
     "MotorGarbage",
+    "MotorInterrupted",
+    "MotorLimitError",
     "MotorNotConnected",
     "MotorPortError",
     "MotorRangeError",
+    "MotorSettingsError",
     "MotorSnapshot",
+    "MotorSpeedError",
     "MotorStatus",
     "MotorTimeout",
+    "MotorValueError",
     "MoveWatch",
+    "RailLimits",
     "SerialLike",
     "TrafficCallback",
     "emulator_url",
@@ -116,6 +145,11 @@ class CoolMuscle(MotorLink):
     def connected(self) -> bool:
         return self._connected
 
+    @property
+    def limits(self) -> RailLimits:
+        """The rail's travel and maximum speed, enforced on every move."""
+        return self.config.limits
+
     # ----------------------------------------------------------------- safety
 
     def _stop_quietly(self) -> None:
@@ -131,6 +165,16 @@ class CoolMuscle(MotorLink):
         except Exception:  # noqa: BLE001 - best effort on an already failing link
             pass
 
+    def _stop_for(self, exc: BaseException) -> None:
+        """Send stop once for an exception on its way out (nested guards see it again)."""
+        if getattr(exc, "_motor_stop_sent", False):
+            return
+        self._stop_quietly()
+        try:
+            exc._motor_stop_sent = True  # type: ignore[attr-defined]
+        except AttributeError:  # an exception without attributes: a second stop is harmless
+            pass
+
     def _drop(self) -> None:
         self._connected = False
         port, self._port = self._port, None
@@ -142,7 +186,8 @@ class CoolMuscle(MotorLink):
 
     @contextmanager
     def _guard(self, *, need_connection: bool = True) -> Iterator[None]:
-        """Serialise access and leave the motor stopped if anything goes wrong."""
+        """Serialise access and leave the motor stopped if anything goes wrong: a motor error,
+        a cancel, Ctrl-C, or any other exception."""
         with self._lock:
             if self._port is None or (need_connection and not self._connected):
                 raise MotorNotConnected("the motor is not connected: connect first")
@@ -151,8 +196,8 @@ class CoolMuscle(MotorLink):
             except MotorDisconnected:
                 self._drop()
                 raise
-            except (MotorError, Cancelled, KeyboardInterrupt):
-                self._stop_quietly()
+            except BaseException as exc:
+                self._stop_for(exc)
                 raise
 
     # ----------------------------------------------------------------- operations
@@ -187,7 +232,9 @@ class CoolMuscle(MotorLink):
             self._drop()
 
     def send(self, command: str) -> None:
-        """Send a raw command line (the caller adds the id suffix). For scripting and tests."""
+        """Send a raw command line (the caller adds the id suffix). For scripting and tests.
+        A position or speed in it (``P.1=...``, ``S.1=...``) must obey the limits."""
+        check_program_line(command, self.units, self.limits)
         with self._guard():
             self._write(command)
 
@@ -254,9 +301,14 @@ class CoolMuscle(MotorLink):
             raise MotorAlarm(status, f"cannot move: {', '.join(status.alarms)} (reset it first)")
 
     def start_move_pulses(self, target_pulses: int, speed_units: int) -> MoveWatch:
-        """Send P/S/A and start; returns the watch to pass to :meth:`check` or :meth:`wait`."""
-        if speed_units < 1:
-            raise MotorRangeError(f"speed must be at least 1 speed unit, got {speed_units}")
+        """Send P/S/A and start; returns the watch to pass to :meth:`check` or :meth:`wait`.
+
+        The target must lie within the rail's travel and the controller's 32-bit range
+        (``E-MOTOR-LIMIT``), the speed value from 1 to the rail's maximum (``E-MOTOR-SPEED``),
+        both whole numbers (``E-MOTOR-VALUE``); a refused move sends nothing.
+        """
+        target_pulses = check_target_pulses(target_pulses, self.units, self.limits)
+        speed_units = check_speed_units(speed_units, self.units, self.limits)
         with self._guard():
             self._refuse_if_alarm()
             here = self._query_int("?96", "Px")
@@ -274,12 +326,21 @@ class CoolMuscle(MotorLink):
             return MoveWatch(what, target_pulses, time.monotonic(), timeout)
 
     def start_move_mm(self, position_mm: float, speed_mm_s: float) -> MoveWatch:
-        """Start an absolute move to ``position_mm`` at ``speed_mm_s`` (rounded to speed units)."""
-        try:
-            speed_units = self.units.speed_to_units(speed_mm_s)
-        except ImpressError as exc:
-            raise MotorRangeError(str(exc)) from exc
-        return self.start_move_pulses(self.units.mm_to_pulses(position_mm), speed_units)
+        """Start an absolute move to ``position_mm`` at ``speed_mm_s`` (rounded to speed units).
+        Refused, with nothing sent, outside the rail's limits (see :meth:`start_move_pulses`)."""
+        position = check_position_mm(position_mm, self.limits)
+        speed_units = check_speed_mm_s(speed_mm_s, self.units, self.limits)
+        return self.start_move_pulses(self.units.mm_to_pulses(position), speed_units)
+
+    def start_move_by_mm(self, distance_mm: float, speed_mm_s: float) -> MoveWatch:
+        """Start a move by ``distance_mm`` from the current position. The distance and speed
+        are checked first; then the position is read and the move refused (no move command
+        sent) if it would end outside the rail's travel."""
+        distance = check_distance_mm(distance_mm, self.limits)
+        speed_units = check_speed_mm_s(speed_mm_s, self.units, self.limits)
+        with self._lock:
+            target = check_move_by_mm(self.position_mm(), distance, self.limits)
+            return self.start_move_pulses(self.units.mm_to_pulses(target), speed_units)
 
     def start_home(self) -> MoveWatch:
         """Start the motor's origin search (speed, direction and method are its K42..K48)."""
@@ -289,9 +350,9 @@ class CoolMuscle(MotorLink):
             return MoveWatch("homing", None, time.monotonic(), self.config.home_timeout_s)
 
     def start_bank(self, bank: int) -> MoveWatch:
-        """Run stored program bank ``bank`` (1..30)."""
-        if not 1 <= bank <= 30:
-            raise MotorRangeError(f"bank must be 1..30, got {bank}")
+        """Run stored program bank ``bank`` (1..30). What the bank does is stored in the motor:
+        a program written by :meth:`write_program` was checked against the limits then."""
+        bank = check_bank(bank)
         with self._guard():
             self._write(self._cmd(f"[{bank}"))
             return MoveWatch(f"bank {bank}", None, time.monotonic(), self.config.bank_timeout_s)
@@ -310,7 +371,8 @@ class CoolMuscle(MotorLink):
         on_update: Callable[[MotorSnapshot], None] | None = None,
         cancel: CancelToken | None = None,
     ) -> MotorSnapshot:
-        """Poll until ``watch`` is finished. Cancelling (or Ctrl-C) stops the motor."""
+        """Poll until ``watch`` is finished. Cancelling, Ctrl-C, or any exception (in
+        ``on_update`` too) stops the motor."""
         try:
             while True:
                 with self._guard():
@@ -322,9 +384,9 @@ class CoolMuscle(MotorLink):
                 if done:
                     return snap
                 time.sleep(self.config.poll_interval_s)
-        except KeyboardInterrupt:
+        except BaseException as exc:
             with self._lock:
-                self._stop_quietly()
+                self._stop_for(exc)
             raise
 
     def move_to_mm(self, position_mm: float, speed_mm_s: float, **kwargs: Any) -> MotorSnapshot:
@@ -332,8 +394,8 @@ class CoolMuscle(MotorLink):
         return self.wait(self.start_move_mm(position_mm, speed_mm_s), **kwargs)
 
     def move_by_mm(self, distance_mm: float, speed_mm_s: float, **kwargs: Any) -> MotorSnapshot:
-        """Move by a distance from the current position and wait."""
-        return self.move_to_mm(self.position_mm() + distance_mm, speed_mm_s, **kwargs)
+        """Move by a distance from the current position and wait (see :meth:`start_move_by_mm`)."""
+        return self.wait(self.start_move_by_mm(distance_mm, speed_mm_s), **kwargs)
 
     def home(self, **kwargs: Any) -> MotorSnapshot:
         return self.wait(self.start_home(), **kwargs)
@@ -342,7 +404,10 @@ class CoolMuscle(MotorLink):
         return self.wait(self.start_bank(bank), **kwargs)
 
     def write_program(self, lines: list[str], *, save: bool = True) -> None:
-        """Send program lines (see :func:`scanner_program`) and optionally save to EEPROM."""
+        """Send program lines (see :func:`scanner_program`) and optionally save to EEPROM.
+        Stored positions and speeds must obey the rail's limits: a program with one that does
+        not is refused whole, with nothing sent."""
+        lines = check_program(lines, self.units, self.limits)
         with self._guard():
             for line in lines:
                 self._write(line)

@@ -15,14 +15,17 @@ from typing import Any, Protocol
 
 import serial
 
+from impress_gui.hardware.motor_limits import check_rail_fits
 from impress_gui.hardware.motor_status import (
     MotorDisconnected,
     MotorGarbage,
     MotorNotConnected,
     MotorPortError,
+    MotorSettingsError,
     MotorStatus,
     MotorTimeout,
 )
+from impress_gui.hardware.rail import RailLimits
 from impress_gui.hardware.units import MotorUnits
 
 SIMULATED_PORT_NAMES = ("sim", "simulated", "simulated motor")
@@ -31,7 +34,12 @@ EMULATOR_SCHEME = "cm1emu://"
 
 @dataclass(frozen=True)
 class MotorConfig:
-    """Link and behaviour settings of the driver. Times in seconds of wall clock."""
+    """Link and behaviour settings of the driver. Times in seconds of wall clock.
+
+    ``limits`` are the rail's travel and maximum speed, which the driver enforces on every move
+    (:mod:`impress_gui.hardware.motor_limits`); a travel whose far end in pulses the motor
+    controller cannot hold raises ``E-MOTOR-SETTINGS``.
+    """
 
     motor_id: int = 1
     baudrate: int = 38400
@@ -48,6 +56,12 @@ class MotorConfig:
     bank_timeout_s: float = 600.0
     in_position_tolerance_pulses: int = 20
     stop_on_connect: bool = True
+    limits: RailLimits = field(default_factory=RailLimits)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.limits, RailLimits):
+            raise MotorSettingsError("the motor settings hold no usable rail limits")
+        check_rail_fits(self.units, self.limits)
 
 
 class SerialLike(Protocol):

@@ -57,9 +57,45 @@ class MotorPortError(MotorError):
 
 
 class MotorRangeError(MotorError):
-    """A requested position, speed or bank is out of range."""
+    """A requested position, speed or bank is out of range. The base of the refusals below:
+    a refused command sends nothing to the motor."""
 
     code = "E-MOTOR-RANGE"
+
+
+class MotorLimitError(MotorRangeError):
+    """A move would take the carriage outside the rail's travel, or past what the motor
+    controller's 32-bit position counter can hold."""
+
+    code = "E-MOTOR-LIMIT"
+
+
+class MotorSpeedError(MotorRangeError):
+    """A speed outside the rail's speed range: zero or negative, slower than one speed unit,
+    or faster than the rail's maximum."""
+
+    code = "E-MOTOR-SPEED"
+
+
+class MotorValueError(MotorRangeError):
+    """A position, distance, speed or bank that is not a usable number (not a number,
+    infinite, or not a whole number where the motor needs one)."""
+
+    code = "E-MOTOR-VALUE"
+
+
+class MotorSettingsError(MotorError):
+    """A rail or motor setting is unusable (a travel that is not a positive length, a speed
+    range that is empty, a travel the controller's position counter cannot hold)."""
+
+    code = "E-MOTOR-SETTINGS"
+
+
+class MotorInterrupted(MotorError):
+    """A command was ended from outside (terminate signal, closed terminal) during its run;
+    the motor was sent a stop first."""
+
+    code = "E-MOTOR-INTERRUPTED"
 
 
 #: ``Ux`` bits that are alarms the user must see, with their names.
