@@ -35,19 +35,70 @@ def _load(name: str):
     return importlib.import_module(module_name)
 
 
+def finite_float(text: str) -> float:
+    """argparse type: a finite decimal number (no nan, inf or overflow)."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
+def _finite_floats(parser: argparse.ArgumentParser) -> None:
+    """Every ``type=float`` option of ``parser`` and its subparsers takes finite numbers only."""
+    for action in parser._actions:
+        if action.type is float:
+            action.type = finite_float
+        if isinstance(action, argparse._SubParsersAction):
+            for sp in action.choices.values():
+                _finite_floats(sp)
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors carry the code ``E-USAGE`` (exit status 2, as argparse's own)."""
+
+    def error(self, message: str):
+        self.print_usage(sys.stderr)
+        self.exit(2, f"{self.prog}: error [E-USAGE]: {message}\n")
+
+
 def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="impress",
         description="IMPREsS workstation: 3D scanning of forensic footwear and tire-track "
         "impressions. Without a subcommand, opens the workstation window.",
     )
     parser.add_argument("--version", action="version", version=f"impress {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, (_, help_text) in COMMANDS.items():
         sp = sub.add_parser(name, help=help_text, description=help_text)
         if name == selected:
             _load(name).add_arguments(sp)
+            _finite_floats(sp)
     return parser
+
+
+def _unknown_command(word: str) -> int:
+    import difflib
+
+    close = difflib.get_close_matches(word, list(COMMANDS), n=1, cutoff=0.5)
+    hint = f" Did you mean 'impress {close[0]}'?" if close else ""
+    print(f"impress: error [E-USAGE]: '{word}' is not a command.{hint} "
+          f"The commands are: {', '.join(COMMANDS)} (impress --help).", file=sys.stderr)
+    return 2
+
+
+def _looks_like_command(word: str) -> bool:
+    """A first argument that is neither an option nor an existing path: a (mistyped) command
+    (``impress PROJECT`` opens the window on a project folder or file)."""
+    import os
+
+    return not word.startswith("-") and not os.path.exists(word) and "/" not in word \
+        and "." not in word
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -57,10 +108,20 @@ def main(argv: list[str] | None = None) -> int:
     elif argv and argv[0] in ("-h", "--help", "--version"):
         build_parser().parse_args(argv)  # prints and exits
         return 0
+    elif argv and _looks_like_command(argv[0]):
+        return _unknown_command(argv[0])
     else:
         # no subcommand: the GUI, with everything given as its arguments (`impress PROJECT`)
         command, argv = "gui", ["gui", *argv]
     args = build_parser(command).parse_args(argv)
+    return run_command(command, args)
+
+
+def run_command(command: str, args: argparse.Namespace) -> int:
+    """Run one subcommand; every failure is one coded line on stderr, never a traceback
+    (``IMPRESS_DEBUG=1`` prints the traceback of an unexpected error as well)."""
+    import os
+
     from impress_gui.core.errors import ImpressError
 
     try:
@@ -71,3 +132,23 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"impress {command}: interrupted", file=sys.stderr)
         return 130
+    except MemoryError:
+        print(f"impress {command}: error [E-MEMORY]: not enough memory for this input",
+              file=sys.stderr)
+        return 2
+    except OSError as exc:
+        from impress_gui.core.outdir import reason
+
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        print(f"impress {command}: error [E-IO]: a file could not be read or written{where}: "
+              f"{reason(exc)}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback for users
+        if os.environ.get("IMPRESS_DEBUG"):
+            import traceback
+
+            traceback.print_exc()
+        print(f"impress {command}: error [E-INTERNAL]: an internal error stopped the command "
+              f"({type(exc).__name__}); nothing was written. Please report it with the command "
+              "line; IMPRESS_DEBUG=1 shows the details.", file=sys.stderr)
+        return 3

@@ -375,9 +375,11 @@ def test_x3p_round_trip(tmp_path):
     p = tmp_path / "h.x3p"
     p.write_bytes(x3p_bytes(SPEC, _height(), "2024-01-01T00:00:00Z"))
     d = read_export(p)
-    np.testing.assert_allclose(d.height_mm, _height(), atol=1e-5, equal_nan=True)
+    # stored in the right-handed export frame (y = -rail Y): the grid's rows last first
+    np.testing.assert_allclose(d.height_mm, _height()[::-1], atol=1e-5, equal_nan=True)
     assert d.spec.shape == SPEC.shape and d.spec.pixel_mm == pytest.approx(0.1)
-    assert (d.spec.x0_mm, d.spec.y0_mm) == pytest.approx((-2.0, 3.0))
+    ny = SPEC.shape[0]
+    assert (d.spec.x0_mm, d.spec.y0_mm) == pytest.approx((-2.0, -(3.0 + (ny - 1) * 0.1)))
 
 
 def test_x3p_zip_traversal_and_bombs(tmp_path):

@@ -36,21 +36,35 @@ def run(args: argparse.Namespace) -> int:
     from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
     from impress_gui.core.video import open_video
 
+    from impress_gui.core.outdir import check_output_file, writing
+
+    check_output_file(args.output, inputs=(args.video, args.intrinsics, args.picks, args.target),
+                      formats=("impress.calibration",))
     intr = Intrinsics.load(args.intrinsics)
     picks = Picks.load(args.picks)
     target = TargetModel.load(args.target) if args.target else default_target()
     inputs = {"intrinsics": {"path": str(args.intrinsics), "sha256": sha256_file(args.intrinsics)},
               "picks": {"path": str(args.picks), "sha256": sha256_file(args.picks)},
-              "target": {"name": target.name}}
-    if args.video.is_file():
-        inputs["video"] = {"path": str(args.video), "sha256": sha256_file(args.video)}
-        if picks.video_sha256 and picks.video_sha256 != inputs["video"]["sha256"]:
-            print("warning: the picks were made on a different video (SHA-256 differs)")
+              "target": ({"name": target.name, "path": str(args.target),
+                          "sha256": sha256_file(args.target)} if args.target else
+                         {"name": target.name, "builtin": True})}
+    notes = []
     with open_video(args.video, fps=args.fps) as video:
+        # the hash of the open file that is decoded (a frame folder: of its manifest)
+        inputs["video"] = {"path": str(args.video), "sha256": video.sha256()}
+        if picks.video_sha256 and picks.video_sha256 != inputs["video"]["sha256"]:
+            notes.append("W-PICKS-OTHER-VIDEO: the picks were made on a different video "
+                         "(SHA-256 differs)")
         cal = calibrate_scene(video, intr, target, picks, args.speed, args.fps,
                               plane_frames=args.plane_frames, inputs=inputs,
                               plane_method=args.planes)
-    cal.save(args.output)
+        video.check_unchanged()
+    if notes:
+        import dataclasses
+
+        cal = dataclasses.replace(cal, warnings=tuple(notes) + tuple(cal.warnings))
+    with writing(args.output):
+        cal.save(args.output)
     vp = cal.vanishing_point_px
     print(f"calibration written to {args.output}")
     print(f"  roll {cal.roll_deg:+.4f} deg, tilt {cal.tilt_deg:+.4f} deg; vanishing point "

@@ -45,6 +45,9 @@ def run(args: argparse.Namespace) -> int:
     if args.output.suffix.lower() != ".json":
         raise InputError(f"--output {args.output}: the intrinsics file must end in .json",
                          code="E-OUTPUT")
+    from impress_gui.core.outdir import check_output_file
+
+    check_output_file(args.output, inputs=(args.input,), formats=("impress.intrinsics",))
     last = [0.0]
 
     def progress(frac: float, msg: str) -> None:

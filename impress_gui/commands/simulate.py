@@ -38,9 +38,9 @@ def _resolution(text: str) -> tuple[int, int]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("out", type=Path, help="output folder (created; existing files are replaced)")
     p.add_argument("--preset", default="shoe",
-                   choices=["shoe", "tire", "blocks", "flat", "spheres"],
+                   choices=["shoe", "tire", "blocks", "flat", "spheres", "letter"],
                    help="scene: shoe impression, tire track, the thesis' accuracy blocks, a flat "
-                   "plane or spheres (default: shoe)")
+                   "plane, spheres or a raised letter F (chiral: shows a mirrored export) (default: shoe)")
     p.add_argument("--length-mm", type=float, default=None,
                    help="travel of the camera along the rail in mm (default per preset: shoe "
                    "480, tire 1750, blocks 480, flat 260, spheres 300)")

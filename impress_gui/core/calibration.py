@@ -274,6 +274,10 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
     fps = float(fps or video.fps)
     times = video.times_s if fps == video.fps else np.arange(video.frame_count) / fps
     dt = float(times[picks.t2] - times[picks.t1])
+    # the corners were marked on frames t1 and t2: both must decode without damage
+    for k in (picks.t1, picks.t2):
+        video.read(k)
+    _refuse_damaged(video, (picks.t1, picks.t2))
     report(progress, 0.05, "motion direction and pose")
     pose = solve_pose(intrinsics, target, picks, speed_mm_s, dt)
     implied, warnings = pose.implied_speed_mm_s, list(pose.warnings)
@@ -301,6 +305,8 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
             planes0 = obs.fit_planes(pose.rotation,
                                      (pose.target_rotation, pose.target_translation_mm))
         planes = {name: fit for name, (fit, _) in planes0.items()}
+        _refuse_damaged(video, sorted({k for f in planes.values() for k in f.frames}))
+    warnings += list(getattr(video, "open_warnings", []))
     report(progress, 1.0, "calibrated")
     return SceneCalibration(
         intrinsics=intrinsics, speed_mm_s=float(speed_mm_s), fps=fps, t1=picks.t1, t2=picks.t2,
@@ -313,6 +319,18 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
         reprojection_rms_px=pose.reprojection_rms_px, planes=planes,
         warnings=tuple(warnings), inputs=dict(inputs or {}),
     )
+
+
+def _refuse_damaged(video, frames) -> None:
+    """CalibrationError ``E-VIDEO-DAMAGED`` when a frame the calibration uses was decoded from
+    damaged data."""
+    bad = [(int(k), video.frame_damage(k)) for k in frames
+           if hasattr(video, "frame_damage") and video.frame_damage(k)]
+    if bad:
+        k, why = bad[0]
+        raise CalibrationError(f"frame {k}, used by the calibration, is damaged ({why}); "
+                               "choose other frames t1/t2 or a sound copy of the video",
+                               code="E-VIDEO-DAMAGED")
 
 
 def _vp_pixels(intr: Intrinsics, m: np.ndarray) -> np.ndarray:

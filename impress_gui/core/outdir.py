@@ -183,10 +183,11 @@ def check_output_dir(out_dir: str | os.PathLike, kind: str, inputs: Iterable = (
 
 
 def check_output_file(path: str | os.PathLike, inputs: Iterable = (),
-                      formats: Iterable[str] = ()) -> Path:
+                      formats: Iterable[str] | None = ()) -> Path:
     """Check that a single output file may be written at ``path``: not a link, a folder or an
     input; an existing file is replaced only when it is a JSON document whose ``format`` is
-    one of ``formats``."""
+    one of ``formats`` (``None``: any regular file the user chose to replace, as a save
+    dialog that has asked)."""
     out = Path(path)
     real = _check_not_special(out, inputs)
     if real.exists():
@@ -195,6 +196,9 @@ def check_output_file(path: str | os.PathLike, inputs: Iterable = (),
                               code="E-OUTPUT-NOT-FILE")
         if not real.is_file():
             raise OutputError(f"{out} is not a regular file", code="E-OUTPUT-NOT-FILE")
+        if formats is None:
+            _check_parent_writable(real)
+            return real
         fmt = None
         try:
             if real.stat().st_size < (50 << 20):
@@ -228,7 +232,23 @@ class OutputFolder:
             self.tmp = self.final.parent / f".{self.final.name}.partial-{os.getpid()}"
             if self.tmp.exists():
                 shutil.rmtree(self.tmp)
+            # a writability probe now (the work folder is made and removed): a read-only or
+            # full place fails before any work, and a run killed before writing leaves nothing
             self.tmp.mkdir()
+            (self.tmp / MARK_FILE).write_bytes(mark_bytes(kind))
+            shutil.rmtree(self.tmp)
+        self._begun = False
+
+    def begin(self) -> Path:
+        """Make the hidden work folder (with the mark) if not yet made; return it."""
+        if not self._begun:
+            with writing(self.final.parent, "create the folder"):
+                if self.tmp.exists():
+                    shutil.rmtree(self.tmp)
+                self.tmp.mkdir()
+                (self.tmp / MARK_FILE).write_bytes(mark_bytes(self.kind))
+            self._begun = True
+        return self.tmp
 
     def __enter__(self) -> OutputFolder:
         return self
@@ -238,15 +258,15 @@ class OutputFolder:
             self.abort()
 
     def path(self, name: str) -> Path:
-        return self.tmp / name
+        return self.begin() / name
 
     def abort(self) -> None:
         shutil.rmtree(self.tmp, ignore_errors=True)
 
     def commit(self) -> Path:
         """Mark, fsync and swap the finished folder into place; return the final path."""
+        self.begin()
         with writing(self.final):
-            (self.tmp / MARK_FILE).write_bytes(mark_bytes(self.kind))
             for p in self.tmp.iterdir():
                 if p.is_file():
                     with open(p, "rb") as fh:

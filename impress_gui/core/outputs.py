@@ -281,7 +281,9 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
     }
     if rec.texture_rgb is not None:
         files["texture.png"] = _png_bytes(rec.texture_rgb)
-    digests = {}
+    from impress_gui.core.outdir import MARK_FILE, mark_bytes
+
+    digests = {MARK_FILE: hashlib.sha256(mark_bytes("reconstruction")).hexdigest()}
     try:
         with writing(folder.final):
             for name, payload in files.items():

@@ -72,6 +72,7 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
             dates = input_dates(video, calibration_path)
         rec.warnings[:0] = warnings
         meta = build_metadata(rec, cal, params, inputs)
+        meta["dates"] = dates
         run = {"date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
                "host": platform.node(), "python": platform.python_version(),
                "timings": rec.run_stats(),

@@ -13,8 +13,9 @@ import numpy as np
 
 from impress_gui.core.target import TargetModel
 
-PRESETS = ("shoe", "tire", "blocks", "flat", "spheres")
-DEFAULT_LENGTH_MM = {"shoe": 480.0, "tire": 1750.0, "blocks": 480.0, "flat": 260.0, "spheres": 300.0}
+PRESETS = ("shoe", "tire", "blocks", "flat", "spheres", "letter")
+DEFAULT_LENGTH_MM = {"shoe": 480.0, "tire": 1750.0, "blocks": 480.0, "flat": 260.0, "spheres": 300.0,
+                     "letter": 240.0}
 #: where the impression region starts along the scan (the L target lies before it)
 FEATURES_START_Y_MM = 110.0
 SCENE_HALF_WIDTH_MM = 185.0
@@ -229,6 +230,22 @@ def _spheres(X, Y, rng, length_mm, features, radius=12.7, spacing=50.0):
     return h
 
 
+def _letter_f(X, Y, features, height=6.0, cy=None):
+    """A raised letter F, as read from above with the camera's view (x to the right, the
+    image's first rows at the top): a chiral relief, its mirror image is another shape. The
+    letter's top is towards the start of the scan (smaller rail Y)."""
+    cy = FEATURES_START_Y_MM + 60.0 if cy is None else cy
+    top = cy - 40.0  # rail Y of the letter's top edge
+    stem = _rect(X, Y, -20.0, cy, 12.0, 80.0)
+    bar_top = _rect(X, Y, 2.0, top + 6.0, 56.0, 12.0)
+    bar_mid = _rect(X, Y, -4.0, cy + 2.0, 44.0, 10.0)
+    f = stem | bar_top | bar_mid
+    features.append({"kind": "letter", "letter": "F", "height_mm": height, "centre_y_mm": cy,
+                     "reads": "upright with x to the right and rail Y downwards (as the "
+                              "camera sees it)"})
+    return np.where(f, height, 0.0)
+
+
 def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
                 target: TargetModel | None, target_pose: tuple[float, float, float],
                 **options) -> Scene:
@@ -258,6 +275,8 @@ def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
     elif preset == "spheres":
         h = _spheres(X, Y, rng, length_mm, features)
         kind = "stone"
+    elif preset == "letter":
+        h = _smooth(_letter_f(X, Y, features).astype(np.float32), 0.3, pixel_mm)
     else:
         h = np.zeros_like(X)
         features.append({"kind": "plane", "height_mm": 0.0})

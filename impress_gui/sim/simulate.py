@@ -225,7 +225,7 @@ def simulate(cfg: SimConfig, out_dir: Path, workers: int = 1,
     # an interrupted run leaves the previous simulation whole; a folder that is not a previous
     # simulation is refused before any work (E-OUTPUT-*)
     with OutputFolder(final_dir, "simulation", allowed=SIM_FILES) as folder:
-        res = _simulate_into(cfg, folder.tmp, workers, progress, cancel)
+        res = _simulate_into(cfg, folder.begin(), workers, progress, cancel)
         folder.commit()
     res["video"] = str(final_dir / Path(res["video"]).name)
     res["out_dir"] = str(final_dir)

@@ -97,10 +97,26 @@ class ViewerActions:
             return False
         return True
 
+    def _inputs(self) -> list:
+        """The evidence and the reconstruction's files: an export may not replace them."""
+        proj = self.tab.project
+        out = []
+        try:
+            if proj.video_path() is not None:
+                out.append(proj.video_path())
+        except Exception:  # noqa: BLE001 - a project without a usable video path
+            pass
+        return out
+
     def _write(self, what: str, path: Path, kind: str, make_bytes) -> bool:
         """Render ``make_bytes()`` in the background, write atomically, record the output."""
 
+        from impress_gui.core.outdir import check_output_file
+
         def task(progress, cancel):
+            # never over the evidence, a folder or a link; an existing export of ours is
+            # replaced (the file dialog has asked)
+            check_output_file(path, inputs=self._inputs(), formats=None)
             data = make_bytes()
             cancel.check()
             atomic_write_bytes(path, data)
@@ -157,7 +173,13 @@ class ViewerActions:
         spec = self.tab.data.spec
         prov = self.provenance("x3p", {"layer": self.tab.measure_key()})
         comment = f"IMPREsS viewer export; {note}; provenance {P.to_json(prov)}"
-        return self._write("X3P", p, "x3p", lambda: x3p_bytes(spec, h, _now(), comment))
+        # the dates of the scan and its calibration (recorded with the reconstruction), so that
+        # the same data exported twice gives the same file; the export's time for older data
+        dates = dict(self.tab.data.metadata.get("dates") or {})
+        measured = str(dates.get("measured") or _now())
+        calibrated = str(dates.get("calibrated") or measured)
+        return self._write("X3P", p, "x3p",
+                           lambda: x3p_bytes(spec, h, measured, comment, calibrated=calibrated))
 
     def export_ply(self, path=None) -> bool:
         if not self._need_data() or not (p := self._path(path, "Export PLY", "ply", ".ply")):

@@ -1,0 +1,148 @@
+"""Exported geometry is right-handed: a raised letter F, scanned by the simulator, reads as an F
+(never its mirror image) in the PLY and the X3P, read back by readers not written here
+(plyfile, open3d, surfalize), compared with the truth under a translation only.
+
+The truth is seen from above (+z towards the viewer) in a right-handed frame: x along the
+image's columns, y = -rail Y (so that the image's first rows have the largest y)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from impress_gui.core.grid import GridSpec
+
+pytestmark = pytest.mark.slow
+
+RASTER_MM = 1.0
+BAND_MM = (3.0, 8.5)  # the letter is 6 mm high; the target's faces are 11 and 40 mm
+
+
+@pytest.fixture(scope="module")
+def letter(tmp_path_factory):
+    """(scan folder, reconstruction folder) of the letter preset (small and quick)."""
+    from impress_gui.core.calibration import calibrate_scene
+    from impress_gui.core.geometry import Intrinsics
+    from impress_gui.core.picks import Picks
+    from impress_gui.core.pipeline import process_files
+    from impress_gui.core.reconstruct import ProcessParams
+    from impress_gui.core.target import TargetModel
+    from impress_gui.core.video import open_video
+    from impress_gui.sim.simulate import SimConfig, simulate
+
+    base = tmp_path_factory.mktemp("letter")
+    scan = base / "scan"
+    simulate(SimConfig(preset="letter", length_mm=190.0, width=640, height=360, fps=10.0,
+                       grid_mm=0.2), scan, workers=1)
+    truth = json.loads((scan / "truth.json").read_text())
+    with open_video(scan / "scan.mp4") as v:
+        cal = calibrate_scene(v, Intrinsics.load(scan / "intrinsics.json"),
+                              TargetModel.load(scan / "target.json"),
+                              Picks.load(scan / "picks.json"), truth["speed_mm_s"])
+    cal_path = base / "calibration.json"
+    cal.save(cal_path)
+    out = base / "recon"
+    process_files(scan / "scan.mp4", cal_path, out, ProcessParams(grid_mm=0.5))
+    return scan, out
+
+
+def _truth_points(scan, out) -> np.ndarray:
+    """The letter's true cells as (x, y) in the right-handed export frame, mm."""
+    from impress_gui.sim.truth import truth_on_grid
+
+    meta = json.loads((out / "metadata.json").read_text())
+    g = meta["grid"]
+    spec = GridSpec(g["x0_mm"], g["y0_mm"], g["pixel_mm"], tuple(g["shape"]))
+    th = truth_on_grid(scan, spec)
+    ii, jj = np.nonzero((th > BAND_MM[0]) & (th < BAND_MM[1]))
+    return np.column_stack([spec.x0_mm + jj * spec.pixel_mm,
+                            -(spec.y0_mm + ii * spec.pixel_mm)])
+
+
+def _letter_only(pts: np.ndarray, truth: np.ndarray, margin: float = 15.0) -> np.ndarray:
+    """Points within the letter's neighbourhood, found from the points' own cluster: the
+    densest 1 mm cells in the height band, around the median (translation-free)."""
+    c = np.median(pts, axis=0)
+    half = (truth.max(axis=0) - truth.min(axis=0)) / 2 + margin
+    keep = np.all(np.abs(pts - c) <= half, axis=1)
+    return pts[keep]
+
+
+def _mask(pts: np.ndarray, centre: np.ndarray, half: float = 70.0) -> np.ndarray:
+    n = int(2 * half / RASTER_MM)
+    ij = np.floor((pts - centre + half) / RASTER_MM).astype(int)
+    ok = np.all((ij >= 0) & (ij < n), axis=1)
+    m = np.zeros((n, n), bool)
+    m[ij[ok, 1], ij[ok, 0]] = True
+    return m
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max(1, (a | b).sum()))
+
+
+def _chirality(points_xy: np.ndarray, truth_xy: np.ndarray) -> dict[str, float]:
+    """IoU of the exported letter with the truth, after matching centroids (a translation),
+    as it is and under the two mirror images."""
+    pts = _letter_only(points_xy, truth_xy)
+    cp, ct = pts.mean(axis=0), truth_xy.mean(axis=0)
+    p = _mask(pts, cp)
+    out = {}
+    for name, flip in (("as is", (1, 1)), ("mirror x", (-1, 1)), ("mirror y", (1, -1))):
+        t = (truth_xy - ct) * np.array(flip) + ct
+        out[name] = _iou(p, _mask(t, ct))
+    return out
+
+
+def _check(scores: dict[str, float]) -> None:
+    assert scores["as is"] > 0.8, scores
+    assert scores["mirror x"] < 0.6 and scores["mirror y"] < 0.6, scores
+
+
+def _band(xyz: np.ndarray) -> np.ndarray:
+    z = xyz[:, 2]
+    return xyz[(z > BAND_MM[0]) & (z < BAND_MM[1]), :2]
+
+
+def test_ply_read_by_plyfile_is_not_mirrored(letter):
+    from plyfile import PlyData
+
+    scan, out = letter
+    ply = PlyData.read(str(out / "pointcloud.ply"))
+    v = ply["vertex"]
+    xyz = np.column_stack([v["x"], v["y"], v["z"]]).astype(float)
+    assert any("right-handed" in c for c in ply.comments)
+    _check(_chirality(_band(xyz), _truth_points(scan, out)))
+
+
+def test_ply_read_by_open3d_is_not_mirrored(letter):
+    import open3d as o3d
+
+    scan, out = letter
+    xyz = np.asarray(o3d.io.read_point_cloud(str(out / "pointcloud.ply")).points)
+    _check(_chirality(_band(xyz), _truth_points(scan, out)))
+
+
+def test_x3p_read_by_surfalize_is_not_mirrored(letter):
+    from surfalize import Surface
+
+    scan, out = letter
+    s = Surface.load(str(out / "heightmap.x3p"))
+    z_mm = np.asarray(s.data, float) * 1e-3  # surfalize: micrometres
+    ii, jj = np.nonzero(np.isfinite(z_mm))
+    # an X3P's point k of row i lies at x = k * step_x, y = i * step_y (plus offsets)
+    xyz = np.column_stack([jj * s.step_x * 1e-3, ii * s.step_y * 1e-3, z_mm[ii, jj]])
+    _check(_chirality(_band(xyz), _truth_points(scan, out)))
+
+
+def test_the_mirrored_convention_would_be_caught(letter):
+    """The check itself can fail: the old left-handed PLY (y = +rail Y) is a mirror image."""
+    from plyfile import PlyData
+
+    scan, out = letter
+    v = PlyData.read(str(out / "pointcloud.ply"))["vertex"]
+    xyz = np.column_stack([v["x"], -np.asarray(v["y"]), v["z"]]).astype(float)
+    scores = _chirality(_band(xyz), _truth_points(scan, out))
+    assert scores["as is"] < 0.6 and scores["mirror y"] > 0.8, scores
