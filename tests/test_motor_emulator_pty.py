@@ -4,6 +4,10 @@ and the ``impress motor`` command."""
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 import serial
@@ -261,3 +265,110 @@ def test_cli_simulated_motor_and_helpers(capsys):
 def test_cli_emulate_pty_serves_and_stops(capsys):
     assert main(["motor", "emulate-pty", "--seconds", "0.1"]) == 0
     assert "simulated Cool Muscle on /dev/" in capsys.readouterr().out
+
+
+# ----------------------------------------------------------------- the command line's limits
+
+
+@posix_only
+@pytest.mark.parametrize(
+    ("args", "code"),
+    [
+        (["move", "--to", "5000"], "E-MOTOR-LIMIT"),
+        (["move", "--to", "-300"], "E-MOTOR-LIMIT"),
+        (["move", "--to", "1e9"], "E-MOTOR-LIMIT"),
+        (["move", "--to", "10", "--speed", "1e9"], "E-MOTOR-SPEED"),
+        (["move", "--to", "10", "--speed", "0"], "E-MOTOR-SPEED"),
+        (["move", "--to", "10", "--speed", "-2"], "E-MOTOR-SPEED"),
+        (["move", "--by", "5000"], "E-MOTOR-LIMIT"),
+        (["run-bank", "31"], "E-MOTOR-RANGE"),
+        (["--travel-mm", "100", "move", "--to", "150"], "E-MOTOR-LIMIT"),
+        (["--travel-mm", "1000", "write-program"], "E-MOTOR-LIMIT"),  # its long run: 1667 mm
+        (["--max-speed", "10", "move", "--to", "10", "--speed", "13.138"], "E-MOTOR-SPEED"),
+        (["--travel-mm", "-5", "status"], "E-MOTOR-SETTINGS"),
+        (["--travel-mm", "1770", "--pulses-per-mm", "2e6", "status"], "E-MOTOR-SETTINGS"),
+    ],
+)
+def test_cli_refuses_moves_outside_the_limits_before_opening_the_port(
+    pty_motor, capsys, args, code
+):
+    emu, path = pty_motor()
+    assert main(["motor", "--port", path, *args]) == 2
+    err = capsys.readouterr().err
+    assert f"error [{code}]" in err and "Traceback" not in err
+    assert emu.received == []  # the port was not even opened
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["move", "--to", "nan"],
+        ["move", "--to", "inf"],
+        ["move", "--by=-inf"],
+        ["move", "--to", "10", "--speed", "nan"],
+        ["--travel-mm", "nan", "status"],
+        ["move", "--to", "1e400"],
+    ],
+)
+def test_cli_rejects_non_finite_numbers_with_a_code(capsys, args):
+    with pytest.raises(SystemExit) as info:
+        main(["motor", "--port", "sim", *args])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert "E-MOTOR-VALUE" in err and "is not a finite number" in err
+    assert "Traceback" not in err
+
+
+@posix_only
+def test_cli_relative_move_past_the_end_is_refused_without_moving(pty_motor, capsys):
+    emu, path = pty_motor()
+    assert main(["motor", "--port", path, "move", "--to", "1765", "--speed", "50"]) == 0
+    moves = len([line for line in emu.received if line.startswith(("P", "S", "A", "^"))])
+    assert main(["motor", "--port", path, "move", "--by", "10"]) == 2
+    assert "error [E-MOTOR-LIMIT]: a move by +10.00 mm from 1765.00 mm" in capsys.readouterr().err
+    assert len([line for line in emu.received if line.startswith(("P", "S", "A", "^"))]) == moves
+    assert emu.position_pulses == -1765 * 78
+
+
+def _wait_for(condition, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)
+
+
+@posix_only
+@pytest.mark.parametrize(
+    ("signame", "status", "message"),
+    [
+        ("SIGTERM", 2, "error [E-MOTOR-INTERRUPTED]: ended by a terminate signal (SIGTERM)"),
+        ("SIGHUP", 2, "error [E-MOTOR-INTERRUPTED]: ended by the terminal being closed (SIGHUP)"),
+        ("SIGINT", 130, "impress motor: interrupted"),
+    ],
+)
+def test_cli_move_ended_by_a_signal_stops_the_motor(pty_motor, signame, status, message):
+    emu, path = pty_motor(time_scale=1.0)  # 1000 mm at 5 mm/s: over three minutes
+    command = [sys.executable, "-m", "impress_gui", "motor", "--port", path, "move", "--to", "1000"]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True
+    )
+    try:
+        _wait_for(lambda: emu.moving and emu.position_pulses < -40)  # on its way
+        proc.send_signal(getattr(signal, signame))
+        out, err = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == status, err
+    assert message in err and "Traceback" not in err
+    start = max(i for i, line in enumerate(emu.received) if line == "^.1")
+    # the stop reached the motor (the pseudo-terminal's server thread may still be passing on
+    # the last bytes the command wrote before it exited)
+    _wait_for(lambda: "].1" in emu.received[start:], timeout_s=2.0)
+    assert not emu.moving
+    here = emu.position_pulses
+    assert 0 > here > -1000 * 78  # stopped part way
+    emu.wait_output(0.05)  # let the emulated time pass: the position stays
+    assert emu.position_pulses == here
