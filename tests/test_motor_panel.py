@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import os
+import signal
+from dataclasses import replace
 
 import pytest
 from PySide6.QtCore import Qt
 
 from impress_gui.hardware.cool_muscle import CoolMuscle, MotorConfig
 from impress_gui.hardware.emulator import CM1Emulator, EmulatorConfig, PtyServer, emulated_port
-from impress_gui.hardware.rail import RAIL_TRAVEL_MM, SPEED_PRESETS_MM_S
+from impress_gui.hardware.rail import RAIL_TRAVEL_MM, SPEED_PRESETS_MM_S, RailLimits
 from impress_gui.ui.motor_panel import SIMULATED_LABEL, MotorPanel, MotorPanelSettings
 
 pytestmark = pytest.mark.usefixtures("no_stray_threads")
@@ -142,9 +144,9 @@ def test_alarm_is_shown_and_motor_stopped(rig, qtbot):
     panel.reset_button.click()
     qtbot.waitUntil(lambda: panel.state_label.text() == "in position")
     assert panel.alarm_label.text() == ""
-    panel.jog_minus_button.click()  # moves again after the reset; the old error is cleared
+    panel.jog_plus_button.click()  # moves again after the reset; the old error is cleared
     assert panel.error_label.text() == ""
-    qtbot.waitUntil(lambda: not panel.is_busy and motor.position_pulses == 780)  # -10 mm
+    qtbot.waitUntil(lambda: not panel.is_busy and motor.position_pulses == -2340)  # 10 + 20 mm
 
 
 def test_vanished_port_disconnects_the_panel(rig, qtbot):
@@ -189,6 +191,11 @@ def test_typed_pseudo_terminal_path(rig, qtbot):
         panel.shutdown()
 
 
+def sent_stop_after_last_move(motor: CM1Emulator) -> bool:
+    start = max(i for i, line in enumerate(motor.received) if line == "^.1")
+    return "].1" in motor.received[start:]
+
+
 def test_closing_the_panel_mid_scan_stops_the_motor(rig, qtbot):
     panel = rig.connected_panel(long_scan_mm=1700.0)
     motor = rig.motors[0]
@@ -197,7 +204,144 @@ def test_closing_the_panel_mid_scan_stops_the_motor(rig, qtbot):
     qtbot.waitUntil(lambda: panel.is_busy and motor.moving)
     panel.close()  # as when the window closes: stops the carriage, joins the worker thread
     assert panel._thread.isFinished()
-    assert not motor.moving
+    assert not motor.moving and sent_stop_after_last_move(motor)
+
+
+class Host:
+    """The part of the main window a terminate signal uses: its motor panel and shutdown."""
+
+    def __init__(self, panel: MotorPanel) -> None:
+        self.motor_panel = panel
+        self.closed = False
+
+    def shutdown(self) -> None:
+        self.motor_panel.shutdown()
+
+    def close(self) -> None:
+        self.closed = True
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGHUP"), reason="no SIGHUP on this system")
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGHUP"])
+def test_a_terminate_signal_stops_the_motor_and_shuts_down(rig, qtbot, signame):
+    from impress_gui.ui.app import on_process_signals, stop_motor_and_shut_down
+
+    panel = rig.connected_panel(long_scan_mm=1700.0)
+    motor = rig.motors[0]
+    panel.long_button.click()
+    panel.scan_button.click()
+    qtbot.waitUntil(lambda: panel.is_busy and motor.moving)
+    host, received = Host(panel), []
+    number = getattr(signal, signame)
+    before = signal.getsignal(number)
+
+    def ended(number: int) -> None:
+        received.append(number)
+        stop_motor_and_shut_down(host)
+
+    restore = on_process_signals(ended)
+    try:
+        os.kill(os.getpid(), number)  # handled on the GUI thread, not fatal
+        qtbot.waitUntil(lambda: host.closed, timeout=5000)
+    finally:
+        restore()
+    assert received == [number]
+    assert panel._thread.isFinished()
+    assert not motor.moving and sent_stop_after_last_move(motor)
+    assert signal.getsignal(number) is before  # the previous handler is back
+
+
+class BrokenDriver(CoolMuscle):
+    """A driver whose move watch fails with a bug (not a motor error) on the third poll."""
+
+    checks = 0
+
+    def check(self, watch):
+        BrokenDriver.checks += 1
+        if BrokenDriver.checks == 3:
+            raise RuntimeError("a bug while polling")
+        return super().check(watch)
+
+
+def test_an_unexpected_exception_mid_move_stops_the_motor(rig, qtbot, capsys):
+    BrokenDriver.checks = 0
+
+    def factory(port, config, on_traffic):
+        motor = CM1Emulator(EmulatorConfig(time_scale=TIME_SCALE))
+        rig.motors.append(motor)
+        return BrokenDriver(emulated_port(motor), config, on_traffic=on_traffic)
+
+    panel = MotorPanel(settings=MotorPanelSettings(motor=FAST, idle_poll_s=0.05),
+                       driver_factory=factory, port_lister=lambda: [])
+    qtbot.addWidget(panel)
+    rig.panels.append(panel)
+    with qtbot.waitSignal(panel.connection_changed, timeout=5000):
+        panel.connect_button.click()
+    motor = rig.motors[0]
+    with qtbot.waitSignal(panel.error, timeout=5000) as blocker:
+        panel.move_to(1000.0, 5.0)
+    assert blocker.args[0] == "E-INTERNAL"
+    assert "a bug while polling" in blocker.args[1] and "the motor was sent a stop" in blocker.args[1]
+    qtbot.waitUntil(lambda: not panel.is_busy)
+    assert not motor.moving and sent_stop_after_last_move(motor)
+    assert panel.is_connected  # the link itself is fine: the user can go on
+    assert "RuntimeError" in capsys.readouterr().err  # the details, for a bug report
+
+
+def test_moves_past_a_smaller_travel_are_refused(rig, qtbot):
+    limits = RailLimits(travel_mm=100.0)
+    panel = rig.connected_panel(
+        motor=replace(FAST, limits=limits), jog_step_mm=10.0, speed_mm_s=13.138, end_mm=100.0
+    )
+    motor = rig.motors[0]
+    assert panel.settings.rail_travel_mm == 100.0
+    assert panel.range_label.text().startswith("runs 100 mm")
+    panel.move_to(95.0)
+    qtbot.waitUntil(lambda: not panel.is_busy and motor.position_pulses == -95 * 78)
+    moves = len(motor.received)
+    with qtbot.waitSignal(panel.error, timeout=3000) as blocker:
+        panel.jog_plus_button.click()
+    assert blocker.args[0] == "E-MOTOR-LIMIT"
+    assert "would end at 105.00 mm, outside the rail's travel (0 to 100 mm" in blocker.args[1]
+    with qtbot.waitSignal(panel.error, timeout=3000) as blocker:
+        panel.move_to(150.0)
+    assert blocker.args[0] == "E-MOTOR-LIMIT"
+    qtbot.waitUntil(lambda: not panel.is_busy)
+    assert not [line for line in motor.received[moves:] if line.startswith(("P", "S", "A", "^"))]
+    panel.end_spin.setValue(120.0)
+    assert "outside the rail's travel (0 to 100 mm from home)" in panel.range_label.text()
+    assert not panel.run_scan()
+    assert motor.position_pulses == -95 * 78
+
+
+def test_rail_limits_are_saved_and_loaded_with_the_settings(tmp_path):
+    from impress_gui.ui.app import make_settings
+    from impress_gui.ui.motor_choices import load_motor_choices, save_motor_choices
+
+    path = tmp_path / "settings.ini"
+    first = load_motor_choices(make_settings(path))
+    assert first.motor.limits == RailLimits()  # nothing saved yet: the thesis' rail
+    limits = RailLimits(travel_mm=1200.0, max_speed_mm_s=20.0)
+    settings = make_settings(path)
+    save_motor_choices(settings, replace(first, motor=replace(first.motor, limits=limits),
+                                         end_mm=1100.0))
+    settings.sync()
+    again = load_motor_choices(make_settings(path))
+    assert again.motor.limits == limits and again.rail_travel_mm == 1200.0
+    assert again.end_mm == 1100.0
+    text = path.read_text()
+    assert "[rail]" in text and "travel_mm=1200" in text
+    # a hand-edited file: a bad value is ignored whole, a good one is taken
+    for travel, expected in [("-5", RailLimits()), ("long", RailLimits()),
+                             ("800", RailLimits(travel_mm=800.0))]:
+        settings = make_settings(path)
+        settings.setValue("rail/travel_mm", travel)
+        settings.setValue("rail/max_speed_mm_s", 100.0)
+        settings.sync()
+        assert load_motor_choices(make_settings(path)).motor.limits == expected
+    settings.setValue("motor/end_mm", 1500.0)  # beyond an 800 mm rail: not taken
+    settings.sync()
+    assert load_motor_choices(make_settings(path)).end_mm == 500.0
 
 
 # ----------------------------------------------------------------------------- scan settings
@@ -262,21 +406,28 @@ def test_scan_runs_from_start_to_end_at_the_preset_speed(rig, qtbot):
     assert panel.error_label.text() == ""
 
 
-@pytest.mark.parametrize(("start", "end", "reason"), [
-    (0.0, RAIL_TRAVEL_MM + 30.0, "the end position 1800.00 mm is outside the rail's travel"),
-    (300.0, 300.0, "the end position equals the start position (300.00 mm)"),
-    (-10.0, 400.0, "the start position -10.00 mm is outside the rail's travel"),
-])
-def test_invalid_scan_is_refused_with_a_message_and_no_motion(rig, qtbot, start, end, reason):
-    panel = rig.connected_panel(start_mm=start, end_mm=end)
+@pytest.mark.parametrize(("start", "end", "speed", "code", "reason"), [
+    (0.0, RAIL_TRAVEL_MM + 30.0, 5.0, "E-MOTOR-LIMIT",
+     "the end position 1800.00 mm is outside the rail's travel"),
+    (300.0, 300.0, 5.0, "E-MOTOR-RANGE", "the end position equals the start position (300.00 mm)"),
+    (-10.0, 400.0, 5.0, "E-MOTOR-LIMIT",
+     "the start position -10.00 mm is outside the rail's travel"),
+    (0.0, 400.0, 0.3, "E-MOTOR-SPEED",
+     "the speed 0.3 mm/s is slower than the motor can run: its slowest speed is one speed unit"),
+])  # fmt: skip
+def test_invalid_scan_is_refused_with_a_message_and_no_motion(
+    rig, qtbot, start, end, speed, code, reason
+):
+    panel = rig.connected_panel(start_mm=start, end_mm=end, speed_mm_s=speed)
     motor = rig.motors[0]
     assert reason in panel.range_label.text() and panel.range_label.isVisibleTo(panel)  # before trying
     with qtbot.waitSignal(panel.error, timeout=1000) as blocker:
         panel.scan_button.click()
-    assert blocker.args[0] == "E-MOTOR-RANGE"
+    assert blocker.args[0] == code
     assert reason in panel.error_label.text() and panel.error_label.isVisibleTo(panel)
-    assert "E-MOTOR-RANGE" in panel.error_label.text()
-    qtbot.wait(100)
+    assert code in panel.error_label.text()
+    with qtbot.waitSignal(panel.state_changed, timeout=2000):
+        pass  # the worker has handled everything queued before its next poll
     assert not panel.is_busy and not motor.moving
     assert not [line for line in motor.received if line.startswith(("P", "S", "^"))]
     assert motor.position_pulses == 0

@@ -1,15 +1,20 @@
 """Application start-up: the QApplication, global pyqtgraph options, and the object graph
-(settings, motor panel, main window) built once here and passed in - no singletons."""
+(settings, motor panel, main window) built once here and passed in - no singletons.
+
+A terminate signal (SIGTERM) or a closed terminal (SIGHUP) ends the window as closing it does,
+motor first: the carriage is sent a stop, the window shuts down without asking questions, and
+the process exits with status 128 + the signal's number."""
 
 from __future__ import annotations
 
+import signal
 import sys
 import time
 import traceback
 from collections.abc import Callable
 from pathlib import Path
 
-from PySide6.QtCore import QSettings, QTimer
+from PySide6.QtCore import QSettings, QSocketNotifier, QTimer
 from PySide6.QtGui import QGuiApplication
 from PySide6.QtWidgets import QApplication, QMessageBox, QWidget
 
@@ -60,6 +65,70 @@ def build_main_window(
 
         motor = MotorPanel(settings=load_motor_choices(settings), port_lister=port_lister)
     return MainWindow(settings, motor_panel=motor)
+
+
+#: the process signals that end the window (SIGHUP: its terminal was closed; not on Windows)
+ENDING_SIGNALS: tuple[int, ...] = tuple(
+    int(getattr(signal, name)) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)
+)
+
+
+def on_process_signals(
+    handler: Callable[[int], None], signals: tuple[int, ...] = ENDING_SIGNALS
+) -> Callable[[], None]:
+    """Call ``handler(signal_number)`` on the GUI thread when the process receives one of
+    ``signals``; returns the function that puts the previous handlers back. A signal the
+    process was told to ignore (``nohup`` ignores SIGHUP) stays ignored.
+
+    Python runs its signal handlers only between Python instructions, and Qt's event loop may
+    run no Python for a long time: the signal's number is written to a socket pair
+    (:func:`signal.set_wakeup_fd`) that a :class:`QSocketNotifier` watches, so the handler runs
+    within one turn of the event loop."""
+    import socket
+
+    reader, writer = socket.socketpair()
+    for end in (reader, writer):
+        end.setblocking(False)
+    previous_fd = signal.set_wakeup_fd(writer.fileno(), warn_on_full_buffer=False)
+    previous = {
+        number: signal.signal(number, lambda *_: None)
+        for number in signals
+        if signal.getsignal(number) is not signal.SIG_IGN
+    }
+    notifier = QSocketNotifier(reader.fileno(), QSocketNotifier.Type.Read)
+
+    def ready() -> None:
+        try:
+            data = reader.recv(256)
+        except (BlockingIOError, InterruptedError):
+            return
+        for number in dict.fromkeys(data):  # once per signal, in order
+            if number in previous:
+                handler(number)
+
+    notifier.activated.connect(ready)
+
+    def restore() -> None:
+        notifier.setEnabled(False)
+        notifier.activated.disconnect(ready)
+        for number, old in previous.items():
+            signal.signal(number, old)
+        signal.set_wakeup_fd(previous_fd)
+        reader.close()
+        writer.close()
+
+    return restore
+
+
+def stop_motor_and_shut_down(window) -> None:
+    """What a terminate signal does to the window: send the motor a stop at once, then shut
+    the window down (which closes the port, stopping the motor again, and joins its thread)
+    without asking about unsaved changes."""
+    panel = getattr(window, "motor_panel", None)
+    if panel is not None and hasattr(panel, "stop"):
+        panel.stop()
+    window.shutdown()
+    window.close()
 
 
 def grab(window: QWidget):
@@ -183,6 +252,17 @@ def run_gui(
         window.messenger.error("Internal error", f"internal error: {value!r}", "E-INTERNAL", text)
 
     sys.excepthook = report_bug
+    result = {"code": 0}
+
+    def ended_by_signal(number: int) -> None:
+        name = signal.Signals(number).name
+        print(f"impress gui: {name} received: stopping the motor and closing the window",
+              file=sys.stderr)
+        result["code"] = 128 + number
+        stop_motor_and_shut_down(window)
+        app.quit()
+
+    restore_signals = on_process_signals(ended_by_signal)
     if path:
         ok = window.open_path(path)
         if checker is not None:
@@ -191,7 +271,6 @@ def run_gui(
         for i in range(window.tabs.count()):
             if window.tabs.tabText(i).lower() == tab.lower():
                 window.tabs.setCurrentIndex(i)
-    result = {"code": 0}
     deadline = time.monotonic() + check_timeout_s
 
     def finish() -> None:
@@ -224,5 +303,6 @@ def run_gui(
         code = app.exec()
     finally:
         sys.excepthook = previous_hook
+        restore_signals()
     window.shutdown()
     return result["code"] or int(code)

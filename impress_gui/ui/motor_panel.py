@@ -32,9 +32,10 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from impress_gui.hardware.motor_limits import check_speed_mm_s
 from impress_gui.hardware.motor_link import MotorConfig, list_serial_ports
 from impress_gui.hardware.motor_status import MotorRangeError, MotorSnapshot
-from impress_gui.hardware.rail import RAIL_TRAVEL_MM, SCAN_LENGTHS_MM
+from impress_gui.hardware.rail import SCAN_LENGTHS_MM
 from impress_gui.ui.motor_scan_box import ScanSettingsBox
 from impress_gui.ui.motor_worker import DriverFactory, MotorWorker, Step, default_driver_factory
 
@@ -62,6 +63,9 @@ class MotorPanelSettings:
     :data:`~impress_gui.hardware.rail.SPEED_PRESETS_MM_S`) or ``custom`` (then ``speed_mm_s``);
     ``None`` picks the preset whose speed is ``speed_mm_s``, else custom.
     :meth:`MotorPanel.current_settings` gives the user's current choices, to save and restore.
+    The rail's travel and maximum speed are ``motor.limits``
+    (:class:`~impress_gui.hardware.rail.RailLimits`), enforced by the driver on every move;
+    moves to a scan's start run at ``travel_speed_mm_s`` or the rail's maximum if lower.
     """
 
     motor: MotorConfig = field(default_factory=MotorConfig)
@@ -72,11 +76,15 @@ class MotorPanelSettings:
     end_mm: float = 500.0
     short_scan_mm: float = SCAN_LENGTHS_MM["short"]
     long_scan_mm: float = SCAN_LENGTHS_MM["long"]
-    rail_travel_mm: float = RAIL_TRAVEL_MM
     jog_step_mm: float = 10.0
     idle_poll_s: float = 0.5
     sim_time_scale: float = 1.0
     log_lines: int = 500
+
+    @property
+    def rail_travel_mm(self) -> float:
+        """The rail's usable travel, mm from home (``motor.limits.travel_mm``)."""
+        return self.motor.limits.travel_mm
 
 
 class MotorPanel(QWidget):
@@ -192,7 +200,7 @@ class MotorPanel(QWidget):
             jog_step_mm=s.jog_step_mm,
             short_scan_mm=s.short_scan_mm,
             long_scan_mm=s.long_scan_mm,
-            travel_mm=s.rail_travel_mm,
+            limits=s.motor.limits,
         )
         self.speed_preset_combo, self.speed_spin = box.speed_preset_combo, box.speed_spin
         self.speed_note, self.range_label = box.speed_note, box.range_label
@@ -281,22 +289,24 @@ class MotorPanel(QWidget):
     def run_scan(self) -> bool:
         """Go to the start position at travel speed, then to the end position at the scan speed.
 
-        A start or end outside the rail's travel, or an end equal to the start, is refused: the
-        reason is shown (``E-MOTOR-RANGE``), nothing moves, and ``False`` is returned.
+        A start or end outside the rail's travel (``E-MOTOR-LIMIT``), an end equal to the start
+        (``E-MOTOR-RANGE``) or a speed outside the rail's range (``E-MOTOR-SPEED``) is refused:
+        the reason is shown, nothing is sent to the motor, and ``False`` is returned.
         """
         start, end = self.start_spin.value(), self.end_spin.value()
-        problem = self.scan_box.problem()
-        if problem:
-            exc = MotorRangeError(problem)
+        travel_speed = self.travel_speed_mm_s()
+        try:
+            self.scan_box.check()
+            check_speed_mm_s(travel_speed, self._units, self.settings.motor.limits)
+        except MotorRangeError as exc:
             self._on_failed(exc.code, f"scan refused: {exc}")
             return False
-        self.run_plan(
-            [
-                ("move", start, self.settings.travel_speed_mm_s),
-                ("move", end, self.scan_box.speed_mm_s()),
-            ]
-        )
+        self.run_plan([("move", start, travel_speed), ("move", end, self.scan_box.speed_mm_s())])
         return True
+
+    def travel_speed_mm_s(self) -> float:
+        """The speed of moves to a scan's start: the setting, or the rail's maximum if lower."""
+        return min(self.settings.travel_speed_mm_s, self.settings.motor.limits.max_speed_mm_s)
 
     def scan(self, length_mm: float) -> bool:
         """Set the end position to start + ``length_mm`` (the short / long presets) and scan."""

@@ -2,7 +2,9 @@
 short / long presets, the jog step, and a line that says what the scan will do or why it cannot.
 
 Pure widgets, no motor I/O: :class:`~impress_gui.ui.motor_panel.MotorPanel` reads the values.
-The rail's speeds, lengths and travel come from :mod:`impress_gui.hardware.rail`.
+The rail's speeds, lengths and limits (travel, maximum speed) come from
+:mod:`impress_gui.hardware.rail`; the scan is checked with the driver's own checks
+(:mod:`impress_gui.hardware.motor_limits`), so what the box accepts the driver does too.
 """
 
 from __future__ import annotations
@@ -19,8 +21,15 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from impress_gui.core.errors import ImpressError
-from impress_gui.hardware.rail import CUSTOM, SPEED_PRESETS_MM_S, scan_problem, speed_preset_for
+from impress_gui.hardware.motor_limits import check_speed_mm_s
+from impress_gui.hardware.motor_status import MotorRangeError
+from impress_gui.hardware.rail import (
+    CUSTOM,
+    SPEED_PRESETS_MM_S,
+    RailLimits,
+    check_scan,
+    speed_preset_for,
+)
 from impress_gui.hardware.units import MotorUnits
 
 ERROR_STYLE = "QLabel { color: #c62828; }"
@@ -48,11 +57,11 @@ class ScanSettingsBox(QGroupBox):
         jog_step_mm: float,
         short_scan_mm: float,
         long_scan_mm: float,
-        travel_mm: float,
+        limits: RailLimits,
         parent: QWidget | None = None,
     ) -> None:
         super().__init__("Scan", parent)
-        self._units, self.travel_mm = units, travel_mm
+        self._units, self.limits, self.travel_mm = units, limits, limits.travel_mm
         self.custom_speed_mm_s = speed_mm_s
         form = QFormLayout(self)
 
@@ -60,7 +69,7 @@ class ScanSettingsBox(QGroupBox):
         for name, value in SPEED_PRESETS_MM_S.items():
             self.speed_preset_combo.addItem(f"{name} ({value:g} mm/s)", name)
         self.speed_preset_combo.addItem(CUSTOM, CUSTOM)
-        self.speed_spin = _spin(0.1, 200.0, speed_mm_s, " mm/s", decimals=4)
+        self.speed_spin = _spin(0.1, limits.max_speed_mm_s, speed_mm_s, " mm/s", decimals=4)
         self.speed_note = QLabel("")
         self.start_spin = _spin(-5000.0, 5000.0, start_mm, " mm")
         self.end_spin = _spin(-5000.0, 5000.0, end_mm, " mm")
@@ -103,9 +112,20 @@ class ScanSettingsBox(QGroupBox):
     def speed_mm_s(self) -> float:
         return float(self.speed_spin.value())
 
+    def check(self) -> int:
+        """Raise the coded refusal if the scan cannot run (start or end outside the travel:
+        ``E-MOTOR-LIMIT``; end equal to start: ``E-MOTOR-RANGE``; a speed outside the rail's
+        range: ``E-MOTOR-SPEED``); else return the speed value ``S`` the motor will run at."""
+        check_scan(self.start_spin.value(), self.end_spin.value(), self.travel_mm)
+        return check_speed_mm_s(self.speed_mm_s(), self._units, self.limits)
+
     def problem(self) -> str:
         """Why a scan from start to end cannot run, or ``""``."""
-        return scan_problem(self.start_spin.value(), self.end_spin.value(), self.travel_mm)
+        try:
+            self.check()
+        except MotorRangeError as exc:
+            return str(exc)
+        return ""
 
     # ----------------------------------------------------------------- edits
 
@@ -135,8 +155,8 @@ class ScanSettingsBox(QGroupBox):
 
     def _refresh(self) -> None:
         try:
-            units = self._units.speed_to_units(self.speed_mm_s())
-        except ImpressError:
+            units = check_speed_mm_s(self.speed_mm_s(), self._units, self.limits)
+        except MotorRangeError:
             units = 0
         actual = self._units.units_to_speed_mm_s(units)
         self.speed_note.setText(f"motor runs at {actual:.2f} mm/s (S = {units})" if units else "")

@@ -4,10 +4,18 @@
 timer on its thread (never a blocking wait), so its event loop stays free and a Stop request is
 handled between two polls. It reports to :class:`~impress_gui.ui.motor_panel.MotorPanel` only
 through signals. Re-exported by :mod:`impress_gui.ui.motor_panel`.
+
+Whatever goes wrong while the carriage moves, the worker leaves it standing: the driver stops the
+motor on its own errors, and any other exception in a step or a poll (a bug) sends a stop,
+forgets the plan and is reported as ``E-INTERNAL``. Closing the port (the panel's shutdown, when
+the window closes or the process is told to end) sends a stop too. Moves outside the rail's
+limits are refused by the driver before anything is sent.
 """
 
 from __future__ import annotations
 
+import sys
+import traceback
 from collections.abc import Callable
 from typing import Any
 
@@ -42,6 +50,14 @@ def default_driver_factory(sim_time_scale: float = 1.0) -> DriverFactory:
     return factory
 
 
+def _coded(exc: Exception) -> ImpressError:
+    """``exc`` itself when it is a coded error, else an ``E-INTERNAL`` one that says what it was."""
+    if isinstance(exc, ImpressError):
+        return exc
+    traceback.print_exception(exc, file=sys.stderr)
+    return ImpressError(f"internal error while opening the motor: {exc}", code="E-INTERNAL")
+
+
 class MotorWorker(QObject):
     """Owns the driver. Lives in the worker thread; every slot runs there."""
 
@@ -71,21 +87,23 @@ class MotorWorker(QObject):
         self.close_port()
         try:
             driver = self._factory(port, self._config, self._on_traffic)
-        except ImpressError as exc:
-            self.failed.emit(exc.code, str(exc))
-            self.disconnected.emit(str(exc))
+        except Exception as exc:  # noqa: BLE001 - reported; see _coded
+            self._refuse_connection(_coded(exc))
             return
         try:
             version = driver.connect()
-        except ImpressError as exc:
+        except Exception as exc:  # noqa: BLE001 - reported; see _coded
             driver.close()
-            self.failed.emit(exc.code, str(exc))
-            self.disconnected.emit(str(exc))
+            self._refuse_connection(_coded(exc))
             return
         self._driver = driver
         self.connected.emit(version)
         self._timer.start(self._idle_ms)
         self._tick()
+
+    def _refuse_connection(self, exc: ImpressError) -> None:
+        self.failed.emit(exc.code, str(exc))
+        self.disconnected.emit(str(exc))
 
     @Slot()
     def close_port(self) -> None:
@@ -107,6 +125,9 @@ class MotorWorker(QObject):
         except ImpressError as exc:
             self._fail(exc)
             return
+        except Exception as exc:  # noqa: BLE001 - reported, never left to kill the thread
+            self._fail_unexpected(exc)
+            return
         self._set_idle()
         self._tick()
 
@@ -126,6 +147,8 @@ class MotorWorker(QObject):
                 self._driver.reset_alarm()
             except ImpressError as exc:
                 self._fail(exc)
+            except Exception as exc:  # noqa: BLE001 - reported, never left to kill the thread
+                self._fail_unexpected(exc)
             self._tick()
 
     @Slot()
@@ -154,8 +177,7 @@ class MotorWorker(QObject):
             if kind == "move":
                 self._watch = self._driver.start_move_mm(step[1], step[2])
             elif kind == "by":
-                here = self._driver.position_mm()
-                self._watch = self._driver.start_move_mm(here + step[1], step[2])
+                self._watch = self._driver.start_move_by_mm(step[1], step[2])
             elif kind == "home":
                 self._watch = self._driver.start_home()
             elif kind == "bank":
@@ -164,6 +186,9 @@ class MotorWorker(QObject):
                 raise ValueError(f"unknown step {step!r}")
         except ImpressError as exc:
             self._fail(exc)
+            return
+        except Exception as exc:  # noqa: BLE001 - a bug must not leave the carriage moving
+            self._fail_unexpected(exc)
             return
         self.busy_changed.emit(True, self._watch.description)
         self._timer.start(self._busy_ms)
@@ -182,6 +207,24 @@ class MotorWorker(QObject):
                 self.snapshot.emit(self._driver.poll())
         except ImpressError as exc:
             self._fail(exc)
+        except Exception as exc:  # noqa: BLE001 - a bug must not leave the carriage moving
+            self._fail_unexpected(exc)
+
+    def _fail_unexpected(self, exc: Exception) -> None:
+        """Any other exception: send a stop, forget the plan, report ``E-INTERNAL``."""
+        traceback.print_exception(exc, file=sys.stderr)
+        self._plan.clear()
+        self._watch = None
+        stopped = ""
+        if self._driver is not None:
+            try:
+                self._driver.stop()
+                stopped = "; the motor was sent a stop"
+            except Exception:  # noqa: BLE001 - the report below matters more
+                stopped = "; sending a stop failed too: use the hardware stop button"
+        self._fail(
+            ImpressError(f"internal error while driving the motor: {exc}{stopped}", code="E-INTERNAL")
+        )
 
     def _fail(self, exc: ImpressError) -> None:
         """The driver already stopped the motor; forget the plan and tell the panel."""
@@ -198,5 +241,5 @@ class MotorWorker(QObject):
         elif self._driver is not None:
             try:
                 self.snapshot.emit(self._driver.poll())
-            except ImpressError:
+            except Exception:  # noqa: BLE001 - the error is already reported
                 pass
