@@ -167,7 +167,8 @@ def _check_request(args: argparse.Namespace, config: Any) -> None:
 @contextlib.contextmanager
 def _ending_signals_cancel(token: Any, received: list[str]) -> Iterator[None]:
     """While the block runs, SIGTERM and SIGHUP set ``token`` (a running wait then stops the
-    motor and raises ``Cancelled``) and are noted in ``received``; handlers restored after."""
+    motor and raises ``Cancelled``) and are noted in ``received``; handlers restored after.
+    A signal the process ignores (``nohup`` ignores SIGHUP) stays ignored."""
 
     def handler(signum: int, _frame: object) -> None:
         received.append(signal.Signals(signum).name)
@@ -176,7 +177,7 @@ def _ending_signals_cancel(token: Any, received: list[str]) -> Iterator[None]:
     previous = {}
     for name in _ENDING_SIGNALS:
         number = getattr(signal, name, None)
-        if number is not None:
+        if number is not None and signal.getsignal(number) is not signal.SIG_IGN:  # nohup
             previous[number] = signal.signal(number, handler)
     try:
         yield
