@@ -323,6 +323,27 @@ def test_open_by_name_sim_and_bad_port():
     with pytest.raises(MotorPortError) as info:
         CoolMuscle.open("/dev/does-not-exist-impress")
     assert info.value.code == "E-MOTOR-PORT"
+    assert str(info.value) == (
+        "cannot open motor port '/dev/does-not-exist-impress': there is no such port "
+        "(impress motor ports lists them)"
+    )
+
+
+def test_port_failures_are_told_in_plain_words():
+    import errno
+
+    from impress_gui.hardware.motor_link import plain_reason
+
+    assert plain_reason(OSError(errno.EACCES, "Permission denied")) == (
+        "permission denied (on Linux, join the dialout group)"
+    )
+    assert plain_reason(serial.SerialException("[Errno 16] could not open port: busy")) == (
+        "the port is in use by another program"
+    )
+    text = "Could not configure port: (25, 'Inappropriate ioctl for device')"
+    assert plain_reason(serial.SerialException(text)) == "this is not a serial port"
+    assert plain_reason(OSError(errno.EROFS, "x")) == "read-only file system"
+    assert plain_reason(serial.SerialException("device disconnected")) == "device disconnected"
 
 
 def test_wrong_motor_id_times_out():

@@ -6,6 +6,8 @@ and unsolicited lines skipped). Re-exported by :mod:`impress_gui.hardware.cool_m
 
 from __future__ import annotations
 
+import errno
+import os
 import re
 import time
 from collections import deque
@@ -74,6 +76,35 @@ class SerialLike(Protocol):
     def close(self) -> None: ...
 
 
+#: what a failing port's error number means, in the user's words
+_ERRNO_WORDS = {
+    errno.ENOENT: "there is no such port (impress motor ports lists them)",
+    errno.EACCES: "permission denied (on Linux, join the dialout group)",
+    errno.EPERM: "permission denied (on Linux, join the dialout group)",
+    errno.EBUSY: "the port is in use by another program",
+    errno.ENOTTY: "this is not a serial port",
+    errno.ENXIO: "no device answers at this port (is the adapter plugged in?)",
+    errno.ENODEV: "no device answers at this port (is the adapter plugged in?)",
+    errno.EIO: "input/output error (was the adapter unplugged?)",
+    errno.ECONNREFUSED: "nothing accepts connections at that address",
+    errno.ETIMEDOUT: "the connection timed out",
+}
+_ERRNO_RE = re.compile(r"\[Errno (\d+)\]|\((\d+), '")
+
+
+def plain_reason(exc: BaseException) -> str:
+    """Why a port failed, in plain words: no error numbers, no names of exception classes."""
+    number = getattr(exc, "errno", None)
+    if not isinstance(number, int):
+        m = _ERRNO_RE.search(str(exc))
+        number = int(m[1] or m[2]) if m else None
+    if number in _ERRNO_WORDS:
+        return _ERRNO_WORDS[number]
+    if number:
+        return os.strerror(number).lower()
+    return re.sub(r"\[Errno \d+\]\s*", "", str(exc)).strip() or "no reason given"
+
+
 def resolve_port_url(port: str) -> str:
     """``sim`` (or ``Simulated motor``) -> the emulator URL; anything else unchanged."""
     return EMULATOR_SCHEME if port.strip().lower() in SIMULATED_PORT_NAMES else port.strip()
@@ -105,7 +136,7 @@ def open_port(port: str, config: MotorConfig | None = None) -> Any:
             write_timeout=2.0,
         )
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise MotorPortError(f"cannot open motor port {url!r}: {exc}") from exc
+        raise MotorPortError(f"cannot open motor port {url!r}: {plain_reason(exc)}") from exc
 
 
 def list_serial_ports() -> list[tuple[str, str]]:
@@ -152,7 +183,9 @@ class MotorLink:
         except serial.SerialTimeoutException as exc:
             raise MotorTimeout(f"writing {text!r} to the motor timed out") from exc
         except (serial.SerialException, OSError) as exc:
-            raise MotorDisconnected(f"the motor port vanished while writing: {exc}") from exc
+            raise MotorDisconnected(
+                f"the motor port vanished while writing: {plain_reason(exc)}"
+            ) from exc
 
     def _fill(self, block: bool) -> None:
         assert self._port is not None
@@ -161,7 +194,9 @@ class MotorLink:
             if waiting or block:
                 self._buf += self._port.read(max(1, min(waiting, 4096)))
         except (serial.SerialException, OSError) as exc:
-            raise MotorDisconnected(f"the motor port vanished while reading: {exc}") from exc
+            raise MotorDisconnected(
+                f"the motor port vanished while reading: {plain_reason(exc)}"
+            ) from exc
 
     def _pop_line(self) -> str | None:
         while True:
