@@ -653,6 +653,8 @@ def test_banks_programs_and_raw_commands_are_checked(rig):
         ("P.1=12.5", "E-MOTOR-VALUE"),
         ("S.1=0", "E-MOTOR-SPEED"),
         ("A.1=4294967296", "E-MOTOR-VALUE"),
+        ("P=-200000", "E-MOTOR-LIMIT"),  # without the id suffix
+        ("p2.1=5000", "E-MOTOR-LIMIT"),
     ]:
         assert_refused(emu, driver, lambda line=line: driver.send(line), code)
     driver.send("P.1=-780")  # within the limits: sent

@@ -38,7 +38,7 @@ INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 #: the motor's program banks
 BANKS = range(1, 31)
 
-_ASSIGN_RE = re.compile(r"^(?P<op>[A-Z]+)(?P<num>\d*)\.(?P<id>\d+)=(?P<value>.*)$")
+_ASSIGN_RE = re.compile(r"^(?P<op>[A-Za-z]+)(?P<num>\d*)(?:\.(?P<id>\d+))?\s*=(?P<value>.*)$")
 
 
 def _shown(value: object) -> str:
@@ -188,7 +188,7 @@ def check_program_line(line: str, units: MotorUnits, limits: RailLimits) -> None
     m = _ASSIGN_RE.match(line.strip())
     if m is None:
         return
-    op, raw = m["op"], m["value"].strip()
+    op, raw = m["op"].upper(), m["value"].strip()
     if not re.fullmatch(r"[+-]?\d+", raw):
         raise MotorValueError(f"in {line.strip()!r}: the value must be a whole number")
     value = int(raw) if len(raw) <= 20 else INT32_MAX + 1
