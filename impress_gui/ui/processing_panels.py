@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Signal
+from PySide6.QtCore import QRectF, Signal
 from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
@@ -24,8 +24,10 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from impress_gui.core.grid import GridSpec
 from impress_gui.core.reconstruct import ProcessParams
 from impress_gui.core.stripes import LASERS, METHODS
+from impress_gui.ui.viewer_map import RAIL_TEXT, X_LABEL, Y_LABEL
 
 METHOD_TEXT = {
     "combined": "combined (hue or lookup table)",
@@ -238,6 +240,59 @@ class LutView(pg.GraphicsLayoutWidget):
             self.items[name].setImage(img, autoLevels=False, levels=(0, 255))
 
 
+class GrowingMap(pg.PlotWidget):
+    """The partial heightmap of a running reconstruction, oriented as the viewer shows maps
+    (as the camera sees the ground from above, as ``texture.png`` is stored): grid row 0 at
+    the top, y - the rail's direction of motion - increasing downwards, x to the right.
+
+    With the preview's grid (:meth:`set_grid`, the decimated grid's :class:`GridSpec`) the
+    axes are rail millimetres; without it, cells of the preview."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent, background="k")
+        self.setMinimumHeight(180)
+        pi = self.getPlotItem()
+        pi.setTitle(RAIL_TEXT, size="9pt", color=(230, 230, 230))
+        pi.getViewBox().invertY(True)
+        pi.getViewBox().setAspectLocked(True)
+        pi.setMenuEnabled(False)
+        self.item = pg.ImageItem(axisOrder="row-major")
+        self.item.setLookupTable(pg.colormap.get("turbo").getLookupTable(nPts=256))
+        pi.addItem(self.item)
+        self.spec: GridSpec | None = None
+        self.levels: tuple[float, float] | None = None
+        self._set_labels()
+
+    def _set_labels(self) -> None:
+        pi = self.getPlotItem()
+        if self.spec is None:
+            pi.setLabel("bottom", "x (preview cells)")
+            pi.setLabel("left", "y (preview cells), down: rail motion")
+        else:
+            pi.setLabel("bottom", X_LABEL)
+            pi.setLabel("left", Y_LABEL)
+
+    def set_grid(self, spec: GridSpec | None) -> None:
+        """The preview's grid: cell ``[i, j]`` centred at rail ``(x0 + j p, y0 + i p)`` mm."""
+        self.spec = spec
+        self._set_labels()
+
+    def show_map(self, height: np.ndarray, fit: bool = True) -> None:
+        lo, hi = np.nanpercentile(height, [1, 99])
+        self.levels = (float(lo), float(max(hi, lo + 0.1)))
+        self.item.setImage(np.nan_to_num(height, nan=lo), autoLevels=False, levels=self.levels)
+        h, w = height.shape[:2]
+        s = self.spec
+        if s is not None and tuple(s.shape) == (h, w):
+            rect = QRectF(s.x0_mm - s.pixel_mm / 2, s.y0_mm - s.pixel_mm / 2, w * s.pixel_mm,
+                          h * s.pixel_mm)
+        else:
+            rect = QRectF(-0.5, -0.5, w, h)
+        self.item.setRect(rect)
+        if fit:
+            self.getPlotItem().getViewBox().setRange(rect, padding=0.02)
+
+
 class RunPanel(QGroupBox):
     """Run/Cancel, progress bar, frames per second and time remaining (from the core's
     ``frame i/n`` progress messages)."""
@@ -265,12 +320,7 @@ class RunPanel(QGroupBox):
         v.addWidget(self.rate)
         v.addWidget(self.message)
         # the heightmap as it grows during the run (decimated; heights in a turbo colour map)
-        self.growing = pg.ImageView()
-        self.growing.ui.roiBtn.hide()
-        self.growing.ui.menuBtn.hide()
-        self.growing.ui.histogram.hide()
-        self.growing.setMinimumHeight(160)
-        self.growing.setColorMap(pg.colormap.get("turbo"))
+        self.growing = GrowingMap()
         self.growing.hide()
         v.addWidget(self.growing)
         self.growing_updates = 0
@@ -283,9 +333,7 @@ class RunPanel(QGroupBox):
         """Show the partial heightmap (rows along the scan) sent by the running job."""
         if not np.isfinite(height).any():
             return
-        lo, hi = np.nanpercentile(height, [1, 99])
-        self.growing.setImage(np.nan_to_num(height, nan=lo), autoRange=self.growing_updates == 0,
-                              autoLevels=False, levels=(float(lo), float(max(hi, lo + 0.1))))
+        self.growing.show_map(height, fit=self.growing_updates == 0)
         self.growing.show()
         self.growing_updates += 1
 

@@ -49,6 +49,7 @@ class ProcessingTab(QWidget):
     reconstructed = Signal(str)  # the output folder, once written and recorded
     preview_ready = Signal(int)  # frame whose detected stripes are shown
     growing = Signal(object)  # partial heightmap from the running reconstruction
+    growing_grid = Signal(object)  # its GridSpec, when the core sends one (before the map)
     lut_ready = Signal()
 
     def __init__(
@@ -74,6 +75,7 @@ class ProcessingTab(QWidget):
         self.worker = Worker(self, name="processing")
         self.worker.progress.connect(lambda f, m: self.run_panel.progress(f, m))
         self.growing.connect(lambda a: self.run_panel.show_growing(a))
+        self.growing_grid.connect(lambda spec: self.run_panel.growing.set_grid(spec))
         self.worker.finished.connect(self._on_finished)
         self.worker.failed.connect(self._on_failed)
         self.worker.cancelled.connect(self._on_cancelled)
@@ -421,7 +423,12 @@ class ProcessingTab(QWidget):
         # the evidence registered in the project: refuse to process it once it has changed
         expected = ref.sha256 if ref and ref_path and ref_path.resolve() == video else None
 
-        growing = self.growing
+        growing, grid = self.growing, self.growing_grid
+
+        def preview(height, spec=None) -> None:  # the core's preview callback, on its thread
+            if spec is not None:
+                grid.emit(spec)
+            growing.emit(height)
 
         def task(progress, cancel):
             return reconstruct_into(
@@ -434,7 +441,7 @@ class ProcessingTab(QWidget):
                 progress,
                 cancel,
                 expected_video_sha256=expected,
-                preview=growing.emit,  # queued to the GUI thread
+                preview=preview,  # queued to the GUI thread
             )
 
         self.run_panel.output_label.setText(f"Output: {out}")

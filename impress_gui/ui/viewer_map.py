@@ -1,9 +1,14 @@
 """The map of the viewer: a layer (heights with a colour bar in mm, or an RGB image), the
 texture blended over it, the ruler, levelling marks and the saved measurements.
 
-View coordinates are rail-frame millimetres, y up (grid row 0 at the bottom). Wheel: zoom;
-drag the background: pan; right click: show all. In a placing mode (ruler, marker, levelling
-points) a left click emits ``clicked(x_mm, y_mm)`` instead.
+View coordinates are rail-frame millimetres. The map is shown as the camera sees the ground
+from above, exactly as ``texture.png`` is stored: grid row 0 at the top, the row index (y,
+the carriage's direction of motion, +Y) increasing downwards, x to the right; a label above
+the map says so. Scene -> view mapping goes through the ViewBox (``mapSceneToView``), which
+knows the inversion, so clicks, the ruler and the readout name the cell under the cursor.
+
+Wheel: zoom; drag the background: pan; right click: show all. In a placing mode (ruler,
+marker, levelling points) a left click emits ``clicked(x_mm, y_mm)`` instead.
 """
 
 from __future__ import annotations
@@ -16,16 +21,21 @@ from PySide6.QtCore import QPoint, QPointF, QRectF, Qt, Signal
 from PySide6.QtWidgets import QWidget
 
 from impress_gui.core.grid import GridSpec
+from impress_gui.ui.frame_view import PassiveScatter
 from impress_gui.ui.viewer_image import LodImage
 
 RULER_PEN = (255, 255, 255)
 BAND_COLOURS = {"A": (60, 140, 255), "B": (255, 150, 30)}
 MARK_COLOUR = (255, 60, 220)
+#: the orientation and the rail's direction, shown above the map (and in the figures)
+RAIL_TEXT = "Seen from above as the camera sees it · x → · rail motion (+y) ↓"
+X_LABEL = "x (mm)"
+Y_LABEL = "y (mm), increasing downwards: rail motion"
 
 
 class _MapViewBox(pg.ViewBox):
     def __init__(self, on_click) -> None:
-        super().__init__(lockAspect=True, enableMenu=False)
+        super().__init__(lockAspect=True, invertY=True, enableMenu=False)
         self._on_click = on_click
         self.placing = False
 
@@ -53,9 +63,12 @@ class MapView(pg.GraphicsLayoutWidget):
         super().__init__(parent)
         self.setBackground("k")
         self.vb = _MapViewBox(self.clicked.emit)
-        self.plot = self.addPlot(viewBox=self.vb)
-        self.plot.setLabel("bottom", "x (mm)")
-        self.plot.setLabel("left", "y (mm)")
+        self.direction_label = self.addLabel(
+            RAIL_TEXT, row=0, col=0, justify="left", color=(230, 230, 230), size="9pt"
+        )
+        self.plot = self.addPlot(row=1, col=0, viewBox=self.vb)
+        self.plot.setLabel("bottom", X_LABEL)
+        self.plot.setLabel("left", Y_LABEL)
         self.plot.showGrid(x=False, y=False)
         self.scalar_item = pg.ImageItem(axisOrder="row-major")
         self.rgb_item = pg.ImageItem(axisOrder="row-major")
@@ -91,7 +104,7 @@ class MapView(pg.GraphicsLayoutWidget):
             self.plot.addItem(item)
         self.ruler_label.hide()
         # levelling marks and region
-        self.level_points = pg.ScatterPlotItem(
+        self.level_points = PassiveScatter(
             symbol="t", size=14, pen=pg.mkPen("w"), brush=pg.mkBrush(255, 220, 0)
         )
         self.level_points.setZValue(26)
@@ -135,13 +148,18 @@ class MapView(pg.GraphicsLayoutWidget):
         self.rgb.set_data(rgb, self.spec, nearest=nearest)
 
     def set_levels(self, levels: tuple[float, float]) -> None:
-        self.colour_bar.setLevels(levels)  # -> _on_bar_levels
+        """Colour range of the height layer: the bar and every crop shown from now on (the
+        bar's ``setLevels`` does not emit ``sigLevelsChanged`` in pyqtgraph 0.14, so the map
+        is told directly)."""
+        levels = (float(levels[0]), float(levels[1]))
+        self.colour_bar.setLevels(levels)
+        self.scalar.set_colour_levels(levels)
 
     def levels(self) -> tuple[float, float]:
         lo, hi = self.colour_bar.levels()
         return float(lo), float(hi)
 
-    def _on_bar_levels(self, *_args) -> None:
+    def _on_bar_levels(self, *_args) -> None:  # the user drags the bar's handles
         self.scalar.set_colour_levels(self.levels())
 
     def set_texture(self, rgb: np.ndarray | None, opacity: float) -> None:
@@ -283,7 +301,7 @@ class MapView(pg.GraphicsLayoutWidget):
                 line.setZValue(22)
                 self.plot.addItem(line)
                 self.saved_items.append(line)
-            mark = pg.ScatterPlotItem(
+            mark = PassiveScatter(
                 [pts[0][0]],
                 [pts[0][1]],
                 symbol="o",
