@@ -10,7 +10,10 @@ size. This is display only: every measurement reads the full-resolution arrays.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pyqtgraph as pg
@@ -69,14 +72,78 @@ def strided_pyramid(a: np.ndarray, min_size: int = MIN_LEVEL_SIZE) -> list[np.nd
     return levels
 
 
-def auto_levels(arr: np.ndarray, samples: float = 250_000) -> tuple[float, float]:
-    """A colour range for display: the 0.5 and 99.5 percentiles of a regular subsample."""
+#: the automatic colour range: these percentiles of the evidence area's cells with data
+AUTO_PERCENTILES = (1.0, 99.0)
+#: cells this far around the calibration target's corners are not evidence
+TARGET_MARGIN_MM = 5.0
+Footprint = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max (mm)
+
+
+def target_footprint_mm(metadata, folder: Path | None = None) -> Footprint | None:
+    """Where the calibration target lies on the grid (rail mm, its corners' box), if the
+    reconstruction knows: its metadata names the calibration file (``inputs.calibration``)
+    and that file, still the same (SHA-256), holds the target's corners in the rail frame
+    (``corners_parallax_mm``), the frame of the grid. None otherwise."""
+    try:
+        ref = (metadata or {}).get("inputs", {}).get("calibration", {}) or {}
+        path = Path(str(ref.get("path") or ""))
+    except AttributeError:
+        return None
+    if not ref.get("path"):
+        return None
+    cands = [path] + ([folder / path.name, folder.parent / path.name] if folder else [])
+    for p in cands:
+        try:
+            raw = p.read_bytes()
+        except OSError:
+            continue
+        if ref.get("sha256") and hashlib.sha256(raw).hexdigest() != ref["sha256"]:
+            continue
+        try:
+            corners = json.loads(raw)["corners_parallax_mm"]
+            xy = np.array([[float(c[0]), float(c[1])] for c in corners.values()])
+        except (ValueError, KeyError, TypeError, IndexError, AttributeError):
+            return None
+        if xy.shape[0] < 3 or not np.isfinite(xy).all():
+            return None
+        return (
+            float(xy[:, 0].min()),
+            float(xy[:, 0].max()),
+            float(xy[:, 1].min()),
+            float(xy[:, 1].max()),
+        )
+    return None
+
+
+def auto_levels(
+    arr: np.ndarray,
+    spec: GridSpec | None = None,
+    target_mm: Footprint | None = None,
+    samples: float = 250_000,
+) -> tuple[float, float]:
+    """The automatic colour range of a height map: the 1 and 99 percentiles
+    (:data:`AUTO_PERCENTILES`) of the evidence area's cells with data, on a regular
+    subsample. The evidence area is the map less the calibration target (``target_mm``,
+    from :func:`target_footprint_mm`, widened by :data:`TARGET_MARGIN_MM`) when its place
+    is known: the 40 mm target would otherwise stretch the range and leave the impression
+    a narrow band of one colour. Without it the percentiles alone keep a small target out."""
     step = max(1, int(math.sqrt(arr.size / samples)))
     v = arr[::step, ::step]
-    v = v[np.isfinite(v)]
+    ok = np.isfinite(v)
+    if target_mm is not None and spec is not None:
+        x0, x1, y0, y1 = target_mm
+        m = TARGET_MARGIN_MM
+        xs = spec.x0_mm + spec.pixel_mm * step * np.arange(v.shape[1])
+        ys = spec.y0_mm + spec.pixel_mm * step * np.arange(v.shape[0])
+        on_target = ((ys >= y0 - m) & (ys <= y1 + m))[:, None] & ((xs >= x0 - m) & (xs <= x1 + m))[
+            None, :
+        ]
+        if (ok & ~on_target).sum() >= 100:  # else the map is (nearly) all target
+            ok &= ~on_target
+    v = v[ok]
     if v.size == 0:
         return (-1.0, 1.0)
-    lo, hi = np.percentile(v, [0.5, 99.5])
+    lo, hi = np.percentile(v, AUTO_PERCENTILES)
     if hi - lo < 0.1:
         lo, hi = lo - 0.05, hi + 0.05
     return float(round(lo, 2)), float(round(hi, 2))

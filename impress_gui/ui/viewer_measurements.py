@@ -37,21 +37,21 @@ class LevellingMixin:
         return self._apply_plane(lambda: M.plane_from_region(h, spec, x_range, y_range), "region")
 
     def _apply_plane(self, fit, how: str) -> bool:
-        data, key = self.data, self.measure_key()
+        data, key, target = self.data, self.measure_key(), self._target_mm
 
         def task(progress, cancel):
             plane = fit()
             progress(0.5, "levelling the map")
             lev = M.levelled(data.layers[key], data.spec, plane)
-            return plane, lev, auto_levels(lev)
+            return plane, lev, auto_levels(lev, data.spec, target)
 
         def done(result) -> None:
             plane, lev, auto = result
             self.plane = plane
             self._levelled = {key: lev}
-            for d in (self._ranges, self._auto):
-                for k in [k for k in d if k.endswith("/levelled")]:
-                    del d[k]
+            # new automatic ranges for the new heights; a range the user typed stays
+            for k in [k for k in self._auto if k.endswith("/levelled")]:
+                del self._auto[k]
             self._auto[f"{key}/levelled"] = auto
             self._update_level_text(how)
             self.refresh_layer()

@@ -80,7 +80,11 @@ class DisplayPanel(QGroupBox):
                 lambda _v: self.range_changed.emit(self.lo.value(), self.hi.value())
             )
         self.auto_button = QPushButton("Auto")
-        self.auto_button.setToolTip("Colour range from the 0.5 and 99.5 percentiles")
+        self.auto_button.setToolTip(
+            "Automatic colour range: the 1 and 99 percentiles of the heights of the evidence "
+            "area (the calibration target left out when the reconstruction knows where it "
+            "is). A range you type or drag stays until you press Auto."
+        )
         self.auto_button.clicked.connect(self.auto_range)
         self.blend = QSlider(Qt.Orientation.Horizontal)
         self.blend.setRange(0, 100)
@@ -88,7 +92,12 @@ class DisplayPanel(QGroupBox):
         self.blend.valueChanged.connect(lambda v: self.blend_changed.emit(v / 100.0))
         self.azimuth = _spin(0, 360, 315, 15, 0, " °")
         self.azimuth.setWrapping(True)
+        self.azimuth.setToolTip(
+            "Where the light comes from, in degrees clockwise from the top of the screen "
+            "(315: upper left, under which a hollow looks hollow)"
+        )
         self.elevation = _spin(1, 90, 35, 5, 0, " °")
+        self.elevation.setToolTip("The light's height above the ground, in degrees")
         for s in (self.azimuth, self.elevation):
             s.valueChanged.connect(
                 lambda _v: self.light_changed.emit(self.azimuth.value(), self.elevation.value())
@@ -168,7 +177,6 @@ class ToolPanel(QGroupBox):
             lab.setWordWrap(True)
             lab.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
             v.addWidget(lab)
-        self.step_text.setStyleSheet("font-weight: bold")
         row = QHBoxLayout()
         self.add_ruler_button = QPushButton("Add ruler to measurements")
         self.clear_ruler_button = QPushButton("Clear ruler")

@@ -24,7 +24,7 @@ from impress_gui.core.project import Project
 from impress_gui.ui.messages import Dialogs, Messenger
 from impress_gui.ui.task_bar import TaskBar
 from impress_gui.ui.viewer_actions import ViewerActions
-from impress_gui.ui.viewer_image import auto_levels
+from impress_gui.ui.viewer_image import auto_levels, target_footprint_mm
 from impress_gui.ui.viewer_map import MapView
 from impress_gui.ui.viewer_measurements import LevellingMixin, MeasurementsMixin
 from impress_gui.ui.viewer_panels import DisplayPanel, ExportPanel, MeasurementTable, ToolPanel
@@ -41,6 +41,14 @@ HINTS = {
     "region": "Click to place a rectangle on the reference surface, adjust it, then press "
     "'Fit plane to region'.",
 }
+
+
+def core_azimuth(screen_azimuth_deg: float) -> float:
+    """The light's azimuth for :func:`impress_gui.core.measure.hillshade` (clockwise from +y
+    in the grid) from the one the user sets: clockwise from the top of the screen. The map
+    shows +y downwards, so the top of the screen is -y: 315 (upper left, the usual light of
+    a relief map, under which a hollow looks hollow) is 225 in the grid."""
+    return (180.0 - screen_azimuth_deg) % 360.0
 
 
 def latest_reconstruction(project: Project) -> Path | None:
@@ -79,8 +87,11 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         self.data: M.ReconData | None = None
         self.plane: M.Plane | None = None
         self._levelled: dict[str, np.ndarray] = {}
+        # colour ranges: typed or dragged by the user, per layer (kept through zoom, layer
+        # changes and levelling until Auto); automatic, per layer and levelling
         self._ranges: dict[str, tuple[float, float]] = {}
         self._auto: dict[str, tuple[float, float]] = {}
+        self._target_mm: tuple[float, float, float, float] | None = None
         self._hillshade: tuple[tuple, np.ndarray] | None = None
         self._contribution_rgb: np.ndarray | None = None
         self.profile: M.Profile | None = None
@@ -205,7 +216,12 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
             contrib = None
             if "contribution" in data.layers:
                 contrib = contribution_png(data.layers["contribution"])
-            auto = {k: auto_levels(data.layers[k]) for k in SCALAR_LAYERS if k in data.layers}
+            target = target_footprint_mm(data.metadata, folder)
+            auto = {
+                k: auto_levels(data.layers[k], data.spec, target)
+                for k in SCALAR_LAYERS
+                if k in data.layers
+            }
             return data, contrib, auto
 
         return self.tasks.run(
@@ -230,6 +246,7 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         self._auto = dict(auto or {})
         self._hillshade = None
         self._contribution_rgb = contribution_rgb
+        self._target_mm = None if data is None else target_footprint_mm(data.metadata, data.folder)
         if data is not None and contribution_rgb is None and "contribution" in data.layers:
             self._contribution_rgb = contribution_png(data.layers["contribution"])
         self.level_points.clear()
@@ -276,9 +293,7 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         cmap = self.display.cmap.currentText()
         if key in HEIGHT_LAYERS + ("difference",) and key in self.data.layers:
             arr = self.measure_height(key) if key != "difference" else self.data.layers[key]
-            rk = self._range_key(key)
-            levels = self._ranges.get(rk) or self._auto.get(rk) or auto_levels(arr)
-            self._ranges[self._range_key(key)] = levels
+            levels = self._ranges.get(key) or self._auto_levels(key, arr)
             label = "green - red (mm)" if key == "difference" else "height (mm)"
             self.map.show_scalar(arr, levels, cmap, label)
             self.display.show_range(*levels)
@@ -297,11 +312,25 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
     def _range_key(self, key: str) -> str:
         return f"{key}/levelled" if self.plane is not None and key != "difference" else key
 
+    def _auto_levels(self, key: str, arr: np.ndarray) -> tuple[float, float]:
+        """The automatic range of a layer (robust percentiles of the evidence area, the
+        calibration target left out when its place is known), computed once per layer and
+        levelling."""
+        rk = self._range_key(key)
+        if rk not in self._auto:
+            self._auto[rk] = auto_levels(arr, self.data.spec, self._target_mm)
+        return self._auto[rk]
+
+    def typed_range(self, key: str | None = None) -> tuple[float, float] | None:
+        """The colour range the user typed or dragged for a layer (None: automatic)."""
+        return self._ranges.get(key or self.display.layer_key())
+
     def auto_range(self) -> None:
+        """Back to the automatic range (recomputed) for the shown layer."""
         key = self.display.layer_key()
         if self.data is None or key not in HEIGHT_LAYERS + ("difference",):
             return
-        self._ranges.pop(self._range_key(key), None)
+        self._ranges.pop(key, None)
         self._auto.pop(self._range_key(key), None)
         self.refresh_layer()
 
@@ -309,13 +338,13 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         key = self.display.layer_key()
         if hi <= lo or key not in HEIGHT_LAYERS + ("difference",):
             return
-        self._ranges[self._range_key(key)] = (lo, hi)
+        self._ranges[key] = (lo, hi)
         self.map.set_levels((lo, hi))
 
     def _on_bar_dragged(self, *_args) -> None:
         key = self.display.layer_key()
         lo, hi = self.map.levels()
-        self._ranges[self._range_key(key)] = (lo, hi)
+        self._ranges[key] = (lo, hi)
         self.display.show_range(lo, hi)
 
     def _show_hillshade(self) -> None:
@@ -328,7 +357,7 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         h, p = self.measure_height(), self.data.spec.pixel_mm
 
         def task(_progress, _cancel):
-            hs = M.hillshade(h, p, az, el)
+            hs = M.hillshade(h, p, core_azimuth(az), el)
             grey = np.nan_to_num(hs * 255.0, nan=0.0).astype(np.uint8)
             return params, np.repeat(grey[..., None], 3, axis=2)
 
@@ -409,6 +438,7 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         self.profile_plot.show_step(None)
         self.tools.ruler_text.setText("Ruler: choose Ruler and click two points")
         self.tools.step_text.setText("Step (B - A): -")
+        self.tools.step_text.setStyleSheet("")
 
     def ruler_result(self) -> M.RulerResult | None:
         pts = self.ruler_points()
@@ -427,7 +457,9 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         text = f"xy {r.xy_mm:.3f} mm | 3D {d3} | dz {dz}"
         self.tools.ruler_text.setText(f"Ruler: {text}")
         self.map.decorate_ruler(
-            text, self.tools.width.value(), self.profile_plot.bands() if self.profile else None
+            text,
+            self.tools.width.value(),
+            self.profile_plot.placed_bands() if self.profile else None,
         )
 
     def update_profile(self) -> None:
@@ -452,12 +484,27 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         self.profile_plot.set_bands(a, b)
 
     def _update_step(self, emit: bool = True) -> None:
+        """The step between the two reference bands, once the user has placed both; until
+        then nothing is computed or shown (default bands would give a meaningless number)."""
         if self.profile is None:
+            return
+        if not self.profile_plot.bands_placed():
+            self.step = None
+            self.profile_plot.show_step(None)
+            todo = " and ".join(n for n in ("A", "B") if n not in self.profile_plot.placed)
+            self.tools.step_text.setText(
+                f"Step (B - A): drag band {todo} in the profile onto the surface to compare"
+            )
+            self.tools.step_text.setStyleSheet("")
+            self._on_ruler_moved()
+            if emit:
+                self.profile_changed.emit()
             return
         bands = self.profile_plot.bands()
         self.step = M.step_height(self.profile, bands["A"], bands["B"])
         s = self.step
         self.profile_plot.show_step(s)
+        self.tools.step_text.setStyleSheet("font-weight: bold")
         self.tools.step_text.setText(
             f"A {s.a.mean_mm:.3f} ± {s.a.sd_mm:.3f} mm (n {s.a.n}), B {s.b.mean_mm:.3f} ± "
             f"{s.b.sd_mm:.3f} mm (n {s.b.n})\nStep B - A: {s.difference_mm:+.3f} ± "
@@ -468,4 +515,4 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
             self.profile_changed.emit()
 
 
-__all__ = ["ViewerTab", "latest_reconstruction"]
+__all__ = ["ViewerTab", "core_azimuth", "latest_reconstruction"]
