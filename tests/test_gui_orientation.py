@@ -24,6 +24,7 @@ from impress_gui.core.grid import GridSpec
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.messages import Messenger
 from impress_gui.ui.processing_panels import RunPanel
+from impress_gui.ui.viewer_3d import BACKGROUND, Surface3DWindow
 from impress_gui.ui.viewer_export import png_bytes
 from impress_gui.ui.viewer_tab import ViewerTab
 
@@ -227,3 +228,28 @@ def test_the_processing_preview_shows_the_map_as_stored(qtbot, scene):
     bottom = vb.mapViewToScene(QPointF(0.0, SPEC.y0_mm + 50.0))
     assert bottom.y() > top.y()
     assert vb.viewRect().contains(QRectF(SPEC.x0_mm, SPEC.y0_mm, 39.0, 59.0))
+
+
+def test_the_3d_view_is_turned_never_mirrored(qtbot, scene):
+    """The software 3D view, from straight above at azimuth 180, is the camera's view; from
+    azimuth 0 the same picture turned by 180 degrees (a rotation, not a reflection)."""
+    mask, height, texture = scene
+    win = Surface3DWindow(height, SPEC, texture)
+    qtbot.addWidget(win)
+    win.resize(700, 800)
+    win.elevation = 90.0
+    for azimuth, want in ((180.0, mask), (0.0, mask[::-1, ::-1])):
+        win.azimuth = azimuth
+        with qtbot.waitSignal(win.rendered, timeout=20000):
+            if win.isVisible():
+                win.request()
+            else:
+                win.show()
+        qtbot.waitUntil(lambda: not win.worker.is_running(), timeout=20000)
+        shown = to_array(win.view.pixmap().toImage())
+        lit = np.abs(shown.astype(int) - BACKGROUND).sum(axis=2) > 30
+        rows, cols = np.flatnonzero(lit.any(axis=1)), np.flatnonzero(lit.any(axis=0))
+        crop = shown[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
+        seen = cv2.resize(crop, (mask.shape[1], mask.shape[0]), interpolation=cv2.INTER_AREA)
+        assert_shows_as_stored(seen.min(axis=2) > 150, want, f"the 3D view at {azimuth}")
+    win.shutdown()

@@ -339,4 +339,4 @@ def test_exports_report_and_3d_view(qtbot, viewer, slot, tmp_path):
         QTest.mouseRelease(
             win.view, Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier, ev_pos
         )
-    assert win.frames > frames and not math.isclose(win.azimuth, 20.0)
+    assert win.frames > frames and not math.isclose(win.azimuth, 200.0)

@@ -27,6 +27,7 @@ from PySide6.QtWidgets import (
 from impress_gui.core.grid import GridSpec
 from impress_gui.core.reconstruct import ProcessParams
 from impress_gui.core.stripes import LASERS, METHODS
+from impress_gui.ui.viewer_image import auto_levels
 from impress_gui.ui.viewer_map import RAIL_TEXT, X_LABEL, Y_LABEL
 
 METHOD_TEXT = {
@@ -260,6 +261,7 @@ class GrowingMap(pg.PlotWidget):
         self.item.setLookupTable(pg.colormap.get("turbo").getLookupTable(nPts=256))
         pi.addItem(self.item)
         self.spec: GridSpec | None = None
+        self.target_mm: tuple[float, float, float, float] | None = None
         self.levels: tuple[float, float] | None = None
         self._set_labels()
 
@@ -277,13 +279,19 @@ class GrowingMap(pg.PlotWidget):
         self.spec = spec
         self._set_labels()
 
+    def set_target(self, target_mm: tuple[float, float, float, float] | None) -> None:
+        """The calibration target's box (rail mm), left out of the colour range."""
+        self.target_mm = target_mm
+
     def show_map(self, height: np.ndarray, fit: bool = True) -> None:
-        lo, hi = np.nanpercentile(height, [1, 99])
-        self.levels = (float(lo), float(max(hi, lo + 0.1)))
-        self.item.setImage(np.nan_to_num(height, nan=lo), autoLevels=False, levels=self.levels)
+        """Heights in the viewer's automatic colour range (:func:`auto_levels`: the 1..99
+        percentiles, the target left out when the grid and its place are known)."""
         h, w = height.shape[:2]
-        s = self.spec
-        if s is not None and tuple(s.shape) == (h, w):
+        s = self.spec if self.spec is not None and tuple(self.spec.shape) == (h, w) else None
+        self.levels = auto_levels(height, s, self.target_mm)
+        lo = self.levels[0]
+        self.item.setImage(np.nan_to_num(height, nan=lo), autoLevels=False, levels=self.levels)
+        if s is not None:
             rect = QRectF(s.x0_mm - s.pixel_mm / 2, s.y0_mm - s.pixel_mm / 2, w * s.pixel_mm,
                           h * s.pixel_mm)
         else:

@@ -445,6 +445,10 @@ class ProcessingTab(QWidget):
             )
 
         self.run_panel.output_label.setText(f"Output: {out}")
+        xy = np.asarray(cal.corners_parallax_mm, float)[:, :2]
+        self.run_panel.growing.set_target(
+            (xy[:, 0].min(), xy[:, 0].max(), xy[:, 1].min(), xy[:, 1].max())
+        )
         self.run_panel.start()
         self._out = out
         self.worker.start(task)

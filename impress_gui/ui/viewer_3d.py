@@ -41,7 +41,14 @@ def render_surface(
     max_points: int = 300_000,
 ) -> np.ndarray:
     """An orthographic, Lambert-shaded view ``(H, W, 3)`` uint8 of the surface seen from
-    ``azimuth_deg`` (clockwise from +y) at ``elevation_deg`` above the horizon."""
+    ``azimuth_deg`` at ``elevation_deg`` above the horizon.
+
+    The grid's y runs down the camera's image (the rail's motion), so (x, y, height) is a
+    left-handed frame; the surface is drawn in the right-handed (x, -y, height), so that it
+    is turned, never mirrored: seen from straight above at azimuth 180 it is the camera's view,
+    as the viewer's map and ``texture.png`` (row 0 at the top, x to the right). The azimuth
+    is where the eye stands, clockwise from the top of the map (-y): 180 is below the map's
+    bottom edge, looking up the map."""
     import cv2
 
     w_out, h_out = size
@@ -57,9 +64,9 @@ def render_surface(
     gy, gx = np.gradient(np.where(ok, z, np.nanmean(z)) * exaggeration, cell)
     ys, xs = np.nonzero(ok)
     x = xs * cell
-    y = ys * cell
+    y = -ys * cell  # right-handed: x, up the map (-y), height
     zz = z[ok] * exaggeration
-    nx, ny = -gx[ok], -gy[ok]
+    nx, ny = -gx[ok], gy[ok]  # the surface's normal in that frame
     base = np.full((len(x), 3), 200.0, np.float32) if col is None else col[ok].astype(np.float32)
     # vertical walls: points from each cell down to its lowest neighbour where it steps down
     pad = np.pad(np.where(ok, z, np.nan), 1, constant_values=np.nan)
@@ -151,7 +158,8 @@ class Surface3DWindow(QWidget):
         self.setWindowTitle(title)
         self.resize(900, 700)
         self.height_mm, self.spec, self.colours = height, spec, colours
-        self.azimuth, self.elevation, self.zoom = 20.0, 40.0, 1.0
+        # from below the map's bottom edge, a little to the left: the map as on screen, tilted
+        self.azimuth, self.elevation, self.zoom = 200.0, 40.0, 1.0
         self.frames = 0
         v = QVBoxLayout(self)
         status = opengl_status()
