@@ -253,3 +253,37 @@ def test_the_3d_view_is_turned_never_mirrored(qtbot, scene):
         seen = cv2.resize(crop, (mask.shape[1], mask.shape[0]), interpolation=cv2.INTER_AREA)
         assert_shows_as_stored(seen.min(axis=2) > 150, want, f"the 3D view at {azimuth}")
     win.shutdown()
+
+
+def test_the_hillshade_light_comes_from_where_the_panel_says(qtbot, viewer):
+    """The light's azimuth is clockwise from the top of the screen: from the top (0) the wall
+    of the letter's long bar that faces the top of the screen is lit and the one facing the
+    bottom is dark; from the bottom (180) the other way round."""
+    v = viewer
+    mask = letter_f()
+    rows = np.flatnonzero(mask[:, int(0.7 * mask.shape[1])])
+    top_i, bottom_i = rows[0], rows[-1]  # the long bar's first and last rows at that column
+    j = int(0.7 * mask.shape[1])
+    s = SPEC
+    x = s.x0_mm + j * s.pixel_mm
+    y0, y1 = s.y0_mm + (top_i - 20) * s.pixel_mm, s.y0_mm + (bottom_i + 20) * s.pixel_mm
+    v.map.vb.setRange(QRectF(x - 3.0, y0, 6.0, y1 - y0), padding=0)
+    show_layer(qtbot, v, "hillshade")
+    for azimuth, lit_wall in ((0.0, "top"), (180.0, "bottom")):
+        v.display.azimuth.setValue(azimuth)
+        qtbot.waitUntil(lambda a=azimuth: v._hillshade is not None
+                        and v._hillshade[0][2] == a, timeout=20000)
+        qtbot.waitUntil(lambda: not v.is_busy(), timeout=20000)
+        img = to_array(v.map.viewport().grab().toImage()).mean(axis=2)
+
+        def brightness(i: float, img=img) -> float:
+            p = v.map.map_to_viewport(x, s.y0_mm + i * s.pixel_mm)
+            return float(img[p.y() - 1 : p.y() + 2, p.x() - 1 : p.x() + 2].mean())
+
+        # the walls: half a cell outside the bar's first row and inside its last (central
+        # differences put the slope on both cells of an edge)
+        top, bottom = brightness(top_i - 0.5), brightness(bottom_i + 0.5)
+        flat = brightness((top_i + bottom_i) / 2)
+        assert abs(flat - 255 * np.sin(np.radians(35.0))) < 6
+        lit, dark = (top, bottom) if lit_wall == "top" else (bottom, top)
+        assert lit > flat + 20 and dark < flat - 20, (azimuth, top, flat, bottom)

@@ -217,7 +217,8 @@ def set_light(qtbot, v, az: float, el: float) -> None:
 
 def test_hillshade_light_direction_and_elevation(qtbot, viewer, slot):
     """The walls of the widest slot run along y: the left one falls towards +x (faces +x),
-    the right one rises (faces -x). A light from +x (azimuth 90, clockwise from +y) lights
+    the right one rises (faces -x). A light from +x (azimuth 90, clockwise from the top of
+    the screen; the core's azimuth is the same for 90 and 270) lights
     the left wall and leaves the right one dark; from -x (270) the other way round. Flat
     ground (the block's top, the slot's floor) shows sin(elevation)."""
     v, y = viewer, slot["y"]
