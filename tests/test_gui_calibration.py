@@ -270,7 +270,7 @@ def test_frames_can_be_scrubbed_with_the_slider_and_number(qtbot, tab, scan):
 
 
 @pytest.mark.parametrize(
-    "kind, needle", [("text", "not a readable video"), ("empty", "the file is empty")]
+    "kind, needle", [("text", "not a readable video"), ("empty", "file is empty")]
 )
 def test_a_bad_video_shows_a_message_and_keeps_the_loaded_one(
     qtbot, tab, scan, tmp_path, kind, needle
