@@ -4,8 +4,10 @@
   entry and the processing tab in the window);
 - every output carries the input hashes, the parameters and the software version, and the
   exports read back through the hostile-input readers;
-- a project.json whose evidence hash was edited to match a swapped video is caught against
-  the hash-chained log (edits of the log itself: tests/test_project.py);
+- a project.json whose evidence hash was edited to match a swapped video is caught by its
+  signature, and even when re-signed with the examiner's own key, against the signed log
+  (edits of the log itself: tests/test_project.py; every other tampering case:
+  tests/test_case_signing.py);
 - outputs are atomic under SIGKILL: killed while decoding, while writing, and between the two
   renames of the folder swap, the previous good result survives byte for byte, nothing that
   looks complete is left, and the next run cleans up (cancel: tests/test_reconstruct.py;
@@ -37,6 +39,12 @@ from impress_gui.core.reconstruct import ProcessParams
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = ["--frames", "40:100", "--no-texture"]
+
+
+@pytest.fixture(autouse=True)
+def _signing_key_dir(tmp_path_factory, monkeypatch):
+    """The examiner's signing key is made in a temporary folder, never in the user's home."""
+    monkeypatch.setenv("IMPRESS_KEY_DIR", str(tmp_path_factory.mktemp("keys")))
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
@@ -137,6 +145,15 @@ def test_an_edited_evidence_hash_in_project_json_is_caught_by_the_log(evidence, 
     doc["video"]["path"] = str(swapped)
     doc["video"]["sha256"] = sha256_file(swapped)
     (tmp_path / "case" / PROJECT_FILE).write_text(json.dumps(doc))
+    with pytest.raises(IntegrityError) as err:
+        Project.load(tmp_path / "case")
+    assert err.value.code == "E-PROJECT-TAMPERED" and "changed after it was signed" in str(
+        err.value
+    )
+    # signed again with the examiner's own key: the signed log still has the true hash
+    from impress_gui.core.signing import sign_head
+
+    (tmp_path / "case" / PROJECT_FILE).write_text(json.dumps(sign_head(doc, proj.signing_key)))
     with pytest.raises(IntegrityError) as err:
         Project.load(tmp_path / "case")
     assert err.value.code == "E-LOG-TAMPERED" and "project.json was edited" in str(err.value)

@@ -8,7 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from impress_gui.core.errors import Cancelled, FormatError, InputError, IntegrityError
+from impress_gui.core.errors import (
+    Cancelled,
+    FormatError,
+    ImpressError,
+    InputError,
+    IntegrityError,
+)
 from impress_gui.core.fileio import sha256_file
 from impress_gui.core.geometry import Intrinsics
 from impress_gui.core.picks import Picks
@@ -23,6 +29,12 @@ from impress_gui.core.project import (
     verify_log,
 )
 from impress_gui.core.target import default_target
+
+
+@pytest.fixture(autouse=True)
+def _signing_key_dir(tmp_path_factory, monkeypatch):
+    """The examiner's signing key is made in a temporary folder, never in the user's home."""
+    monkeypatch.setenv("IMPRESS_KEY_DIR", str(tmp_path_factory.mktemp("keys")))
 
 
 @pytest.fixture
@@ -219,11 +231,11 @@ def test_save_is_atomic_and_refuses_to_overwrite_another_project(tmp_path, monke
     def broken_replace(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr("os.replace", broken_replace)
     proj.case_id = "second"
-    with pytest.raises(OSError):
+    with monkeypatch.context() as m, pytest.raises(ImpressError) as err:
+        m.setattr("os.replace", broken_replace)
         proj.save()
-    monkeypatch.undo()
+    assert err.value.code == "E-WRITE"
     assert read_log(tmp_path / "p" / LOG_FILE)[-1]["action"] == "project save failed"
     assert (tmp_path / "p" / PROJECT_FILE).read_bytes() == good
     assert not [p for p in (tmp_path / "p").iterdir() if p.name.endswith(".partial")]
@@ -232,6 +244,7 @@ def test_save_is_atomic_and_refuses_to_overwrite_another_project(tmp_path, monke
         other.save(tmp_path / "p")
     assert err.value.code == "E-PROJECT-EXISTS"
     assert json.loads((tmp_path / "p" / PROJECT_FILE).read_text())["case_id"] == "first"
+    assert Project.load(tmp_path / "p").case_id == "first"  # the failed save left it intact
 
 
 def test_non_json_values_are_refused(tmp_path):
