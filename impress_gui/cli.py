@@ -143,12 +143,12 @@ def run_command(command: str, args: argparse.Namespace) -> int:
         print(f"impress {command}: error [E-IO]: a file could not be read or written{where}: "
               f"{reason(exc)}", file=sys.stderr)
         return 2
-    except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback for users
+    except Exception:  # noqa: BLE001 - the last line of defence: no traceback for users
         if os.environ.get("IMPRESS_DEBUG"):
             import traceback
 
             traceback.print_exc()
         print(f"impress {command}: error [E-INTERNAL]: an internal error stopped the command "
-              f"({type(exc).__name__}); nothing was written. Please report it with the command "
+              f"; nothing was written. Please report it with the command "
               "line; IMPRESS_DEBUG=1 shows the details.", file=sys.stderr)
         return 3

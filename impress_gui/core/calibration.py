@@ -177,8 +177,9 @@ class SceneCalibration:
                 planes=planes, warnings=tuple(str(w) for w in doc.get("warnings", [])),
                 inputs=dict(doc.get("inputs", {})),
             )
-        except (TypeError, ValueError, AttributeError, OverflowError) as exc:
-            raise FormatError(f"{where}damaged calibration ({exc})") from None
+        except (TypeError, ValueError, AttributeError, OverflowError, KeyError, IndexError):
+            raise FormatError(f"{where}damaged calibration (a field has the wrong kind of "
+                              "value, or numbers of the wrong count)") from None
 
     def save(self, path) -> None:
         write_json(path, self.to_json())

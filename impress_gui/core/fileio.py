@@ -212,13 +212,19 @@ def require(doc: dict, key: str, kind: type | tuple[type, ...], where: str = "")
     if key not in doc:
         raise FormatError(f"{where}missing field {key!r}")
     value = doc[key]
+    want = _KIND_WORDS.get(kind, "of another kind")
     if kind is float:
         kind = (int, float)
     if isinstance(value, bool) and kind is not bool:
-        raise FormatError(f"{where}field {key!r} must be {getattr(kind, '__name__', kind)}")
+        raise FormatError(f"{where}field {key!r} must be {want}, not true/false")
     if not isinstance(value, kind):
-        raise FormatError(f"{where}field {key!r} has the wrong type ({type(value).__name__})")
+        raise FormatError(f"{where}field {key!r} must be {want}, not "
+                          f"{_KIND_WORDS.get(type(value), 'something else')}")
     return value
+
+
+_KIND_WORDS: dict = {float: "a number", int: "a whole number", str: "text", bool: "true or false",
+                     dict: "an object", list: "a list", type(None): "null"}
 
 
 def float_array(value: Any, shape: tuple[int, ...], name: str) -> Any:

@@ -100,8 +100,8 @@ def load_reconstruction(
         raise FormatError(
             f"{folder}: not a reconstruction (no metadata.json)", code="E-FILE-MISSING"
         ) from None
-    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
-        raise FormatError(f"{meta_path}: damaged ({exc})") from None
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        raise FormatError(f"{meta_path}: damaged (not valid JSON text)") from None
     if not isinstance(meta, dict) or meta.get("format") != RECON_FORMAT:
         raise FormatError(f"{meta_path}: not an {RECON_FORMAT} document")
     if meta.get("version") != 1:
@@ -114,8 +114,9 @@ def load_reconstruction(
             float(g["pixel_mm"]),
             (int(g["shape"][0]), int(g["shape"][1])),
         )
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise FormatError(f"{meta_path}: bad grid description ({exc})") from None
+    except (KeyError, TypeError, ValueError, IndexError, OverflowError):
+        raise FormatError(f"{meta_path}: bad grid description (a field is missing or of the "
+                          "wrong kind)") from None
     if spec.pixel_mm <= 0 or min(spec.shape) < 1:
         raise FormatError(f"{meta_path}: bad grid description")
     out: dict[str, np.ndarray] = {}
@@ -129,8 +130,8 @@ def load_reconstruction(
             continue
         try:
             arr = tifffile.imread(path, maxworkers=1)
-        except Exception as exc:  # noqa: BLE001 - tifffile raises many kinds
-            raise FormatError(f"{path}: damaged ({exc})") from None
+        except Exception:  # noqa: BLE001 - tifffile raises many kinds
+            raise FormatError(f"{path}: damaged (not a readable TIFF image)") from None
         if arr.shape != spec.shape:
             raise FormatError(f"{path}: shape {arr.shape} is not the grid's {spec.shape}")
         out[name] = _frozen(arr if name == "contribution" else arr.astype(np.float32, copy=False))

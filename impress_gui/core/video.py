@@ -134,6 +134,15 @@ MAX_VIDEO_BYTES = 64 << 30
 GAP_FRAMES = 1.5
 
 
+def _quiet_ffmpeg() -> None:
+    """FFmpeg's own messages (e.g. "error while decoding MB") are not printed on the user's
+    terminal: damage is reported by this module, by frame, in plain words."""
+    import av
+
+    if av.logging.get_level() is None:
+        av.logging.set_level(av.logging.PANIC)
+
+
 def _pinned_name(fd: int, path: Path) -> str:
     """A name that opens the very file behind ``fd`` even if ``path`` is replaced meanwhile
     (Linux: /proc/self/fd/N); elsewhere the path itself."""
@@ -149,6 +158,7 @@ class AVVideo(VideoSource):
     def __init__(self, path: Path, threads: int = 2) -> None:
         import av
 
+        _quiet_ffmpeg()
         self.path = Path(path)
         self._threads = threads
         self.open_warnings = []
@@ -276,17 +286,45 @@ class AVVideo(VideoSource):
                 self.open_warnings.append(
                     f"W-VIDEO-TRUNCATED: {self.path.name}: the file ends in the middle of a "
                     "transport packet (cut short?); its last frames may be incomplete")
+        tail_gap = False
         if n > 2:
             dt = np.diff(self._pts.astype(np.float64))
             step = float(np.median(dt))
             if step > 0:
-                for i in np.nonzero(dt > GAP_FRAMES * step)[0][:10]:
+                gaps = np.nonzero(dt > GAP_FRAMES * step)[0]
+                # a gap among the last frames: pictures decoded before them were lost with
+                # the end of the file (frames are stored out of display order)
+                tail_gap = bool(gaps.size and gaps[-1] >= n - 4)
+                for i in gaps[:10]:
                     missing = int(round(dt[i] / step)) - 1
                     self.open_warnings.append(
                         f"W-VIDEO-GAP: {self.path.name}: about {max(1, missing)} frame(s) "
                         f"missing between frames {i} and {i + 1} "
                         f"({dt[i] * self._tb * 1000:.0f} ms instead of "
                         f"{step * self._tb * 1000:.0f} ms)")
+
+        tail = self._tail_damage()
+        if tail_gap or tail:
+            self.open_warnings.insert(0,
+                f"W-VIDEO-TRUNCATED: {self.path.name}: the video's last frames are incomplete "
+                f"({tail or 'frames are missing just before the end'}): the file was probably "
+                "cut short")
+
+    def _tail_damage(self) -> str | None:
+        """Decode the last group of pictures (from the last keyframe) once: a file cut short
+        ends in a damaged or missing picture. Returns what is wrong, or None."""
+        if self._keys.size == 0:
+            return None
+        k = int(np.searchsorted(self._pts, self._keys[-1]))
+        try:
+            for _ in self._frames_from(k):
+                pass
+        except VideoError:
+            return "the last frames cannot be decoded"
+        finally:
+            self._decoder = None
+        bad = [i for i in range(k, len(self._pts)) if i in self.damage]
+        return f"frame {bad[0]} is damaged" if bad else None
 
     def _note_damage(self, idx: int, frame) -> None:
         """Record frame ``idx`` as damaged when the decoder flags it, and the frames after it
