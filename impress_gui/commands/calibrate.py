@@ -32,11 +32,10 @@ def run(args: argparse.Namespace) -> int:
     from impress_gui.core.calibration import calibrate_scene
     from impress_gui.core.fileio import sha256_file
     from impress_gui.core.geometry import Intrinsics
+    from impress_gui.core.outdir import check_output_file, writing
     from impress_gui.core.picks import Picks
     from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
     from impress_gui.core.video import open_video
-
-    from impress_gui.core.outdir import check_output_file, writing
 
     check_output_file(args.output, inputs=(args.video, args.intrinsics, args.picks, args.target),
                       formats=("impress.calibration",))
