@@ -266,10 +266,20 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
 PREVIEW_EVERY_S = 1.5
 
 
+def _preview_step(shape) -> int:
+    return max(1, int(np.ceil(max(shape) / 480)))
+
+
+def _preview_spec(spec: GridSpec, preview: np.ndarray) -> GridSpec:
+    """The grid of a decimated preview map (same origin, larger cells)."""
+    step = _preview_step(spec.shape)
+    return GridSpec(spec.x0_mm, spec.y0_mm, spec.pixel_mm * step, preview.shape)
+
+
 def _preview_map(acc: dict) -> np.ndarray:
     """Decimated mean height over both lasers' accumulators so far."""
     shape = next(iter(acc.values())).sum.shape
-    step = max(1, int(np.ceil(max(shape) / 480)))
+    step = _preview_step(shape)
     total = sum(a.sum[::step, ::step].astype(np.float32) for a in acc.values())
     count = sum(a.count[::step, ::step].astype(np.float32) for a in acc.values())
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -420,7 +430,8 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
                 finisher.post(s_k)
             if preview is not None and time.perf_counter() - last_preview[0] > preview_every_s:
                 last_preview[0] = time.perf_counter()
-                preview(_preview_map(acc))
+                pm = _preview_map(acc)
+                preview(pm, spec=_preview_spec(spec, pm))
             if i % 25 == 0 or i == n_total:
                 el = time.perf_counter() - t_loop
                 report(progress, 0.05 + 0.85 * i / n_total,

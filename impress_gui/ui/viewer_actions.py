@@ -244,7 +244,7 @@ class ViewerActions:
         if rgb is None:  # fall back to the fused heights
             arr = tab.measure_height("fused")
             lut = pg.colormap.get("turbo").getLookupTable(nPts=256)
-            vrange = auto_levels(arr)
+            vrange = auto_levels(arr, tab.data.spec, tab._target_mm)
             params = {
                 "layer": "fused",
                 "colour_map": "turbo",
