@@ -35,6 +35,12 @@ def _load(name: str):
     return importlib.import_module(module_name)
 
 
+USAGE = "E-USAGE"  # a wrong command line (argparse's exit status 2)
+IO = "E-IO"  # an unforeseen failure to read or write a file
+MEMORY = "E-MEMORY"
+INTERNAL = "E-INTERNAL"
+
+
 def finite_float(text: str) -> float:
     """argparse type: a finite decimal number (no nan, inf or overflow)."""
     import math
@@ -63,7 +69,7 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.print_usage(sys.stderr)
-        self.exit(2, f"{self.prog}: error [E-USAGE]: {message}\n")
+        self.exit(2, f"{self.prog}: error [{USAGE}]: {message}\n")
 
 
 def build_parser(selected: str | None = None) -> argparse.ArgumentParser:
@@ -87,7 +93,7 @@ def _unknown_command(word: str) -> int:
 
     close = difflib.get_close_matches(word, list(COMMANDS), n=1, cutoff=0.5)
     hint = f" Did you mean 'impress {close[0]}'?" if close else ""
-    print(f"impress: error [E-USAGE]: '{word}' is not a command.{hint} "
+    print(f"impress: error [{USAGE}]: '{word}' is not a command.{hint} "
           f"The commands are: {', '.join(COMMANDS)} (impress --help).", file=sys.stderr)
     return 2
 
@@ -133,14 +139,14 @@ def run_command(command: str, args: argparse.Namespace) -> int:
         print(f"impress {command}: interrupted", file=sys.stderr)
         return 130
     except MemoryError:
-        print(f"impress {command}: error [E-MEMORY]: not enough memory for this input",
+        print(f"impress {command}: error [{MEMORY}]: not enough memory for this input",
               file=sys.stderr)
         return 2
     except OSError as exc:
         from impress_gui.core.outdir import reason
 
         where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
-        print(f"impress {command}: error [E-IO]: a file could not be read or written{where}: "
+        print(f"impress {command}: error [{IO}]: a file could not be read or written{where}: "
               f"{reason(exc)}", file=sys.stderr)
         return 2
     except Exception:  # noqa: BLE001 - the last line of defence: no traceback for users
@@ -148,7 +154,7 @@ def run_command(command: str, args: argparse.Namespace) -> int:
             import traceback
 
             traceback.print_exc()
-        print(f"impress {command}: error [E-INTERNAL]: an internal error stopped the command "
-              f"; nothing was written. Please report it with the command "
+        print(f"impress {command}: error [{INTERNAL}]: an internal error stopped the command; "
+              "no output was completed. Please report it with the command "
               "line; IMPRESS_DEBUG=1 shows the details.", file=sys.stderr)
         return 3

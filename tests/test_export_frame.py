@@ -146,3 +146,20 @@ def test_the_mirrored_convention_would_be_caught(letter):
     xyz = np.column_stack([v["x"], -np.asarray(v["y"]), v["z"]]).astype(float)
     scores = _chirality(_band(xyz), _truth_points(scan, out))
     assert scores["as is"] < 0.6 and scores["mirror y"] > 0.8, scores
+
+
+def test_every_tiff_carries_its_cell_size_and_sources(letter):
+    """Issue 21 item 11: the TIFFs of `impress process` state their pixel size (read back by
+    tifffile) and name their inputs' hashes."""
+    import tifffile
+
+    _scan, out = letter
+    meta = json.loads((out / "metadata.json").read_text())
+    for name in ("heightmap.tif", "height_green.tif", "height_red.tif", "difference.tif",
+                 "contribution.tif"):
+        with tifffile.TiffFile(out / name) as tf:
+            page = tf.pages[0]
+            num, den = page.tags["XResolution"].value
+            assert page.tags["ResolutionUnit"].value == 3  # centimetre
+            assert 10.0 / (num / den) == pytest.approx(meta["grid"]["pixel_mm"])
+            assert meta["inputs"]["video"]["sha256"] in page.description

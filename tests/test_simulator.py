@@ -440,7 +440,7 @@ def test_bad_option_is_a_clear_error(tmp_path, capsys, args, option):
 def test_output_folder_is_replaced_whole_or_not_at_all(tmp_path):
     """A re-simulation that is interrupted leaves the previous simulation whole; a folder that
     holds something else is refused; a frame folder's truth carries its manifest hash."""
-    from impress_gui.core.errors import Cancelled, InputError
+    from impress_gui.core.errors import Cancelled
     from impress_gui.core.fileio import sha256_path
     from impress_gui.core.progress import CancelToken
     from impress_gui.sim.simulate import SimConfig, simulate
@@ -465,6 +465,9 @@ def test_output_folder_is_replaced_whole_or_not_at_all(tmp_path):
     other = tmp_path / "notes"
     other.mkdir()
     (other / "case.txt").write_text("evidence notes")
-    with pytest.raises(InputError, match="other than a simulation"):
+    from impress_gui.core.outdir import OutputError
+
+    with pytest.raises(OutputError, match="not made by a previous simulation") as err:
         simulate(SimConfig(**small), other)
+    assert err.value.code == "E-OUTPUT-NOT-EMPTY"
     assert (other / "case.txt").read_text() == "evidence notes"

@@ -32,11 +32,19 @@ CONTRIB_CODES = {0: "no data", 1: "green only", 2: "red only", 3: "both (mean)",
                  4: "both disagree (nearer the local consensus)"}
 
 
-def _tiff_bytes(arr: np.ndarray) -> bytes:
+def _tiff_bytes(arr: np.ndarray, spec=None, description: str | None = None) -> bytes:
+    """zlib TIFF; with ``spec`` the resolution tags give the cell size (pixels per cm), with
+    ``description`` the ImageDescription (ASCII) carries it (provenance, units)."""
     import tifffile
 
+    extra: dict = {}
+    if spec is not None:
+        ppcm = 10.0 / spec.pixel_mm
+        extra = {"resolution": (ppcm, ppcm), "resolutionunit": "CENTIMETER"}
+    if description:
+        extra["description"] = description.encode("ascii", "backslashreplace").decode("ascii")
     buf = io.BytesIO()
-    tifffile.imwrite(buf, arr, compression="zlib", metadata=None, software=None)
+    tifffile.imwrite(buf, arr, compression="zlib", metadata=None, software=None, **extra)
     return buf.getvalue()
 
 
@@ -263,12 +271,22 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
     inputs = metadata.get("inputs") or {}
     source = [f"source {k} sha256: {(inputs.get(k) or {}).get('sha256') or '-'}"
               for k in ("video", "calibration")]
+    def desc(what: str) -> str:
+        return (f"IMPREsS workstation {__version__}: {what}; cell {rec.spec.pixel_mm} mm, "
+                f"x0 {rec.spec.x0_mm} mm, y0 {rec.spec.y0_mm} mm (rail frame, row 0 first); "
+                + "; ".join(source) + "; parameters: metadata.json")
+
     files: dict[str, bytes] = {
-        "heightmap.tif": _tiff_bytes(rec.height_mm.astype(np.float32)),
-        "height_green.tif": _tiff_bytes(rec.per_laser_mm["green"].astype(np.float32)),
-        "height_red.tif": _tiff_bytes(rec.per_laser_mm["red"].astype(np.float32)),
-        "difference.tif": _tiff_bytes(rec.difference_mm.astype(np.float32)),
-        "contribution.tif": _tiff_bytes(rec.contribution.astype(np.uint8)),
+        "heightmap.tif": _tiff_bytes(rec.height_mm.astype(np.float32), rec.spec,
+                                     desc("fused height, mm, NaN = no data")),
+        "height_green.tif": _tiff_bytes(rec.per_laser_mm["green"].astype(np.float32), rec.spec,
+                                        desc("green laser height, mm")),
+        "height_red.tif": _tiff_bytes(rec.per_laser_mm["red"].astype(np.float32), rec.spec,
+                                      desc("red laser height, mm")),
+        "difference.tif": _tiff_bytes(rec.difference_mm.astype(np.float32), rec.spec,
+                                      desc("green - red height, mm")),
+        "contribution.tif": _tiff_bytes(rec.contribution.astype(np.uint8), rec.spec,
+                                        desc("contribution codes (metadata.json)")),
         "contribution.png": _png_bytes(contribution_png(rec.contribution)),
         "heightmap_8bit.png": _png_bytes(grey8(rec.height_mm)),
         "heightmap_color.png": _png_bytes(pseudo_colour(rec.height_mm)),

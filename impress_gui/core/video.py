@@ -608,7 +608,7 @@ class FrameFolder(VideoSource):
         self.times_s = np.arange(len(self._files)) / self.fps
 
     def _stats(self) -> list[tuple]:
-        out = []
+        out: list[tuple] = []
         for f in self._files:
             try:
                 st = os.stat(f)
