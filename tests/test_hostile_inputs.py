@@ -209,6 +209,10 @@ CASES: list[Case] = [
     Case("simulate into a link", ["simulate", "{box}/sl", "--preset", "flat"], "E-OUTPUT-LINK",
          _chain(_mkdir("st"), _symlink("sl", "st"))),
     Case("simulate into .", ["simulate", ".", "--preset", "flat"], "E-OUTPUT-UNSAFE"),
+    Case("validate into the evidence folder", ["validate", "--quick", "--out", "{ev}"],
+         "E-OUTPUT-NOT-EMPTY"),
+    Case("validate into a link", ["validate", "--quick", "--out", "{box}/vl"],
+         "E-OUTPUT-LINK", _chain(_mkdir("vt"), _symlink("vl", "vt"))),
     # --- item 3: damaged video -----------------------------------------------------------------
     Case("video: missing", _proc(video="{box}/none.mp4"), "E-FILE-MISSING"),
     Case("video: empty", _proc(video="{box}/e.mp4"), "E-VIDEO-EMPTY", _write("e.mp4", b"")),
@@ -425,7 +429,7 @@ def test_hostile_input(case: Case, evidence, tmp_path, capsys, monkeypatch):
     argv = [a.replace("{ev}", str(ev)).replace("{box}", str(box)) for a in case.argv]
     # the named output (after -o, or simulate's folder) may appear; nothing else may change
     named = None
-    for flag in ("-o", "--output"):
+    for flag in ("-o", "--output", "--out"):
         if flag in argv:
             named = Path(argv[argv.index(flag) + 1])
     if argv[0] == "simulate":

@@ -343,6 +343,29 @@ def _finish(record: dict[str, Any], results: list[V.Result], groups: list[str]) 
     return record
 
 
+def prepare_output(out_dir: str | os.PathLike[str], inputs=()) -> Path:
+    """The validation folder: new, empty, or one an earlier validation made (it holds the
+    reused scans); anything else is refused before any work (``E-OUTPUT-*``). Marked as the
+    product's own."""
+    from impress_gui.core.outdir import MARK_FILE, check_output_dir, mark_bytes, read_mark, writing
+
+    folder = Path(out_dir)
+    record = folder / "validation.json"
+    try:  # a validation folder of an earlier version (no mark): its record says what it is
+        if (folder.is_dir() and not folder.is_symlink() and read_mark(folder) is None
+                and record.is_file() and not record.is_symlink()
+                and json.loads(record.read_text()).get("format") == RECORD_FORMAT):
+            (folder / MARK_FILE).write_bytes(mark_bytes("validation"))
+    except (OSError, ValueError, AttributeError):
+        pass
+    out = check_output_dir(out_dir, "validation", inputs)
+    with writing(out):
+        out.mkdir(parents=True, exist_ok=True)
+        if not (out / MARK_FILE).exists():
+            (out / MARK_FILE).write_bytes(mark_bytes("validation"))
+    return out
+
+
 def run_simulated(
     cfg: RunConfig,
     out_dir: str | os.PathLike[str],
@@ -358,8 +381,7 @@ def run_simulated(
 
     cfg.validate()
     cancel = cancel or CancelToken()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_output(out_dir)
     items = cfg.sim_configs()
     record = _header("simulator") | {"config": cfg.to_json(), "scans": []}
     results: list[V.Result] = []
@@ -436,8 +458,7 @@ def run_real(
 
     cancel = cancel or CancelToken()
     name, scans = S.load_spec(spec_path)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_output(out_dir, inputs=(spec_path,))
     record = _header("real") | {
         "name": name,
         "scans": [],
