@@ -13,7 +13,7 @@ import io
 import os
 import shutil
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -44,7 +44,8 @@ def _tiff_bytes(arr: np.ndarray, spec=None, description: str | None = None) -> b
     if description:
         extra["description"] = description.encode("ascii", "backslashreplace").decode("ascii")
     buf = io.BytesIO()
-    tifffile.imwrite(buf, arr, compression="zlib", metadata=None, software=None, **extra)
+    tifffile.imwrite(buf, arr, compression="zlib", compressionargs={"level": ZLIB_LEVEL},
+                     metadata=None, software=None, **extra)
     return buf.getvalue()
 
 
@@ -205,7 +206,7 @@ def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "",
                               ("bindata/data.bin", data)):
             info = zipfile.ZipInfo(name, date_time=(2000, 1, 1, 0, 0, 0))
             info.compress_type = zipfile.ZIP_DEFLATED
-            zf.writestr(info, payload)
+            zf.writestr(info, payload, compresslevel=ZLIB_LEVEL)
     return buf.getvalue()
 
 
@@ -252,8 +253,18 @@ RECON_FILES = ("heightmap.tif", "height_green.tif", "height_red.tif", "differenc
                "metadata.json", "run.json")
 
 
+#: threads encoding and writing the outputs side by side
+WRITE_THREADS = 4
+#: the slowest files first, so that they overlap the rest
+WRITE_ORDER = {"heightmap.x3p": 0, "heightmap.tif": 1, "pointcloud.ply": 2, "texture.png": 3}
+#: zlib level of the TIFFs and the X3P: level 1 is 2x faster than the default 6 for files
+#: 0.5 % (TIFF) and 9 % (X3P) larger (measured on a shoe scan's heightmap)
+ZLIB_LEVEL = 1
+
+
 def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
-                         ply_step: int = 2, dates: dict | None = None) -> dict[str, str]:
+                         ply_step: int = 2, dates: dict | None = None,
+                         progress=None) -> dict[str, str]:
     """Write every output into ``out_dir`` (a path, or an
     :class:`~impress_gui.core.outdir.OutputFolder` already checked) atomically; return
     {file: sha256}. ``dates`` (``measured``, ``calibrated``: see :func:`input_dates`) go into
@@ -276,41 +287,63 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
                 f"x0 {rec.spec.x0_mm} mm, y0 {rec.spec.y0_mm} mm (rail frame, row 0 first); "
                 + "; ".join(source) + "; parameters: metadata.json")
 
-    files: dict[str, bytes] = {
-        "heightmap.tif": _tiff_bytes(rec.height_mm.astype(np.float32), rec.spec,
-                                     desc("fused height, mm, NaN = no data")),
-        "height_green.tif": _tiff_bytes(rec.per_laser_mm["green"].astype(np.float32), rec.spec,
-                                        desc("green laser height, mm")),
-        "height_red.tif": _tiff_bytes(rec.per_laser_mm["red"].astype(np.float32), rec.spec,
-                                      desc("red laser height, mm")),
-        "difference.tif": _tiff_bytes(rec.difference_mm.astype(np.float32), rec.spec,
-                                      desc("green - red height, mm")),
-        "contribution.tif": _tiff_bytes(rec.contribution.astype(np.uint8), rec.spec,
-                                        desc("contribution codes (metadata.json)")),
-        "contribution.png": _png_bytes(contribution_png(rec.contribution)),
-        "heightmap_8bit.png": _png_bytes(grey8(rec.height_mm)),
-        "heightmap_color.png": _png_bytes(pseudo_colour(rec.height_mm)),
-        "pointcloud.ply": ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step,
-                                    source),
-        "heightmap.x3p": x3p_bytes(rec.spec, rec.height_mm, dates["measured"],
-                                   "IMPREsS reconstruction; " + "; ".join(source)
-                                   + "; parameters, grid and height convention: metadata.json",
-                                   calibrated=dates["calibrated"]),
+    h32 = rec.height_mm.astype(np.float32)
+    # each file is made, written and hashed by a task of its own: the encoders (zlib, PNG)
+    # release the GIL, so the files are made side by side
+    makers: dict[str, Callable[[], bytes]] = {
+        "heightmap.tif": lambda: _tiff_bytes(h32, rec.spec,
+                                             desc("fused height, mm, NaN = no data")),
+        "height_green.tif": lambda: _tiff_bytes(
+            rec.per_laser_mm["green"].astype(np.float32), rec.spec,
+            desc("green laser height, mm")),
+        "height_red.tif": lambda: _tiff_bytes(
+            rec.per_laser_mm["red"].astype(np.float32), rec.spec, desc("red laser height, mm")),
+        "difference.tif": lambda: _tiff_bytes(
+            rec.difference_mm.astype(np.float32), rec.spec, desc("green - red height, mm")),
+        "contribution.tif": lambda: _tiff_bytes(
+            rec.contribution.astype(np.uint8), rec.spec,
+            desc("contribution codes (metadata.json)")),
+        "contribution.png": lambda: _png_bytes(contribution_png(rec.contribution)),
+        "heightmap_8bit.png": lambda: _png_bytes(grey8(rec.height_mm)),
+        "heightmap_color.png": lambda: _png_bytes(pseudo_colour(rec.height_mm)),
+        "pointcloud.ply": lambda: ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step,
+                                            source),
+        "heightmap.x3p": lambda: x3p_bytes(
+            rec.spec, rec.height_mm, dates["measured"],
+            "IMPREsS reconstruction; " + "; ".join(source)
+            + "; parameters, grid and height convention: metadata.json",
+            calibrated=dates["calibrated"]),
     }
     if rec.texture_rgb is not None:
-        files["texture.png"] = _png_bytes(rec.texture_rgb)
-    from impress_gui.core.outdir import MARK_FILE, mark_bytes
+        makers["texture.png"] = lambda: _png_bytes(rec.texture_rgb)
+    from concurrent.futures import ThreadPoolExecutor, as_completed
 
-    digests = {MARK_FILE: hashlib.sha256(mark_bytes("reconstruction")).hexdigest()}
+    from impress_gui.core.outdir import MARK_FILE, mark_bytes
+    from impress_gui.core.progress import report
+
+    def make(name: str) -> str:
+        payload = makers[name]()
+        folder.path(name).write_bytes(payload)
+        return hashlib.sha256(payload).hexdigest()
+
+    made: dict[str, str] = {}
+    order = sorted(makers, key=lambda n: WRITE_ORDER.get(n, 9))
     try:
         with writing(folder.final):
-            for name, payload in files.items():
-                folder.path(name).write_bytes(payload)
-                digests[name] = hashlib.sha256(payload).hexdigest()
+            folder.begin()
+            workers = max(1, min(WRITE_THREADS, os.cpu_count() or 1))
+            with ThreadPoolExecutor(workers, thread_name_prefix="impress-write") as pool:
+                futures = {pool.submit(make, n): n for n in order}
+                for i, fut in enumerate(as_completed(futures), 1):
+                    made[futures[fut]] = fut.result()
+                    report(progress, i / (len(makers) + 1), f"written {futures[fut]}")
+            digests = {MARK_FILE: hashlib.sha256(mark_bytes("reconstruction")).hexdigest()}
+            digests.update((n, made[n]) for n in makers)
             meta = dict(metadata)
             meta["files"] = digests
             folder.path("metadata.json").write_text(dumps_json(meta))
             folder.path("run.json").write_text(dumps_json(run_info))
+        report(progress, 1.0, "outputs written")
         folder.commit()
     except BaseException:
         folder.abort()

@@ -38,6 +38,7 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
     from impress_gui.core.errors import IntegrityError
     from impress_gui.core.fileio import read_regular
     from impress_gui.core.outputs import build_metadata, input_dates, write_reconstruction
+    from impress_gui.core.progress import report, sub_progress
     from impress_gui.core.reconstruct import reconstruct
     from impress_gui.core.video import open_video
 
@@ -65,8 +66,8 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
             if recorded and recorded != video_sha:
                 warnings.append("W-CALIB-OTHER-VIDEO: the video differs from the one the "
                                 "calibration was made on (SHA-256 mismatch)")
-            rec = reconstruct(video, cal, params, progress=progress, cancel=cancel,
-                              preview=preview)
+            rec = reconstruct(video, cal, params, progress=sub_progress(progress, 0.0, 0.93),
+                              cancel=cancel, preview=preview)
             video.check_unchanged()
             warnings += video.damage_warnings()
             dates = input_dates(video, calibration_path)
@@ -77,7 +78,9 @@ def process_files(video_path: Path, calibration_path: Path, out_dir: Path, param
                "host": platform.node(), "python": platform.python_version(),
                "timings": rec.run_stats(),
                "wall_seconds": round(time.perf_counter() - t0, 3)}
-        meta["files"] = write_reconstruction(rec, folder, meta, run, dates=dates)
+        report(progress, 0.93, "writing the outputs")
+        meta["files"] = write_reconstruction(rec, folder, meta, run, dates=dates,
+                                             progress=sub_progress(progress, 0.93, 1.0))
     except BaseException:
         folder.abort()
         raise
