@@ -150,8 +150,28 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
+X3P_ROWS_PER_CHUNK = 256
+
+
+def _x3p_chunks(height: np.ndarray):
+    """The X3P's point data in pieces of rows: float64 metres, x fastest, the grid's rows
+    last first (no full-size copy of the grid is ever made)."""
+    ny = height.shape[0]
+    for stop in range(ny, 0, -X3P_ROWS_PER_CHUNK):
+        start = max(0, stop - X3P_ROWS_PER_CHUNK)
+        yield (height[start:stop][::-1].astype("<f8") * 1e-3).tobytes()
+
+
 def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "",
               calibrated: str | None = None) -> bytes:
+    """The X3P of :func:`write_x3p` as bytes."""
+    buf = io.BytesIO()
+    write_x3p(buf, spec, height, created, comment, calibrated)
+    return buf.getvalue()
+
+
+def write_x3p(target, spec, height: np.ndarray, created: str, comment: str = "",
+              calibrated: str | None = None) -> None:
     """ISO 25178-72 (XML 3D surface profile) container: an areal surface, x/y incremental
     axes in metres, z as float64 metres with NaN for invalid points, in the right-handed
     :data:`EXPORT_FRAME` (the grid's rows are stored last first, so that y increases with the
@@ -161,12 +181,13 @@ def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "",
     from xml.sax.saxutils import escape
 
     ny, nx = height.shape
-    # x fastest, rows from the last grid row (smallest export y) to the first
-    data = (height[::-1].astype(np.float64) * 1e-3).astype("<f8").tobytes()
+    md5 = hashlib.md5()
+    for chunk in _x3p_chunks(height):
+        md5.update(chunk)
+    md5_data = md5.hexdigest()
     y_offset_mm = -(spec.y0_mm + (ny - 1) * spec.pixel_mm)
     comment = f"frame: {EXPORT_FRAME}; {comment}" if comment else f"frame: {EXPORT_FRAME}"
     calibrated = calibrated or created
-    md5_data = hashlib.md5(data).hexdigest()
     xml = f"""<?xml version="1.0" encoding="UTF-8"?>
 <p:ISO5436_2 xmlns:p="http://www.opengps.eu/2008/ISO5436_2" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:schemaLocation="http://www.opengps.eu/2008/ISO5436_2 http://www.opengps.eu/2008/ISO5436_2/ISO5436_2_XML.xsd">
   <Record1>
@@ -199,15 +220,28 @@ def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "",
 </p:ISO5436_2>
 """
     xml_b = xml.encode("utf-8")
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
-        for name, payload in (("main.xml", xml_b),
-                              ("md5checksum.hex", f"{hashlib.md5(xml_b).hexdigest()} *main.xml\n".encode()),
-                              ("bindata/data.bin", data)):
-            info = zipfile.ZipInfo(name, date_time=(2000, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            zf.writestr(info, payload, compresslevel=ZLIB_LEVEL)
-    return buf.getvalue()
+    nbytes = nx * ny * 8
+
+    def member(name: str):
+        info = zipfile.ZipInfo(name, date_time=(2000, 1, 1, 0, 0, 0))
+        info.compress_type = zipfile.ZIP_DEFLATED
+        info._compresslevel = ZLIB_LEVEL  # type: ignore[attr-defined]  (zipfile's own field)
+        return info
+
+    with zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr(member("main.xml"), xml_b, compresslevel=ZLIB_LEVEL)
+        zf.writestr(member("md5checksum.hex"),
+                    f"{hashlib.md5(xml_b).hexdigest()} *main.xml\n".encode(),
+                    compresslevel=ZLIB_LEVEL)
+        # the point data streamed in pieces of rows
+        with zf.open(member("bindata/data.bin"), "w", force_zip64=nbytes > 2**31 - 1) as fh:
+            for chunk in _x3p_chunks(height):
+                fh.write(chunk)
+
+
+def _write_file(path: Path, write) -> None:
+    with open(path, "wb") as fh:
+        write(fh)
 
 
 def _iso(ts: float) -> str:
@@ -308,11 +342,14 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
         "heightmap_color.png": lambda: _png_bytes(pseudo_colour(rec.height_mm)),
         "pointcloud.ply": lambda: ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step,
                                             source),
-        "heightmap.x3p": lambda: x3p_bytes(
-            rec.spec, rec.height_mm, dates["measured"],
+    }
+    # written straight into their files (no copy of the whole file in memory)
+    streamed: dict[str, Callable[[Path], None]] = {
+        "heightmap.x3p": lambda path: _write_file(path, lambda fh: write_x3p(
+            fh, rec.spec, rec.height_mm, dates["measured"],
             "IMPREsS reconstruction; " + "; ".join(source)
             + "; parameters, grid and height convention: metadata.json",
-            calibrated=dates["calibrated"]),
+            calibrated=dates["calibrated"])),
     }
     if rec.texture_rgb is not None:
         makers["texture.png"] = lambda: _png_bytes(rec.texture_rgb)
@@ -322,12 +359,16 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
     from impress_gui.core.progress import report
 
     def make(name: str) -> str:
+        if name in streamed:
+            streamed[name](folder.path(name))
+            return sha256_file(folder.path(name))
         payload = makers[name]()
         folder.path(name).write_bytes(payload)
         return hashlib.sha256(payload).hexdigest()
 
     made: dict[str, str] = {}
-    order = sorted(makers, key=lambda n: WRITE_ORDER.get(n, 9))
+    names = [*makers, *streamed]
+    order = sorted(names, key=lambda n: WRITE_ORDER.get(n, 9))
     try:
         with writing(folder.final):
             folder.begin()
@@ -336,9 +377,9 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
                 futures = {pool.submit(make, n): n for n in order}
                 for i, fut in enumerate(as_completed(futures), 1):
                     made[futures[fut]] = fut.result()
-                    report(progress, i / (len(makers) + 1), f"written {futures[fut]}")
+                    report(progress, i / (len(names) + 1), f"written {futures[fut]}")
             digests = {MARK_FILE: hashlib.sha256(mark_bytes("reconstruction")).hexdigest()}
-            digests.update((n, made[n]) for n in makers)
+            digests.update((n, made[n]) for n in RECON_FILES if n in made)
             meta = dict(metadata)
             meta["files"] = digests
             folder.path("metadata.json").write_text(dumps_json(meta))
