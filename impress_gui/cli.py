@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "calibrate": ("impress_gui.commands.calibrate", "scene calibration from the L-target picks"),
     "process": ("impress_gui.commands.process", "reconstruct heightmap, texture and point cloud"),
+    "batch": ("impress_gui.commands.batch", "process the scans of a manifest, locally or on Dask"),
     "motor": ("impress_gui.commands.motor", "drive the Cool Muscle rail motor (or its emulator)"),
     "demo": ("impress_gui.commands.demo", "make (or reuse) the cached sample scan and process it"),
     "validate": ("impress_gui.commands.validate", "accuracy validation (thesis table 4.1) and report"),

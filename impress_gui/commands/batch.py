@@ -1,0 +1,46 @@
+"""``impress batch``: process the scans of a manifest, locally or on a Dask cluster."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("manifest", type=Path,
+                   help="batch manifest (impress.batch JSON: the scans' names, videos, "
+                        "calibrations and parameters; see docs/formats.md)")
+    p.add_argument("-o", "--output", type=Path, required=True,
+                   help="batch folder: one result folder per scan, summary.csv and summary.json "
+                        "(a run into the same folder resumes: finished scans are kept)")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="scans processed at once on this machine (default: the cores, limited "
+                        "by memory at about 2.5 GB a scan)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="submit the scans to this Dask distributed scheduler "
+                        "(e.g. tcp://10.0.0.5:8786) instead of the local pool")
+
+
+def run(args: argparse.Namespace) -> int:
+    from impress_gui.core.batch import load_manifest, run_batch
+    from impress_gui.core.errors import InputError
+
+    if args.jobs is not None and not 1 <= args.jobs <= 256:
+        raise InputError("--jobs must be 1 to 256", code="E-BATCH")
+    items = load_manifest(args.manifest)
+
+    def progress(frac: float, msg: str) -> None:
+        print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
+
+    rows = run_batch(items, args.output, jobs=args.jobs, scheduler=args.scheduler,
+                     progress=progress, manifest=args.manifest)
+    width = max(len(r["name"]) for r in rows)
+    print(f"batch of {len(rows)} scans in {args.output} (summary.csv, summary.json)")
+    for r in rows:
+        extra = f" [{r['code']}] {r['message']}" if r.get("code") else (
+            f"; {r['warnings']} warning(s)" if r.get("warnings") else "")
+        print(f"  {r['name']:<{width}}  {r['status']:<12} {r.get('cells_fused') or '':>10} "
+              f"cells{extra}")
+    failed = [r for r in rows if r["status"] == "failed"]
+    return 1 if failed else 0

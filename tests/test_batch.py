@@ -1,0 +1,125 @@
+"""``impress batch``: the same result folders as separate ``impress process`` runs, locally
+(a process pool) and through a Dask LocalCluster; a summary; resumption; refusals."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from impress_gui import cli
+from impress_gui.core.batch import load_manifest, run_batch
+from impress_gui.core.pipeline import process_files
+from impress_gui.core.reconstruct import ProcessParams
+
+RANGES = {"a": (40, 70), "b": (50, 80), "c": (60, 90)}
+
+
+def _manifest(tmp_path: Path, flat_scan: Path, flat_calibration: Path) -> Path:
+    doc = {"format": "impress.batch", "version": 1, "scans": [
+        {"name": n, "video": str(flat_scan / "scan.mp4"), "calibration": str(flat_calibration),
+         "parameters": {"frame_start": a, "frame_stop": b, "texture": False}}
+        for n, (a, b) in RANGES.items()]}
+    p = tmp_path / "manifest.json"
+    p.write_text(json.dumps(doc))
+    return p
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in folder.iterdir() if p.name != "run.json"}
+
+
+@pytest.fixture(scope="module")
+def separate(flat_scan, flat_calibration, tmp_path_factory) -> dict[str, dict[str, bytes]]:
+    """The three scans processed one by one, as `impress process` does."""
+    base = tmp_path_factory.mktemp("separate")
+    out = {}
+    for n, (a, b) in RANGES.items():
+        process_files(flat_scan / "scan.mp4", flat_calibration, base / n,
+                      ProcessParams(frame_start=a, frame_stop=b, texture=False))
+        out[n] = _files(base / n)
+    return out
+
+
+def test_local_pool_gives_the_same_folders_and_a_summary(flat_scan, flat_calibration,
+                                                         separate, tmp_path, capsys):
+    manifest = _manifest(tmp_path, flat_scan, flat_calibration)
+    code = cli.main(["batch", str(manifest), "-o", str(tmp_path / "batch"), "--jobs", "2"])
+    assert code == 0, capsys.readouterr()
+    for n in RANGES:
+        assert _files(tmp_path / "batch" / n) == separate[n]
+    with open(tmp_path / "batch" / "summary.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["name"] for r in rows] == list(RANGES)
+    assert all(r["status"] == "processed" and int(r["cells_fused"]) > 1000 for r in rows)
+    # run again: every scan is recognised as done, nothing is processed anew
+    before = {n: (tmp_path / "batch" / n / "run.json").read_bytes() for n in RANGES}
+    rows = run_batch(load_manifest(manifest), tmp_path / "batch", jobs=1)
+    assert [r["status"] for r in rows] == ["done earlier"] * 3
+    assert {n: (tmp_path / "batch" / n / "run.json").read_bytes() for n in RANGES} == before
+
+
+def test_resumes_after_an_interruption(flat_scan, flat_calibration, separate, tmp_path):
+    manifest = _manifest(tmp_path, flat_scan, flat_calibration)
+    items = load_manifest(manifest)
+    run_batch(items[:1], tmp_path / "batch", jobs=1)  # "interrupted" after the first scan
+    rows = run_batch(items, tmp_path / "batch", jobs=1)
+    assert [r["status"] for r in rows] == ["done earlier", "processed", "processed"]
+    for n in RANGES:
+        assert _files(tmp_path / "batch" / n) == separate[n]
+
+
+def test_dask_local_cluster_gives_the_same_folders(flat_scan, flat_calibration, separate,
+                                                  tmp_path):
+    distributed = pytest.importorskip("distributed")
+    manifest = _manifest(tmp_path, flat_scan, flat_calibration)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        rows = run_batch(load_manifest(manifest), tmp_path / "batch", scheduler=client)
+    assert [r["status"] for r in rows] == ["processed"] * 3
+    for n in RANGES:
+        assert _files(tmp_path / "batch" / n) == separate[n]
+
+
+def test_a_failing_scan_is_reported_and_the_others_finish(flat_scan, flat_calibration,
+                                                          tmp_path, capsys):
+    doc = {"format": "impress.batch", "version": 1, "scans": [
+        {"name": "good", "video": str(flat_scan / "scan.mp4"),
+         "calibration": str(flat_calibration),
+         "parameters": {"frame_start": 40, "frame_stop": 60, "texture": False}},
+        {"name": "missing", "video": "nowhere.mp4", "calibration": str(flat_calibration)}]}
+    manifest = tmp_path / "m.json"
+    manifest.write_text(json.dumps(doc))
+    code = cli.main(["batch", str(manifest), "-o", str(tmp_path / "out"), "--jobs", "1"])
+    text = capsys.readouterr().out
+    assert code == 1
+    assert "E-FILE-MISSING" in text and "processed" in text
+
+
+@pytest.mark.parametrize("scans, code", [
+    ([], "E-BATCH"),
+    ([{"name": "../x", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),
+    ([{"name": "a", "video": "v.mp4"}], "E-BATCH"),
+    ([{"name": "a", "video": "v.mp4", "calibration": "c.json"},
+      {"name": "a", "video": "w.mp4", "calibration": "c.json"}], "E-BATCH"),
+    ([{"name": "a", "video": "v.mp4", "calibration": "c.json",
+       "parameters": {"rm": "-rf"}}], "E-BATCH"),
+])
+def test_bad_manifests_are_refused(scans, code, tmp_path, capsys):
+    manifest = tmp_path / "m.json"
+    manifest.write_text(json.dumps({"format": "impress.batch", "version": 1, "scans": scans}))
+    assert cli.main(["batch", str(manifest), "-o", str(tmp_path / "out")]) == 2
+    assert f"[{code}]" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_foreign_batch_folder_is_refused(flat_scan, flat_calibration, tmp_path, capsys):
+    manifest = _manifest(tmp_path, flat_scan, flat_calibration)
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "IMG_1.JPG").write_bytes(b"photo")
+    assert cli.main(["batch", str(manifest), "-o", str(tmp_path / "photos")]) == 2
+    assert "[E-OUTPUT-NOT-EMPTY]" in capsys.readouterr().err
+    assert [p.name for p in (tmp_path / "photos").iterdir()] == ["IMG_1.JPG"]
