@@ -134,15 +134,6 @@ MAX_VIDEO_BYTES = 64 << 30
 GAP_FRAMES = 1.5
 
 
-def _quiet_ffmpeg() -> None:
-    """FFmpeg's own messages (e.g. "error while decoding MB") are not printed on the user's
-    terminal: damage is reported by this module, by frame, in plain words."""
-    import av
-
-    if av.logging.get_level() is None:
-        av.logging.set_level(av.logging.PANIC)
-
-
 def _pinned_name(fd: int, path: Path) -> str:
     """A name that opens the very file behind ``fd`` even if ``path`` is replaced meanwhile
     (Linux: /proc/self/fd/N); elsewhere the path itself."""
@@ -158,7 +149,9 @@ class AVVideo(VideoSource):
     def __init__(self, path: Path, threads: int = 2) -> None:
         import av
 
-        _quiet_ffmpeg()
+        # (FFmpeg's own messages stay off: PyAV's default. Never install PyAV's Python log
+        # callback here: a decoding thread logging while the GIL's holder frees its codec
+        # waits for the GIL forever - a deadlock seen in the hostile-input tests)
         self.path = Path(path)
         self._threads = threads
         self.open_warnings = []
