@@ -87,9 +87,10 @@ SECTIONS = (
     ("picks", Picks),
     ("calibration", SceneCalibration),
 )
+UNSIGNED_CODE = "E-PROJECT-UNSIGNED"  # a warning's code: the project opens
 UNSIGNED_WARNING = (
     "{file} was written by an older version of the software and is not signed "
-    "[E-PROJECT-UNSIGNED]: its hash-chained log is checked, but an edit of the project file "
+    "[{code}]: its hash-chained log is checked, but an edit of the project file "
     "itself (case details, measurements, outputs, the video) cannot be detected. Saving it "
     "signs the project with your key from now on; its {n} earlier log entries stay unsigned."
 )
@@ -625,7 +626,9 @@ class Project:
             state = check_log(log, self._log_head or None)
             check_not_downgraded(state, self._log_head, file)
             check_outputs_against_log(self.outputs, state, file)
-            self.warnings.append(UNSIGNED_WARNING.format(file=file, n=len(state.entries)))
+            self.warnings.append(
+                UNSIGNED_WARNING.format(file=file, n=len(state.entries), code=UNSIGNED_CODE)
+            )
         if not state.entries:
             raise IntegrityError(
                 f"{log}: the project's log is missing or empty; a saved project always has "

@@ -106,8 +106,8 @@ def read_no_follow(path: Path, what: str, max_bytes: int, missing_ok: bool = Fal
         raise FormatError(
             f"{path}: the {what} file cannot be read ({reason(exc)})", code="E-FILE-READ"
         ) from None
-    with os.fdopen(fd, "rb") as fh:
-        st = os.fstat(fh.fileno())
+    try:
+        st = os.fstat(fd)
         if stat.S_ISDIR(st.st_mode):
             raise FormatError(f"{path} is a folder, not a {what} file", code="E-NOT-A-FILE")
         if not stat.S_ISREG(st.st_mode):
@@ -117,6 +117,12 @@ def read_no_follow(path: Path, what: str, max_bytes: int, missing_ok: bool = Fal
         if st.st_size > max_bytes:
             raise FormatError(f"{path}: {st.st_size} bytes is too large for a {what} file",
                               code="E-TOO-LARGE")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    with os.fdopen(fd, "rb") as fh:
         try:
             data = fh.read(max_bytes + 1)
         except OSError as exc:

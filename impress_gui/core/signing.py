@@ -160,8 +160,8 @@ def _read_key(path: Path) -> SigningKey | None:
         if os.path.islink(path):
             raise _key_error(path, "is a symbolic link: a key must be a file of its own") from None
         raise _key_error(path, "cannot be read (check its permissions)") from None
-    with os.fdopen(fd, "rb") as fh:
-        st = os.fstat(fh.fileno())
+    try:
+        st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             raise _key_error(path, "is not a regular file")
         if hasattr(os, "getuid"):
@@ -173,7 +173,14 @@ def _read_key(path: Path) -> SigningKey | None:
                     "can be read by other users: make it readable by you only "
                     f"(chmod 600 {path}) or remove it to make a new key",
                 )
-        data = fh.read(MAX_KEY_BYTES + 1)
+    except BaseException:
+        os.close(fd)
+        raise
+    with os.fdopen(fd, "rb") as fh:
+        try:
+            data = fh.read(MAX_KEY_BYTES + 1)
+        except OSError:
+            raise _key_error(path, "cannot be read") from None
     try:
         private = serialization.load_pem_private_key(data, password=None)
     except (ValueError, TypeError):

@@ -1,17 +1,21 @@
-"""The case details of a project: case and evidence identifiers, examiner, notes."""
+"""The case details of a project: case and evidence identifiers, examiner, notes, and who
+signed the case record (read-only)."""
 
 from __future__ import annotations
 
+from PySide6.QtCore import Qt
 from PySide6.QtWidgets import (
     QDialog,
     QDialogButtonBox,
     QFormLayout,
+    QLabel,
     QLineEdit,
     QPlainTextEdit,
     QWidget,
 )
 
-from impress_gui.core.project import Project, current_user
+from impress_gui.core.project import Project, current_user, describe_signatures
+from impress_gui.core.signing import local_fingerprint
 
 
 class CaseDialog(QDialog):
@@ -37,6 +41,10 @@ class CaseDialog(QDialog):
         form.addRow("Evidence item", self.evidence_id)
         form.addRow("Examiner", self.examiner)
         form.addRow("Notes", self.notes)
+        self.signature = QLabel(signature_text(project))
+        self.signature.setWordWrap(True)
+        self.signature.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        form.addRow("Signature", self.signature)
         buttons = QDialogButtonBox(
             QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
         )
@@ -52,3 +60,15 @@ class CaseDialog(QDialog):
             "examiner": self.examiner.text().strip(),
             "notes": self.notes.toPlainText().strip(),
         }
+
+
+def signature_text(project: Project | None) -> str:
+    """Who signed the saved case record, or which key will sign it (no key is made here)."""
+    if project is not None and project.root is not None:
+        return describe_signatures(project.signature_info())
+    mine = local_fingerprint()
+    return (
+        f"Signed with your key {mine} when saved."
+        if mine
+        else "Signed when saved, with a key made for you on the first save."
+    )

@@ -12,8 +12,10 @@ arguments ``messenger``, ``dialogs`` and ``parent`` it accepts, and may provide
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import inspect
+import os
 from pathlib import Path
 
 from PySide6.QtCore import QSettings, Qt
@@ -32,7 +34,7 @@ from PySide6.QtWidgets import (
 from impress_gui import __version__
 from impress_gui.core.compiled import prepare_in_background
 from impress_gui.core.errors import ImpressError
-from impress_gui.core.project import PROJECT_FILE, Project, verify_log
+from impress_gui.core.project import PROJECT_FILE, Project, describe_signatures
 from impress_gui.core.video import VIDEO_SUFFIXES
 from impress_gui.ui.calibration_tab import CalibrationTab
 from impress_gui.ui.case_dialog import CaseDialog
@@ -84,6 +86,19 @@ class MainWindow(QMainWindow):
         parent: QWidget | None = None,
     ) -> None:
         super().__init__(parent)
+        self.motor_panel = motor_panel
+        self._closing_done = False
+        try:
+            self._build(settings, motor_panel, dialogs)
+        except BaseException:
+            # the motor panel's worker thread (and any tab's) runs already: stop it before the
+            # error goes on, or the thread object is destroyed running (Qt aborts the process)
+            self._stop_started_work()
+            raise
+
+    def _build(
+        self, settings: QSettings, motor_panel: QWidget | None, dialogs: Dialogs | None
+    ) -> None:
         # compile the reconstruction kernels in a child process while the user works (the
         # first import would otherwise hold the GIL for seconds in a worker thread)
         prepare_in_background()
@@ -107,7 +122,6 @@ class MainWindow(QMainWindow):
                 tab.status.connect(self.show_status)
         self.calibration_tab.calibrated.connect(self._on_calibrated)
         self.calibration_tab.video_changed.connect(lambda _p: self._update_title())
-        self.motor_panel = motor_panel
         self.motor_dock: QDockWidget | None = None
         if motor_panel is not None:
             self.motor_dock = QDockWidget("Motor", self)
@@ -121,8 +135,18 @@ class MainWindow(QMainWindow):
         self.project_label = QLabel()
         self.statusBar().addPermanentWidget(self.project_label)
         self._build_menus()
-        self._closing_done = False
         self.set_project(Project())
+
+    def _stop_started_work(self) -> None:
+        """After a failure while the window was being built: stop what already runs."""
+        tabs = [getattr(self, "calibration_tab", None), *getattr(self, "extra_tabs", {}).values()]
+        for tab in tabs:
+            if tab is not None and hasattr(tab, "shutdown"):
+                with contextlib.suppress(Exception):
+                    tab.shutdown()
+        if self.motor_panel is not None and hasattr(self.motor_panel, "shutdown"):
+            self.motor_panel.shutdown()
+        self._closing_done = True
 
     # ----- construction -----------------------------------------------------------------------
     def _build_menus(self) -> None:
@@ -284,26 +308,47 @@ class MainWindow(QMainWindow):
             self._update_title()
 
     def open_project(self, path: str | Path | None = None) -> bool:
+        """Open a project folder. A damaged or tampered project is refused with its coded
+        message and the window keeps the project it had; an unsigned (older) one opens with a
+        warning; the key that signed it is named in the status bar."""
         if not self.maybe_save():
             return False
         path = path or self.dialogs.directory("Open a project folder")
         if not path:
             return False
+        title = "Cannot open the project"
         try:
             project = Project.load(path)
+            # every action is logged: a project whose log cannot be written is not opened
+            project.log("project opened", {})
         except ImpressError as exc:
-            self.messenger.exception("Cannot open the project", exc)
+            self.messenger.exception(title, exc)
             return False
-        project.log("project opened", {})
-        self.set_project(project)
+        except Exception:  # noqa: BLE001 - whatever the file holds, the window stays up
+            self.messenger.error(
+                title, f"{path}: the project cannot be read (an internal error)", "E-INTERNAL"
+            )
+            return False
+        previous = self.project
+        try:
+            self.set_project(project)
+        except Exception as exc:  # noqa: BLE001 - a tab refusing the project
+            self.messenger.exception(title, exc)
+            with contextlib.suppress(Exception):
+                self.set_project(previous)
+            return False
         self._add_recent(project.root)
-        self.show_status(f"Opened {project.root}")
+        for text in project.warnings:
+            self.messenger.warning("Unsigned project", text)
+        info = project.signature_info()
+        signed = describe_signatures(info).splitlines()[0]
+        self.show_status(f"Opened {project.root}. {signed}")
         return True
 
     def open_path(self, path: str | Path) -> bool:
         """A project folder, a project.json or a video (opened in a new untitled project)."""
         p = Path(path)
-        if p.is_dir() or p.name == PROJECT_FILE:
+        if os.path.isdir(p) or p.name == PROJECT_FILE:
             return self.open_project(p)
         if p.suffix.lower() in VIDEO_SUFFIXES or p.is_file():
             return self.calibration_tab.load_video(p)
@@ -338,21 +383,28 @@ class MainWindow(QMainWindow):
         return True
 
     def verify_integrity(self) -> bool:
-        """Re-hash the evidence and check the log chain; report the outcome."""
+        """Re-hash the evidence and check the saved record (signatures, log, links); report
+        the outcome with who signed it."""
         p = self.project
+        info = None
         try:
-            n = verify_log(p.log_file, p._log_head) if p.log_file else 0
+            if p.root is not None:
+                info = p.verify()
             if p.video is not None:
                 p.check_evidence()
         except ImpressError as exc:
             self.messenger.exception("Integrity check failed", exc)
             return False
-        p.log("integrity verified", {"log_entries": n})
-        self.messenger.info(
-            "Integrity verified",
-            f"The log's {n} entries are intact"
-            + (" and the video matches its SHA-256." if p.video else "."),
-        )
+        n = info["log_head"].get("entries", 0) if info else 0
+        p.log("integrity verified", {"log_entries_at_last_save": n,
+                                     "key_fingerprint": info and info["key_fingerprint"]})
+        text = (
+            f"The project file and the log's {n} entries up to the last save are intact"
+            if info else "The project has not been saved yet"
+        ) + (" and the video matches its SHA-256." if p.video else ".")
+        if info:
+            text += "\n\n" + describe_signatures(info)
+        self.messenger.info("Integrity verified", text)
         return True
 
     # ----- recent projects ------------------------------------------------------------------------
