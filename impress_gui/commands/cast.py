@@ -1,0 +1,69 @@
+"""``impress cast``: a watertight mesh of an impression (binary STL, PLY or OBJ) for a 3D
+printer, as recorded (a negative) or turned into the outsole's positive, with a JSON sidecar."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+
+def _crop(text: str) -> tuple[float, float, float, float]:
+    import math
+
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not X0,Y0,X1,Y1 in mm") from None
+    if len(values) != 4 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r} is not four finite numbers X0,Y0,X1,Y1")
+    return values[0], values[1], values[2], values[3]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from impress_gui.core.cast import DEFAULT_BASE_MM, DEFAULT_MAX_TRIANGLES
+
+    p.add_argument("reconstruction", type=Path, help="reconstruction folder (impress process)")
+    p.add_argument("-o", "--output", type=Path, required=True,
+                   help="the mesh file: .stl (binary), .ply or .obj; a sidecar OUTPUT.json "
+                   "records the inputs and parameters")
+    p.add_argument("--positive", action="store_true",
+                   help="the outsole's positive: the cast poured into the impression, turned "
+                   "over (rotated 180 deg about y: x -> -x, z -> -z); default the impression "
+                   "as recorded")
+    p.add_argument("--base-mm", type=float, default=DEFAULT_BASE_MM,
+                   help=f"base thickness below the lowest point, mm (default {DEFAULT_BASE_MM:g})")
+    p.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
+                   help="region in the export frame, mm (default: the cells with data)")
+    p.add_argument("--max-triangles", type=int, default=DEFAULT_MAX_TRIANGLES,
+                   help=f"triangle cap; the grid is sampled more coarsely to keep under it "
+                   f"(default {DEFAULT_MAX_TRIANGLES})")
+
+
+def run(args: argparse.Namespace) -> int:
+    from impress_gui.core.cast import CastParams, write_cast
+
+    params = CastParams(positive=args.positive, base_mm=args.base_mm, crop_mm=args.crop,
+                        max_triangles=args.max_triangles)
+    last = [0.0]
+
+    def progress(frac: float, msg: str) -> None:
+        now = time.monotonic()
+        if now - last[0] > 2.0 or frac >= 1.0:
+            last[0] = now
+            print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
+
+    doc = write_cast(args.reconstruction, args.output, params, progress)
+    m, holes = doc["mesh"], doc["holes"]
+    box = m["bounding_box"]
+    size = [hi - lo for lo, hi in zip(box["min_mm"], box["max_mm"], strict=True)]
+    print(f"cast written to {args.output} ({doc['parameters']['mode']}, {m['format']})")
+    print(f"  {m['triangles']} triangles, {m['vertices']} vertices, every {m['step_cells']} "
+          f"cell(s) ({m['vertex_spacing_mm']:g} mm); size {size[0]:.1f} x {size[1]:.1f} x "
+          f"{size[2]:.1f} mm; volume {m['volume_mm3'] / 1000:.1f} cm3")
+    if holes["filled_cells"]:
+        print(f"  NOTE: {holes['filled_cells']} cells without data were filled "
+              f"({holes['filled_vertices']} mesh vertices lie on filled cells)")
+    print(f"  record: {args.output}.json")
+    return 0
