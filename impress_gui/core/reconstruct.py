@@ -266,6 +266,11 @@ def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessPar
 PREVIEW_EVERY_S = 1.5
 
 
+#: a stripe found in fewer of the picture's columns than this (on average over the frames in
+#: which it is found at all) is reported: the method is losing most of the data
+LOW_COLUMN_SHARE = 0.5
+
+
 def _preview_step(shape) -> int:
     return max(1, int(np.ceil(max(shape) / 480)))
 
@@ -353,6 +358,7 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
     max_gap = 2.5 * per_frame_travel + 2 * params.grid_mm + 0.1
     acc = {n: HeightAccumulator(spec, max_gap, params.max_step_mm) for n in LASERS}
     found_frames = dict.fromkeys(LASERS, 0)
+    found_cols = dict.fromkeys(LASERS, 0)  # stripe columns found, summed over frames
 
     # texture: the row through the principal point after undistortion
     tex_acc = ColorAccumulator(spec, max_gap) if params.texture else None
@@ -418,6 +424,7 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
                     acc[name].reset_chain()
                     continue
                 found_frames[name] += 1
+                found_cols[name] += int(n_ok)
                 pr.used()
                 acc[name].add_profile(*up)
                 finisher.check_range(name, s_k, pr.y_range)
@@ -453,6 +460,14 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
         if found_frames[name] < 0.5 * n_total:
             warnings.append(f"the {name} stripe was found in only {found_frames[name]} of "
                             f"{n_total} frames")
+        # a stripe crosses the whole picture: a method that finds it in few columns of the
+        # frames where it sees it at all drops most of the data (e.g. hue on compressed video)
+        share = found_cols[name] / max(1, found_frames[name] * w)
+        if found_frames[name] and share < LOW_COLUMN_SHARE:
+            warnings.append(
+                f"W-LOW-FILL: the {name} stripe was found in only {100 * share:.0f} % of the "
+                f"image columns on average (method {params.method}): most of the surface has "
+                "no data; the combined method usually finds far more")
     t_finish = time.perf_counter()
     report(progress, 0.93, "finishing the maps and the texture")
     finisher.finish()
@@ -472,6 +487,8 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
         "rows_finished_in_loop": round(finisher.rows_during_loop / spec.shape[0], 3),
         "frames_per_second": round(n_total / max(loop_s, 1e-9), 2),
         "frames_damaged_skipped": skipped[0],
+        "stripe_column_share": {n: round(found_cols[n] / max(1, found_frames[n] * w), 3)
+                                for n in LASERS},
     }
     report(progress, 1.0, "done")
     if finisher.broken:
