@@ -388,7 +388,8 @@ class Project:
         assert self.root is not None
         on_disk = Project.load(self.root)  # never sign over a record changed meanwhile
         doc = copy.deepcopy(on_disk._saved_doc)
-        if doc is None or lists_key(doc, key):
+        if doc is None or lists_key(doc, key):  # recorded meanwhile (another window)
+            self._saved_doc = doc
             return
         record = _key_record(key)
         doc.pop("head_signature", None)
