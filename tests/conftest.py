@@ -1,6 +1,10 @@
 import os
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+# the examiner's signing key of every test is made in a temporary folder, never in the home
+import tempfile  # noqa: E402
+
+os.environ.setdefault("IMPRESS_KEY_DIR", tempfile.mkdtemp(prefix="impress-test-keys-"))
 
 import json  # noqa: E402
 from pathlib import Path  # noqa: E402

@@ -16,6 +16,7 @@ import zipfile
 from collections.abc import Callable, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -225,7 +226,7 @@ def write_x3p(target, spec, height: np.ndarray, created: str, comment: str = "",
     def member(name: str):
         info = zipfile.ZipInfo(name, date_time=(2000, 1, 1, 0, 0, 0))
         info.compress_type = zipfile.ZIP_DEFLATED
-        info._compresslevel = ZLIB_LEVEL  # type: ignore[attr-defined]  (zipfile's own field)
+        cast(Any, info)._compresslevel = ZLIB_LEVEL  # zipfile's own field (3.10-3.13)
         return info
 
     with zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as zf:

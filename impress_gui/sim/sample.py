@@ -10,7 +10,7 @@ from pathlib import Path
 from impress_gui import __version__
 from impress_gui.core.progress import CancelToken, ProgressCallback, report, sub_progress
 
-SAMPLE_VERSION = 3  # bump when the sample's recipe changes, to rebuild caches
+SAMPLE_VERSION = 4  # bump when the sample's recipe changes, to rebuild caches
 #: set to 1 (tests only) for a tiny, fast sample instead of the README's one
 SMALL_ENV = "IMPRESS_SAMPLE_SMALL"
 

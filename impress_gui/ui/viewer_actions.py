@@ -37,6 +37,18 @@ FILTERS = {
 }
 
 
+def _case_signature(proj) -> dict | None:
+    """The signed case record's key and head signature (None for an unsaved project)."""
+    if getattr(proj, "root", None) is None or not hasattr(proj, "signature_info"):
+        return None
+    try:
+        info = proj.signature_info()
+    except Exception:  # noqa: BLE001 - an export never fails for want of a signature
+        return None
+    return {k: info.get(k) for k in ("signed", "algorithm", "key_fingerprint", "public_key",
+                                     "user", "head_signature", "log_head")}
+
+
 def _now() -> str:
     return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
@@ -140,13 +152,16 @@ class ViewerActions:
         tab, data = self.tab, self.tab.data
         source = None if data is None else P.reconstruction_source(data.metadata, data.folder)
         plane = None if tab.plane is None else tab.plane.to_json()
-        return P.export_provenance(
+        prov = P.export_provenance(
             export,
             source,
             spec=data.spec if grid and data is not None else None,
             plane=plane,
             parameters=parameters,
         )
+        # the case record's signer and head signature tie the export to the signed case
+        prov["case_record"] = _case_signature(tab.project)
+        return prov
 
     # ----- map exports ---------------------------------------------------------------------------
     def export_tiff(self, path=None) -> bool:
@@ -390,6 +405,7 @@ class ViewerActions:
             "examiner": proj.examiner,
             "notes": proj.notes,
             "project": str(proj.root or "not saved"),
+            "signature": _case_signature(proj),
         }
         profile_png = self.profile_png_bytes() if tab.profile is not None else None
         measurements = [dict(m) for m in proj.measurements]

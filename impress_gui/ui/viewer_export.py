@@ -305,6 +305,12 @@ def report_html(
     ]
     for key in ("case_id", "evidence_id", "examiner", "notes", "project"):
         out.append(_row(key.replace("_", " "), case.get(key, "")))
+    sig = case.get("signature")
+    if sig:
+        out.append("</table><h2>Case record signature (Ed25519)</h2><table>")
+        for key in ("key_fingerprint", "public_key", "user", "head_signature", "log_head"):
+            out.append(_row(key.replace("_", " "), sig.get(key) if sig.get(key) is not None
+                            else "not signed"))
     out.append("</table><h2>Inputs (SHA-256)</h2><table>")
     for name, info in inputs.items():
         out.append(_row(name, f"{info.get('path', '')}  sha256 {info.get('sha256', '-')}"))
