@@ -461,3 +461,34 @@ def test_hostile_input(case: Case, evidence, tmp_path, capsys, monkeypatch):
         assert case.expect in text, f"{case.name}: {text}"
         meta = json.loads((named / "metadata.json").read_text())
         assert any(w.startswith(case.expect) for w in meta["warnings"]), meta["warnings"]
+
+
+@pytest.mark.timeout(20, func_only=True)
+@pytest.mark.parametrize("member", ["metadata.json", "heightmap.tif", "texture.png", "folder"])
+def test_a_reconstruction_folder_with_a_fifo_never_hangs(member, tmp_path):
+    """The reconstruction reader (viewer, cast, validation) refuses a pipe or a folder where
+    a file belongs, instead of waiting on it forever."""
+    from impress_gui.core.errors import ImpressError
+    from impress_gui.core.measure import load_reconstruction
+
+    rec = tmp_path / "recon"
+    rec.mkdir()
+    meta = {"format": "impress.reconstruction", "version": 1,
+            "grid": {"x0_mm": 0.0, "y0_mm": 0.0, "pixel_mm": 0.1, "shape": [4, 5]}}
+    import numpy as np
+    import tifffile
+
+    if member == "folder":
+        target = tmp_path / "afile"
+        target.write_text("x")
+        with pytest.raises(ImpressError) as err:
+            load_reconstruction(target)
+        assert err.value.code == "E-NOT-A-FILE"
+        return
+    (rec / "metadata.json").write_text(json.dumps(meta))
+    tifffile.imwrite(rec / "heightmap.tif", np.zeros((4, 5), np.float32))
+    (rec / member).unlink(missing_ok=True)
+    os.mkfifo(rec / member)
+    with pytest.raises(ImpressError) as err:
+        load_reconstruction(rec)
+    assert err.value.code == "E-NOT-A-FILE"

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -93,9 +94,18 @@ def load_reconstruction(
     import tifffile
 
     folder = Path(folder)
+    from impress_gui.core.fileio import open_regular, read_regular
+
     meta_path = folder / "metadata.json"
+    if not folder.is_dir():
+        raise FormatError(f"{folder}: not a reconstruction folder", code="E-NOT-A-FILE"
+                          if folder.exists() else "E-FILE-MISSING")
     try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        if not meta_path.exists():
+            raise FileNotFoundError
+        # a regular file of sane size (never a FIFO or device, which would hang the reader)
+        meta = json.loads(read_regular(meta_path, "reconstruction metadata", 50 << 20)
+                          .decode("utf-8"))
     except FileNotFoundError:
         raise FormatError(
             f"{folder}: not a reconstruction (no metadata.json)", code="E-FILE-MISSING"
@@ -128,6 +138,7 @@ def load_reconstruction(
             if name == "fused":
                 raise FormatError(f"{path}: missing", code="E-FILE-MISSING")
             continue
+        os.close(open_regular(path, "heightmap", 8 << 30))  # a regular file, not a FIFO
         try:
             arr = tifffile.imread(path, maxworkers=1)
         except Exception:  # noqa: BLE001 - tifffile raises many kinds
@@ -139,6 +150,7 @@ def load_reconstruction(
     if (folder / "texture.png").exists():
         import cv2
 
+        os.close(open_regular(folder / "texture.png", "texture", 8 << 30))
         bgr = cv2.imread(str(folder / "texture.png"), cv2.IMREAD_COLOR)
         if bgr is not None and bgr.shape[:2] == spec.shape:
             tex = _frozen(np.ascontiguousarray(bgr[..., ::-1]))
