@@ -11,6 +11,12 @@ from impress_gui.core.geometry import Intrinsics, Plane, ideal_rotation
 SPEED_PRESETS_MM_S = (1.3138, 5.2552, 13.138)
 
 
+def rot_y(angle_rad: float) -> np.ndarray:
+    """Rotation about the Y (motion) axis: X towards Z for a positive angle."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+
+
 @dataclass(frozen=True)
 class Laser:
     """A line laser fixed to the camera bracket.
@@ -48,11 +54,22 @@ class Rig:
     tilt_deg: float
     standoff_mm: float
     lasers: tuple[Laser, ...]
+    #: rotation of the camera about the rail's motion axis (Y), degrees: the one rotation the
+    #: motion does not reveal; the ground is then seen tilted across the image
+    cross_tilt_deg: float = 0.0
+
+    @property
+    def ideal_rotation(self) -> np.ndarray:
+        """Camera frame -> the calibration's ideal frame (roll and tilt only)."""
+        return ideal_rotation(np.radians(self.roll_deg), np.radians(self.tilt_deg))
 
     @property
     def rotation(self) -> np.ndarray:
-        """Camera frame -> ideal frame."""
-        return ideal_rotation(np.radians(self.roll_deg), np.radians(self.tilt_deg))
+        """Camera frame -> rail frame (the ground is ``Z' = standoff``): the ideal frame turned
+        by ``cross_tilt_deg`` about the motion axis (the ideal frame itself when that is 0)."""
+        if not self.cross_tilt_deg:
+            return self.ideal_rotation
+        return rot_y(np.radians(self.cross_tilt_deg)) @ self.ideal_rotation
 
     def laser(self, name: str) -> Laser:
         return next(la for la in self.lasers if la.name == name)

@@ -61,14 +61,22 @@ def _value_noise(rng: np.random.Generator, shape, cell_px: float, octaves: int =
     return out / total
 
 
-def soil_albedo(rng: np.random.Generator, shape, pixel_mm: float, kind: str = "soil") -> np.ndarray:
-    """Soil/sand texture with reddish and greenish patches, RGB uint8."""
+def soil_albedo(rng: np.random.Generator, shape, pixel_mm: float, kind: str = "soil",
+                soil: dict | None = None) -> np.ndarray:
+    """Soil/sand texture with reddish and greenish patches, RGB uint8.
+
+    ``soil`` (the random rigs) overrides the colour and texture: ``base`` (RGB albedo 0..1),
+    ``mottle`` and ``grain`` (relative amplitudes of the coarse and fine texture)."""
     base = {"soil": (0.42, 0.33, 0.24), "sand": (0.62, 0.55, 0.42), "stone": (0.72, 0.70, 0.66)}[kind]
     n1 = _value_noise(rng, shape, 12.0 / pixel_mm, 5)
     grain = _value_noise(rng, shape, 0.6 / pixel_mm, 2)
     patches_r = np.clip(_value_noise(rng, shape, 40.0 / pixel_mm, 2) * 2.2 - 0.6, 0, 1)
     patches_g = np.clip(_value_noise(rng, shape, 45.0 / pixel_mm, 2) * 2.2 - 0.6, 0, 1)
-    lum = 1.0 + 0.25 * n1 + 0.12 * grain
+    if soil is None:
+        lum = 1.0 + 0.25 * n1 + 0.12 * grain
+    else:
+        base = tuple(soil["base"])
+        lum = 1.0 + float(soil["mottle"]) * n1 + float(soil["grain"]) * grain
     rgb = np.empty((*shape, 3), np.float32)
     for c in range(3):
         rgb[..., c] = base[c] * lum
@@ -248,7 +256,7 @@ def _letter_f(X, Y, features, height=6.0, cy=None):
 
 def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
                 target: TargetModel | None, target_pose: tuple[float, float, float],
-                **options) -> Scene:
+                soil: dict | None = None, **options) -> Scene:
     """Make the heightfield and albedo for ``preset`` over a scan of ``length_mm``.
 
     ``target_pose`` = (x_mm, y_mm, yaw_deg) of the target's object origin in the rail frame.
@@ -282,7 +290,7 @@ def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
         features.append({"kind": "plane", "height_mm": 0.0})
     del X
     h = np.asarray(h, dtype=np.float32)
-    albedo = soil_albedo(rng, h.shape, pixel_mm, kind)
+    albedo = soil_albedo(rng, h.shape, pixel_mm, kind, soil)
     if target is not None:
         tx, ty, yaw = target_pose
         c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))

@@ -12,6 +12,7 @@ import numpy as np
 from impress_gui import __version__
 from impress_gui.core.errors import InputError
 from impress_gui.core.fileio import atomic_write_png, atomic_write_tiff, sha256_path, write_json
+from impress_gui.core.geometry import Plane
 from impress_gui.core.outdir import OutputFolder
 from impress_gui.core.picks import Picks
 from impress_gui.core.progress import CancelToken, ProgressCallback, report
@@ -44,6 +45,34 @@ class SimConfig:
     click_noise_px: float = 0.0
     target_yaw_deg: float = 3.0
     blocks: dict = field(default_factory=dict)  # rotate90, lift_b_mm, tilt_deg, order
+    #: a rig drawn from this seed (sim.random_rig); the fields above then come from the draw
+    #: (:meth:`random`), the rig, lens, lasers, target and soil from :func:`random_rig`
+    random_rig: int | None = None
+
+    @classmethod
+    def random(cls, rig_seed: int, width: int = 1920, height: int = 1080,
+               video_format: str = "mp4", grid_mm: float = 0.1,
+               click_noise_px: float = 0.0) -> SimConfig:
+        """The configuration of random rig ``rig_seed`` (``impress simulate --random-rig``)."""
+        from impress_gui.sim.random_rig import draw_random_rig
+
+        p = draw_random_rig(int(rig_seed), width, height).params
+        return cls(preset=p["preset"], length_mm=round(p["length_mm"], 3),
+                   speed_mm_s=p["speed_mm_s"], fps=p["fps"], width=width, height=height,
+                   roll_deg=p["roll_deg"], tilt_deg=p["tilt_deg"],
+                   standoff_mm=p["standoff_mm"], seed=int(rig_seed),
+                   video_format=video_format,
+                   bitrate_mbit=p["bitrate_mbit_1080p"] * width * height / (1920 * 1080),
+                   speckle=p["speckle"], noise_dn=p["noise_dn"], grid_mm=grid_mm,
+                   ramp_s=p["ramp_s"], click_noise_px=click_noise_px,
+                   target_yaw_deg=p["target_yaw_deg"], random_rig=int(rig_seed))
+
+    def to_json(self) -> dict:
+        """The fields (``random_rig`` only when set: a preset's truth stays as it was)."""
+        d = dataclasses.asdict(self)
+        if d["random_rig"] is None:
+            del d["random_rig"]
+        return d
 
     def validate(self) -> None:
         def bad(msg: str) -> None:
@@ -61,7 +90,17 @@ class SimConfig:
             bad("--resolution must be between 64x36 and 4096x2304")
         if self.width % 2 or self.height % 2:
             bad("--resolution needs even width and height (4:2:0 video)")
-        if abs(self.roll_deg) > 10 or abs(self.tilt_deg) > 10:
+        if self.random_rig is not None:
+            if not 0 <= self.random_rig < 2**32:
+                bad("--random-rig must be between 0 and 4294967295")
+            if self.blocks:
+                bad("placement options (--rotate90, ...) do not go with --random-rig")
+            mine = SimConfig.random(self.random_rig, self.width, self.height,
+                                    self.video_format, self.grid_mm, self.click_noise_px)
+            if mine != self:
+                bad("a random rig's configuration comes from its seed: use "
+                    "SimConfig.random(seed, ...)")
+        elif abs(self.roll_deg) > 10 or abs(self.tilt_deg) > 10:
             bad("--roll and --tilt must be within 10 degrees")
         if not 200.0 <= self.standoff_mm <= 400.0:
             bad("--standoff-mm must be between 200 and 400 mm")
@@ -84,7 +123,19 @@ class SimConfig:
         return float(self.length_mm or DEFAULT_LENGTH_MM[self.preset])
 
 
+def random_rig(cfg: SimConfig):
+    """The drawn rig of a random-rig configuration (``None`` for the presets' rig)."""
+    if cfg.random_rig is None:
+        return None
+    from impress_gui.sim.random_rig import draw_random_rig
+
+    return draw_random_rig(cfg.random_rig, cfg.width, cfg.height)
+
+
 def make_rig(cfg: SimConfig) -> Rig:
+    rr = random_rig(cfg)
+    if rr is not None:
+        return rr.rig
     return default_rig(cfg.width, cfg.height, cfg.roll_deg, cfg.tilt_deg, cfg.standoff_mm)
 
 
@@ -92,10 +143,18 @@ def make_motion(cfg: SimConfig) -> Motion:
     return Motion(cfg.speed_mm_s, cfg.fps, cfg.scan_length_mm, cfg.ramp_s)
 
 
+def make_target(cfg: SimConfig) -> TargetModel:
+    rr = random_rig(cfg)
+    return default_target() if rr is None else rr.target
+
+
 TARGET_POSE = (-40.0, 70.0)  # object origin of the L target in the rail frame (mm)
 
 
 def target_pose(cfg: SimConfig) -> tuple[float, float, float]:
+    rr = random_rig(cfg)
+    if rr is not None:
+        return rr.target_pose
     return (TARGET_POSE[0], TARGET_POSE[1], cfg.target_yaw_deg)
 
 
@@ -144,8 +203,12 @@ def _stripe_on_faces(rig: Rig, laser_name: str, target: TargetModel, pose, trave
 def calibration_frames(cfg: SimConfig, rig: Rig, motion: Motion, target: TargetModel) -> tuple[int, int]:
     """t1: first frame with the green stripe on both target tops, t2: the last with the red
     one, both at constant speed with all six corners well inside the image."""
-    corners = target_world_corners(target, target_pose(cfg), cfg.standoff_mm)
-    w, h = cfg.width, cfg.height
+    return _calibration_frames(rig, motion, target, target_pose(cfg), cfg.width, cfg.height)
+
+
+def _calibration_frames(rig: Rig, motion: Motion, target: TargetModel, pose, w: int,
+                        h: int) -> tuple[int, int]:
+    corners = target_world_corners(target, pose, rig.standoff_mm)
     margin = 0.03 * w
     ok_green, ok_red = [], []
     times = motion.times_s()
@@ -157,9 +220,9 @@ def calibration_frames(cfg: SimConfig, rig: Rig, motion: Motion, target: TargetM
         if not (np.all(uv[:, 0] > margin) and np.all(uv[:, 0] < w - margin)
                 and np.all(uv[:, 1] > margin) and np.all(uv[:, 1] < h - margin)):
             continue
-        if _stripe_on_faces(rig, "green", target, target_pose(cfg), s):
+        if _stripe_on_faces(rig, "green", target, pose, s):
             ok_green.append(k)
-        if _stripe_on_faces(rig, "red", target, target_pose(cfg), s):
+        if _stripe_on_faces(rig, "red", target, pose, s):
             ok_red.append(k)
     if not ok_green or not ok_red:
         raise InputError("the calibration target never shows both stripes with all corners in "
@@ -174,11 +237,24 @@ _WORKER: dict = {}
 def _make_renderer(cfg: SimConfig):
     from impress_gui.sim.render import Renderer, RenderOptions
 
-    rig, motion, target = make_rig(cfg), make_motion(cfg), default_target()
-    scene = build_scene(cfg.preset, cfg.scan_length_mm, cfg.grid_mm, cfg.seed, target,
-                        target_pose(cfg), **cfg.blocks)
-    opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle, seed=cfg.seed,
-                         stripe_sigma_px=max(1.2, 1.6 * cfg.width / 1920.0), laser_peak=3.5)
+    rig, motion, target = make_rig(cfg), make_motion(cfg), make_target(cfg)
+    rr = random_rig(cfg)
+    if rr is None:
+        scene = build_scene(cfg.preset, cfg.scan_length_mm, cfg.grid_mm, cfg.seed, target,
+                            target_pose(cfg), **cfg.blocks)
+        opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle,
+                             seed=cfg.seed, stripe_sigma_px=max(1.2, 1.6 * cfg.width / 1920.0),
+                             laser_peak=3.5)
+    else:
+        from impress_gui.sim.random_rig import soil_of
+
+        p = rr.params
+        scene = build_scene(cfg.preset, cfg.scan_length_mm, cfg.grid_mm, cfg.seed, target,
+                            target_pose(cfg), soil=soil_of(p))
+        opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle,
+                             seed=cfg.seed, laser_peak=p["laser_peak"], ambient=p["ambient"],
+                             stripe_sigma_px=max(0.9, p["stripe_sigma_px_1080p"]
+                                                 * cfg.width / 1920.0))
     return Renderer(scene, rig, motion, opts), scene
 
 
@@ -254,9 +330,26 @@ def _adopt_legacy(folder: Path) -> None:
         return
 
 
+def _random_truth(rr) -> dict:
+    """The ``random_rig`` section of truth.json: the seed and every drawn parameter."""
+    rig = rr.rig
+    doc = rr.to_json()
+    doc.update({
+        "rotation_camera_to_rail": rig.rotation.tolist(),
+        "cross_tilt_note": "the rail frame is the ideal frame (camera turned by roll_deg and "
+                           "tilt_deg) turned by cross_tilt_deg about the motion axis Y",
+        "intrinsics": rig.intrinsics.to_json(),
+        "target_file": "target.json",
+        "target_pose": {"x_mm": rr.target_pose[0], "y_mm": rr.target_pose[1],
+                        "yaw_deg": rr.target_pose[2]},
+        "lasers_rgb_response": {la.name: list(la.rgb_response) for la in rig.lasers},
+    })
+    return doc
+
+
 def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
                    progress: ProgressCallback | None, cancel: CancelToken) -> dict:
-    rig, motion, target = make_rig(cfg), make_motion(cfg), default_target()
+    rig, motion, target = make_rig(cfg), make_motion(cfg), make_target(cfg)
     t1, t2 = calibration_frames(cfg, rig, motion, target)
     report(progress, 0.0, "building the scene")
     renderer, scene = _make_renderer(cfg)
@@ -313,7 +406,7 @@ def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
         "format": TRUTH_FORMAT,
         "version": 1,
         "software": f"impress {__version__}",
-        "config": dataclasses.asdict(cfg),
+        "config": cfg.to_json(),
         "video": video_path.name,
         "video_sha256": video_sha,
         "image_size": [cfg.width, cfg.height],
@@ -325,7 +418,7 @@ def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
         "standoff_mm": cfg.standoff_mm,
         "roll_deg": cfg.roll_deg,
         "tilt_deg": cfg.tilt_deg,
-        "rotation_camera_to_ideal": rig.rotation.tolist(),
+        "rotation_camera_to_ideal": rig.ideal_rotation.tolist(),
         "lasers": {la.name: {"plane": la.plane.to_json(), "source_mm": la.source_mm.tolist()}
                    for la in rig.lasers},
         "target": {"x_mm": target_pose(cfg)[0], "y_mm": target_pose(cfg)[1],
@@ -344,5 +437,16 @@ def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
                                     "origin is the optical centre at frame 0"},
         "features": scene.features,
     }
+    rr = random_rig(cfg)
+    if rr is not None:
+        truth["random_rig"] = _random_truth(rr)
+        # the calibration's ideal frame is the camera turned by roll and tilt only: the planes
+        # it estimates are the rail-frame planes turned back by the rotation about the motion
+        turn = rig.rotation @ rig.ideal_rotation.T  # ideal -> rail
+        for la in rig.lasers:
+            truth["lasers"][la.name] = {
+                "plane": Plane(turn.T @ la.plane.normal, la.plane.offset_mm).to_json(),
+                "source_mm": (turn.T @ la.source_mm).tolist(),
+                "plane_rail": la.plane.to_json(), "source_rail_mm": la.source_mm.tolist()}
     write_json(out_dir / "truth.json", truth)
     return {"video": str(video_path), "frames": n, "t1": t1, "t2": t2, "out_dir": str(out_dir)}
