@@ -420,3 +420,85 @@ def test_fill_is_exact_on_known_cells_and_smooth():
     assert np.max(np.abs(out - plane)) < 0.05  # a plane is harmonic: the fill follows it
     with pytest.raises(ImpressError):
         C.fill_holes(np.full((3, 3), np.nan))
+
+
+# ----- a real reconstruction: the simulator's raised letter F ----------------------------------
+@pytest.fixture(scope="module")
+def letter_scan(tmp_path_factory):
+    """(scan folder, reconstruction folder) of the letter preset (small and quick: ~25 s)."""
+    from impress_gui.core.calibration import calibrate_scene
+    from impress_gui.core.geometry import Intrinsics
+    from impress_gui.core.picks import Picks
+    from impress_gui.core.pipeline import process_files
+    from impress_gui.core.reconstruct import ProcessParams
+    from impress_gui.core.target import TargetModel
+    from impress_gui.core.video import open_video
+    from impress_gui.sim.simulate import SimConfig, simulate
+
+    base = tmp_path_factory.mktemp("letter")
+    scan = base / "scan"
+    simulate(SimConfig(preset="letter", length_mm=190.0, width=640, height=360, fps=10.0,
+                       grid_mm=0.2), scan, workers=1)
+    truth = json.loads((scan / "truth.json").read_text())
+    with open_video(scan / "scan.mp4") as v:
+        cal = calibrate_scene(v, Intrinsics.load(scan / "intrinsics.json"),
+                              TargetModel.load(scan / "target.json"),
+                              Picks.load(scan / "picks.json"), truth["speed_mm_s"])
+    cal.save(base / "calibration.json")
+    process_files(scan / "scan.mp4", base / "calibration.json", base / "recon",
+                  ProcessParams(grid_mm=0.5))
+    return scan, base / "recon"
+
+
+def _raster(x: np.ndarray, y: np.ndarray, raster_mm: float = 0.5) -> np.ndarray:
+    """Points (export frame) as a mask, row 0 = the largest y (seen from above)."""
+    cols = np.round((x - x.min()) / raster_mm).astype(int)
+    rows = np.round((y.max() - y) / raster_mm).astype(int)
+    m = np.zeros((rows.max() + 1, cols.max() + 1), bool)
+    m[rows, cols] = True
+    return m
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("positive", [False, True])
+def test_simulated_letter_cast(letter_scan, tmp_path, positive):
+    """A reconstruction of the simulator's raised F: the cast is a closed outward solid, its
+    surface passes through the heightmap, and the letter (the simulator's truth, not a letter
+    drawn here) keeps its handedness under rotation only."""
+    import tifffile
+
+    from impress_gui.sim.truth import truth_on_grid
+
+    scan, recon = letter_scan
+    g = json.loads((recon / "metadata.json").read_text())["grid"]
+    spec = GridSpec(g["x0_mm"], g["y0_mm"], g["pixel_mm"], tuple(g["shape"]))
+    height = tifffile.imread(recon / "heightmap.tif")
+    truth = truth_on_grid(scan, spec)
+    ii, jj = np.nonzero((truth > 3.0) & (truth < 8.5))  # the 6 mm letter, not the target
+    lx, ly = export_xy(spec, ii, jj)
+    crop = (lx.min() - 8, ly.min() - 8, lx.max() + 8, ly.max() + 8)
+    out = tmp_path / "letter.stl"
+    doc = C.write_cast(recon, out, C.CastParams(positive=positive, crop_mm=crop))
+    assert doc["mesh"]["step_cells"] == 1
+    mesh = read_mesh(out)
+    check_solid(mesh, full=doc["mesh"]["triangles"] < 40000)
+    # the surface passes through every cell with data (inside the region's edge)
+    r0, r1 = doc["region"]["rows"]
+    c0, c1 = doc["region"]["cols"]
+    ri, cj = np.mgrid[r0 + 1 : r1 - 1, c0 + 1 : c1 - 1]
+    ok = np.isfinite(height[ri, cj])
+    x, y = export_xy(spec, ri[ok], cj[ok])
+    h = height[ri, cj][ok].astype(np.float64)
+    s = -1.0 if positive else 1.0
+    assert np.max(np.abs(raycast_heights(mesh, s * x, y) - s * h)) <= TOL_AT_CELLS_MM
+    # handedness: as recorded the truth's F; the positive the F seen from below
+    v = np.asarray(mesh.vertices)
+    lo, hi = v[:, :2].min(axis=0), v[:, :2].max(axis=0)
+    gx, gy = np.meshgrid(np.arange(lo[0] + 0.3, hi[0] - 0.3, 0.5),
+                         np.arange(hi[1] - 0.3, lo[1] + 0.3, -0.5))
+    z = raycast_heights(mesh, gx, gy)
+    mask = np.abs(z - np.median(z)) > 3.0
+    expected, wrong = _raster(s * lx, ly), _raster(-s * lx, ly)
+    iou, rot = _best_iou(mask, expected)
+    iou_wrong, _ = _best_iou(mask, wrong)
+    assert iou > 0.75 and rot == 0 and iou_wrong < 0.6, (iou, rot, iou_wrong)
