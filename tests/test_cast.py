@@ -502,3 +502,18 @@ def test_simulated_letter_cast(letter_scan, tmp_path, positive):
     iou, rot = _best_iou(mask, expected)
     iou_wrong, _ = _best_iou(mask, wrong)
     assert iou > 0.75 and rot == 0 and iou_wrong < 0.6, (iou, rot, iou_wrong)
+
+
+def test_progress_and_cancel(recon, tmp_path):
+    from impress_gui.core.errors import Cancelled
+    from impress_gui.core.progress import CancelToken
+
+    seen: list[float] = []
+    C.write_cast(recon, tmp_path / "a.stl", C.CastParams(max_triangles=5000),
+                 progress=lambda f, _msg: seen.append(f))
+    assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
+    token = CancelToken()
+    token.cancel()
+    with pytest.raises(Cancelled):
+        C.write_cast(recon, tmp_path / "b.stl", C.CastParams(), cancel=token)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.stl", "a.stl.json"]

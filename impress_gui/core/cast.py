@@ -49,6 +49,7 @@ DEFAULT_BASE_MM = 5.0
 DEFAULT_MAX_TRIANGLES = 2_000_000
 MIN_TRIANGLES = 20  # the smallest solid: 2x2 surface nodes, 4 walls, a base fan
 MAX_BASE_MM = 1000.0
+CHUNK = 1 << 20  # triangles handled at a time in float64
 NEGATIVE_TRANSFORM = "identity: (x, y, z) -> (x, y, z)"
 POSITIVE_TRANSFORM = (
     "rotation by 180 deg about the y axis: (x, y, z) -> (-x, y, -z) (determinant +1, a proper "
@@ -248,9 +249,11 @@ def solid_from_grid(x: np.ndarray, y: np.ndarray, z: np.ndarray, base_z: float
     walls = np.concatenate([np.column_stack([t0, t1, b1]), np.column_stack([t0, b1, b0])])
     fan = np.column_stack([np.full(n_loop, n_top + n_loop), b0, b1])
     tris = np.concatenate([surface, walls, fan]).astype(np.int64)
-    v = verts.astype(np.float64)
-    p0, p1, p2 = v[tris[:, 0]], v[tris[:, 1]], v[tris[:, 2]]
-    volume = float(np.einsum("ij,ij->i", p0, np.cross(p1, p2)).sum() / 6.0)
+    volume = 0.0
+    for k in range(0, len(tris), CHUNK):  # in pieces: float64 temporaries stay small
+        p = verts[tris[k : k + CHUNK]].astype(np.float64)
+        volume += float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum())
+    volume /= 6.0
     if volume < 0:
         tris = tris[:, [0, 2, 1]]
         volume = -volume
@@ -335,11 +338,13 @@ def stl_bytes(mesh: CastMesh, header: bytes) -> bytes:
     v = mesh.vertices
     t = mesh.triangles
     rec = np.zeros(len(t), dtype=[("n", "<f4", (3,)), ("v", "<f4", (3, 3)), ("a", "<u2")])
-    p = v[t].astype(np.float64)  # (M, 3, 3)
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    rec["n"] = np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
-    rec["v"] = v[t]
+    for k in range(0, len(t), CHUNK):
+        corners = v[t[k : k + CHUNK]]  # (m, 3, 3) float32
+        p = corners.astype(np.float64)
+        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        norm = np.linalg.norm(n, axis=1, keepdims=True)
+        rec["n"][k : k + CHUNK] = np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+        rec["v"][k : k + CHUNK] = corners
     return header[:80].ljust(80, b" ") + struct.pack("<I", len(t)) + rec.tobytes()
 
 
