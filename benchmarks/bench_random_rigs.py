@@ -1,0 +1,213 @@
+"""Accuracy on random rigs (issue 18): rigs, lenses, lasers, targets and scenes we did not tune to.
+
+For each seed: ``impress simulate --random-rig SEED`` (cached under benchmarks/.cache per version
+of the simulator), calibrated from the simulator's EXACT corner picks with its own target file
+(as ``impress calibrate --target`` takes it), reconstructed with the default settings, compared
+with the truth:
+
+- ``rep px``: reprojection RMS of the 12 picks; ``corner mm``: worst corner residual of the
+  rigid target fit; ``roll/tilt``: errors in degrees;
+- per laser (g, r): plane fit RMS (mm), plane angle error against the true plane (deg), height
+  bias on bare ground (mm, cells whose true height is 0), slope of the height error with the
+  true height (% of the height), MAE off edges (mm);
+- fused MAE off edges (mm), wild points (% of the fused cells off edges more than 1 mm off
+  the truth), fill (% of the surface either laser lit and the camera saw).
+
+Heights are compared where each reconstructed point really is (sim.truth.truth_for_reconstruction:
+with a camera turned about the motion axis the map's axes are not the ground's).
+
+Usage: .venv/bin/python benchmarks/bench_random_rigs.py [--seeds 8 | --seeds 3,7,11]
+       [--resolution 640x360] [--json out.json] [--no-fill]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from common import CACHE, SIM_KEY, calibrate, edge_mask
+
+from impress_gui.core.errors import ImpressError
+from impress_gui.core.geometry import Plane
+from impress_gui.core.target import CORNER_NAMES, TargetModel
+from impress_gui.sim.truth import rail_to_reconstruction, truth_for_reconstruction
+
+WILD_MM = 1.0
+COLUMNS = [  # key, header, format
+    ("seed", "seed", "{:>4d}"), ("preset", "scene", "{:>7s}"), ("roll", "roll", "{:6.1f}"),
+    ("cross", "cross", "{:5.1f}"), ("rep_px", "rep px", "{:6.3f}"),
+    ("corner_mm", "crn mm", "{:6.3f}"), ("roll_err", "droll", "{:6.3f}"),
+    ("tilt_err", "dtilt", "{:6.3f}"),
+    ("rms_g", "rms g", "{:6.3f}"), ("rms_r", "rms r", "{:6.3f}"),
+    ("ang_g", "ang g", "{:6.3f}"), ("ang_r", "ang r", "{:6.3f}"),
+    ("bias_g", "bias g", "{:+7.3f}"), ("bias_r", "bias r", "{:+7.3f}"),
+    ("slope_g", "slp g%", "{:+7.2f}"), ("slope_r", "slp r%", "{:+7.2f}"),
+    ("mae_g", "mae g", "{:6.3f}"), ("mae_r", "mae r", "{:6.3f}"),
+    ("mae_f", "mae F", "{:6.3f}"), ("wild", "wild%", "{:6.3f}"), ("fill", "fill%", "{:6.2f}"),
+]
+
+
+def scan_for(seed: int, width: int, height: int) -> Path:
+    from impress_gui.sim.simulate import SimConfig, simulate
+
+    out = CACHE / f"random-{seed}-{width}x{height}-{SIM_KEY}"
+    if not (out / "truth.json").exists():
+        cfg = SimConfig.random(seed, width, height)
+        print(f"[simulating random rig {seed} at {width}x{height}: {cfg.preset}]", flush=True)
+        simulate(cfg, out, workers=1)
+    return out
+
+
+def fill_mask(scan_dir: Path, spec, frames: tuple[int, int]) -> np.ndarray:
+    """Cells either laser lit where the camera saw them (the simulator's exact stripe points),
+    in the reconstruction's frame, closed along the scan over one frame's travel."""
+    import cv2
+
+    from impress_gui.sim.simulate import SimConfig, _make_renderer
+
+    truth = json.loads((scan_dir / "truth.json").read_text())
+    renderer, _ = _make_renderer(SimConfig(**truth["config"]))
+    mask = np.zeros(spec.shape, np.uint8)
+    for k in range(*frames):
+        for laser in renderer.rig.lasers:
+            p = rail_to_reconstruction(scan_dir, renderer.laser_points(laser, k).points_rail_mm)
+            j = np.rint((p[:, 0] - spec.x0_mm) / spec.pixel_mm).astype(int)
+            i = np.rint((p[:, 1] - spec.y0_mm) / spec.pixel_mm).astype(int)
+            ok = (i >= 0) & (i < spec.shape[0]) & (j >= 0) & (j < spec.shape[1])
+            mask[i[ok], j[ok]] = 1
+    step = np.median(np.abs(np.diff(truth["travel_mm"][frames[0]:frames[1]])))
+    n = int(np.ceil(step / spec.pixel_mm)) + 2
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((n, 3), np.uint8))
+    return mask.astype(bool)
+
+
+def calibration_figures(scan_dir: Path, cal) -> dict:
+    truth = json.loads((scan_dir / "truth.json").read_text())
+    out = {"rep_px": cal.reprojection_rms_px,
+           "corner_mm": float(np.max(cal.corner_residuals_mm)),
+           "roll_err": abs((cal.roll_deg - truth["roll_deg"] + 180) % 360 - 180),
+           "tilt_err": abs(cal.tilt_deg - truth["tilt_deg"])}
+    for name in ("green", "red"):
+        fit = cal.planes[name]
+        tp = Plane.from_json(truth["lasers"][name]["plane"], name).oriented_like(fit.plane)
+        out[f"rms_{name[0]}"] = fit.rms_mm
+        out[f"ang_{name[0]}"] = fit.plane.angle_to_deg(tp)
+        out[f"off_{name[0]}"] = fit.plane.offset_mm - tp.offset_mm
+    tc = np.array([truth["target"]["corners_rail_mm"][c] for c in CORNER_NAMES])
+    fitted = rail_to_reconstruction(scan_dir, tc)
+    got = cal.corners_fit_mm(TargetModel.load(scan_dir / "target.json"))
+    out["corner_true_mm"] = float(np.max(np.linalg.norm(got - fitted, axis=1)))
+    return out
+
+
+def height_figures(scan_dir: Path, cal, rec, with_fill: bool) -> dict:
+    out: dict = {}
+    spec = rec.spec
+    maps = {"f": rec.height_mm, "g": rec.per_laser_mm["green"], "r": rec.per_laser_mm["red"]}
+    any_h = np.where(np.isfinite(maps["f"]), maps["f"],
+                     np.where(np.isfinite(maps["g"]), maps["g"], maps["r"]))
+    ref = cal.reference_depth
+    truths = {k: truth_for_reconstruction(scan_dir, spec, h, ref) for k, h in maps.items()}
+    edge = edge_mask(truth_for_reconstruction(scan_dir, spec, any_h, ref), 5, 1.0)
+    for k, h in maps.items():
+        t = truths[k]
+        ok = np.isfinite(h) & np.isfinite(t) & ~edge
+        e = (h - t)[ok]
+        out[f"mae_{k}"] = float(np.mean(np.abs(e))) if e.size else float("nan")
+        out[f"wild_{k}"] = 100.0 * float(np.mean(np.abs(e) > WILD_MM)) if e.size else float("nan")
+        if k == "f":
+            continue
+        ground = ok & (np.abs(t) < 1e-3)
+        eg = (h - t)[ground]
+        eg = eg[np.abs(eg) < WILD_MM]
+        out[f"bias_{k}"] = float(np.mean(eg)) if eg.size else float("nan")
+        tt, ee = t[ok], (h - t)[ok]
+        keep = np.abs(ee) < WILD_MM
+        if keep.sum() > 100 and np.ptp(tt[keep]) > 2.0:
+            b, _ = np.polyfit(tt[keep], ee[keep], 1)
+            out[f"slope_{k}"] = 100.0 * float(b)
+        else:
+            out[f"slope_{k}"] = float("nan")
+    out["wild"] = out["wild_f"]
+    if with_fill:
+        seen = fill_mask(scan_dir, spec, rec.frames) & ~edge
+        out["fill"] = 100.0 * float(np.isfinite(maps["f"])[seen].mean())
+    else:
+        out["fill"] = float("nan")
+    return out
+
+
+def measure(seed: int, width: int, height: int, with_fill: bool = True) -> dict:
+    from impress_gui.core.reconstruct import ProcessParams, reconstruct
+    from impress_gui.core.video import open_video
+
+    d = scan_for(seed, width, height)
+    truth = json.loads((d / "truth.json").read_text())
+    rr = truth["random_rig"]
+    row: dict = {"seed": seed, "preset": truth["config"]["preset"], "roll": truth["roll_deg"],
+                 "cross": rr["cross_tilt_deg"]}
+    t0 = time.perf_counter()
+    for k, _, _ in COLUMNS:
+        row.setdefault(k, float("nan"))
+    try:
+        cal = calibrate(d)
+        row.update(calibration_figures(d, cal))
+        with open_video(d / truth["video"]) as v:
+            rec = reconstruct(v, cal, ProcessParams())
+    except ImpressError as exc:  # a rig the product cannot handle is a result, not a crash
+        row["error"] = f"{exc.code}: {exc}"
+        row["warnings"] = [row["error"]]
+        row["seconds"] = time.perf_counter() - t0
+        return row
+    row.update(height_figures(d, cal, rec, with_fill))
+    row["seconds"] = time.perf_counter() - t0
+    row["warnings"] = list(cal.warnings) + list(rec.warnings)
+    return row
+
+
+def print_table(rows: list[dict]) -> None:
+    print(" ".join(h.rjust(len(f.format(0) if "d" in f or "f" in f else f.format("x")))
+                   for _, h, f in COLUMNS))
+    for r in rows:
+        print(" ".join(f.format(r[k]) for k, _, f in COLUMNS))
+    num = [(k, f) for k, _, f in COLUMNS if k not in ("seed", "preset", "roll", "cross")]
+    for label, fn in (("median", lambda a: float(np.nanmedian(a))),
+                      ("worst", lambda a: float(a[np.nanargmax(np.abs(a))]))):
+        cells = [label.rjust(4 + 1 + 7 + 1 + 6 + 1 + 5)]
+        for k, f in num:
+            a = np.array([r[k] for r in rows], float)
+            if k == "fill":
+                v = float(np.nanmin(a)) if label == "worst" else fn(a)
+            else:
+                v = fn(a) if np.isfinite(a).any() else float("nan")
+            cells.append(f.format(v))
+        print(" ".join(cells))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", default="8", help="how many seeds (0..N-1) or a comma list")
+    ap.add_argument("--resolution", default="640x360")
+    ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    ap.add_argument("--no-fill", action="store_true", help="skip the fill figure (it replays "
+                    "every frame's laser casting)")
+    args = ap.parse_args()
+    seeds = ([int(s) for s in args.seeds.split(",") if s] if "," in args.seeds
+             else list(range(int(args.seeds))))
+    w, h = (int(v) for v in args.resolution.lower().split("x"))
+    print(f"cache: {CACHE}; random rigs {seeds} at {w}x{h}, exact picks, default processing")
+    rows = []
+    for s in seeds:
+        row = measure(s, w, h, not args.no_fill)
+        rows.append(row)
+        print(f"  seed {s}: {row['seconds']:.0f} s; " + "; ".join(row["warnings"]), flush=True)
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=1))
+    print_table(rows)
+
+
+if __name__ == "__main__":
+    main()
