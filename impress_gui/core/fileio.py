@@ -33,7 +33,8 @@ def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
-def open_regular(path: str | os.PathLike, what: str, max_bytes: int) -> int:
+def open_regular(path: str | os.PathLike, what: str, max_bytes: int, *,
+                 follow_links: bool = True, allow_empty: bool = False) -> int:
     """Open ``path`` read-only after checking it is a regular, non-empty file of at most
     ``max_bytes``; return the descriptor. A FIFO, device, folder or socket is refused without
     blocking (FormatError ``E-NOT-A-FILE``), as are a missing (``E-FILE-MISSING``), empty
@@ -41,8 +42,11 @@ def open_regular(path: str | os.PathLike, what: str, max_bytes: int) -> int:
     import stat
 
     p = Path(path)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    if not follow_links:
+        flags |= getattr(os, "O_NOFOLLOW", 0)
     try:
-        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+        fd = os.open(p, flags)
     except FileNotFoundError:
         raise FormatError(f"{p}: no such {what} file", code="E-FILE-MISSING") from None
     except IsADirectoryError:
@@ -57,7 +61,7 @@ def open_regular(path: str | os.PathLike, what: str, max_bytes: int) -> int:
         if not stat.S_ISREG(st.st_mode):
             raise FormatError(f"{p} is not a regular file (a device, pipe or socket): give a "
                               f"{what} file", code="E-NOT-A-FILE")
-        if st.st_size == 0:
+        if st.st_size == 0 and not allow_empty:
             raise FormatError(f"{p}: the {what} file is empty", code="E-FILE-EMPTY")
         if st.st_size > max_bytes:
             raise FormatError(f"{p}: {st.st_size} bytes is too large for a {what} file",

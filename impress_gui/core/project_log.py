@@ -87,40 +87,16 @@ def read_no_follow(path: Path, what: str, max_bytes: int, missing_ok: bool = Fal
     refused (IntegrityError ``E-PROJECT-LINK``) and never followed, as are a folder, pipe or
     device (``E-NOT-A-FILE``), a file over ``max_bytes`` (``E-TOO-LARGE``) and an unreadable
     one (``E-FILE-READ``). A missing file gives None when ``missing_ok``."""
+    from impress_gui.core.fileio import open_regular
     from impress_gui.core.outdir import reason
 
-    flags = os.O_RDONLY | _NOFOLLOW | _CLOEXEC | getattr(os, "O_NONBLOCK", 0)
     try:
-        fd = os.open(path, flags)
-    except FileNotFoundError:
+        fd = open_regular(path, what, max_bytes, follow_links=False, allow_empty=True)
+    except FormatError as exc:
         if os.path.islink(path):
             raise _link_error(path) from None
-        if missing_ok:
+        if exc.code == "E-FILE-MISSING" and missing_ok:
             return None
-        raise FormatError(f"{path}: no such {what} file", code="E-FILE-MISSING") from None
-    except OSError as exc:
-        if os.path.islink(path):
-            raise _link_error(path) from None
-        if os.path.isdir(path):
-            raise FormatError(f"{path} is a folder, not a {what} file", code="E-NOT-A-FILE") from None
-        raise FormatError(
-            f"{path}: the {what} file cannot be read ({reason(exc)})", code="E-FILE-READ"
-        ) from None
-    try:
-        st = os.fstat(fd)
-        if stat.S_ISDIR(st.st_mode):
-            raise FormatError(f"{path} is a folder, not a {what} file", code="E-NOT-A-FILE")
-        if not stat.S_ISREG(st.st_mode):
-            raise FormatError(
-                f"{path} is not a regular file (a pipe, device or socket)", code="E-NOT-A-FILE"
-            )
-        if st.st_size > max_bytes:
-            raise FormatError(f"{path}: {st.st_size} bytes is too large for a {what} file",
-                              code="E-TOO-LARGE")
-        if hasattr(os, "set_blocking"):
-            os.set_blocking(fd, True)
-    except BaseException:
-        os.close(fd)
         raise
     with os.fdopen(fd, "rb") as fh:
         try:
