@@ -14,8 +14,8 @@ import json
 import numpy as np
 from common import calibrate, scan
 
-from impress_gui.core.geometry import Plane
-from impress_gui.core.target import CORNER_NAMES
+from impress_gui.core.calibration.geometry import Plane
+from impress_gui.core.calibration.target import CORNER_NAMES
 
 
 def report(scan_dir, noise_px: float, seeds=(0,)):
@@ -62,8 +62,8 @@ SNAP_CASES = {
 def calibration_frames_video(cfg, out_dir):
     """The two calibration frames of a scan, each as the third of four consecutive frames of one
     H.264 clip (the camcorder's bitrate), and the exact corner pixels in them."""
-    from impress_gui.core.target import CORNER_NAMES, default_target
-    from impress_gui.core.video import open_video
+    from impress_gui.core.calibration.target import CORNER_NAMES, default_target
+    from impress_gui.core.formats.video import open_video
     from impress_gui.sim.simulate import (
         _make_renderer,
         calibration_frames,
@@ -106,7 +106,7 @@ def snap_report() -> None:
     import tempfile
     from pathlib import Path
 
-    from impress_gui.core.calib_aids import refine_corner
+    from impress_gui.core.calibration.aids import refine_corner
     from impress_gui.sim.simulate import SimConfig
 
     offsets = snap_offsets()
@@ -166,10 +166,10 @@ def main() -> None:
     from common import calibrate as _c  # noqa: F401
 
     truth = json.loads((d / "truth.json").read_text())
-    from impress_gui.core.calibration import solve_pose
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.picks import Picks
-    from impress_gui.core.target import TargetModel
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import solve_pose
+    from impress_gui.core.calibration.target import TargetModel
 
     picks = Picks.load(d / "picks.json")
     dt = truth["frame_times_s"][picks.t2] - truth["frame_times_s"][picks.t1]

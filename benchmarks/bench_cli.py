@@ -27,7 +27,7 @@ and, through a post-import hook that wraps three functions when their modules ar
 (nothing is imported earlier than the command would import it), when
 ``pipeline.process_files`` starts and returns, when ``reconstruct()`` starts and returns, and
 when ``write_reconstruction()`` starts and returns; it also times the loading of the compiled
-kernels (the import of ``impress_gui.core.kernels``, wherever it happens), records every
+kernels (the import of ``impress_gui.core.reconstruction.kernels``, wherever it happens), records every
 progress call the command makes (for the longest stretch without progress), and samples its
 resident memory every 50 ms (``/proc/self/status``; VmHWM is also read at each boundary, exact)
 and reads its processor clock (every thread) at each boundary: processor seconds per stage
@@ -159,10 +159,10 @@ def _wrap(fn, label, track_progress):
             mark(label + "_end")
     return wrapped
 
-PATCH = {"impress_gui.core.pipeline": [("process_files", "process_files", True)],
-         "impress_gui.core.reconstruct": [("reconstruct", "reconstruct", False)],
-         "impress_gui.core.outputs": [("write_reconstruction", "write", False)]}
-TIMED = {"impress_gui.core.kernels": "kernels"}
+PATCH = {"impress_gui.core.reconstruction.pipeline": [("process_files", "process_files", True)],
+         "impress_gui.core.reconstruction.reconstruct": [("reconstruct", "reconstruct", False)],
+         "impress_gui.core.formats.writers": [("write_reconstruction", "write", False)]}
+TIMED = {"impress_gui.core.reconstruction.kernels": "kernels"}
 
 import importlib.abc
 import importlib.machinery

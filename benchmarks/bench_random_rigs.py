@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 from common import CACHE, SIM_KEY, calibrate, edge_mask
 
-from impress_gui.core.errors import ImpressError
-from impress_gui.core.geometry import Plane
-from impress_gui.core.target import CORNER_NAMES, TargetModel
+from impress_gui.core.base.errors import ImpressError
+from impress_gui.core.calibration.geometry import Plane
+from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
 from impress_gui.sim.truth import rail_to_reconstruction, truth_for_reconstruction
 
 WILD_MM = 1.0
@@ -141,8 +141,8 @@ def height_figures(scan_dir: Path, cal, rec, with_fill: bool) -> dict:
 
 
 def measure(seed: int, width: int, height: int, with_fill: bool = True) -> dict:
-    from impress_gui.core.reconstruct import ProcessParams, reconstruct
-    from impress_gui.core.video import open_video
+    from impress_gui.core.formats.video import open_video
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
 
     d = scan_for(seed, width, height)
     truth = json.loads((d / "truth.json").read_text())

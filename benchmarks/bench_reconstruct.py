@@ -34,7 +34,7 @@ EDGE_LEVELS = {"flat": [25.0], "blocks": [6.0, 15.2, 21.5, 27.9, 34.2],
 
 
 def calibration_for(name: str, d: Path):
-    from impress_gui.core.calibration import SceneCalibration
+    from impress_gui.core.calibration.scene import SceneCalibration
 
     path = calibration_path(d)
     if path.exists():
@@ -76,8 +76,8 @@ _VISIBLE: dict = {}
 
 
 def accuracy(name: str, d: Path, method: str) -> dict:
-    from impress_gui.core.reconstruct import ProcessParams, reconstruct
-    from impress_gui.core.video import open_video
+    from impress_gui.core.formats.video import open_video
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
 
     cal = calibration_for(name, d)
     truth_doc = json.loads((d / "truth.json").read_text())
@@ -134,12 +134,12 @@ def decode_only_seconds(video_path: Path, start: int, stop: int, threads: int) -
 PEAK_CODE = """
 import json, sys, time
 t0 = time.perf_counter()
-from impress_gui.core.compiled import kernels
+from impress_gui.core.reconstruction.compiled import kernels
 kernels()  # the program loaded; its loading is printed apart (a fresh process pays it once)
 load_s = time.perf_counter() - t0
-from impress_gui.core.calibration import SceneCalibration
-from impress_gui.core.reconstruct import ProcessParams, reconstruct
-from impress_gui.core.video import open_video
+from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
+from impress_gui.core.formats.video import open_video
 cal = SceneCalibration.load(sys.argv[2])
 with open_video(sys.argv[1]) as v:
     rec = reconstruct(v, cal, ProcessParams(frame_start=int(sys.argv[3]), frame_stop=int(sys.argv[4]), method=sys.argv[5]))

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from impress_gui.core.target import default_target
+from impress_gui.core.calibration.target import default_target
 from impress_gui.sim.render import Renderer, RenderOptions
 from impress_gui.sim.scenes import build_scene
 from impress_gui.sim.simulate import SimConfig, make_motion, make_rig, target_pose

@@ -21,8 +21,8 @@ from pathlib import Path
 
 from common import CACHE
 
-from impress_gui.core.validation_report import format_table, write_report
-from impress_gui.core.validation_run import RunConfig, run_simulated
+from impress_gui.validation.report import format_table, write_report
+from impress_gui.validation.run import RunConfig, run_simulated
 
 
 def main() -> int:

@@ -129,8 +129,8 @@ def main() -> None:
     from impress_gui.ui import pyside_fix
 
     pyside_fix.guard()
-    from impress_gui.core import measure as M
-    from impress_gui.ui.viewer_tab import ViewerTab
+    from impress_gui.core.measure import readings as M
+    from impress_gui.ui.viewer.tab import ViewerTab
 
     print(
         f"IMPREsS viewer benchmark ({os.cpu_count()} CPUs, {load()}, "

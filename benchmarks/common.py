@@ -29,11 +29,11 @@ def source_key(*parts: str) -> str:
     return h.hexdigest()[:10]
 
 
-SIM_KEY = source_key("impress_gui/sim", "impress_gui/core/target.py",
-                     "impress_gui/core/geometry.py", "resources")
-CAL_KEY = source_key("impress_gui/core/calibration.py", "impress_gui/core/calib_solve.py",
-                     "impress_gui/core/calib_planes.py", "impress_gui/core/stripes.py",
-                     "impress_gui/core/kernels.py", "impress_gui/core/geometry.py")
+SIM_KEY = source_key("impress_gui/sim", "impress_gui/core/calibration/target.py",
+                     "impress_gui/core/calibration/geometry.py", "resources")
+CAL_KEY = source_key("impress_gui/core/calibration/scene.py", "impress_gui/core/calibration/solve.py",
+                     "impress_gui/core/calibration/planes.py", "impress_gui/core/reconstruction/stripes.py",
+                     "impress_gui/core/reconstruction/kernels.py", "impress_gui/core/calibration/geometry.py")
 
 
 def scan(name: str, **cfg) -> Path:
@@ -48,11 +48,11 @@ def scan(name: str, **cfg) -> Path:
 
 
 def calibrate(scan_dir: Path, picks_file: str = "picks.json", noise_px: float = 0.0, seed: int = 0):
-    from impress_gui.core.calibration import calibrate_scene
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.picks import Picks
-    from impress_gui.core.target import TargetModel
-    from impress_gui.core.video import open_video
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import calibrate_scene
+    from impress_gui.core.calibration.target import TargetModel
+    from impress_gui.core.formats.video import open_video
 
     truth = json.loads((scan_dir / "truth.json").read_text())
     picks = Picks.load(scan_dir / picks_file)

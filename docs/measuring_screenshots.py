@@ -70,8 +70,8 @@ def main() -> None:
     args = ap.parse_args()
     from PySide6.QtCore import QEventLoop, QRectF, QTimer
 
-    from impress_gui.core.calibration import SceneCalibration
-    from impress_gui.core.project import Project
+    from impress_gui.core.calibration.scene import SceneCalibration
+    from impress_gui.core.project.project import Project
     from impress_gui.ui.app import build_main_window, create_app, grab, make_settings
 
     app = create_app()
@@ -155,7 +155,7 @@ def main() -> None:
     v.display.set_layer("fused")
     wait(v.layer_shown, 20000)
     fig = v.actions.figure_maker()(max_px=1400)
-    from impress_gui.core.fileio import atomic_write_png
+    from impress_gui.core.base.fileio import atomic_write_png
 
     atomic_write_png(IMAGES / "viewer-figure.png", fig)
     print("wrote docs/images/viewer-figure.png")

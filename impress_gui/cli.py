@@ -130,7 +130,7 @@ def run_command(command: str, args: argparse.Namespace) -> int:
     (``IMPRESS_DEBUG=1`` prints the traceback of an unexpected error as well)."""
     import os
 
-    from impress_gui.core.errors import ImpressError
+    from impress_gui.core.base.errors import ImpressError
 
     try:
         return int(_load(command).run(args) or 0)
@@ -145,7 +145,7 @@ def run_command(command: str, args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     except OSError as exc:
-        from impress_gui.core.outdir import reason
+        from impress_gui.core.base.outdir import reason
 
         where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
         print(f"impress {command}: error [{IO}]: a file could not be read or written{where}: "

@@ -48,10 +48,10 @@ def calibration_shots(scan: Path) -> int:
 
     from PySide6.QtCore import QRectF
 
-    from impress_gui.core.target import CORNER_NAMES
+    from impress_gui.core.calibration.target import CORNER_NAMES
     from impress_gui.ui.app import create_app, grab, make_settings
     from impress_gui.ui.main_window import MainWindow
-    from impress_gui.ui.motor_panel import MotorPanel
+    from impress_gui.ui.motor.panel import MotorPanel
 
     app = create_app()
     picks = json.loads((scan / "picks.json").read_text())
@@ -129,7 +129,7 @@ def main(argv: list[str]) -> int:
         return calibration_shots(Path(argv[2]))
     from impress_gui.ui.app import create_app, grab, make_settings
     from impress_gui.ui.main_window import MainWindow
-    from impress_gui.ui.motor_panel import MotorPanel, MotorPanelSettings
+    from impress_gui.ui.motor.panel import MotorPanel, MotorPanelSettings
 
     app = create_app()
     with tempfile.TemporaryDirectory() as tmp:

@@ -23,7 +23,7 @@ def pytest_configure(config):
     import subprocess
     import sys
 
-    subprocess.run([sys.executable, "-c", "import impress_gui.core.kernels"], check=True)
+    subprocess.run([sys.executable, "-c", "import impress_gui.core.reconstruction.kernels"], check=True)
 
 
 def _new_threads(before: set, ignore_dummy: bool) -> set:
@@ -72,11 +72,11 @@ def flat_scan(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def flat_calibration(flat_scan, tmp_path_factory) -> Path:
     """The scene calibration of ``flat_scan`` from its exact picks."""
-    from impress_gui.core.calibration import calibrate_scene
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.picks import Picks
-    from impress_gui.core.target import TargetModel
-    from impress_gui.core.video import open_video
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import calibrate_scene
+    from impress_gui.core.calibration.target import TargetModel
+    from impress_gui.core.formats.video import open_video
 
     truth = json.loads((flat_scan / "truth.json").read_text())
     with open_video(flat_scan / "scan.mp4") as v:

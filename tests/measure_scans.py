@@ -117,8 +117,8 @@ def blocks_recon(config, factory) -> Path:
     """Block A reconstructed from the scan (core pipeline), once per session."""
     if "recon" in _SESSION:
         return _SESSION["recon"]
-    from impress_gui.core.pipeline import process_files
-    from impress_gui.core.reconstruct import ProcessParams
+    from impress_gui.core.reconstruction.pipeline import process_files
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams
 
     scan = blocks_scan(config, factory)
     start, stop = block_a_frames(scan)

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from impress_gui import cli
-from impress_gui.core.batch import load_manifest, run_batch
-from impress_gui.core.pipeline import process_files
-from impress_gui.core.reconstruct import ProcessParams
+from impress_gui.core.reconstruction.pipeline import process_files
+from impress_gui.core.reconstruction.reconstruct import ProcessParams
+from impress_gui.session.batch import load_manifest, run_batch
 
 RANGES = {"a": (40, 70), "b": (50, 80), "c": (60, 90)}
 

@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from impress_gui.core.calib_aids import refine_corner
-from impress_gui.core.errors import InputError
-from impress_gui.core.picks import Picks
-from impress_gui.core.video import open_video
+from impress_gui.core.base.errors import InputError
+from impress_gui.core.calibration.aids import refine_corner
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.formats.video import open_video
 
 #: clicks up to this far from the corner in x and y (1 px at 640x360 is 3 px at 1920x1080)
 CLICK_PX = 1.0

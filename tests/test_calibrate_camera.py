@@ -13,9 +13,10 @@ import shutil
 import numpy as np
 import pytest
 
-from impress_gui.core.errors import CalibrationError, Cancelled, InputError
-from impress_gui.core.geometry import Intrinsics
-from impress_gui.core.intrinsics_cal import (
+from impress_gui.core.base.errors import CalibrationError, Cancelled, InputError
+from impress_gui.core.base.progress import CancelToken
+from impress_gui.core.calibration.geometry import Intrinsics
+from impress_gui.core.calibration.intrinsics import (
     BoardView,
     calibrate_camera,
     calibrate_views,
@@ -24,8 +25,7 @@ from impress_gui.core.intrinsics_cal import (
     parse_board,
     run_camera_calibration,
 )
-from impress_gui.core.progress import CancelToken
-from impress_gui.core.video import open_video
+from impress_gui.core.formats.video import open_video
 from impress_gui.sim.checkerboard import Board, BoardPose, write_views
 from impress_gui.sim.rig import default_intrinsics
 

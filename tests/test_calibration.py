@@ -7,11 +7,11 @@ import sys
 import numpy as np
 import pytest
 
-from impress_gui.core.calibration import SceneCalibration, solve_pose, vanishing_point
-from impress_gui.core.errors import CalibrationError, InputError
-from impress_gui.core.geometry import Intrinsics, Plane
-from impress_gui.core.picks import Picks
-from impress_gui.core.target import CORNER_NAMES, default_target
+from impress_gui.core.base.errors import CalibrationError, InputError
+from impress_gui.core.calibration.geometry import Intrinsics, Plane
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.calibration.scene import SceneCalibration, solve_pose, vanishing_point
+from impress_gui.core.calibration.target import CORNER_NAMES, default_target
 from impress_gui.sim.rig import default_rig
 from impress_gui.sim.simulate import project_rail, target_world_corners
 
@@ -111,7 +111,7 @@ def test_calibration_file_round_trip_and_damage(flat_calibration, tmp_path):
     doc = json.loads(p.read_text())
     del doc["laser_planes"]["red"]
     p.write_text(json.dumps(doc))
-    from impress_gui.core.errors import FormatError
+    from impress_gui.core.base.errors import FormatError
 
     with pytest.raises(FormatError, match="red laser plane is missing"):
         SceneCalibration.load(p)
@@ -126,8 +126,8 @@ def _picks_with(picks: Picks, which: str, corner: str, uv) -> Picks:
 
 
 def test_bad_picks_are_clear_errors(flat_scan):
-    from impress_gui.core.calibration import calibrate_scene
-    from impress_gui.core.video import open_video
+    from impress_gui.core.calibration.scene import calibrate_scene
+    from impress_gui.core.formats.video import open_video
 
     intr = Intrinsics.load(flat_scan / "intrinsics.json")
     picks = Picks.load(flat_scan / "picks.json")
@@ -184,7 +184,7 @@ def test_cli_round_trip(flat_scan, tmp_path):
 def test_three_point_fallback_recovers_the_plane(flat_scan, flat_calibration):
     """The seed's L, M, N method: stripe pixels on three target edges, rays met with the
     edges, the plane through the three points - from the true stripe positions."""
-    from impress_gui.core.calib_aids import three_point_plane
+    from impress_gui.core.calibration.aids import three_point_plane
     from impress_gui.sim.simulate import SimConfig, _make_renderer
 
     truth = json.loads((flat_scan / "truth.json").read_text())

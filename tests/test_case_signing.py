@@ -14,8 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from impress_gui.core.errors import FormatError, ImpressError, IntegrityError
-from impress_gui.core.project import (
+from impress_gui.core.base.errors import FormatError, ImpressError, IntegrityError
+from impress_gui.core.project.log import GENESIS, log_tail
+from impress_gui.core.project.project import (
     LOG_FILE,
     PROJECT_FILE,
     Project,
@@ -24,8 +25,7 @@ from impress_gui.core.project import (
     describe_signatures,
     read_log,
 )
-from impress_gui.core.project_log import GENESIS, log_tail
-from impress_gui.core.signing import (
+from impress_gui.core.project.signing import (
     KEY_DIR_ENV,
     KEY_FILE,
     SigningKey,

@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 from PySide6.QtWidgets import QMessageBox
 
-from impress_gui.core.project import LOG_FILE, PROJECT_FILE, append_log
-from impress_gui.core.project_log import log_tail
-from impress_gui.core.signing import KEY_DIR_ENV
+from impress_gui.core.project.log import log_tail
+from impress_gui.core.project.project import LOG_FILE, PROJECT_FILE, append_log
+from impress_gui.core.project.signing import KEY_DIR_ENV
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.app import build_main_window, make_settings
 
@@ -148,7 +148,7 @@ def test_the_case_dialog_names_the_signing_key(qtbot, window, tmp_path):
 
 def test_a_failure_while_the_window_is_built_stops_the_motor_thread(qtbot, tmp_path, monkeypatch):
     from impress_gui.ui import main_window
-    from impress_gui.ui.motor_panel import MotorPanel
+    from impress_gui.ui.motor.panel import MotorPanel
 
     panel = MotorPanel(port_lister=lambda: [])
     qtbot.addWidget(panel)

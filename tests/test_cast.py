@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from impress_gui.cli import main
-from impress_gui.core import cast as C
-from impress_gui.core.errors import ImpressError, InputError
-from impress_gui.core.grid import GridSpec
+from impress_gui.core.base.errors import ImpressError, InputError
+from impress_gui.core.measure.readings import cast as C
+from impress_gui.core.reconstruction.grid import GridSpec
 
 o3d = pytest.importorskip("open3d")
 
@@ -426,13 +426,13 @@ def test_fill_is_exact_on_known_cells_and_smooth():
 @pytest.fixture(scope="module")
 def letter_scan(tmp_path_factory):
     """(scan folder, reconstruction folder) of the letter preset (small and quick: ~25 s)."""
-    from impress_gui.core.calibration import calibrate_scene
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.picks import Picks
-    from impress_gui.core.pipeline import process_files
-    from impress_gui.core.reconstruct import ProcessParams
-    from impress_gui.core.target import TargetModel
-    from impress_gui.core.video import open_video
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import calibrate_scene
+    from impress_gui.core.calibration.target import TargetModel
+    from impress_gui.core.formats.video import open_video
+    from impress_gui.core.reconstruction.pipeline import process_files
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams
     from impress_gui.sim.simulate import SimConfig, simulate
 
     base = tmp_path_factory.mktemp("letter")
@@ -505,8 +505,8 @@ def test_simulated_letter_cast(letter_scan, tmp_path, positive):
 
 
 def test_progress_and_cancel(recon, tmp_path):
-    from impress_gui.core.errors import Cancelled
-    from impress_gui.core.progress import CancelToken
+    from impress_gui.core.base.errors import Cancelled
+    from impress_gui.core.base.progress import CancelToken
 
     seen: list[float] = []
     C.write_cast(recon, tmp_path / "a.stl", C.CastParams(max_triangles=5000),

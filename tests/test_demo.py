@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from impress_gui.core import measure as M
-from impress_gui.core.project import PROJECT_FILE, Project
+from impress_gui.core.measure import readings as M
+from impress_gui.core.project.project import PROJECT_FILE, Project
 from impress_gui.sim import sample
 
 

@@ -12,7 +12,7 @@ import json
 import numpy as np
 import pytest
 
-from impress_gui.core.grid import GridSpec
+from impress_gui.core.reconstruction.grid import GridSpec
 
 pytestmark = pytest.mark.slow
 
@@ -23,13 +23,13 @@ BAND_MM = (3.0, 8.5)  # the letter is 6 mm high; the target's faces are 11 and 4
 @pytest.fixture(scope="module")
 def letter(tmp_path_factory):
     """(scan folder, reconstruction folder) of the letter preset (small and quick)."""
-    from impress_gui.core.calibration import calibrate_scene
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.picks import Picks
-    from impress_gui.core.pipeline import process_files
-    from impress_gui.core.reconstruct import ProcessParams
-    from impress_gui.core.target import TargetModel
-    from impress_gui.core.video import open_video
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import calibrate_scene
+    from impress_gui.core.calibration.target import TargetModel
+    from impress_gui.core.formats.video import open_video
+    from impress_gui.core.reconstruction.pipeline import process_files
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams
     from impress_gui.sim.simulate import SimConfig, simulate
 
     base = tmp_path_factory.mktemp("letter")

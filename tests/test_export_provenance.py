@@ -16,11 +16,11 @@ import pytest
 import tifffile
 
 from impress_gui import __version__
-from impress_gui.core import measure as M
-from impress_gui.core import provenance as P
-from impress_gui.core.grid import GridSpec
-from impress_gui.core.outputs import HEIGHT_CONVENTION, RECON_FORMAT
-from impress_gui.core.readers import read_ply, read_x3p
+from impress_gui.core.formats import provenance as P
+from impress_gui.core.formats.readers import read_ply, read_x3p
+from impress_gui.core.formats.writers import HEIGHT_CONVENTION, RECON_FORMAT
+from impress_gui.core.measure import readings as M
+from impress_gui.core.reconstruction.grid import GridSpec
 
 pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
               pytest.mark.usefixtures("no_stray_python_threads")]

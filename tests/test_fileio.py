@@ -3,9 +3,9 @@ import json
 import numpy as np
 import pytest
 
-from impress_gui.core.errors import FormatError
-from impress_gui.core.fileio import atomic_output, read_json, sha256_file, write_json
-from impress_gui.core.geometry import Intrinsics
+from impress_gui.core.base.errors import FormatError
+from impress_gui.core.base.fileio import atomic_output, read_json, sha256_file, write_json
+from impress_gui.core.calibration.geometry import Intrinsics
 
 
 def test_atomic_output_keeps_previous_content_on_failure(tmp_path):

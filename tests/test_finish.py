@@ -1,4 +1,4 @@
-"""Finishing the grid during the frame loop (core/finish.py): the same result as finishing
+"""Finishing the grid during the frame loop (core/reconstruction/finish.py): the same result as finishing
 everything after the loop, bit for bit, and the fallback when an assumption fails."""
 
 import time
@@ -6,12 +6,12 @@ import time
 import numpy as np
 import pytest
 
-from impress_gui.core import finish as fin
-from impress_gui.core import reconstruct as rc
-from impress_gui.core.calibration import SceneCalibration
-from impress_gui.core.grid import fuse, fuse_rows
-from impress_gui.core.reconstruct import ProcessParams, reconstruct
-from impress_gui.core.video import open_video
+from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.formats.video import open_video
+from impress_gui.core.reconstruction import finish as fin
+from impress_gui.core.reconstruction import reconstruct as rc
+from impress_gui.core.reconstruction.grid import fuse, fuse_rows
+from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
 
 pytestmark = pytest.mark.usefixtures("no_stray_threads")
 
@@ -138,8 +138,8 @@ def test_finisher_in_either_direction_equals_finishing_at_once(direction):
     """Synthetic accumulators already holding every sample; the finisher is told the camera's
     travel frame by frame (forwards or backwards) and must end with what finishing everything
     at once gives, having done most rows before the end."""
-    from impress_gui.core.grid import ColorAccumulator, GridSpec, HeightAccumulator
-    from impress_gui.core.texture import RowSpool
+    from impress_gui.core.reconstruction.grid import ColorAccumulator, GridSpec, HeightAccumulator
+    from impress_gui.core.reconstruction.texture import RowSpool
 
     rng = np.random.default_rng(11)
     spec = GridSpec(-60.0, -40.0, 0.25, (1200, 480))

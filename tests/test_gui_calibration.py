@@ -16,10 +16,10 @@ from PySide6.QtGui import QMouseEvent
 from PySide6.QtTest import QTest
 from PySide6.QtWidgets import QApplication, QMessageBox
 
-from impress_gui.core.target import CORNER_NAMES
+from impress_gui.core.calibration.target import CORNER_NAMES
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.app import make_settings
-from impress_gui.ui.calibration_tab import CalibrationTab
+from impress_gui.ui.calibration.tab import CalibrationTab
 from impress_gui.ui.messages import Messenger
 
 pyside_fix.guard()

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from PySide6.QtGui import QImage
 
-from impress_gui.core.project import PROJECT_FILE
+from impress_gui.core.project.project import PROJECT_FILE
 from impress_gui.sim.sample import make_sample
 
 

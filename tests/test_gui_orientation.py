@@ -19,14 +19,14 @@ from PySide6.QtCore import QPoint, QPointF, QRectF, Qt
 from PySide6.QtGui import QImage
 from PySide6.QtTest import QTest
 
-from impress_gui.core import measure as M
-from impress_gui.core.grid import GridSpec
+from impress_gui.core.formats.figures import png_bytes
+from impress_gui.core.measure import readings as M
+from impress_gui.core.reconstruction.grid import GridSpec
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.messages import Messenger
-from impress_gui.ui.processing_panels import RunPanel
-from impress_gui.ui.viewer_3d import BACKGROUND, Surface3DWindow
-from impress_gui.ui.viewer_export import png_bytes
-from impress_gui.ui.viewer_tab import ViewerTab
+from impress_gui.ui.processing.panels import RunPanel
+from impress_gui.ui.viewer.tab import ViewerTab
+from impress_gui.ui.viewer.view3d import BACKGROUND, Surface3DWindow
 
 pyside_fix.guard()
 pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),

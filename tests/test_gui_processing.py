@@ -16,11 +16,11 @@ from measure_scans import block_a_frames, blocks_scan, guard_pyside_none
 from PySide6.QtCore import Qt, QTimer
 from PySide6.QtTest import QTest
 
-from impress_gui.core.calibration import SceneCalibration
-from impress_gui.core.project import Project
+from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.project.project import Project
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.messages import Messenger
-from impress_gui.ui.processing_tab import ProcessingTab
+from impress_gui.ui.processing.tab import ProcessingTab
 
 pyside_fix.guard()
 guard_pyside_none()
@@ -198,7 +198,7 @@ def test_missing_calibration_and_bad_parameters(qtbot, tab, scan, tmp_path):
 def test_heightmap_grows_in_a_preview_during_the_run(qtbot, tab, scan, tmp_path, monkeypatch):
     """The core hands partial heightmaps to the tab while it runs; the run panel shows them,
     each covering more of the scan than the last."""
-    import impress_gui.core.reconstruct as R
+    import impress_gui.core.reconstruction.reconstruct as R
 
     monkeypatch.setattr(R, "PREVIEW_EVERY_S", 0.05)
     project = make_project(scan, tmp_path / "p")

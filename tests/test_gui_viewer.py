@@ -19,11 +19,11 @@ from measure_scans import blocks_recon, blocks_scan, guard_pyside_none, rail_y, 
 from PySide6.QtCore import QPoint, QRectF, Qt
 from PySide6.QtTest import QTest
 
-from impress_gui.core import measure as M
-from impress_gui.core.project import Project
+from impress_gui.core.measure import readings as M
+from impress_gui.core.project.project import Project
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.messages import Messenger
-from impress_gui.ui.viewer_tab import ViewerTab
+from impress_gui.ui.viewer.tab import ViewerTab
 
 pyside_fix.guard()
 guard_pyside_none()

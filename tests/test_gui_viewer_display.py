@@ -29,7 +29,7 @@ from PySide6.QtTest import QTest
 from PySide6.QtWidgets import QApplication
 from test_gui_viewer import click_map, wait_idle, zoom_to
 
-from impress_gui.core import measure as M
+from impress_gui.core.measure import readings as M
 
 pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
               pytest.mark.usefixtures("no_stray_python_threads")]

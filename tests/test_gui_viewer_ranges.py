@@ -22,11 +22,11 @@ from PySide6.QtGui import QImage, QMouseEvent, QWheelEvent
 from PySide6.QtTest import QTest
 from PySide6.QtWidgets import QApplication
 
-from impress_gui.core import measure as M
-from impress_gui.core.grid import GridSpec
+from impress_gui.core.measure import readings as M
+from impress_gui.core.reconstruction.grid import GridSpec
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.messages import Messenger
-from impress_gui.ui.viewer_tab import ViewerTab
+from impress_gui.ui.viewer.tab import ViewerTab
 
 pyside_fix.guard()
 pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),

@@ -18,12 +18,12 @@ from PySide6.QtGui import QImage
 from PySide6.QtWidgets import QMessageBox
 from test_gui_calibration import FakeDialogs, calibrate, load_video, render_scan, set_inputs
 
-from impress_gui.core.errors import CalibrationError
-from impress_gui.core.project import LOG_FILE, PROJECT_FILE, read_log
+from impress_gui.core.base.errors import CalibrationError
+from impress_gui.core.project.project import LOG_FILE, PROJECT_FILE, read_log
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.app import build_main_window, make_settings
 from impress_gui.ui.messages import Messenger
-from impress_gui.ui.motor_panel import MotorPanel
+from impress_gui.ui.motor.panel import MotorPanel
 from impress_gui.ui.worker import LatestOnly, Worker
 
 pyside_fix.guard()

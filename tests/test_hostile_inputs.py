@@ -365,11 +365,11 @@ CASES: list[Case] = [
 def evidence(flat_scan, flat_calibration, tmp_path_factory) -> Path:
     """The evidence every case starts from: the flat scan (MP4 and a short MTS), its
     intrinsics, picks and calibrations."""
-    from impress_gui.core.calibration import calibrate_scene
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.picks import Picks
-    from impress_gui.core.target import TargetModel
-    from impress_gui.core.video import open_video
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import calibrate_scene
+    from impress_gui.core.calibration.target import TargetModel
+    from impress_gui.core.formats.video import open_video
     from impress_gui.sim.simulate import SimConfig, simulate
 
     ev = tmp_path_factory.mktemp("evidence")
@@ -468,8 +468,8 @@ def test_hostile_input(case: Case, evidence, tmp_path, capsys, monkeypatch):
 def test_a_reconstruction_folder_with_a_fifo_never_hangs(member, tmp_path):
     """The reconstruction reader (viewer, cast, validation) refuses a pipe or a folder where
     a file belongs, instead of waiting on it forever."""
-    from impress_gui.core.errors import ImpressError
-    from impress_gui.core.measure import load_reconstruction
+    from impress_gui.core.base.errors import ImpressError
+    from impress_gui.core.measure.readings import load_reconstruction
 
     rec = tmp_path / "recon"
     rec.mkdir()

@@ -29,13 +29,13 @@ from pathlib import Path
 import pytest
 
 from impress_gui import __version__
-from impress_gui.core.errors import IntegrityError
-from impress_gui.core.fileio import sha256_file
-from impress_gui.core.outputs import recover_interrupted
-from impress_gui.core.pipeline import process_files
-from impress_gui.core.project import PROJECT_FILE, Project
-from impress_gui.core.readers import read_ply, read_x3p
-from impress_gui.core.reconstruct import ProcessParams
+from impress_gui.core.base.errors import IntegrityError
+from impress_gui.core.base.fileio import sha256_file
+from impress_gui.core.base.outdir import recover_interrupted
+from impress_gui.core.formats.readers import read_ply, read_x3p
+from impress_gui.core.project.project import PROJECT_FILE, Project
+from impress_gui.core.reconstruction.pipeline import process_files
+from impress_gui.core.reconstruction.reconstruct import ProcessParams
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = ["--frames", "40:100", "--no-texture"]
@@ -106,9 +106,9 @@ def test_the_processing_tab_refuses_a_changed_video_with_a_message(
 ):
     from measure_scans import guard_pyside_none
 
-    from impress_gui.core.calibration import SceneCalibration
+    from impress_gui.core.calibration.scene import SceneCalibration
     from impress_gui.ui.messages import Messenger
-    from impress_gui.ui.processing_tab import ProcessingTab
+    from impress_gui.ui.processing.tab import ProcessingTab
 
     class Dialogs:
         def directory(self, *a, **k):
@@ -151,7 +151,7 @@ def test_an_edited_evidence_hash_in_project_json_is_caught_by_the_log(evidence, 
         err.value
     )
     # signed again with the examiner's own key: the signed log still has the true hash
-    from impress_gui.core.signing import sign_head
+    from impress_gui.core.project.signing import sign_head
 
     (tmp_path / "case" / PROJECT_FILE).write_text(json.dumps(sign_head(doc, proj.signing_key)))
     with pytest.raises(IntegrityError) as err:

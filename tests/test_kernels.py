@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 
-from impress_gui.core.calibration import SceneCalibration
-from impress_gui.core.grid import fuse
-from impress_gui.core.reconstruct import column_bands, laser_rois
-from impress_gui.core.stripes import (
+from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.formats.video import open_video
+from impress_gui.core.reconstruction.grid import fuse
+from impress_gui.core.reconstruction.reconstruct import column_bands, laser_rois
+from impress_gui.core.reconstruction.stripes import (
     LASERS,
     METHODS,
     BackgroundLUT,
@@ -15,7 +16,6 @@ from impress_gui.core.stripes import (
     detect_planes,
     detect_planes_numpy,
 )
-from impress_gui.core.video import open_video
 
 
 @pytest.fixture(scope="module")
@@ -77,9 +77,9 @@ def test_stripe_profile_kernel_equals_numpy_steps(frames, flat_calibration):
     """Connected columns, triangulation, despiking and upsampling in one compiled call give
     what the numpy steps give, bit for bit - on real stripes, and with spikes, gaps and
     isolated hits added."""
-    from impress_gui.core.compiled import kernels
-    from impress_gui.core.reconstruct import _band_rays
-    from impress_gui.core.texture import reference_coeffs
+    from impress_gui.core.reconstruction.compiled import kernels
+    from impress_gui.core.reconstruction.reconstruct import _band_rays
+    from impress_gui.core.reconstruction.texture import reference_coeffs
 
     kern = kernels()
     cal = SceneCalibration.load(flat_calibration)
@@ -190,8 +190,8 @@ def test_fuse_codes_and_consensus():
 
 
 def _texture_inputs(n_rows=300, n_pts=600):
-    from impress_gui.core.grid import ColorAccumulator, GridSpec
-    from impress_gui.core.texture import RowSpool
+    from impress_gui.core.reconstruction.grid import ColorAccumulator, GridSpec
+    from impress_gui.core.reconstruction.texture import RowSpool
 
     rng = np.random.default_rng(5)
     spool = RowSpool()
@@ -208,8 +208,8 @@ def _texture_inputs(n_rows=300, n_pts=600):
 
 
 def test_texture_mapping_split_between_threads_equals_one_thread(monkeypatch):
-    from impress_gui.core import kernels
-    from impress_gui.core import texture as rc
+    from impress_gui.core.reconstruction import kernels
+    from impress_gui.core.reconstruction import texture as rc
 
     results = []
     for plan in ("auto", "single", "too tight"):

@@ -10,19 +10,19 @@ import json
 
 import pytest
 
-from impress_gui.core.pipeline import process_files
-from impress_gui.core.reconstruct import LOW_COLUMN_SHARE, ProcessParams
+from impress_gui.core.reconstruction.pipeline import process_files
+from impress_gui.core.reconstruction.reconstruct import LOW_COLUMN_SHARE, ProcessParams
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
 def blocks_mts(tmp_path_factory):
-    from impress_gui.core.calibration import calibrate_scene
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.picks import Picks
-    from impress_gui.core.target import TargetModel
-    from impress_gui.core.video import open_video
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import calibrate_scene
+    from impress_gui.core.calibration.target import TargetModel
+    from impress_gui.core.formats.video import open_video
     from impress_gui.sim.simulate import SimConfig, simulate
 
     base = tmp_path_factory.mktemp("blocks")

@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 from measure_scans import blocks_recon, blocks_scan, rail_y, truth
 
-from impress_gui.core import measure as M
-from impress_gui.core.errors import FormatError, InputError
-from impress_gui.core.grid import GridSpec
+from impress_gui.core.base.errors import FormatError, InputError
+from impress_gui.core.measure import readings as M
+from impress_gui.core.reconstruction.grid import GridSpec
 
 STEP = 6.35
 TOP = 32.0  # 12 mm plate + 20 mm block

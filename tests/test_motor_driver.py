@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import serial
 
-from impress_gui.core.errors import Cancelled, ImpressError, InputError
-from impress_gui.core.progress import CancelToken
+from impress_gui.core.base.errors import Cancelled, ImpressError, InputError
+from impress_gui.core.base.progress import CancelToken
 from impress_gui.hardware.cool_muscle import (
     CoolMuscle,
     MotorAlarm,

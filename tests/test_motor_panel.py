@@ -12,7 +12,7 @@ from PySide6.QtCore import Qt
 from impress_gui.hardware.cool_muscle import CoolMuscle, MotorConfig
 from impress_gui.hardware.emulator import CM1Emulator, EmulatorConfig, PtyServer, emulated_port
 from impress_gui.hardware.rail import RAIL_TRAVEL_MM, SPEED_PRESETS_MM_S, RailLimits
-from impress_gui.ui.motor_panel import SIMULATED_LABEL, MotorPanel, MotorPanelSettings
+from impress_gui.ui.motor.panel import SIMULATED_LABEL, MotorPanel, MotorPanelSettings
 
 pytestmark = pytest.mark.usefixtures("no_stray_threads")
 
@@ -316,7 +316,7 @@ def test_moves_past_a_smaller_travel_are_refused(rig, qtbot):
 
 def test_rail_limits_are_saved_and_loaded_with_the_settings(tmp_path):
     from impress_gui.ui.app import make_settings
-    from impress_gui.ui.motor_choices import load_motor_choices, save_motor_choices
+    from impress_gui.ui.motor.choices import load_motor_choices, save_motor_choices
 
     path = tmp_path / "settings.ini"
     first = load_motor_choices(make_settings(path))
@@ -447,7 +447,7 @@ def test_long_preset_past_the_rail_end_is_flagged(rig, qtbot):
 def test_the_simulator_the_calibration_tab_and_the_rail_share_the_speeds():
     from impress_gui.sim.rig import SPEED_PRESETS_MM_S as SIM_RIG
     from impress_gui.sim.simulate import SPEED_NAMES
-    from impress_gui.ui.calibration_setup import SPEED_PRESETS
+    from impress_gui.ui.calibration.setup import SPEED_PRESETS
 
     assert SPEED_NAMES == SPEED_PRESETS_MM_S == SPEED_PRESETS
     assert sorted(SIM_RIG) == sorted(SPEED_PRESETS_MM_S.values())

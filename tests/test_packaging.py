@@ -111,7 +111,7 @@ def test_spec_is_consistent_with_the_tree():
     assert 'HERE / "impress_main.py"' in spec and (PKG / "impress_main.py").is_file()
     for icon in ("impress.png", "impress.svg"):
         assert f'HERE / "{icon}"' in spec
-    # resources go where impress_gui.core.target.resources_dir() looks in an installed package
+    # resources go where impress_gui.core.calibration.target.resources_dir() looks in an installed package
     assert '(str(ROOT / "resources"), "impress_gui/resources")' in spec
     assert (ROOT / "resources" / "targets" / "l_target_v1.json").is_file()
     # subcommands are imported by name at run time: the spec must take every module
@@ -182,7 +182,7 @@ def test_resources_are_found_in_an_installed_layout(tmp_path):
     )
     shutil.copytree(ROOT / "resources", site / "impress_gui" / "resources")
     code = (
-        "from impress_gui.core.target import default_target, resources_dir\n"
+        "from impress_gui.core.calibration.target import default_target, resources_dir\n"
         "print(resources_dir()); print(default_target().name)"
     )
     res = subprocess.run(

@@ -8,18 +8,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from impress_gui.core.errors import (
+from impress_gui.core.base.errors import (
     Cancelled,
     FormatError,
     ImpressError,
     InputError,
     IntegrityError,
 )
-from impress_gui.core.fileio import sha256_file
-from impress_gui.core.geometry import Intrinsics
-from impress_gui.core.picks import Picks
-from impress_gui.core.progress import CancelToken
-from impress_gui.core.project import (
+from impress_gui.core.base.fileio import sha256_file
+from impress_gui.core.base.progress import CancelToken
+from impress_gui.core.calibration.geometry import Intrinsics
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.calibration.target import default_target
+from impress_gui.core.project.project import (
     LOG_FILE,
     PROJECT_FILE,
     Project,
@@ -28,7 +29,6 @@ from impress_gui.core.project import (
     read_log,
     verify_log,
 )
-from impress_gui.core.target import default_target
 
 
 @pytest.fixture(autouse=True)

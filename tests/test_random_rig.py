@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
+from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel, default_target
 from impress_gui.sim import random_rig as R
 from impress_gui.sim.random_rig import RANGES, draw_random_rig
 from impress_gui.sim.simulate import SimConfig, make_rig, make_target, target_pose
@@ -120,7 +120,7 @@ def test_the_built_rig_is_what_its_parameters_say(seed):
 
 
 def test_a_config_not_from_its_seed_is_refused():
-    from impress_gui.core.errors import InputError
+    from impress_gui.core.base.errors import InputError
 
     cfg = SimConfig.random(3, 640, 360)
     bad = SimConfig(**{**cfg.to_json(), "preset": "shoe" if cfg.preset != "shoe" else "tire"})
@@ -130,7 +130,7 @@ def test_a_config_not_from_its_seed_is_refused():
 
 
 def test_a_seed_with_no_usable_rig_is_a_coded_error(monkeypatch):
-    from impress_gui.core.errors import InputError
+    from impress_gui.core.base.errors import InputError
 
     monkeypatch.setattr(R, "MIN_TRIANGULATION_DEG", 89.0)  # nothing can triangulate so steeply
     draw_random_rig.cache_clear()
@@ -152,8 +152,8 @@ def _simulate_cli(out, seed: int, *extra: str) -> int:
 def test_cli_same_seed_same_truth_and_video(tmp_path):
     """The smallest size: 227 frames of 128x72, twice; the truth records every drawn value,
     the target file beside the scan is the drawn target, the picks are its projections."""
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.picks import Picks
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
 
     seed = 5  # one of the shortest scans of the family
     a, b = tmp_path / "a", tmp_path / "b"
@@ -214,11 +214,11 @@ E2E_MAX_WILD_PERCENT = 1.0
 def test_random_rig_calibrates_from_exact_picks_and_reconstructs(tmp_path):
     """Simulate, calibrate with the exact picks and the written target file, reconstruct with
     the default settings, compare with the truth where each point really is."""
-    from impress_gui.core.calibration import calibrate_scene
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.picks import Picks
-    from impress_gui.core.reconstruct import ProcessParams, reconstruct
-    from impress_gui.core.video import open_video
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import calibrate_scene
+    from impress_gui.core.formats.video import open_video
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
     from impress_gui.sim.simulate import simulate
     from impress_gui.sim.truth import truth_for_reconstruction
 

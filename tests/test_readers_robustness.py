@@ -20,17 +20,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from impress_gui.core.calibration import LaserPlaneFit, SceneCalibration
-from impress_gui.core.errors import ImpressError
-from impress_gui.core.geometry import Intrinsics, Plane, ideal_rotation
-from impress_gui.core.grid import GridSpec
-from impress_gui.core.outputs import ply_bytes, x3p_bytes
-from impress_gui.core.picks import Picks
-from impress_gui.core.project import Project, create_project
-from impress_gui.core.readers import read_export, read_ply, read_x3p
-from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
-from impress_gui.core.validation_spec import load_spec
+from impress_gui.core.base.errors import ImpressError
+from impress_gui.core.calibration.geometry import Intrinsics, Plane, ideal_rotation
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.calibration.scene import LaserPlaneFit, SceneCalibration
+from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel, default_target
+from impress_gui.core.formats.readers import read_export, read_ply, read_x3p
+from impress_gui.core.formats.writers import ply_bytes, x3p_bytes
+from impress_gui.core.project.project import Project, create_project
+from impress_gui.core.reconstruction.grid import GridSpec
 from impress_gui.sim.rig import default_intrinsics, default_rig
+from impress_gui.validation.spec import load_spec
 
 HOSTILE = [
     None,
@@ -277,7 +277,7 @@ def tiny_video(tmp_path_factory) -> Path:
 
 
 def _video_load(path: Path) -> None:
-    from impress_gui.core.video import open_video
+    from impress_gui.core.formats.video import open_video
 
     with open_video(path) as v:
         for _k, _f in v.iter_frames(0, v.frame_count):
@@ -594,7 +594,7 @@ def test_the_window_reports_hostile_files_with_a_message(qtbot, tmp_path):
     from measure_scans import guard_pyside_none
 
     from impress_gui.ui.messages import Messenger
-    from impress_gui.ui.processing_tab import ProcessingTab
+    from impress_gui.ui.processing.tab import ProcessingTab
 
     guard_pyside_none()
 

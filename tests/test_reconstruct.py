@@ -11,12 +11,12 @@ import tifffile
 from conftest import truth_on_grid
 from scipy.ndimage import maximum_filter, minimum_filter
 
-from impress_gui.core.calibration import SceneCalibration
-from impress_gui.core.errors import Cancelled, ReconstructionError, VideoError
-from impress_gui.core.pipeline import process_files
-from impress_gui.core.progress import CancelToken
-from impress_gui.core.reconstruct import ProcessParams, reconstruct
-from impress_gui.core.video import open_video
+from impress_gui.core.base.errors import Cancelled, ReconstructionError, VideoError
+from impress_gui.core.base.progress import CancelToken
+from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.formats.video import open_video
+from impress_gui.core.reconstruction.pipeline import process_files
+from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
 
 
 @pytest.fixture(scope="module")
@@ -178,7 +178,7 @@ def test_wrong_file_and_size_mismatch(flat_scan, flat_calibration, tmp_path):
 
     for k in range(3):
         cv2.imwrite(str(frames / f"f{k}.png"), np.zeros((180, 320, 3), np.uint8))
-    from impress_gui.core.errors import InputError
+    from impress_gui.core.base.errors import InputError
 
     with pytest.raises(InputError, match="640x360"):
         process_files(frames, flat_calibration, tmp_path / "o2", ProcessParams())
@@ -202,7 +202,12 @@ def test_no_stripe_is_reported_with_laser_and_frames(flat_calibration, tmp_path)
 def test_upsampling_puts_neighbouring_points_at_most_one_cell_apart(flat_calibration):
     """The points per pixel step are the fewest that keep neighbouring profile points within
     one cell along each axis on the deepest surface of the height range."""
-    from impress_gui.core.reconstruct import _band_rays, column_bands, laser_rois, upsampling
+    from impress_gui.core.reconstruction.reconstruct import (
+        _band_rays,
+        column_bands,
+        laser_rois,
+        upsampling,
+    )
 
     cal = SceneCalibration.load(flat_calibration)
     w, h = cal.intrinsics.image_size
@@ -221,7 +226,7 @@ def test_upsampling_puts_neighbouring_points_at_most_one_cell_apart(flat_calibra
 def test_band_rays_kernel_equals_numpy_rays(flat_calibration):
     """The per-run ray tables (one compiled pass: undistortion from the neighbour's correction,
     then the rotation) agree with the numpy undistortion of every band pixel to 1e-12."""
-    from impress_gui.core.reconstruct import _band_rays, column_bands, laser_rois
+    from impress_gui.core.reconstruction.reconstruct import _band_rays, column_bands, laser_rois
 
     cal = SceneCalibration.load(flat_calibration)
     w, h = cal.intrinsics.image_size

@@ -16,9 +16,9 @@ import cv2
 import numpy as np
 import pytest
 
-from impress_gui.core.geometry import Intrinsics
-from impress_gui.core.picks import Picks
-from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
+from impress_gui.core.calibration.geometry import Intrinsics
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel, default_target
 from impress_gui.sim.render import Renderer, RenderOptions
 from impress_gui.sim.scenes import build_scene
 from impress_gui.sim.simulate import (
@@ -404,7 +404,7 @@ def test_cli_writes_truth_that_loads_and_agrees(tmp_path, fmt):
         theirs = cv2.imread(str(files[k]), cv2.IMREAD_COLOR)[..., ::-1]
         assert mine.tobytes() == theirs.tobytes()
     else:
-        from impress_gui.core.video import open_video
+        from impress_gui.core.formats.video import open_video
 
         with open_video(out / "scan.mp4") as video:
             assert video.frame_count == n and video.size == (320, 180)
@@ -440,9 +440,9 @@ def test_bad_option_is_a_clear_error(tmp_path, capsys, args, option):
 def test_output_folder_is_replaced_whole_or_not_at_all(tmp_path):
     """A re-simulation that is interrupted leaves the previous simulation whole; a folder that
     holds something else is refused; a frame folder's truth carries its manifest hash."""
-    from impress_gui.core.errors import Cancelled
-    from impress_gui.core.fileio import sha256_path
-    from impress_gui.core.progress import CancelToken
+    from impress_gui.core.base.errors import Cancelled
+    from impress_gui.core.base.fileio import sha256_path
+    from impress_gui.core.base.progress import CancelToken
     from impress_gui.sim.simulate import SimConfig, simulate
 
     small = dict(preset="flat", length_mm=60.0, width=160, height=90, speed_mm_s=40.0)
@@ -465,7 +465,7 @@ def test_output_folder_is_replaced_whole_or_not_at_all(tmp_path):
     other = tmp_path / "notes"
     other.mkdir()
     (other / "case.txt").write_text("evidence notes")
-    from impress_gui.core.outdir import OutputError
+    from impress_gui.core.base.outdir import OutputError
 
     with pytest.raises(OutputError, match="not made by a previous simulation") as err:
         simulate(SimConfig(**small), other)

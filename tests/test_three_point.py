@@ -11,13 +11,13 @@ import sys
 import numpy as np
 import pytest
 
-from impress_gui.core.calib_planes import StripeObservations, fit_laser_plane
-from impress_gui.core.calibration import SceneCalibration, calibrate_scene
-from impress_gui.core.errors import CalibrationError, FormatError, ImpressError
-from impress_gui.core.geometry import Intrinsics, Plane
-from impress_gui.core.picks import LMN_EDGES, Picks, StripePoint, StripePoints
-from impress_gui.core.target import default_target
-from impress_gui.core.video import open_video
+from impress_gui.core.base.errors import CalibrationError, FormatError, ImpressError
+from impress_gui.core.calibration.geometry import Intrinsics, Plane
+from impress_gui.core.calibration.picks import LMN_EDGES, Picks, StripePoint, StripePoints
+from impress_gui.core.calibration.planes import StripeObservations, fit_laser_plane
+from impress_gui.core.calibration.scene import SceneCalibration, calibrate_scene
+from impress_gui.core.calibration.target import default_target
+from impress_gui.core.formats.video import open_video
 
 # three exact stripe points, the pose from the corner picks alone (no tilt refinement by the
 # stripes): measured on the flat scan 0.0xx deg and 0.0xx mm; stated with a margin
@@ -276,7 +276,7 @@ def test_proposed_frames_have_each_stripe_on_the_target(flat_scan):
     """``propose_calibration_frames`` against the truth: in the proposed t1 the true green
     laser plane crosses the target's three L, M, N edges (so its stripe lies across both
     faces), in t2 the red one; and the frames are near the simulator's own choice."""
-    from impress_gui.core.calib_aids import propose_calibration_frames
+    from impress_gui.core.calibration.aids import propose_calibration_frames
 
     truth = _with_truth_intrinsics(flat_scan)
     with open_video(flat_scan / "scan.mp4") as v:
@@ -304,7 +304,7 @@ def test_proposed_frames_have_each_stripe_on_the_target(flat_scan):
 def test_the_windows_pick_editor_keeps_the_stripe_points(flat_scan):
     """Picks imported into the calibration tab's editor and exported again keep the
     three-point stripe points (the window never drops what a file holds)."""
-    from impress_gui.ui.pick_editor import PickEditor
+    from impress_gui.core.calibration.pick_editor import PickEditor
 
     picks = _stripe_picks(flat_scan)
     assert picks.stripe_points

@@ -27,15 +27,15 @@ import pytest
 from conftest import truth_on_grid
 
 from impress_gui import __version__
-from impress_gui.core import validate as V
-from impress_gui.core import validation_vdi as VDI
-from impress_gui.core.errors import Cancelled, FormatError
-from impress_gui.core.fileio import sha256_file, write_json
-from impress_gui.core.grid import GridSpec
-from impress_gui.core.progress import CancelToken
-from impress_gui.core.validation_report import format_table, report_html, write_report
-from impress_gui.core.validation_run import RunConfig, run_real, run_simulated
-from impress_gui.core.validation_spec import load_spec
+from impress_gui.core.base.errors import Cancelled, FormatError
+from impress_gui.core.base.fileio import sha256_file, write_json
+from impress_gui.core.base.progress import CancelToken
+from impress_gui.core.reconstruction.grid import GridSpec
+from impress_gui.validation import protocol as V
+from impress_gui.validation import vdi as VDI
+from impress_gui.validation.report import format_table, report_html, write_report
+from impress_gui.validation.run import RunConfig, run_real, run_simulated
+from impress_gui.validation.spec import load_spec
 
 QUICK = dict(speed_mm_s=78.828, placements=("AB",), extras=("flat",), workers=2)
 
@@ -79,7 +79,7 @@ def test_quick_mode_meets_the_z_bar_and_its_xy_tolerance(run):
 def test_the_protocol_measures_the_truth_itself_exactly(run):
     """The readings' positions and bands come from the truth; on the true surface (resampled
     onto the reconstruction's grid) every reading is within the 0.1 mm grid's quantisation."""
-    from impress_gui.core.measure import load_reconstruction
+    from impress_gui.core.measure.readings import load_reconstruction
 
     scan = run["scans"] / "AB"
     truth = json.loads((scan / "truth.json").read_text())
@@ -297,7 +297,7 @@ def test_the_dialog_runs_a_spec_and_shows_the_table(qtbot, run, tmp_path):
 def test_incomplete_readings_fail_alone_and_serialise():
     """A reading built in code without its bands fails by itself (not the whole run), and
     the spec writer keeps whichever band is present (bugs found by mypy)."""
-    from impress_gui.core.validation_spec import reading_to_json
+    from impress_gui.validation.spec import reading_to_json
 
     spec = GridSpec(0.0, 0.0, 0.1, (200, 200))
     yy, xx = np.mgrid[0:200, 0:200]

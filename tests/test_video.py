@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from impress_gui.core.errors import VideoError
-from impress_gui.core.video import open_video
+from impress_gui.core.base.errors import VideoError
+from impress_gui.core.formats.video import open_video
 from impress_gui.sim.simulate import SimConfig, simulate
 
 

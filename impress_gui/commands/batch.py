@@ -23,8 +23,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from impress_gui.core.batch import load_manifest, run_batch
-    from impress_gui.core.errors import InputError
+    from impress_gui.core.base.errors import InputError
+    from impress_gui.session.batch import load_manifest, run_batch
 
     if args.jobs is not None and not 1 <= args.jobs <= 256:
         raise InputError("--jobs must be 1 to 256", code="E-BATCH")

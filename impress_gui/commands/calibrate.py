@@ -29,13 +29,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from impress_gui.core.calibration import calibrate_scene
-    from impress_gui.core.fileio import sha256_file
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.outdir import check_output_file, writing
-    from impress_gui.core.picks import Picks
-    from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
-    from impress_gui.core.video import open_video
+    from impress_gui.core.base.fileio import sha256_file
+    from impress_gui.core.base.outdir import check_output_file, writing
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import calibrate_scene
+    from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel, default_target
+    from impress_gui.core.formats.video import open_video
 
     check_output_file(args.output, inputs=(args.video, args.intrinsics, args.picks, args.target),
                       formats=("impress.calibration",))

@@ -35,9 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from impress_gui.core.errors import InputError
-    from impress_gui.core.intrinsics_cal import parse_board, run_camera_calibration
-    from impress_gui.core.video import open_video
+    from impress_gui.core.base.errors import InputError
+    from impress_gui.core.calibration.intrinsics import parse_board, run_camera_calibration
+    from impress_gui.core.formats.video import open_video
 
     board = parse_board(args.board)
     if args.max_frames < 3:
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output.suffix.lower() != ".json":
         raise InputError(f"--output {args.output}: the intrinsics file must end in .json",
                          code="E-OUTPUT")
-    from impress_gui.core.outdir import check_output_file
+    from impress_gui.core.base.outdir import check_output_file
 
     check_output_file(args.output, inputs=(args.input,), formats=("impress.intrinsics",))
     last = [0.0]

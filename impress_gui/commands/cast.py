@@ -22,7 +22,7 @@ def _crop(text: str) -> tuple[float, float, float, float]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from impress_gui.core.cast import DEFAULT_BASE_MM, DEFAULT_MAX_TRIANGLES
+    from impress_gui.core.measure.cast import DEFAULT_BASE_MM, DEFAULT_MAX_TRIANGLES
 
     p.add_argument("reconstruction", type=Path, help="reconstruction folder (impress process)")
     p.add_argument("-o", "--output", type=Path, required=True,
@@ -42,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from impress_gui.core.cast import CastParams, write_cast
+    from impress_gui.core.measure.cast import CastParams, write_cast
 
     params = CastParams(positive=args.positive, base_mm=args.base_mm, crop_mm=args.crop,
                         max_triangles=args.max_triangles)

@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
 
     path = getattr(args, "path", None)
     if path is not None and not path.exists():
-        from impress_gui.core.errors import InputError
+        from impress_gui.core.base.errors import InputError
 
         raise InputError(f"{path}: no such project folder or video", code="E-FILE-MISSING")
     extra = {}

@@ -194,7 +194,7 @@ def _interrupted(received: list[str]) -> Any:
 
 
 def _port_url(args: argparse.Namespace) -> str:
-    from impress_gui.core.errors import InputError
+    from impress_gui.core.base.errors import InputError
     from impress_gui.hardware.motor_link import EMULATOR_SCHEME, emulator_url, resolve_port_url
 
     if not args.port:
@@ -264,8 +264,8 @@ def run(args: argparse.Namespace) -> int:
     if action == "emulate-pty":
         return _emulate(args)
 
-    from impress_gui.core.errors import Cancelled, ImpressError
-    from impress_gui.core.progress import CancelToken
+    from impress_gui.core.base.errors import Cancelled, ImpressError
+    from impress_gui.core.base.progress import CancelToken
     from impress_gui.hardware.cool_muscle import CoolMuscle
     from impress_gui.hardware.motor_status import MotorRangeError
 

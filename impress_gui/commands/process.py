@@ -44,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from impress_gui.core.reconstruct import ProcessParams
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams
 
     rois = {name: (a, b) for name, a, b in args.roi}
     params = ProcessParams(method=args.method, frame_start=args.frames[0],
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
             last[0] = now
             print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
 
-    from impress_gui.core.pipeline import process_files
+    from impress_gui.core.reconstruction.pipeline import process_files
 
     meta = process_files(args.video, args.calibration, args.output, params, args.fps, progress)
     st = meta["stats"]

@@ -91,7 +91,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from impress_gui.core.errors import InputError
+    from impress_gui.core.base.errors import InputError
     from impress_gui.sim.simulate import SimConfig
 
     blocks = {}
@@ -134,7 +134,7 @@ def _preset_config(args: argparse.Namespace, blocks: dict):
 
 
 def _run(args: argparse.Namespace, cfg) -> int:
-    from impress_gui.core.errors import InputError
+    from impress_gui.core.base.errors import InputError
     from impress_gui.sim.simulate import make_motion, simulate
 
     cfg.validate()

@@ -21,7 +21,7 @@ def _keys(text: str) -> tuple[str, ...]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from impress_gui.core.validate import PLACEMENTS
+    from impress_gui.validation.protocol import PLACEMENTS
 
     p.add_argument(
         "--quick",
@@ -79,8 +79,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from impress_gui.core.validation_report import format_table, write_report
-    from impress_gui.core.validation_run import RunConfig, run_real, run_simulated
+    from impress_gui.validation.report import format_table, write_report
+    from impress_gui.validation.run import RunConfig, run_real, run_simulated
 
     last = [0.0]
 

@@ -32,7 +32,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from impress_gui.core.progress import CancelToken
+from impress_gui.core.base.progress import CancelToken
 from impress_gui.hardware.motor_limits import (
     check_bank,
     check_distance_mm,

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from impress_gui.core.errors import ImpressError
+from impress_gui.core.base.errors import ImpressError
 
 
 class MotorError(ImpressError):

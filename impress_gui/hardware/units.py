@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from impress_gui.core.errors import InputError
+from impress_gui.core.base.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -22,8 +22,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from impress_gui.core.fileio import write_json
-from impress_gui.core.geometry import Intrinsics
+from impress_gui.core.base.fileio import write_json
+from impress_gui.core.calibration.geometry import Intrinsics
 
 BOARD_TRUTH_FORMAT = "impress.checkerboard-truth"
 

@@ -17,9 +17,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from impress_gui.core.errors import InputError
-from impress_gui.core.geometry import Intrinsics
-from impress_gui.core.target import TargetModel, make_l_target
+from impress_gui.core.base.errors import InputError
+from impress_gui.core.calibration.geometry import Intrinsics
+from impress_gui.core.calibration.target import TargetModel, make_l_target
 from impress_gui.sim.rig import Laser, Motion, Rig
 
 #: the family: ``(low, high)`` uniform ranges, or a tuple of choices (``"choice"`` entries)

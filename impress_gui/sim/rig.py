@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from impress_gui.core.geometry import Intrinsics, Plane, ideal_rotation
+from impress_gui.core.calibration.geometry import Intrinsics, Plane, ideal_rotation
 
 SPEED_PRESETS_MM_S = (1.3138, 5.2552, 13.138)
 

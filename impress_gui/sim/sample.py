@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 from impress_gui import __version__
-from impress_gui.core.progress import CancelToken, ProgressCallback, report, sub_progress
+from impress_gui.core.base.progress import CancelToken, ProgressCallback, report, sub_progress
 
 SAMPLE_VERSION = 4  # bump when the sample's recipe changes, to rebuild caches
 #: set to 1 (tests only) for a tiny, fast sample instead of the README's one
@@ -36,14 +36,14 @@ def make_sample(cache_dir: Path, workers: int = 2, progress: ProgressCallback | 
 
     ``small`` (default: ``$IMPRESS_SAMPLE_SMALL``) builds a tiny sample for tests; the cache
     records which one it holds, so neither is mistaken for the other."""
-    from impress_gui.core.calibration import calibrate_scene
-    from impress_gui.core.geometry import Intrinsics
-    from impress_gui.core.picks import Picks
-    from impress_gui.core.pipeline import process_files
-    from impress_gui.core.project import Project, create_project
-    from impress_gui.core.reconstruct import ProcessParams
-    from impress_gui.core.target import TargetModel
-    from impress_gui.core.video import open_video
+    from impress_gui.core.calibration.geometry import Intrinsics
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import calibrate_scene
+    from impress_gui.core.calibration.target import TargetModel
+    from impress_gui.core.formats.video import open_video
+    from impress_gui.core.project.project import Project, create_project
+    from impress_gui.core.reconstruction.pipeline import process_files
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams
     from impress_gui.sim.simulate import simulate
 
     if small is None:

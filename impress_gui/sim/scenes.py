@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from impress_gui.core.target import TargetModel
+from impress_gui.core.calibration.target import TargetModel
 
 PRESETS = ("shoe", "tire", "blocks", "flat", "spheres", "letter")
 DEFAULT_LENGTH_MM = {"shoe": 480.0, "tire": 1750.0, "blocks": 480.0, "flat": 260.0, "spheres": 300.0,

@@ -10,13 +10,18 @@ from pathlib import Path
 import numpy as np
 
 from impress_gui import __version__
-from impress_gui.core.errors import InputError
-from impress_gui.core.fileio import atomic_write_png, atomic_write_tiff, sha256_path, write_json
-from impress_gui.core.geometry import Plane
-from impress_gui.core.outdir import OutputFolder
-from impress_gui.core.picks import Picks
-from impress_gui.core.progress import CancelToken, ProgressCallback, report
-from impress_gui.core.target import CORNER_NAMES, TargetModel, default_target
+from impress_gui.core.base.errors import InputError
+from impress_gui.core.base.fileio import (
+    atomic_write_png,
+    atomic_write_tiff,
+    sha256_path,
+    write_json,
+)
+from impress_gui.core.base.outdir import OutputFolder
+from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.calibration.geometry import Plane
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel, default_target
 from impress_gui.sim.rig import Motion, Rig, default_rig
 from impress_gui.sim.scenes import DEFAULT_LENGTH_MM, PRESETS, build_scene
 
@@ -317,7 +322,7 @@ SIM_FILES = ("scan.mp4", "scan.mov", "scan.mts", "frames", "intrinsics.json", "t
 def _adopt_legacy(folder: Path) -> None:
     """A simulation written before folders were marked (truth.json, nothing but simulator
     files, no links) gets the mark, so that it can be replaced like a marked one."""
-    from impress_gui.core.outdir import MARK_FILE, mark_bytes, read_mark
+    from impress_gui.core.base.outdir import MARK_FILE, mark_bytes, read_mark
 
     try:
         if (folder.is_symlink() or not folder.is_dir() or read_mark(folder) is not None

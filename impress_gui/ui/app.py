@@ -60,8 +60,8 @@ def build_main_window(
 
     motor = None
     if with_motor:
-        from impress_gui.ui.motor_choices import load_motor_choices
-        from impress_gui.ui.motor_panel import MotorPanel
+        from impress_gui.ui.motor.choices import load_motor_choices
+        from impress_gui.ui.motor.panel import MotorPanel
 
         motor = MotorPanel(settings=load_motor_choices(settings), port_lister=port_lister)
     return MainWindow(settings, motor_panel=motor)
@@ -187,7 +187,7 @@ class OpenCheck:
         if not recon_outputs:
             return
         try:
-            from impress_gui.ui.viewer_tab import latest_reconstruction
+            from impress_gui.ui.viewer.tab import latest_reconstruction
         except ImportError as exc:
             self.problems.append(f"the viewer cannot start: {exc}")
             return

@@ -14,8 +14,8 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from impress_gui.core.project import Project, current_user, describe_signatures
-from impress_gui.core.signing import local_fingerprint
+from impress_gui.core.project.project import Project, current_user, describe_signatures
+from impress_gui.core.project.signing import local_fingerprint
 
 
 class CaseDialog(QDialog):

@@ -2,8 +2,8 @@
 the File menu (New, Open, Recent, Save, Save as, Quit), a status bar, and the unsaved-changes
 prompt on close.
 
-Tabs other than Calibration are looked up by module: ``impress_gui.ui.processing_tab`` must
-define ``ProcessingTab`` and ``impress_gui.ui.viewer_tab`` ``ViewerTab``; until they exist a
+Tabs other than Calibration are looked up by module: ``impress_gui.ui.processing.tab`` must
+define ``ProcessingTab`` and ``impress_gui.ui.viewer.tab`` ``ViewerTab``; until they exist a
 labelled placeholder stands in. A tab class is constructed with whichever of the keyword
 arguments ``messenger``, ``dialogs`` and ``parent`` it accepts, and may provide
 ``set_project(project)``, ``commit_to_project()``, ``project_updated()``, ``is_dirty()``,
@@ -32,18 +32,18 @@ from PySide6.QtWidgets import (
 )
 
 from impress_gui import __version__
-from impress_gui.core.compiled import prepare_in_background
-from impress_gui.core.errors import ImpressError
-from impress_gui.core.project import PROJECT_FILE, Project, describe_signatures
-from impress_gui.core.video import VIDEO_SUFFIXES
-from impress_gui.ui.calibration_tab import CalibrationTab
+from impress_gui.core.base.errors import ImpressError
+from impress_gui.core.formats.video import VIDEO_SUFFIXES
+from impress_gui.core.project.project import PROJECT_FILE, Project, describe_signatures
+from impress_gui.core.reconstruction.compiled import prepare_in_background
+from impress_gui.ui.calibration.tab import CalibrationTab
 from impress_gui.ui.case_dialog import CaseDialog
 from impress_gui.ui.messages import Dialogs, Messenger
 
 MAX_RECENT = 8
 OPTIONAL_TABS = (
-    ("Processing", "impress_gui.ui.processing_tab", "ProcessingTab"),
-    ("Viewer", "impress_gui.ui.viewer_tab", "ViewerTab"),
+    ("Processing", "impress_gui.ui.processing.tab", "ProcessingTab"),
+    ("Viewer", "impress_gui.ui.viewer.tab", "ViewerTab"),
 )
 Button = QMessageBox.StandardButton
 
@@ -450,7 +450,7 @@ class MainWindow(QMainWindow):
             if hasattr(tab, "shutdown"):
                 tab.shutdown()
         if self.motor_panel is not None and hasattr(self.motor_panel, "current_settings"):
-            from impress_gui.ui.motor_choices import save_motor_choices
+            from impress_gui.ui.motor.choices import save_motor_choices
 
             save_motor_choices(self.settings, self.motor_panel.current_settings())
         if self.motor_panel is not None and hasattr(self.motor_panel, "shutdown"):

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from PySide6.QtCore import QObject, Qt, Signal
 from PySide6.QtWidgets import QMessageBox, QWidget
 
-from impress_gui.core.errors import ImpressError
+from impress_gui.core.base.errors import ImpressError
 
 LogSink = Callable[[str, dict], None]
 MAX_BOXES = 5

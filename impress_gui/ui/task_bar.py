@@ -10,7 +10,7 @@ from typing import Any
 from PySide6.QtCore import Signal
 from PySide6.QtWidgets import QHBoxLayout, QLabel, QProgressBar, QPushButton, QWidget
 
-from impress_gui.core.errors import ImpressError
+from impress_gui.core.base.errors import ImpressError
 from impress_gui.ui.messages import Messenger
 from impress_gui.ui.worker import Task, Worker
 

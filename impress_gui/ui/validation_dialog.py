@@ -1,4 +1,4 @@
-"""The method-validation dialog: runs :mod:`impress_gui.core.validation_run` through the
+"""The method-validation dialog: runs :mod:`impress_gui.validation.run` through the
 window's worker adapter, shows the table in the thesis' layout beside the thesis' figures and
 opens the HTML report. Simulated (quick or full) or from a real-scan spec file."""
 
@@ -150,8 +150,8 @@ class ValidationDialog(QDialog):
 
     def task(self):
         """The core task for the selected mode: ``fn(progress, cancel) -> (record, paths)``."""
-        from impress_gui.core.validation_report import write_report
-        from impress_gui.core.validation_run import RunConfig, run_real, run_simulated
+        from impress_gui.validation.report import write_report
+        from impress_gui.validation.run import RunConfig, run_real, run_simulated
 
         out = Path(self.out_edit.text()).expanduser()
         idx = self.mode.currentIndex()
@@ -206,7 +206,7 @@ class ValidationDialog(QDialog):
         self._refresh()
 
     def show_record(self, record: dict) -> None:
-        from impress_gui.core.validation_report import format_table, table_rows
+        from impress_gui.validation.report import format_table, table_rows
 
         rows = table_rows(record)
         self.table.setRowCount(len(rows))

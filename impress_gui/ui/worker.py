@@ -1,7 +1,7 @@
 """The one adapter that runs long core work off the GUI thread.
 
 A core task is a callable ``fn(progress, cancel) -> result`` following the core's contract
-(:mod:`impress_gui.core.progress`): it reports ``progress(fraction, message)``, checks the
+(:mod:`impress_gui.core.base.progress`): it reports ``progress(fraction, message)``, checks the
 :class:`CancelToken` and raises :class:`Cancelled` when asked to stop.
 
 :class:`Worker` runs one such task on its own ``QThread`` and reports on the GUI thread with the
@@ -20,8 +20,8 @@ from typing import Any
 
 from PySide6.QtCore import QObject, QThread, Signal
 
-from impress_gui.core.errors import Cancelled, ImpressError
-from impress_gui.core.progress import CancelToken, ProgressCallback
+from impress_gui.core.base.errors import Cancelled, ImpressError
+from impress_gui.core.base.progress import CancelToken, ProgressCallback
 
 Task = Callable[[ProgressCallback, CancelToken], Any]
 PROGRESS_INTERVAL_S = 0.05

@@ -1,0 +1,266 @@
+"""The laser planes of the scene calibration: each plane is fitted to every stripe pixel that
+falls on a known face of the L target, in several frames around its calibration frame, and the
+tilt (poorly fixed by the corner picks) is refined so the stripe points lie on their planes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from impress_gui.core.base.errors import CalibrationError
+from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.calibration.geometry import Intrinsics, Plane, fit_plane, ideal_rotation
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.calibration.solve import (
+    SPEED_WARN_FRACTION,
+    PoseSolution,
+    ideal_pair,
+    project_points,
+    refine_bundle,
+    triangulate_parallax,
+    umeyama,
+)
+from impress_gui.core.calibration.target import TargetModel, _inside_convex
+
+
+@dataclass(frozen=True)
+class LaserPlaneFit:
+    name: str
+    plane: Plane  # camera-fixed ideal frame, mm
+    rms_mm: float
+    n_points: int
+    frames: tuple[int, ...]
+    heights_mm: tuple[float, ...]  # target-face heights the stripe was measured on
+    method: str = "stripe-fit"
+
+
+def _face_polygons(calib_pose, target: TargetModel):
+    """Top faces as (height, polygon in rail frame (N, 3), outward up-normal, depth plane)."""
+    r_o, t_o = calib_pose
+    out = []
+    for face in target.top_faces():
+        v = face.vertices_mm
+        # shrink by 1 mm towards the centroid so edge pixels are not attributed to a face
+        c = v.mean(0)
+        d = v - c
+        scale = np.maximum(0.0, 1.0 - 1.0 / np.maximum(np.abs(d[:, :2]).max(1), 1e-9))
+        vs = c + d * scale[:, None]
+        out.append((float(v[0, 2]), vs @ r_o.T + t_o, v @ r_o.T + t_o))
+    return out
+
+
+def stripe_uv_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
+                        pose, target: TargetModel, travel_mm: float, params=None) -> np.ndarray:
+    """Sub-pixel stripe positions ``(N, 2)`` of one laser inside the target's image region."""
+    from impress_gui.core.reconstruction.stripes import StripeParams, detect_band
+
+    faces = _face_polygons(pose, target)
+    h, w = rgb.shape[:2]
+    all_uv = np.concatenate([project_points(intr, rot, f[2], travel_mm) for f in faces])
+    r0 = int(max(0, np.floor(all_uv[:, 1].min()) - 8))
+    r1 = int(min(h, np.ceil(all_uv[:, 1].max()) + 8))
+    c0 = int(max(0, np.floor(all_uv[:, 0].min())))
+    c1 = int(min(w, np.ceil(all_uv[:, 0].max()) + 1))
+    if r1 - r0 < 10 or c1 - c0 < 10:
+        return np.zeros((0, 2))
+    res = detect_band(laser, rgb[r0:r1, c0:c1], None, r0, params or StripeParams(), None)
+    cols = np.flatnonzero(res.found)
+    return np.column_stack([cols + c0, res.rows[cols]])
+
+
+def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: float):
+    """Intersect ideal-frame rays with the target's top faces (seen from a frame whose camera
+    travelled ``travel_mm``): 3D points in the camera-fixed ideal frame and face heights, for
+    the rays that hit a face (inside it by 1 mm)."""
+    best_t = np.full(len(rays), np.inf)
+    best_h = np.full(len(rays), np.nan)
+    for height, poly_in, poly in _face_polygons(pose, target):
+        n = np.cross(poly[1] - poly[0], poly[2] - poly[0])
+        n /= np.linalg.norm(n)
+        p0 = poly[0] - np.array([0.0, travel_mm, 0.0])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (p0 @ n) / (rays @ n)
+        hit = rays * t[:, None] + np.array([0.0, travel_mm, 0.0])  # rail frame
+        e1 = poly[1] - poly[0]
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        q = poly_in - poly[0]
+        hq = hit - poly[0]
+        inside = _inside_convex(np.column_stack([q @ e1, q @ e2]), hq @ e1, hq @ e2) & (t > 0)
+        better = inside & (t < best_t)
+        best_t[better] = t[better]
+        best_h[better] = height
+    ok = np.isfinite(best_t)
+    return rays[ok] * best_t[ok, None], best_h[ok], ok
+
+
+def stripe_points_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
+                            pose, target: TargetModel, travel_mm: float, params=None):
+    """3D points (camera-fixed ideal frame) of the laser stripe where it falls on the target's
+    top faces in one frame, and the face height of each point."""
+    uv = stripe_uv_on_target(rgb, laser, intr, rot, pose, target, travel_mm, params)
+    if len(uv) == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    pts, hts, _ = points_on_faces(intr.rays(uv) @ rot.T, pose, target, travel_mm)
+    return pts, hts
+
+
+def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames) -> LaserPlaneFit:
+    """SVD plane through the stripe points with outlier rejection; refuse when the stripe did
+    not cross faces at two different heights (the plane would be undetermined)."""
+    levels = sorted({round(float(h), 3) for h in np.unique(heights)
+                     if np.sum(heights == h) >= 10})
+    if len(levels) < 2:
+        raise CalibrationError(
+            f"the {name} stripe does not cross target faces at two different heights "
+            f"(found {', '.join(f'{v:g} mm' for v in levels) or 'none'}); its plane is "
+            "undetermined - choose a frame where it crosses both the low and the high face",
+            code="E-PLANE-UNDETERMINED")
+    keep = np.ones(len(points), bool)
+    for _ in range(4):
+        plane, rms, _ = fit_plane(points[keep])
+        res = np.abs(plane.distance(points))
+        mad = np.median(res[keep]) * 1.4826 + 1e-6
+        new = res < max(4 * mad, 0.02)
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    plane, rms, _ = fit_plane(points[keep])
+    if plane.normal[2] < 0:  # orient consistently: normal with positive depth component
+        plane = Plane(-plane.normal, -plane.offset_mm)
+    return LaserPlaneFit(name, plane, rms, int(keep.sum()), tuple(frames), tuple(levels))
+
+
+@dataclass(frozen=True)
+class StripeObservations:
+    """Each laser's stripe on the target (as camera rays) in frames around its calibration
+    frame: ``rays[name]`` lists ``(frame, time since frame t1 in s, rays (N, 3))``."""
+
+    target: TargetModel
+    speed_mm_s: float  # the travel between frames that matches the target's pose
+    frames: dict[str, int]  # calibration frame of each laser
+    rays: dict[str, list]
+
+    def points(self, name: str, rot: np.ndarray, pose_rt):
+        """The stripe points on the target's faces, their heights and frames (only frames where
+        the stripe crosses two faces with at least 10 points each)."""
+        pts, hts, used = [], [], []
+        for k, dt_k, rays in self.rays[name]:
+            p, hh, _ = points_on_faces(rays @ rot.T, pose_rt, self.target,
+                                       self.speed_mm_s * dt_k)
+            levels = np.unique(hh)
+            if len(levels) >= 2 and min(np.sum(hh == v) for v in levels) >= 10:
+                pts.append(p)
+                hts.append(hh)
+                used.append(k)
+        return pts, hts, used
+
+    def fit_planes(self, rot: np.ndarray, pose_rt) -> dict[str, tuple[LaserPlaneFit, list]]:
+        """Each laser's plane fit and the stripe points (per frame) it was fitted to."""
+        out = {}
+        for name, t_c in self.frames.items():
+            pts, hts, used = self.points(name, rot, pose_rt)
+            if not pts:
+                raise CalibrationError(
+                    f"the {name} stripe was not found on two target faces around frame {t_c}; "
+                    "choose a frame where it crosses both the low and the high face",
+                    code="E-PLANE-UNDETERMINED")
+            # frames whose points disagree with the others (acceleration ramp, a passing
+            # shadow) are dropped: their travel does not follow the constant speed
+            if len(used) >= 4:
+                first = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
+                err = np.array([np.median(np.abs(first.plane.distance(p))) for p in pts])
+                good = err <= max(3 * np.median(err), 0.02)
+                pts = [p for p, g in zip(pts, good) if g]
+                hts = [h for h, g in zip(hts, good) if g]
+                used = [k for k, g in zip(used, good) if g]
+            out[name] = (fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used),
+                         pts)
+        return out
+
+
+def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: TargetModel,
+                    picks: Picks, pose: PoseSolution, fps: float, plane_frames: int,
+                    plane_span: int, plane_travel_mm: float,
+                    progress: ProgressCallback | None = None,
+                    cancel: CancelToken | None = None) -> StripeObservations:
+    """Detect the green stripe around frame t1 and the red one around t2 on the target."""
+    cancel = cancel or CancelToken()
+    rot_b, r_o, t_o = pose.rotation, pose.target_rotation, pose.target_translation_mm
+    v_true = pose.implied_speed_mm_s  # the travel between frames that matches the target's pose
+    frames = {"green": picks.t1, "red": picks.t2}
+    obs: dict[str, list] = {}
+    for i, (name, t_c) in enumerate(frames.items()):
+        cancel.check()
+        report(progress, 0.15 + 0.3 * i, f"{name} stripe on the target")
+        span = max(3, min(plane_span, int(round(plane_travel_mm / max(v_true, 1e-6) * fps))))
+        lo, hi = max(0, t_c - span), min(video.frame_count, t_c + span + 1)
+        wanted = sorted(set(np.linspace(lo, hi - 1, max(1, plane_frames)).astype(int)) | {t_c})
+        obs[name] = []
+        for k in wanted:
+            cancel.check()
+            dt_k = float(times[k] - times[picks.t1])
+            uv = stripe_uv_on_target(video.read(int(k)), name, intrinsics, rot_b, (r_o, t_o),
+                                     target, v_true * dt_k)
+            if len(uv):
+                obs[name].append((int(k), dt_k, intrinsics.rays(uv)))
+    return StripeObservations(target, v_true, frames, obs)
+
+
+def refine_tilt(obs: StripeObservations, planes0: dict, intrinsics: Intrinsics,
+                target: TargetModel, picks: Picks, pose: PoseSolution, speed_mm_s: float,
+                dt: float, click_sigma_px: float) -> PoseSolution:
+    """The pose with its tilt refined by the stripes (``planes0``: the planes fitted with the
+    pose from the picks).
+
+    The clicks fix roll well but tilt poorly (a tilt of 0.05 deg moves the corners by less
+    than 0.1 px). The stripe on the target's faces, seen over a stretch of travel, is only
+    consistent with one motion direction: refine the tilt to minimise the plane residuals of
+    the stripe points together with the reprojection of the picks."""
+    from scipy.optimize import minimize_scalar
+
+    implied, v_true = pose.implied_speed_mm_s, obs.speed_mm_s
+    sigma_s = max(1e-3, np.mean([f.rms_mm for f, _ in planes0.values()]))
+    n_ref = {name: sum(len(p) for p in pts) for name, (_, pts) in planes0.items()}
+    speed_ok = abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s
+    d_use = (speed_mm_s if speed_ok else v_true) * dt
+    base = (pose.roll_rad, pose.tilt_rad, pose.target_rotation, pose.target_translation_mm)
+
+    def cost(tilt):
+        roll = pose.roll_rad
+        _, _, ro, to, _, rms = refine_bundle(intrinsics, target, picks,
+                                             (roll, tilt, base[2], base[3]),
+                                             d_use, fixed_travel=True, fixed_rotation=True)
+        rot = ideal_rotation(roll, tilt)
+        total = 24 * (rms / click_sigma_px) ** 2
+        for name in ("green", "red"):
+            pts, hts, _ = obs.points(name, rot, (ro, to))
+            n_pts = sum(len(p) for p in pts)
+            if n_pts < 0.8 * n_ref[name]:
+                return 1e12  # the stripe no longer falls on the faces: not a candidate
+            allp = np.concatenate(pts)
+            plane, _, _ = fit_plane(allp)
+            r = np.clip(np.abs(plane.distance(allp)) / sigma_s, 0, 5)  # outliers capped
+            total += n_ref[name] * float(np.mean(r**2))
+        return total
+
+    # tilt only: roll is fixed well by the picks (the stripes would add their own bias)
+    span = np.radians(0.6)
+    res = minimize_scalar(cost, bounds=(pose.tilt_rad - span, pose.tilt_rad + span),
+                          method="bounded", options={"xatol": 2e-7})
+    roll_r, tilt_r = pose.roll_rad, float(res.x)
+    _, _, r_o, t_o, _, rms_px = refine_bundle(intrinsics, target, picks,
+                                              (roll_r, tilt_r, base[2], base[3]), d_use,
+                                              fixed_travel=True, fixed_rotation=True)
+    rot_b = ideal_rotation(roll_r, tilt_r)
+    m_b = rot_b.T @ np.array([0.0, 1.0, 0.0])
+    n1 = intrinsics.undistort_points(picks.array("t1"))
+    n2 = intrinsics.undistort_points(picks.array("t2"))
+    corners = triangulate_parallax(*ideal_pair(intrinsics, rot_b, n1, n2), speed_mm_s * dt)
+    _, r_e, t_e = umeyama(target.corner_array(), corners, with_scale=False)
+    residuals = np.linalg.norm(corners - (target.corner_array() @ r_e.T + t_e), axis=1)
+    return replace(pose, roll_rad=float(roll_r), tilt_rad=float(tilt_r), rotation=rot_b,
+                   motion_dir_cam=m_b, corners_parallax_mm=corners,
+                   corner_residuals_mm=residuals, target_rotation=r_o,
+                   target_translation_mm=t_o, reprojection_rms_px=rms_px)

@@ -1,0 +1,341 @@
+"""Scene calibration from the scan itself (the seed's self-calibration, made better).
+
+From the six L-target corners marked in frames t1 and t2 this recovers the motion direction
+(least-squares vanishing point of all six corner tracks, valid at infinity), roll and tilt, the
+metric corners by motion parallax, a rigid fit of the target model (per-corner residuals, and
+the speed implied by the target's known size), then refines everything by minimising the
+reprojection error of all twelve picks. Each laser plane is fitted to every stripe pixel that
+falls on a known target face, in several frames around its calibration frame.
+
+This module holds :class:`SceneCalibration` (and its file format) and the entry point
+:func:`calibrate_scene`; the geometric solvers are in :mod:`~impress_gui.core.calibration.solve`, the
+laser planes and the tilt refinement from the stripes in :mod:`~impress_gui.core.calibration.planes`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from impress_gui import __version__
+from impress_gui.core.base.errors import CalibrationError, FormatError
+from impress_gui.core.base.fileio import float_array, read_json, require, write_json
+from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.calibration.aids import check_stripe_points, three_point_planes
+from impress_gui.core.calibration.geometry import Intrinsics, Plane
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.calibration.planes import LaserPlaneFit, observe_stripes, refine_tilt
+from impress_gui.core.calibration.solve import (
+    SPEED_WARN_FRACTION,
+    project_points,
+    solve_pose,
+    vanishing_point,
+)
+from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
+
+# public names (LaserPlaneFit, solve_pose and vanishing_point re-exported for the callers)
+__all__ = ["CALIBRATION_FORMAT", "PLANE_METHODS", "LaserPlaneFit", "SceneCalibration",
+           "calibrate_scene", "check_picks", "solve_pose", "vanishing_point"]
+
+CALIBRATION_FORMAT = "impress.calibration"
+#: how the laser planes are found (recorded in each plane's ``method``)
+PLANE_METHODS = ("stripe-fit", "three-point")
+
+
+@dataclass(frozen=True)
+class SceneCalibration:
+    intrinsics: Intrinsics
+    speed_mm_s: float  # as entered; travel of frame k is speed * (t_k - t_ref)
+    fps: float
+    t1: int
+    t2: int
+    t_ref_s: float  # time of frame t1: the rail frame's origin is the optical centre then
+    motion_dir_cam: np.ndarray
+    vanishing_point_px: np.ndarray  # homogeneous, undistorted pixels; [x, y, 0] at infinity
+    roll_deg: float
+    tilt_deg: float
+    rotation: np.ndarray  # camera -> ideal
+    corners_parallax_mm: np.ndarray  # (6, 3) rail frame, by motion parallax with the entered speed
+    corner_residuals_mm: np.ndarray  # (6,) after the rigid fit of the target model
+    target_rotation: np.ndarray  # object -> rail
+    target_translation_mm: np.ndarray
+    implied_speed_mm_s: float
+    reprojection_rms_px: float
+    planes: dict[str, LaserPlaneFit]
+    warnings: tuple[str, ...] = ()
+    inputs: dict = field(default_factory=dict)
+
+    # ----- derived -------------------------------------------------------------------------
+    def corners_fit_mm(self, target: TargetModel) -> np.ndarray:
+        return target.corner_array() @ self.target_rotation.T + self.target_translation_mm
+
+    @property
+    def up_rail(self) -> np.ndarray:
+        """Unit 'up' of the target's base (towards the camera) in the rail frame."""
+        return self.target_rotation @ np.array([0.0, 0.0, 1.0])
+
+    def reference_depth(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        """Depth Z' of the target's base plane (the height reference) at rail (X', Y')."""
+        n = -self.up_rail  # pointing away from the camera, n_z > 0
+        p0 = self.target_translation_mm
+        return p0[2] - (n[0] * (x_mm - p0[0]) + n[1] * (y_mm - p0[1])) / n[2]
+
+    def travel_mm(self, times_s: np.ndarray) -> np.ndarray:
+        """Camera travel (mm) at the given frame times, relative to frame t1."""
+        return self.speed_mm_s * (np.asarray(times_s, float) - self.t_ref_s)
+
+    def project_rail(self, pts_rail_mm: np.ndarray, travel_mm: float) -> np.ndarray:
+        """Distorted pixel positions ``(N, 2)`` of rail-frame points seen from a frame whose
+        camera has travelled ``travel_mm`` (e.g. the fitted target corners for an overlay)."""
+        return project_points(self.intrinsics, self.rotation, np.asarray(pts_rail_mm, float), travel_mm)
+
+    # ----- file format ------------------------------------------------------------------------
+    def to_json(self) -> dict:
+        return {
+            "format": CALIBRATION_FORMAT,
+            "version": 1,
+            "software": f"impress {__version__}",
+            "intrinsics": self.intrinsics.to_json(),
+            "speed_mm_s": self.speed_mm_s,
+            "fps": self.fps,
+            "t1": self.t1,
+            "t2": self.t2,
+            "t_ref_s": self.t_ref_s,
+            "frames": "rail frame: axes of the ideal frame (camera rotated so the motion is +Y), "
+                      "origin at the optical centre at frame t1; Z' = depth; planes are in the "
+                      "camera-fixed ideal frame",
+            "motion_direction_camera": self.motion_dir_cam.tolist(),
+            "vanishing_point_px": self.vanishing_point_px.tolist(),
+            "roll_deg": self.roll_deg,
+            "tilt_deg": self.tilt_deg,
+            "rotation_camera_to_ideal": self.rotation.tolist(),
+            "corners_parallax_mm": {c: self.corners_parallax_mm[i].tolist()
+                                    for i, c in enumerate(CORNER_NAMES)},
+            "corner_residuals_mm": {c: float(self.corner_residuals_mm[i])
+                                    for i, c in enumerate(CORNER_NAMES)},
+            "target_pose": {"rotation": self.target_rotation.tolist(),
+                            "translation_mm": self.target_translation_mm.tolist()},
+            "implied_speed_mm_s": self.implied_speed_mm_s,
+            "reprojection_rms_px": self.reprojection_rms_px,
+            "laser_planes": {
+                n: {"normal": f.plane.normal.tolist(), "offset_mm": f.plane.offset_mm,
+                    "rms_mm": f.rms_mm, "n_points": f.n_points, "frames": list(f.frames),
+                    "heights_mm": list(f.heights_mm), "method": f.method}
+                for n, f in self.planes.items()},
+            "warnings": list(self.warnings),
+            "inputs": self.inputs,
+        }
+
+    @classmethod
+    def from_json(cls, doc: dict, where: str = "") -> SceneCalibration:
+        try:
+            intr = Intrinsics.from_json(require(doc, "intrinsics", dict, where), where)
+            planes = {}
+            for name, pd in require(doc, "laser_planes", dict, where).items():
+                plane = Plane.from_json(pd, f"{where}laser_planes.{name}")
+                planes[name] = LaserPlaneFit(
+                    name, plane, float(require(pd, "rms_mm", float, where)),
+                    int(require(pd, "n_points", int, where)),
+                    tuple(int(v) for v in pd.get("frames", [])),
+                    tuple(float(v) for v in pd.get("heights_mm", [])),
+                    str(pd.get("method", "stripe-fit")))
+            for name in ("green", "red"):
+                if name not in planes:
+                    raise FormatError(f"{where}the {name} laser plane is missing")
+            pose = require(doc, "target_pose", dict, where)
+            cp = require(doc, "corners_parallax_mm", dict, where)
+            cr = require(doc, "corner_residuals_mm", dict, where)
+            speed = float(require(doc, "speed_mm_s", float, where))
+            fps = float(require(doc, "fps", float, where))
+            check_range(speed, SPEED_RANGE_MM_S, "the rail speed (mm/s)", where)
+            check_range(fps, FPS_RANGE, "the frame rate (frames/s)", where)
+            for key in ("t1", "t2"):
+                check_range(require(doc, key, int, where), FRAME_RANGE, f"frame {key}", where)
+            check_range(require(doc, "t_ref_s", float, where), TIME_RANGE_S,
+                        "the reference time (s)", where)
+            check_range(require(doc, "implied_speed_mm_s", float, where), (0.0, 1e4),
+                        "the implied speed (mm/s)", where)
+            check_range(require(doc, "reprojection_rms_px", float, where), (0.0, 1e4),
+                        "the reprojection RMS (px)", where)
+            return cls(
+                intrinsics=intr, speed_mm_s=speed, fps=fps,
+                t1=int(require(doc, "t1", int, where)), t2=int(require(doc, "t2", int, where)),
+                t_ref_s=float(require(doc, "t_ref_s", float, where)),
+                motion_dir_cam=float_array(doc.get("motion_direction_camera"), (3,), "motion"),
+                vanishing_point_px=float_array(doc.get("vanishing_point_px"), (3,), "vp"),
+                roll_deg=float(require(doc, "roll_deg", float, where)),
+                tilt_deg=float(require(doc, "tilt_deg", float, where)),
+                rotation=float_array(doc.get("rotation_camera_to_ideal"), (3, 3), "rotation"),
+                corners_parallax_mm=np.array([float_array(cp.get(c), (3,), f"corner {c}")
+                                              for c in CORNER_NAMES]),
+                corner_residuals_mm=np.array([float(cr.get(c, np.nan)) for c in CORNER_NAMES]),
+                target_rotation=float_array(pose.get("rotation"), (3, 3), "target rotation"),
+                target_translation_mm=float_array(pose.get("translation_mm"), (3,), "target t"),
+                implied_speed_mm_s=float(require(doc, "implied_speed_mm_s", float, where)),
+                reprojection_rms_px=float(require(doc, "reprojection_rms_px", float, where)),
+                planes=planes, warnings=tuple(str(w) for w in doc.get("warnings", [])),
+                inputs=dict(doc.get("inputs", {})),
+            )
+        except (TypeError, ValueError, AttributeError, OverflowError, KeyError, IndexError):
+            raise FormatError(f"{where}damaged calibration (a field has the wrong kind of "
+                              "value, or numbers of the wrong count)") from None
+
+    def save(self, path) -> None:
+        write_json(path, self.to_json())
+
+    @classmethod
+    def from_bytes(cls, raw: bytes, path) -> SceneCalibration:
+        from impress_gui.core.base.fileio import parse_json
+
+        return cls.from_json(parse_json(raw, path, CALIBRATION_FORMAT), f"{path}: ")
+
+    @classmethod
+    def load(cls, path) -> SceneCalibration:
+        return cls.from_json(read_json(path, CALIBRATION_FORMAT), f"{path}: ")
+
+
+#: physical ranges of a calibration's numbers: a value outside is a damaged or forged file
+SPEED_RANGE_MM_S = (0.01, 1000.0)  # the rail's slowest crawl to far beyond its fastest
+FPS_RANGE = (0.5, 1000.0)
+FRAME_RANGE = (0, 10_000_000)  # ~4 days at 30 frames/s
+TIME_RANGE_S = (-1e6, 1e6)
+
+
+def check_range(value, bounds: tuple[float, float], what: str, where: str = "") -> None:
+    """FormatError ``E-VALUE`` unless ``bounds[0] <= value <= bounds[1]``."""
+    lo, hi = bounds
+    if not (lo <= float(value) <= hi):
+        raise FormatError(f"{where}{what} is {value:g}, outside the possible range "
+                          f"{lo:g} to {hi:g}", code="E-VALUE")
+
+
+def check_picks(picks: Picks, intrinsics: Intrinsics, frame_count: int) -> None:
+    """Each problem with the picks is a clear error naming it (never a silent NaN)."""
+    w, h = intrinsics.image_size
+    for key, t in (("t1", picks.t1), ("t2", picks.t2)):
+        if not 0 <= t < frame_count:
+            raise CalibrationError(f"frame {key} = {t} is outside the video (0..{frame_count - 1})",
+                                   code="E-FRAME-RANGE")
+    if picks.t1 == picks.t2:
+        raise CalibrationError("t1 and t2 are the same frame: the corners need two frames "
+                               "with travel between them", code="E-PICKS")
+    for key in ("t1", "t2"):
+        d = picks.corners_t1 if key == "t1" else picks.corners_t2
+        missing = [c for c in CORNER_NAMES if c not in d]
+        if missing:
+            raise CalibrationError(f"corners {', '.join(missing)} are not marked in frame {key}; "
+                                   "all six corners A-F are needed in both frames",
+                                   code="E-PICKS-INCOMPLETE")
+        arr = picks.array(key)
+        for c, (u, v) in zip(CORNER_NAMES, arr):
+            if not (-0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5):
+                raise CalibrationError(f"corner {c} in frame {key} ({u:.1f}, {v:.1f}) is outside "
+                                       f"the {w}x{h} image", code="E-PICKS")
+        dist = np.linalg.norm(arr[:, None] - arr[None], axis=2) + np.eye(6) * 1e9
+        i, j = np.unravel_index(np.argmin(dist), dist.shape)
+        if dist[i, j] < 2.0:
+            raise CalibrationError(f"corners {CORNER_NAMES[i]} and {CORNER_NAMES[j]} in frame "
+                                   f"{key} are at the same place", code="E-PICKS")
+        centred = arr - arr.mean(0)
+        s = np.linalg.svd(centred, compute_uv=False)
+        if s[1] < 0.02 * s[0] or s[1] < 3.0:
+            raise CalibrationError(f"the corners in frame {key} are (nearly) collinear; check "
+                                   "the order A-F against the target diagram", code="E-PICKS")
+    shift = np.linalg.norm(picks.array("t2") - picks.array("t1"), axis=1)
+    if np.median(shift) < 5.0:
+        raise CalibrationError("the corners barely move between t1 and t2; choose frames "
+                               "further apart", code="E-PICKS")
+
+
+def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: Picks,
+                    speed_mm_s: float, fps: float | None = None, plane_frames: int = 15,
+                    plane_span: int = 300, plane_travel_mm: float = 25.0,
+                    refine_with_stripes: bool = True, click_sigma_px: float = 0.5,
+                    progress: ProgressCallback | None = None,
+                    cancel: CancelToken | None = None, inputs: dict | None = None,
+                    plane_method: str = "stripe-fit") -> SceneCalibration:
+    """Calibrate the rig from one scan. ``video`` is an open :class:`VideoSource`.
+
+    ``plane_method``: ``"stripe-fit"`` fits each laser plane to its stripe on the target's
+    faces (and refines the tilt with them); ``"three-point"`` is the seed's fallback, each
+    plane through three stripe points the user picked on target edges (``picks.stripe_points``),
+    with no stripe detection and the pose from the corner picks alone."""
+    cancel = cancel or CancelToken()
+    if plane_method not in PLANE_METHODS:
+        raise CalibrationError(f"unknown laser plane method {plane_method!r} (known: "
+                               f"{', '.join(PLANE_METHODS)})", code="E-CALIB")
+    if not np.isfinite(speed_mm_s) or not 0.01 <= speed_mm_s <= 1000:
+        raise CalibrationError(f"rail speed {speed_mm_s} mm/s is not plausible", code="E-SPEED")
+    w, h = video.size
+    intrinsics.check_image_size(w, h)
+    check_picks(picks, intrinsics, video.frame_count)
+    if plane_method == "three-point":
+        check_stripe_points(picks, intrinsics, video.frame_count)
+    fps = float(fps or video.fps)
+    times = video.times_s if fps == video.fps else np.arange(video.frame_count) / fps
+    dt = float(times[picks.t2] - times[picks.t1])
+    # the corners were marked on frames t1 and t2: both must decode without damage
+    for k in (picks.t1, picks.t2):
+        video.read(k)
+    _refuse_damaged(video, (picks.t1, picks.t2))
+    report(progress, 0.05, "motion direction and pose")
+    pose = solve_pose(intrinsics, target, picks, speed_mm_s, dt)
+    implied, warnings = pose.implied_speed_mm_s, list(pose.warnings)
+    if plane_method == "three-point":
+        report(progress, 0.5, "laser planes from the three stripe points")
+        # the travel the target's pose was fitted with: the entered speed once confirmed
+        v_pose = (speed_mm_s if abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s
+                  else implied)
+        planes = three_point_planes(
+            intrinsics, pose.rotation, target,
+            (pose.target_rotation, pose.target_translation_mm), picks,
+            lambda k: v_pose * float(times[k] - times[picks.t1]))
+        warnings.append("laser planes by the three-point method (three picked stripe points "
+                        "per laser): coarser than the stripe fit, with no residual check, and "
+                        "the tilt is not refined by the stripes")
+    else:
+        # ----- stripes on the target around each calibration frame ------------------------
+        obs = observe_stripes(video, times, intrinsics, target, picks, pose, fps, plane_frames,
+                              plane_span, plane_travel_mm, progress, cancel)
+        planes0 = obs.fit_planes(pose.rotation,
+                                 (pose.target_rotation, pose.target_translation_mm))
+        if refine_with_stripes:
+            pose = refine_tilt(obs, planes0, intrinsics, target, picks, pose, speed_mm_s, dt,
+                               click_sigma_px)
+            planes0 = obs.fit_planes(pose.rotation,
+                                     (pose.target_rotation, pose.target_translation_mm))
+        planes = {name: fit for name, (fit, _) in planes0.items()}
+        _refuse_damaged(video, sorted({k for f in planes.values() for k in f.frames}))
+    warnings += list(getattr(video, "open_warnings", []))
+    report(progress, 1.0, "calibrated")
+    return SceneCalibration(
+        intrinsics=intrinsics, speed_mm_s=float(speed_mm_s), fps=fps, t1=picks.t1, t2=picks.t2,
+        t_ref_s=float(times[picks.t1]), motion_dir_cam=pose.motion_dir_cam,
+        vanishing_point_px=_vp_pixels(intrinsics, pose.motion_dir_cam),
+        roll_deg=float(np.degrees(pose.roll_rad)), tilt_deg=float(np.degrees(pose.tilt_rad)),
+        rotation=pose.rotation, corners_parallax_mm=pose.corners_parallax_mm,
+        corner_residuals_mm=pose.corner_residuals_mm, target_rotation=pose.target_rotation,
+        target_translation_mm=pose.target_translation_mm, implied_speed_mm_s=float(implied),
+        reprojection_rms_px=pose.reprojection_rms_px, planes=planes,
+        warnings=tuple(warnings), inputs=dict(inputs or {}),
+    )
+
+
+def _refuse_damaged(video, frames) -> None:
+    """CalibrationError ``E-VIDEO-DAMAGED`` when a frame the calibration uses was decoded from
+    damaged data."""
+    bad = [(int(k), video.frame_damage(k)) for k in frames
+           if hasattr(video, "frame_damage") and video.frame_damage(k)]
+    if bad:
+        k, why = bad[0]
+        raise CalibrationError(f"frame {k}, used by the calibration, is damaged ({why}); "
+                               "choose other frames t1/t2 or a sound copy of the video",
+                               code="E-VIDEO-DAMAGED")
+
+
+def _vp_pixels(intr: Intrinsics, m: np.ndarray) -> np.ndarray:
+    v = intr.camera_matrix @ m
+    if abs(v[2]) < 1e-12 * np.linalg.norm(v):
+        return np.array([v[0], v[1], 0.0])
+    return v / v[2]

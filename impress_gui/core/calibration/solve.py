@@ -1,0 +1,214 @@
+"""The geometric part of the scene calibration: the motion direction from the L-target's
+corner tracks (least-squares vanishing point, valid at infinity), roll and tilt, the metric
+corners by motion parallax, a rigid (Umeyama) fit of the target model, and the refinement of
+roll, tilt, target pose and travel by the reprojection error of all twelve picks."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from impress_gui.core.base.errors import CalibrationError
+from impress_gui.core.calibration.geometry import (
+    Intrinsics,
+    ideal_rotation,
+    roll_tilt_from_direction,
+)
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.calibration.target import TargetModel
+
+SPEED_WARN_FRACTION = 0.01
+
+
+def vanishing_point(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
+    """Least-squares intersection of the corner tracks ``n1[i] -> n2[i]`` (normalized image
+    coordinates) in homogeneous coordinates: the unit 3-vector ``v`` minimising
+    ``sum (l_i . v)^2`` over the unit-normalised track lines ``l_i``. Valid at infinity."""
+    h1 = np.column_stack([n1, np.ones(len(n1))])
+    h2 = np.column_stack([n2, np.ones(len(n2))])
+    lines = np.cross(h1, h2)
+    lines /= np.linalg.norm(lines[:, :2], axis=1, keepdims=True)
+    _, _, vt = np.linalg.svd(lines)
+    return vt[-1] / np.linalg.norm(vt[-1])
+
+
+def triangulate_parallax(a1, b1, a2, b2, travel_mm: float) -> np.ndarray:
+    """Rail-frame points from ideal normalized coordinates in two frames separated by a pure
+    +Y travel: least squares of ``X = a1 Z = a2 Z``, ``Y = b1 Z``, ``Y - d = b2 Z``."""
+    pts = []
+    for i in range(len(a1)):
+        A = np.array([[-1, 0, a1[i]], [0, -1, b1[i]], [-1, 0, a2[i]], [0, -1, b2[i]]], float)
+        rhs = np.array([0.0, 0.0, 0.0, -travel_mm])
+        pts.append(np.linalg.lstsq(A, rhs, rcond=None)[0])
+    return np.array(pts)
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool):
+    """Similarity (or rigid) transform minimising ``|dst - (s R src + t)|``."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    u, d, vt = np.linalg.svd(cov)
+    sgn = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        sgn[2, 2] = -1
+    rot = u @ sgn @ vt
+    scale = float(np.trace(np.diag(d) @ sgn) / (xs**2).sum(1).mean()) if with_scale else 1.0
+    t = mu_d - scale * rot @ mu_s
+    return scale, rot, t
+
+
+def _rodrigues(v: np.ndarray) -> np.ndarray:
+    theta = np.linalg.norm(v)
+    if theta < 1e-15:
+        return np.eye(3)
+    k = v / theta
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
+
+
+def _rot_to_vec(r: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(r).as_rotvec()
+
+
+def project_points(intr: Intrinsics, rot: np.ndarray, pts_rail: np.ndarray,
+                   travel: float) -> np.ndarray:
+    """Distorted pixels of rail-frame points seen from a camera that travelled ``travel``."""
+    rel = pts_rail - np.array([0.0, travel, 0.0])
+    return intr.project(rel @ rot)  # rows: R^T (P - C)
+
+
+def refine_bundle(intr, target, picks, init, d0, fixed_travel: bool = False,
+                  fixed_rotation: bool = False):
+    """Refine roll, tilt (unless ``fixed_rotation``), the target pose and the travel (unless
+    ``fixed_travel``) by the reprojection error of all 12 picks."""
+    from scipy.optimize import least_squares
+
+    obj = target.corner_array()
+    uv1, uv2 = picks.array("t1"), picks.array("t2")
+    roll, tilt, r_o, t_o = init
+    rot_fixed = ideal_rotation(roll, tilt)
+
+    def unpack(p):
+        i = 0 if fixed_rotation else 2
+        rot = rot_fixed if fixed_rotation else ideal_rotation(p[0], p[1])
+        d = d0 if fixed_travel else p[i + 6]
+        return rot, _rodrigues(p[i:i + 3]), p[i + 3:i + 6], d
+
+    def resid(p):
+        rot, r_o, t_o, d = unpack(p)
+        pts = obj @ r_o.T + t_o
+        return np.concatenate([(project_points(intr, rot, pts, 0.0) - uv1).ravel(),
+                               (project_points(intr, rot, pts, d) - uv2).ravel()])
+
+    p0 = np.concatenate(([] if fixed_rotation else [[roll, tilt]]) + [_rot_to_vec(r_o), t_o]
+                        + ([] if fixed_travel else [[d0]]))
+    sol = least_squares(resid, p0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=4000)
+    rot, r_o, t_o, d = unpack(sol.x)
+    rms = float(np.sqrt(np.mean(sol.fun**2)))
+    if fixed_rotation:
+        return roll, tilt, r_o, t_o, float(d), rms
+    return sol.x[0], sol.x[1], r_o, t_o, float(d), rms
+
+
+@dataclass(frozen=True)
+class PoseSolution:
+    """The geometric part of the calibration (no laser planes)."""
+
+    motion_dir_cam: np.ndarray
+    roll_rad: float
+    tilt_rad: float
+    rotation: np.ndarray
+    corners_parallax_mm: np.ndarray
+    corner_residuals_mm: np.ndarray
+    target_rotation: np.ndarray
+    target_translation_mm: np.ndarray
+    implied_speed_mm_s: float
+    reprojection_rms_px: float
+    warnings: tuple[str, ...]
+    initial_roll_rad: float
+    initial_tilt_rad: float
+
+
+def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_mm_s: float,
+               dt_s: float) -> PoseSolution:
+    """Motion direction, roll, tilt, metric corners and target pose from the picks.
+
+    ``dt_s`` is the time between frames t1 and t2."""
+    d = speed_mm_s * dt_s
+    n1 = intrinsics.undistort_points(picks.array("t1"))
+    n2 = intrinsics.undistort_points(picks.array("t2"))
+    m = vanishing_point(n1, n2)
+    roll, tilt = roll_tilt_from_direction(m)
+    rot = ideal_rotation(roll, tilt)
+
+    def ideal(n):
+        x = np.column_stack([n, np.ones(len(n))]) @ rot.T
+        return x[:, 0] / x[:, 2], x[:, 1] / x[:, 2]
+
+    a1, b1 = ideal(n1)
+    a2, b2 = ideal(n2)
+    corners = triangulate_parallax(a1, b1, a2, b2, d)
+    if np.median(corners[:, 2]) < 0:  # the sign of the vanishing point: depths must be positive
+        m = -m
+        roll, tilt = roll_tilt_from_direction(m)
+        rot = ideal_rotation(roll, tilt)
+        a1, b1 = ideal(n1)
+        a2, b2 = ideal(n2)
+        corners = triangulate_parallax(a1, b1, a2, b2, d)
+    if np.any(corners[:, 2] <= 0):
+        raise CalibrationError("the picks give corners behind the camera; check that t1/t2 and "
+                               "the corner order match the target diagram", code="E-PICKS")
+    obj = target.corner_array()
+    _, r_rigid, t_rigid = umeyama(obj, corners, with_scale=False)
+    fitted = obj @ r_rigid.T + t_rigid
+    residuals = np.linalg.norm(corners - fitted, axis=1)
+    scale, r_s, t_s = umeyama(obj, corners, with_scale=True)
+    if np.max(residuals) > 0.25 * target.size_mm():
+        raise CalibrationError(
+            f"the target model does not match the picks (corner residuals up to "
+            f"{np.max(residuals):.1f} mm); check the corner order and the target model",
+            code="E-TARGET-MISMATCH")
+    fix_rot = False
+    roll_b, tilt_b, r_o, t_o, d_fit, rms_px = refine_bundle(
+        intrinsics, target, picks, (roll, tilt, r_s, t_s / scale), d / scale,
+        fixed_rotation=fix_rot)
+    implied = d_fit / dt_s
+    warnings = []
+    if abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s:
+        # the entered speed is confirmed: the known travel constrains the pose better
+        roll_b, tilt_b, r_o, t_o, _, rms_px = refine_bundle(
+            intrinsics, target, picks, (roll_b, tilt_b, r_o, t_o), d, fixed_travel=True,
+            fixed_rotation=fix_rot)
+    rot_b = ideal_rotation(roll_b, tilt_b)
+    m_b = rot_b.T @ np.array([0.0, 1.0, 0.0])
+    if abs(implied - speed_mm_s) > SPEED_WARN_FRACTION * speed_mm_s:
+        warnings.append(
+            f"the target's size implies a rail speed of {implied:.4f} mm/s but "
+            f"{speed_mm_s:.4f} mm/s was entered ({100 * (implied / speed_mm_s - 1):+.1f} %); "
+            "check the speed setting (heights and lengths along the scan scale with it)")
+    if rms_px > 2.0:
+        warnings.append(f"the corner picks fit the target poorly (reprojection RMS {rms_px:.2f} px)")
+    # the corners in the rail frame with the entered speed (what the reconstruction uses)
+    corners_entered = triangulate_parallax(*ideal_pair(intrinsics, rot_b, n1, n2), d)
+    _, r_e, t_e = umeyama(obj, corners_entered, with_scale=False)
+    residuals = np.linalg.norm(corners_entered - (obj @ r_e.T + t_e), axis=1)
+
+    return PoseSolution(m_b, roll_b, tilt_b, rot_b, corners_entered, residuals, r_o, t_o,
+                        float(implied), rms_px, tuple(warnings), roll, tilt)
+
+
+def ideal_pair(intr: Intrinsics, rot: np.ndarray, n1: np.ndarray, n2: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ideal-frame normalized coordinates ``a1, b1, a2, b2`` of the undistorted picks ``n1``
+    (frame t1) and ``n2`` (frame t2), for :func:`triangulate_parallax`."""
+    def ideal(n):
+        x = np.column_stack([n, np.ones(len(n))]) @ rot.T
+        return x[:, 0] / x[:, 2], x[:, 1] / x[:, 2]
+
+    a1, b1 = ideal(n1)
+    a2, b2 = ideal(n2)
+    return a1, b1, a2, b2

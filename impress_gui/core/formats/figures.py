@@ -1,0 +1,354 @@
+"""Figures and the case report of the viewer (no Qt here: numpy, OpenCV and text only).
+
+- :func:`colourise` - heights to RGB through a 256-entry colour table (NaN = no data, black);
+- :func:`figure` - a map as seen from above (as ``texture.png``: row 0 at the top) with title,
+  axes in mm, measurement overlay, scale bar, the rail's direction and a colour bar in mm;
+- :func:`report_html` - one self-contained HTML file (images embedded) with the case data,
+  every measurement, the calibration's quality figures, the software version and input hashes.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from impress_gui import __version__
+from impress_gui.core.formats.provenance import png_provenance_text, png_with_text
+from impress_gui.core.reconstruction.grid import GridSpec
+
+NO_DATA_RGB = (0, 0, 0)
+MAX_FIGURE_PX = 6000
+
+
+def colourise(height: np.ndarray, lut: np.ndarray, vrange: tuple[float, float]) -> np.ndarray:
+    lo, hi = vrange
+    span = hi - lo if hi > lo else 1.0
+    t = (np.nan_to_num(height, nan=lo) - lo) * (255.0 / span)
+    idx = np.clip(t, 0, 255).astype(np.uint8)
+    rgb = np.asarray(lut, np.uint8)[:, :3][idx]
+    rgb[~np.isfinite(height)] = NO_DATA_RGB
+    return rgb
+
+
+def nice_length(target_mm: float) -> float:
+    """1, 2 or 5 times a power of ten, at most ``target_mm``."""
+    if target_mm <= 0:
+        return 1.0
+    p = 10 ** math.floor(math.log10(target_mm))
+    for m in (5, 2, 1):
+        if m * p <= target_mm:
+            return m * p
+    return p
+
+
+def _text(img, s, org, scale, colour=(0, 0, 0), thick=1) -> None:
+    import cv2
+
+    cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thick, cv2.LINE_AA)
+
+
+def _ticks(lo_mm: float, hi_mm: float, n: int = 6) -> list[float]:
+    """Round tick values (1, 2 or 5 times a power of ten apart) inside ``[lo_mm, hi_mm]``."""
+    step = nice_length((hi_mm - lo_mm) / max(1, n))
+    if step <= 0:
+        return []
+    first = math.ceil(lo_mm / step - 1e-9)
+    last = math.floor(hi_mm / step + 1e-9)
+    return [round(k * step, 9) for k in range(first, last + 1)]
+
+
+def _tick_text(v: float) -> str:
+    return f"{v:g}" if abs(v) >= 1e-9 else "0"
+
+
+def figure(
+    spec: GridSpec,
+    *,
+    height: np.ndarray | None = None,
+    lut: np.ndarray | None = None,
+    vrange: tuple[float, float] | None = None,
+    rgb: np.ndarray | None = None,
+    title: str = "",
+    measurements: Sequence[Mapping] = (),
+    max_px: int = MAX_FIGURE_PX,
+    unit_label: str = "height (mm)",
+) -> np.ndarray:
+    """An RGB figure of the whole map with axes in mm, scale bar, the rail's direction and,
+    for heights, a colour bar.
+
+    The map is drawn as the camera sees the ground from above, as ``texture.png`` is stored
+    and as the viewer shows it: grid row 0 at the top, y (the carriage's motion, +Y)
+    increasing downwards, x to the right. The axes' labels are the rail-frame coordinates of
+    the cells' edges; an arrow marks the rail's direction of motion."""
+    import cv2
+
+    if rgb is None:
+        if height is None or lut is None or vrange is None:
+            raise ValueError("give either rgb, or height with lut and vrange")
+        rgb = colourise(height, lut, vrange)
+    img = np.ascontiguousarray(rgb)  # row 0 (smallest y) at the top, as texture.png
+    h, w = img.shape[:2]
+    f = max(1.0, max(h, w) / max_px)
+    if f > 1.0:
+        img = cv2.resize(
+            img, (max(1, int(w / f)), max(1, int(h / f))), interpolation=cv2.INTER_AREA
+        )
+    else:
+        img = img.copy()
+    h, w = img.shape[:2]
+    mm_per_px = spec.pixel_mm * f
+    scale = max(0.45, min(w, h) / 900)
+    thick = max(1, int(round(scale * 1.6)))
+    left_mm, top_mm = spec.x0_mm - spec.pixel_mm / 2, spec.y0_mm - spec.pixel_mm / 2
+
+    def to_px(x_mm: float, y_mm: float) -> tuple[int, int]:
+        j = (x_mm - left_mm) / mm_per_px
+        i = (y_mm - top_mm) / mm_per_px
+        return int(round(j)), int(round(i))
+
+    for k, m in enumerate(measurements, 1):
+        pts = [to_px(p[0], p[1]) for p in m.get("points_mm", [])]
+        if not pts:
+            continue
+        for a, b in zip(pts, pts[1:]):
+            cv2.line(img, a, b, (255, 255, 255), thick + 2, cv2.LINE_AA)
+            cv2.line(img, a, b, (255, 60, 220), thick, cv2.LINE_AA)
+        cv2.circle(img, pts[0], 3 * thick + 2, (255, 60, 220), -1, cv2.LINE_AA)
+        _text(
+            img,
+            str(k),
+            (pts[0][0] + 4 * thick, pts[0][1] - 4 * thick),
+            scale,
+            (255, 255, 255),
+            thick + 1,
+        )
+    # axes in mm: y ticks on a left panel, x ticks on a row under the map
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    tick_scale = scale * 0.8
+    tick_len = max(4, int(8 * scale))
+    text_h = cv2.getTextSize("0", font, tick_scale, thick)[0][1]
+    widest = max(
+        cv2.getTextSize(_tick_text(v), font, tick_scale, thick)[0][0]
+        for v in (left_mm, left_mm + w * mm_per_px)
+    )
+    y_ticks = _ticks(top_mm, top_mm + h * mm_per_px, max(2, min(8, h // (5 * text_h))))
+    x_ticks = _ticks(left_mm, left_mm + w * mm_per_px, max(2, min(8, w // (2 * widest + 8))))
+    text_w = max(
+        [cv2.getTextSize(_tick_text(v), font, tick_scale, thick)[0][0] for v in y_ticks] + [1]
+    )
+    # the y axis' title, written along the axis (read from the bottom up, as usual)
+    y_title = "y (mm), down: rail motion"
+    (tw_y, th_y), base_y = cv2.getTextSize(y_title, font, tick_scale, thick)
+    title_img = np.full((th_y + base_y + 4, tw_y + 4, 3), 255, np.uint8)
+    _text(title_img, y_title, (2, th_y + 2), tick_scale, thick=thick)
+    title_img = np.rot90(title_img)  # counter-clockwise: bottom-up
+    tw = title_img.shape[1] + int(6 * scale)
+    left = np.full((h, tw + text_w + tick_len + int(12 * scale), 3), 255, np.uint8)
+    lw = left.shape[1]
+    if title_img.shape[0] <= h:
+        r0 = (h - title_img.shape[0]) // 2
+        left[r0 : r0 + title_img.shape[0], 2 : 2 + title_img.shape[1]] = title_img
+    for v in y_ticks:
+        i = int(round((v - top_mm) / mm_per_px))
+        left[max(0, i - thick // 2) : i + thick // 2 + 1, lw - tick_len :] = 0
+        tw = cv2.getTextSize(_tick_text(v), font, tick_scale, thick)[0][0]
+        y_text = min(h - 2, max(text_h + 2, i + text_h // 2))
+        _text(left, _tick_text(v), (lw - tick_len - 4 - tw, y_text), tick_scale, thick=thick)
+    axis_row = np.full((text_h * 3 + tick_len + int(20 * scale), lw + w, 3), 255, np.uint8)
+    for v in x_ticks:
+        j = lw + int(round((v - left_mm) / mm_per_px))
+        axis_row[:tick_len, max(lw, j - thick // 2) : j + thick // 2 + 1] = 0
+        tw = cv2.getTextSize(_tick_text(v), font, tick_scale, thick)[0][0]
+        x_text = min(lw + w - tw - 2, max(lw, j - tw // 2))
+        _text(axis_row, _tick_text(v), (x_text, tick_len + text_h + 4), tick_scale, thick=thick)
+    tw_x = cv2.getTextSize("x (mm)", font, tick_scale, thick)[0][0]
+    _text(
+        axis_row,
+        "x (mm)",
+        (lw + max(0, (w - tw_x) // 2), tick_len + 2 * text_h + int(14 * scale)),
+        tick_scale,
+        thick=thick,
+    )
+    middle = np.concatenate([left, img], axis=1)
+    w_all = middle.shape[1]
+    # bottom strip: scale bar and the rail's direction; top strip: title; right: colour bar
+    strip = int(60 * scale) + 10
+    bar_mm = nice_length(0.25 * w * mm_per_px)
+    bar_px = max(1, int(round(bar_mm / mm_per_px)))
+    bar_text = f"{bar_mm:g} mm"
+    rail_text = "rail motion (+y)"
+    bar_end = lw + int(25 * scale) + bar_px + cv2.getTextSize(bar_text, font, scale, thick)[0][0]
+    rail_w = int(22 * scale) + cv2.getTextSize(rail_text, font, scale * 0.8, thick)[0][0]
+    one_line = bar_end + int(30 * scale) + rail_w <= w_all
+    bottom = np.full((strip if one_line else 2 * strip, w_all, 3), 255, np.uint8)
+    x0, y0 = lw + int(15 * scale), strip // 2
+    cv2.rectangle(
+        bottom, (x0, y0 - int(5 * scale)), (x0 + bar_px, y0 + int(5 * scale)), (0, 0, 0), -1
+    )
+    _text(
+        bottom, bar_text, (x0 + bar_px + int(10 * scale), y0 + int(8 * scale)), scale, thick=thick
+    )
+    ax, ay = (bar_end + int(30 * scale), 0) if one_line else (x0, strip)
+    cv2.arrowedLine(
+        bottom,
+        (ax, ay + int(6 * scale)),
+        (ax, ay + strip - int(6 * scale)),
+        (0, 0, 0),
+        thick + 1,
+        cv2.LINE_AA,
+        tipLength=0.3,
+    )
+    _text(
+        bottom,
+        rail_text,
+        (ax + int(12 * scale), ay + y0 + int(8 * scale)),
+        scale * 0.8,
+        thick=thick,
+    )
+    top = np.full((strip, w_all, 3), 255, np.uint8)
+    _text(top, title[:160], (int(10 * scale), int(strip * 0.65)), scale, thick=thick)
+    out = np.concatenate([top, middle, axis_row, bottom], axis=0)
+    if height is not None and lut is not None and vrange is not None:
+        below = axis_row.shape[0] + bottom.shape[0]
+        out = np.concatenate(
+            [out, _colour_bar(out.shape[0], strip, below, lut, vrange, scale, thick, unit_label)],
+            axis=1,
+        )
+    return out
+
+
+def _colour_bar(
+    total_h: int, strip: int, below: int, lut, vrange, scale: float, thick: int, unit_label: str
+) -> np.ndarray:
+    """The colour bar beside the map: ``strip`` rows above it, ``below`` rows under it."""
+    bw = int(30 * scale) + 6
+    panel = np.full((total_h, bw + int(130 * scale), 3), 255, np.uint8)
+    a, b = strip + 5, total_h - below - 5
+    n = max(2, b - a)
+    idx = np.linspace(255, 0, n).astype(np.uint8)
+    panel[a : a + n, 6 : 6 + bw - 6] = np.asarray(lut, np.uint8)[:, :3][idx][:, None, :]
+    lo, hi = vrange
+    for i in range(6):
+        frac = i / 5
+        y = int(round(a + (1 - frac) * (n - 1)))
+        panel[max(0, y - thick // 2) : y + thick // 2 + 1, bw : bw + int(8 * scale)] = 0
+        _text(
+            panel,
+            f"{lo + frac * (hi - lo):.2f}",
+            (bw + int(12 * scale), y + int(6 * scale)),
+            scale * 0.9,
+            thick=thick,
+        )
+    _text(
+        panel, unit_label, (4, max(int(20 * scale), a - int(32 * scale))), scale * 0.8, thick=thick
+    )
+    return panel
+
+
+def png_bytes(rgb: np.ndarray, provenance: Mapping | None = None) -> bytes:
+    """PNG of an RGB image; with ``provenance`` (an export's provenance dictionary) its
+    Software, Source and 'IMPREsS provenance' (JSON) tEXt chunks follow the header."""
+    import cv2
+
+    ok, data = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:
+        raise OSError("PNG encoding failed")
+    if provenance is None:
+        return data.tobytes()
+    return png_with_text(data.tobytes(), png_provenance_text(provenance))
+
+
+# ----- the report ----------------------------------------------------------------------------
+def _row(key: str, value) -> str:
+    return f"<tr><th>{html.escape(str(key))}</th><td>{html.escape(_v(value))}</td></tr>"
+
+
+def _v(value) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.4f}" if math.isfinite(value) else "-"
+    return str(value)
+
+
+def report_html(
+    *,
+    case: Mapping,
+    reconstruction: Mapping,
+    calibration: Mapping | None,
+    measurements: Sequence[Mapping],
+    images: Sequence[tuple[str, bytes]],
+    inputs: Mapping,
+    created_utc: str,
+    levelling: Mapping | None = None,
+) -> str:
+    """The case report as one HTML document (PNG images embedded as data URLs)."""
+    css = (
+        "body{font-family:sans-serif;margin:2em;color:#111}table{border-collapse:collapse;"
+        "margin:0.5em 0 1.5em}th,td{border:1px solid #bbb;padding:3px 8px;text-align:left;"
+        "font-size:90%}th{background:#eee}img{max-width:100%;border:1px solid #ccc}"
+        "h2{border-bottom:2px solid #333;margin-top:1.6em}"
+    )
+    out = [
+        "<!DOCTYPE html>",
+        "<html><head><meta charset='utf-8'>",
+        f"<title>IMPREsS report {html.escape(str(case.get('case_id', '')))}</title>",
+        f"<style>{css}</style></head><body>",
+        "<h1>IMPREsS impression scan report</h1>",
+        f"<p>Generated {html.escape(created_utc)} by IMPREsS workstation "
+        f"{html.escape(__version__)}.</p>",
+        "<h2>Case</h2><table>",
+    ]
+    for key in ("case_id", "evidence_id", "examiner", "notes", "project"):
+        out.append(_row(key.replace("_", " "), case.get(key, "")))
+    sig = case.get("signature")
+    if sig:
+        out.append("</table><h2>Case record signature (Ed25519)</h2><table>")
+        for key in ("key_fingerprint", "public_key", "user", "head_signature", "log_head"):
+            out.append(_row(key.replace("_", " "), sig.get(key) if sig.get(key) is not None
+                            else "not signed"))
+    out.append("</table><h2>Inputs (SHA-256)</h2><table>")
+    for name, info in inputs.items():
+        out.append(_row(name, f"{info.get('path', '')}  sha256 {info.get('sha256', '-')}"))
+    out.append("</table><h2>Reconstruction</h2><table>")
+    for key, value in reconstruction.items():
+        out.append(_row(key, value))
+    out.append("</table>")
+    if calibration:
+        out.append("<h2>Calibration quality</h2><table>")
+        for key, value in calibration.items():
+            out.append(_row(key, value))
+        out.append("</table>")
+    if levelling:
+        out.append("<h2>Levelling</h2><table>")
+        for key, value in levelling.items():
+            out.append(_row(key, value))
+        out.append("</table>")
+    out.append("<h2>Measurements</h2>")
+    if measurements:
+        keys: list[str] = []
+        for m in measurements:
+            keys += [k for k in m.get("values", {}) if k not in keys]
+        head = ["#", "kind", "label", "note", "points (mm)", *keys]
+        out.append("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>")
+        for n, m in enumerate(measurements, 1):
+            pts = "; ".join(f"({p[0]:.2f}, {p[1]:.2f})" for p in m.get("points_mm", []))
+            cells = [str(n), m.get("kind", ""), m.get("label", ""), m.get("note", ""), pts]
+            cells += [_v(m.get("values", {}).get(k)) for k in keys]
+            out.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
+        out.append("</table>")
+    else:
+        out.append("<p>No measurements.</p>")
+    out.append("<h2>Figures</h2>")
+    for caption, png in images:
+        data = base64.b64encode(png).decode("ascii")
+        out.append(
+            f"<figure><img alt='{html.escape(caption)}' src='data:image/png;base64,"
+            f"{data}'><figcaption>{html.escape(caption)}</figcaption></figure>"
+        )
+    out.append("</body></html>")
+    return "\n".join(out)

@@ -1,0 +1,408 @@
+"""Reading the product's exports back: X3P (ISO 25178-72) and binary PLY point clouds.
+
+Both readers treat the file as hostile. Nothing is ever extracted to disk; every size is
+checked before memory is committed to it, and every failure is a
+:class:`~impress_gui.core.base.errors.FormatError` with a stable code:
+
+============================  =================================================================
+``E-FILE-MISSING``            no such file
+``E-TOO-LARGE``               the file (or a declared size) is beyond the reader's limits
+``E-X3P-ZIP``                 not a readable zip archive / a member's CRC does not match
+``E-ZIP-TRAVERSAL``           a member name that would escape a folder (``..``, absolute, ``\\``)
+``E-ZIP-BOMB``                declared sizes or compression ratios that no real export has
+``E-X3P-XML``                 main.xml missing, not XML, with a DTD/entities, or incomplete
+``E-X3P-CHECKSUM``            an MD5 checksum in the container does not match
+``E-X3P-DATA``                the point data's size or type does not match main.xml
+``E-VERSION``                 an X3P revision or PLY format version this reader does not know
+``E-PLY-HEADER``              a damaged or unsupported PLY header
+``E-PLY-TRUNCATED``           fewer bytes than the header declares
+``E-VALUE``                   NaN/infinity where not allowed, absurdly large numbers
+============================  =================================================================
+
+:data:`READERS` maps a suffix to its reader; :func:`read_export` dispatches on it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import re
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+from impress_gui.core.base.errors import FormatError
+from impress_gui.core.reconstruction.grid import GridSpec
+
+MAX_FILE_BYTES = 4 << 30  # 4 GiB on disk
+MAX_MEMBER_BYTES = 4 << 30  # one inflated zip member
+MAX_XML_BYTES = 1 << 20  # main.xml of an X3P
+MAX_RATIO = 1100  # deflate cannot exceed ~1032:1
+MAX_CELLS = 400_000_000  # the reconstruction's own limit
+MAX_POINTS = 500_000_000
+MAX_ABS_MM = 1e7  # 10 km: anything larger is not a scan
+PLY_HEADER_MAX = 64 * 1024
+
+
+def _err(path: Path, msg: str, code: str) -> FormatError:
+    return FormatError(f"{path}: {msg}", code=code)
+
+
+def _check_file(path: Path, limit: int = MAX_FILE_BYTES) -> int:
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise _err(path, "file not found", "E-FILE-MISSING") from None
+    except OSError as exc:
+        raise _err(path, f"cannot read ({exc.strerror})", "E-FORMAT") from None
+    if not path.is_file():
+        raise _err(path, "not a file", "E-FORMAT")
+    if size > limit:
+        raise _err(path, f"{size} bytes is too large", "E-TOO-LARGE")
+    return size
+
+
+# ----- zip safety ------------------------------------------------------------------------------
+_DRIVE = re.compile(r"^[A-Za-z]:")
+
+
+def safe_member_name(name: str) -> bool:
+    """A relative POSIX name that stays inside the archive's folder."""
+    if not name or "\\" in name or "\x00" in name or name.startswith("/") or _DRIVE.match(name):
+        return False
+    return ".." not in PurePosixPath(name).parts
+
+
+def check_zip(
+    zf: zipfile.ZipFile,
+    path: Path,
+    member_limit: int = MAX_MEMBER_BYTES,
+    total_limit: int = MAX_MEMBER_BYTES,
+) -> None:
+    """Refuse traversal names, absurd declared sizes and compression ratios - before any
+    member is inflated."""
+    total = 0
+    infos = zf.infolist()
+    if len(infos) > 1000:
+        raise _err(path, f"{len(infos)} members: not an export of this software", "E-ZIP-BOMB")
+    for info in infos:
+        if not safe_member_name(info.filename):
+            raise _err(
+                path,
+                f"member name {info.filename!r} would leave the archive's folder",
+                "E-ZIP-TRAVERSAL",
+            )
+        if info.file_size > member_limit:
+            raise _err(
+                path, f"member {info.filename!r} declares {info.file_size} bytes", "E-ZIP-BOMB"
+            )
+        if info.file_size > MAX_RATIO * max(info.compress_size, 1) and info.file_size > 1 << 20:
+            raise _err(
+                path,
+                f"member {info.filename!r} declares a compression ratio of "
+                f"{info.file_size / max(info.compress_size, 1):.0f}:1",
+                "E-ZIP-BOMB",
+            )
+        total += info.file_size
+        if total > total_limit:
+            raise _err(path, "the members' declared sizes add up to too much", "E-ZIP-BOMB")
+
+
+def read_member(zf: zipfile.ZipFile, name: str, path: Path, limit: int) -> bytes:
+    """A member's bytes, never more than ``limit`` inflated, and exactly its declared size."""
+    try:
+        info = zf.getinfo(name)
+    except KeyError:
+        raise _err(path, f"member {name!r} is missing", "E-X3P-DATA") from None
+    if info.file_size > limit:
+        raise _err(
+            path, f"member {name!r} declares {info.file_size} bytes (limit {limit})", "E-ZIP-BOMB"
+        )
+    try:
+        with zf.open(info) as fh:
+            data = fh.read(limit + 1)
+    except (
+        zipfile.BadZipFile,
+        zipfile.LargeZipFile,
+        OSError,
+        EOFError,
+        ValueError,
+        NotImplementedError,
+        RuntimeError,
+    ) as exc:
+        # zlib.error is not an OSError; it arrives wrapped or as itself
+        raise _err(path, f"member {name!r} is damaged ({exc})", "E-X3P-ZIP") from None
+    except Exception as exc:  # noqa: BLE001 - zlib.error and friends
+        raise _err(path, f"member {name!r} is damaged ({exc})", "E-X3P-ZIP") from None
+    if len(data) != info.file_size:
+        raise _err(
+            path,
+            f"member {name!r} inflates to {len(data)} bytes, not the {info.file_size} declared",
+            "E-ZIP-BOMB",
+        )
+    return data
+
+
+# ----- X3P ---------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class X3PData:
+    """An areal surface: heights in mm (float64, NaN = invalid point) on a regular grid
+    (cell ``[i, j]`` at ``x0 + j * pixel``, ``y0 + i * pixel``)."""
+
+    spec: GridSpec
+    height_mm: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+_DTYPES = {"D": "<f8", "F": "<f4"}
+
+
+def _xml_text(root, path_: str, ns: dict, path: Path, required: bool = True) -> str | None:
+    el = root.find(path_, ns)
+    if el is None or el.text is None:
+        if required:
+            raise _err(path, f"main.xml lacks {path_.replace('p:', '')}", "E-X3P-XML")
+        return None
+    return el.text.strip()
+
+
+def _finite(text: str | None, what: str, path: Path, positive: bool = False) -> float:
+    try:
+        v = float(text)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise _err(path, f"{what} is not a number ({text!r})", "E-X3P-XML") from None
+    if not math.isfinite(v) or abs(v) > MAX_ABS_MM * 1e-3:
+        raise _err(path, f"{what} is not a finite length ({text!r})", "E-VALUE")
+    if positive and v <= 0:
+        raise _err(path, f"{what} must be positive", "E-VALUE")
+    return v
+
+
+def _count(text: str | None, what: str, path: Path) -> int:
+    if text is None or not re.fullmatch(r"\d{1,10}", text):
+        raise _err(path, f"{what} must be a positive integer ({text!r})", "E-X3P-XML")
+    v = int(text)
+    if v < 1:
+        raise _err(path, f"{what} must be positive", "E-X3P-XML")
+    return v
+
+
+def read_x3p(path: str | os.PathLike, max_cells: int = MAX_CELLS) -> X3PData:
+    """Read an X3P areal surface written by this software (or any X3P with incremental x/y
+    axes and float z in one binary member)."""
+    import xml.etree.ElementTree as ET
+
+    path = Path(path)
+    _check_file(path)
+    try:
+        zf = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, ValueError) as exc:
+        raise _err(path, f"not a readable X3P (zip) file ({exc})", "E-X3P-ZIP") from None
+    with zf:
+        check_zip(zf, path)
+        xml_b = read_member(zf, "main.xml", path, MAX_XML_BYTES)
+        head = xml_b[:4096].upper()
+        if b"<!DOCTYPE" in head or b"<!ENTITY" in xml_b.upper():
+            raise _err(path, "main.xml declares a DTD or entities (refused)", "E-X3P-XML")
+        try:
+            root = ET.fromstring(xml_b)
+        except ET.ParseError as exc:
+            raise _err(path, f"main.xml is not valid XML ({exc})", "E-X3P-XML") from None
+        if not root.tag.endswith("ISO5436_2"):
+            raise _err(path, f"main.xml is not an ISO5436_2 document ({root.tag!r})", "E-X3P-XML")
+
+        def t(p_: str, required: bool = True) -> str | None:
+            # the records are unqualified children of the namespaced root
+            return _xml_text(root, p_, {}, path, required)
+
+        revision = t("Record1/Revision")
+        if not revision or not revision.startswith("ISO5436"):
+            raise _err(path, f"unknown X3P revision {revision!r}", "E-VERSION")
+        if t("Record1/FeatureType") != "SUR":
+            raise _err(path, "only areal surfaces (FeatureType SUR) are read", "E-X3P-DATA")
+        axes = {}
+        for ax in ("CX", "CY"):
+            if t(f"Record1/Axes/{ax}/AxisType") != "I":
+                raise _err(path, f"axis {ax} must be incremental", "E-X3P-DATA")
+            axes[ax] = (
+                _finite(t(f"Record1/Axes/{ax}/Increment"), f"{ax} increment", path, positive=True),
+                _finite(t(f"Record1/Axes/{ax}/Offset", False) or "0", f"{ax} offset", path),
+            )
+        if abs(axes["CX"][0] - axes["CY"][0]) > 1e-9 * max(axes["CX"][0], 1e-12):
+            raise _err(path, "x and y increments differ (only square cells are read)", "E-X3P-DATA")
+        ztype = t("Record1/Axes/CZ/DataType")
+        if ztype not in _DTYPES:
+            raise _err(path, f"z data type {ztype!r} is not supported (D or F)", "E-X3P-DATA")
+        nx = _count(t("Record3/MatrixDimension/SizeX"), "SizeX", path)
+        ny = _count(t("Record3/MatrixDimension/SizeY"), "SizeY", path)
+        nz = _count(t("Record3/MatrixDimension/SizeZ"), "SizeZ", path)
+        if nz != 1:
+            raise _err(path, "only one layer (SizeZ 1) is read", "E-X3P-DATA")
+        if nx * ny > max_cells:
+            raise _err(path, f"{nx} x {ny} points is too large", "E-TOO-LARGE")
+        link = t("Record3/DataLink/PointDataLink")
+        if not safe_member_name(link or ""):
+            raise _err(path, f"point data link {link!r} would leave the archive", "E-ZIP-TRAVERSAL")
+        itemsize = np.dtype(_DTYPES[ztype]).itemsize
+        data = read_member(zf, link or "", path, nx * ny * itemsize)
+        if len(data) != nx * ny * itemsize:
+            raise _err(
+                path, f"point data has {len(data)} bytes, not {nx * ny * itemsize}", "E-X3P-DATA"
+            )
+        md5 = t("Record3/DataLink/MD5ChecksumPointData", False)
+        if md5 and md5.lower() != hashlib.md5(data).hexdigest():
+            raise _err(path, "the point data's MD5 checksum does not match", "E-X3P-CHECKSUM")
+        if "md5checksum.hex" in zf.namelist():
+            line = read_member(zf, "md5checksum.hex", path, 4096).decode("ascii", "replace")
+            if line.split() and line.split()[0].lower() != hashlib.md5(xml_b).hexdigest():
+                raise _err(path, "main.xml's MD5 checksum does not match", "E-X3P-CHECKSUM")
+    with np.errstate(invalid="ignore"):  # signalling NaNs become quiet ones (invalid points)
+        z = np.frombuffer(data, _DTYPES[ztype]).astype(np.float64).reshape(ny, nx) * 1e3
+    if np.isinf(z).any():
+        raise _err(path, "heights contain infinity", "E-VALUE")
+    if np.nanmax(np.abs(z), initial=0.0) > MAX_ABS_MM:
+        raise _err(path, "heights are absurdly large", "E-VALUE")
+    inc = axes["CX"][0] * 1e3
+    spec = GridSpec(axes["CX"][1] * 1e3, axes["CY"][1] * 1e3, inc, (ny, nx))
+    info = {
+        "revision": revision,
+        "version": t("Record2/Instrument/Version", False),
+        "date": t("Record2/Date", False),
+        "comment": t("Record2/Comment", False),
+    }
+    return X3PData(spec, z, info)
+
+
+# ----- PLY ---------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PlyData:
+    """Vertices in mm (``(N, 3)`` float64) and colours (``(N, 3)`` uint8 or None)."""
+
+    points_mm: np.ndarray
+    colours: np.ndarray | None
+    comments: tuple[str, ...] = ()
+
+
+_PLY_TYPES = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
+
+
+def read_ply(path: str | os.PathLike, max_points: int = MAX_POINTS) -> PlyData:
+    """Read a binary PLY point cloud: its first element must be ``vertex`` with scalar
+    properties including float x, y, z (optional uchar red, green, blue)."""
+    path = Path(path)
+    size = _check_file(path)
+    with open(path, "rb") as fh:
+        head = fh.read(PLY_HEADER_MAX)
+        end = head.find(b"end_header\n")
+        if not head.startswith(b"ply\n") and not head.startswith(b"ply\r\n"):
+            raise _err(path, "not a PLY file", "E-PLY-HEADER")
+        if end < 0:
+            raise _err(path, "the PLY header never ends (no end_header)", "E-PLY-HEADER")
+        try:
+            lines = head[:end].decode("ascii").splitlines()
+        except UnicodeDecodeError:
+            raise _err(path, "the PLY header is not ASCII", "E-PLY-HEADER") from None
+        body = end + len(b"end_header\n")
+        fmt: str | None = None
+        elements: list = []
+        comments: list[str] = []
+        for ln in lines[1:]:
+            parts = ln.split()
+            if not parts:
+                continue
+            if parts[0] == "format":
+                if len(parts) != 3:
+                    raise _err(path, f"bad format line {ln!r}", "E-PLY-HEADER")
+                if parts[2] != "1.0":
+                    raise _err(path, f"PLY version {parts[2]!r} is not supported", "E-VERSION")
+                fmt = parts[1]
+            elif parts[0] in ("comment", "obj_info"):
+                comments.append(ln[len(parts[0]) + 1 :])
+            elif parts[0] == "element":
+                if len(parts) != 3 or not re.fullmatch(r"\d{1,12}", parts[2]):
+                    raise _err(path, f"bad element line {ln!r}", "E-PLY-HEADER")
+                elements.append((parts[1], int(parts[2]), []))
+            elif parts[0] == "property":
+                if not elements:
+                    raise _err(path, "a property before any element", "E-PLY-HEADER")
+                if len(parts) == 3 and parts[1] in _PLY_TYPES:
+                    elements[-1][2].append((parts[2], _PLY_TYPES[parts[1]]))
+                elif parts[1] == "list":
+                    elements[-1][2].append((parts[-1], "list"))
+                else:
+                    raise _err(path, f"bad property line {ln!r}", "E-PLY-HEADER")
+            else:
+                raise _err(path, f"unknown header line {ln!r}", "E-PLY-HEADER")
+        order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(fmt or "")
+        if order is None:
+            raise _err(path, f"format {fmt!r} is not supported (binary PLY only)", "E-PLY-HEADER")
+        if not elements or elements[0][0] != "vertex":
+            raise _err(path, "the first element must be vertex", "E-PLY-HEADER")
+        _, n, props = elements[0]
+        names = [p for p, _ in props]
+        if any(t == "list" for _, t in props) or len(set(names)) != len(names):
+            raise _err(path, "vertex properties must be distinct scalars", "E-PLY-HEADER")
+        if not {"x", "y", "z"} <= set(names):
+            raise _err(path, "vertices need x, y and z", "E-PLY-HEADER")
+        if n > max_points:
+            raise _err(path, f"{n} vertices is too many", "E-TOO-LARGE")
+        if {"red", "green", "blue"} <= set(names) and any(
+            dict(props)[c] != "u1" for c in ("red", "green", "blue")
+        ):
+            raise _err(path, "colours must be uchar", "E-PLY-HEADER")
+        dt = np.dtype([(p, order + t) for p, t in props])
+        need = n * dt.itemsize
+        if size - body < need:
+            raise _err(
+                path,
+                f"{size - body} bytes of vertex data, the header declares {need}",
+                "E-PLY-TRUNCATED",
+            )
+        fh.seek(body)
+        raw = fh.read(need)
+    if len(raw) != need:
+        raise _err(path, "the file shrank while it was read", "E-PLY-TRUNCATED")
+    v = np.frombuffer(raw, dt)
+    with np.errstate(invalid="ignore"):  # a signalling NaN raises the flag; refused below
+        pts = np.column_stack([v[c].astype(np.float64) for c in ("x", "y", "z")])
+    if not np.isfinite(pts).all():
+        raise _err(path, "coordinates contain NaN or infinity", "E-VALUE")
+    if n and np.abs(pts).max() > MAX_ABS_MM:
+        raise _err(path, "coordinates are absurdly large", "E-VALUE")
+    colours = None
+    if {"red", "green", "blue"} <= set(names):
+        colours = np.column_stack([v["red"], v["green"], v["blue"]]).astype(np.uint8)
+    return PlyData(pts, colours, tuple(comments))
+
+
+READERS: dict[str, Callable] = {".x3p": read_x3p, ".ply": read_ply}
+
+
+def read_export(path: str | os.PathLike):
+    """Read an exported file by its suffix (:data:`READERS`)."""
+    p = Path(path)
+    reader = READERS.get(p.suffix.lower())
+    if reader is None:
+        raise _err(p, f"no reader for {p.suffix!r} files ({', '.join(READERS)})", "E-FORMAT")
+    return reader(p)

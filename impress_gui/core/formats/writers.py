@@ -1,0 +1,426 @@
+"""Writing a reconstruction: one folder per scan, replaced atomically.
+
+All files are first written into a hidden sibling folder, which is renamed into place only
+when everything is complete, so an interrupted or failed run never leaves a half-written
+result that looks whole. Every file except ``run.json`` (timings, date) and the X3P's creation
+date is byte-identical for identical inputs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import zipfile
+from collections.abc import Callable, Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+
+from impress_gui import __version__
+from impress_gui.core.base.fileio import atomic_write_bytes, dumps_json, sha256_file
+
+RECON_FORMAT = "impress.reconstruction"
+HEIGHT_CONVENTION = (
+    "height in mm, up = towards the camera, relative to the calibration target's base plane "
+    "(the ground the target stands on); NaN = no data"
+)
+GREY_OFFSET = 128  # thesis 8-bit convention: one grey level = 0.1 mm, 128 = reference height
+CONTRIB_CODES = {0: "no data", 1: "green only", 2: "red only", 3: "both (mean)",
+                 4: "both disagree (nearer the local consensus)"}
+
+
+def _tiff_bytes(arr: np.ndarray, spec=None, description: str | None = None) -> bytes:
+    """zlib TIFF; with ``spec`` the resolution tags give the cell size (pixels per cm), with
+    ``description`` the ImageDescription (ASCII) carries it (provenance, units)."""
+    import tifffile
+
+    extra: dict = {}
+    if spec is not None:
+        ppcm = 10.0 / spec.pixel_mm
+        extra = {"resolution": (ppcm, ppcm), "resolutionunit": "CENTIMETER"}
+    if description:
+        extra["description"] = description.encode("ascii", "backslashreplace").decode("ascii")
+    buf = io.BytesIO()
+    tifffile.imwrite(buf, arr, compression="zlib", compressionargs={"level": ZLIB_LEVEL},
+                     metadata=None, software=None, **extra)
+    return buf.getvalue()
+
+
+def _png_bytes(img: np.ndarray) -> bytes:
+    import cv2
+
+    data = img[..., ::-1] if img.ndim == 3 else img
+    ok, enc = cv2.imencode(".png", np.ascontiguousarray(data))
+    if not ok:
+        raise OSError("PNG encoding failed")
+    return enc.tobytes()
+
+
+def grey8(height: np.ndarray, step_mm: float = 0.1) -> np.ndarray:
+    """The seed's 8-bit heightmap: one grey level per 0.1 mm, 128 = reference, 0 = no data."""
+    g = np.rint(np.nan_to_num(height, nan=-1e9) / step_mm) + GREY_OFFSET
+    return np.clip(g, 0, 255).astype(np.uint8)
+
+
+def color_range(height: np.ndarray) -> tuple[float, float]:
+    v = height[np.isfinite(height)]
+    if v.size == 0:
+        return (-1.0, 1.0)
+    lo, hi = np.percentile(v, [0.5, 99.5])
+    if hi - lo < 0.1:
+        lo, hi = lo - 0.05, hi + 0.05
+    return float(lo), float(hi)
+
+
+def pseudo_colour(height: np.ndarray, vrange=None, bar: bool = True) -> np.ndarray:
+    """Turbo-coloured heightmap (RGB) with a labelled colour bar in mm on the right."""
+    import cv2
+
+    lo, hi = vrange or color_range(height)
+    t = np.clip((np.nan_to_num(height, nan=lo) - lo) / (hi - lo), 0, 1)
+    rgb = cv2.applyColorMap((t * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1].copy()
+    rgb[~np.isfinite(height)] = 0
+    if not bar:
+        return rgb
+    h = rgb.shape[0]
+    bw = max(60, h // 12)
+    panel = np.full((h, bw * 3, 3), 255, np.uint8)
+    ramp = np.linspace(1, 0, h)[:, None]
+    col = cv2.applyColorMap((ramp * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1]
+    panel[:, 4:bw] = np.repeat(col, bw - 4, axis=1)
+    scale = max(0.4, h / 1400)
+    for i in range(6):
+        f = i / 5
+        y = int(round((1 - f) * (h - 1)))
+        cv2.line(panel, (bw, y), (bw + 8, y), (0, 0, 0), max(1, int(scale * 2)))
+        cv2.putText(panel, f"{lo + f * (hi - lo):.2f}", (bw + 12, min(h - 4, max(int(20 * scale), y + 8))),
+                    cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), max(1, int(scale * 2)))
+    cv2.putText(panel, "mm", (bw + 12, h // 2), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0),
+                max(1, int(scale * 2)))
+    return np.concatenate([rgb, panel], axis=1)
+
+
+EXPORT_FRAME = (
+    "right-handed, in mm: x = across the rail (the image's columns, to the right), y = against "
+    "the carriage's motion (y = -rail Y, so the image's first row has the largest y), z = height "
+    "up, towards the camera; seen from above (+z) with y up the surface looks as the camera and "
+    "texture.png show it: a left shoe stays a left shoe"
+)
+
+
+def export_xy(spec, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Grid cells ``(rows, cols)`` -> the right-handed export frame's (x, y) in mm (see
+    :data:`EXPORT_FRAME`): x = rail X, y = -rail Y."""
+    x = spec.x0_mm + cols * spec.pixel_mm
+    y = -(spec.y0_mm + rows * spec.pixel_mm)
+    return x, y
+
+
+def ply_bytes(spec, height: np.ndarray, texture: np.ndarray | None, step: int = 1,
+              comments: Sequence[str] = ()) -> bytes:
+    """Binary little-endian PLY: float32 x, y, z (mm, the right-handed :data:`EXPORT_FRAME`)
+    and uchar RGB. Each of ``comments`` (provenance lines) becomes one header ``comment`` line
+    (ASCII, one line)."""
+    hh = height[::step, ::step]
+    ok = np.isfinite(hh)
+    ii, jj = np.nonzero(ok)
+    n = len(ii)
+    pts = np.empty(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                             ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    pts["x"], pts["y"] = export_xy(spec, ii * step, jj * step)
+    pts["z"] = hh[ok]
+    if texture is not None:
+        tex = texture[::step, ::step][ok]
+        pts["red"], pts["green"], pts["blue"] = tex[:, 0], tex[:, 1], tex[:, 2]
+    else:
+        pts["red"] = pts["green"] = pts["blue"] = 200
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"comment IMPREsS workstation {__version__}; units mm\n"
+              f"comment frame: {EXPORT_FRAME}\n"
+              + "".join(f"comment {_one_line(c)}\n" for c in comments) +
+              f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    return header.encode("ascii", "backslashreplace") + pts.tobytes()
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+X3P_ROWS_PER_CHUNK = 256
+
+
+def _x3p_chunks(height: np.ndarray):
+    """The X3P's point data in pieces of rows: float64 metres, x fastest, the grid's rows
+    last first (no full-size copy of the grid is ever made)."""
+    ny = height.shape[0]
+    for stop in range(ny, 0, -X3P_ROWS_PER_CHUNK):
+        start = max(0, stop - X3P_ROWS_PER_CHUNK)
+        yield (height[start:stop][::-1].astype("<f8") * 1e-3).tobytes()
+
+
+def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "",
+              calibrated: str | None = None) -> bytes:
+    """The X3P of :func:`write_x3p` as bytes."""
+    buf = io.BytesIO()
+    write_x3p(buf, spec, height, created, comment, calibrated)
+    return buf.getvalue()
+
+
+def write_x3p(target, spec, height: np.ndarray, created: str, comment: str = "",
+              calibrated: str | None = None) -> None:
+    """ISO 25178-72 (XML 3D surface profile) container: an areal surface, x/y incremental
+    axes in metres, z as float64 metres with NaN for invalid points, in the right-handed
+    :data:`EXPORT_FRAME` (the grid's rows are stored last first, so that y increases with the
+    point index). ``comment`` (provenance included) goes into Record2/Comment, XML-escaped.
+    ``created`` and ``calibrated`` are ISO 8601 dates; for reproducible files pass dates that
+    come from the inputs (the calibration's date), not the time of writing."""
+    from xml.sax.saxutils import escape
+
+    ny, nx = height.shape
+    md5 = hashlib.md5()
+    for chunk in _x3p_chunks(height):
+        md5.update(chunk)
+    md5_data = md5.hexdigest()
+    y_offset_mm = -(spec.y0_mm + (ny - 1) * spec.pixel_mm)
+    comment = f"frame: {EXPORT_FRAME}; {comment}" if comment else f"frame: {EXPORT_FRAME}"
+    calibrated = calibrated or created
+    xml = f"""<?xml version="1.0" encoding="UTF-8"?>
+<p:ISO5436_2 xmlns:p="http://www.opengps.eu/2008/ISO5436_2" xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" xsi:schemaLocation="http://www.opengps.eu/2008/ISO5436_2 http://www.opengps.eu/2008/ISO5436_2/ISO5436_2_XML.xsd">
+  <Record1>
+    <Revision>ISO5436 - 2000</Revision>
+    <FeatureType>SUR</FeatureType>
+    <Axes>
+      <CX><AxisType>I</AxisType><DataType>D</DataType><Increment>{spec.pixel_mm * 1e-3:.12g}</Increment><Offset>{spec.x0_mm * 1e-3:.12g}</Offset></CX>
+      <CY><AxisType>I</AxisType><DataType>D</DataType><Increment>{spec.pixel_mm * 1e-3:.12g}</Increment><Offset>{y_offset_mm * 1e-3:.12g}</Offset></CY>
+      <CZ><AxisType>A</AxisType><DataType>D</DataType></CZ>
+    </Axes>
+  </Record1>
+  <Record2>
+    <Date>{created}</Date>
+    <Creator>IMPREsS workstation</Creator>
+    <Instrument>
+      <Manufacturer>IMPREsS</Manufacturer>
+      <Model>laser line scanner (camcorder, green and red line lasers)</Model>
+      <Serial>not available</Serial>
+      <Version>{__version__}</Version>
+    </Instrument>
+    <CalibrationDate>{calibrated}</CalibrationDate>
+    <ProbingSystem><Type>NonContacting</Type><Identification>laser triangulation</Identification></ProbingSystem>
+    <Comment>{escape(comment)}</Comment>
+  </Record2>
+  <Record3>
+    <MatrixDimension><SizeX>{nx}</SizeX><SizeY>{ny}</SizeY><SizeZ>1</SizeZ></MatrixDimension>
+    <DataLink><PointDataLink>bindata/data.bin</PointDataLink><MD5ChecksumPointData>{md5_data}</MD5ChecksumPointData></DataLink>
+  </Record3>
+  <Record4><ChecksumFile>md5checksum.hex</ChecksumFile></Record4>
+</p:ISO5436_2>
+"""
+    xml_b = xml.encode("utf-8")
+    nbytes = nx * ny * 8
+
+    def member(name: str):
+        info = zipfile.ZipInfo(name, date_time=(2000, 1, 1, 0, 0, 0))
+        info.compress_type = zipfile.ZIP_DEFLATED
+        cast(Any, info)._compresslevel = ZLIB_LEVEL  # zipfile's own field (3.10-3.13)
+        return info
+
+    with zipfile.ZipFile(target, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr(member("main.xml"), xml_b, compresslevel=ZLIB_LEVEL)
+        zf.writestr(member("md5checksum.hex"),
+                    f"{hashlib.md5(xml_b).hexdigest()} *main.xml\n".encode(),
+                    compresslevel=ZLIB_LEVEL)
+        # the point data streamed in pieces of rows
+        with zf.open(member("bindata/data.bin"), "w", force_zip64=nbytes > 2**31 - 1) as fh:
+            for chunk in _x3p_chunks(height):
+                fh.write(chunk)
+
+
+def _write_file(path: Path, write) -> None:
+    with open(path, "wb") as fh:
+        write(fh)
+
+
+def _iso(ts: float) -> str:
+    return datetime.fromtimestamp(ts, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def input_dates(video, calibration_path) -> dict[str, str]:
+    """The X3P's dates, taken from the inputs so that identical inputs give identical files:
+    ``measured`` = the recording date the video's container states, else the video file's
+    modification time; ``calibrated`` = the same when the calibration was made on this video
+    (the rig calibrates itself from each scan), else the calibration file's modification
+    time."""
+    measured = None
+    if getattr(video, "recorded_utc", None):
+        measured = str(video.recorded_utc)[:19].replace(" ", "T") + "Z"
+    if measured is None:
+        try:
+            measured = _iso(os.stat(video.path).st_mtime)
+        except OSError:
+            measured = "1970-01-01T00:00:00Z"
+    calibrated = measured
+    try:
+        import json
+
+        doc = json.loads(Path(calibration_path).read_bytes())
+        made_on = ((doc.get("inputs") or {}).get("video") or {}).get("sha256")
+        if made_on != video.sha256():
+            calibrated = _iso(os.stat(calibration_path).st_mtime)
+    except (OSError, ValueError, AttributeError):
+        pass
+    return {"measured": measured, "calibrated": calibrated}
+
+
+def contribution_png(contrib: np.ndarray) -> np.ndarray:
+    lut = np.array([[0, 0, 0], [40, 200, 40], [220, 40, 40], [230, 230, 230], [240, 160, 0]],
+                   np.uint8)
+    return lut[np.clip(contrib, 0, 4)]
+
+
+RECON_FILES = ("heightmap.tif", "height_green.tif", "height_red.tif", "difference.tif",
+               "contribution.tif", "contribution.png", "heightmap_8bit.png",
+               "heightmap_color.png", "pointcloud.ply", "heightmap.x3p", "texture.png",
+               "metadata.json", "run.json")
+
+
+#: threads encoding and writing the outputs side by side
+WRITE_THREADS = 4
+#: the slowest files first, so that they overlap the rest
+WRITE_ORDER = {"heightmap.x3p": 0, "heightmap.tif": 1, "pointcloud.ply": 2, "texture.png": 3}
+#: zlib level of the TIFFs and the X3P: level 1 is 2x faster than the default 6 for files
+#: 0.5 % (TIFF) and 9 % (X3P) larger (measured on a shoe scan's heightmap)
+ZLIB_LEVEL = 1
+
+
+def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
+                         ply_step: int = 2, dates: dict | None = None,
+                         progress=None) -> dict[str, str]:
+    """Write every output into ``out_dir`` (a path, or an
+    :class:`~impress_gui.core.base.outdir.OutputFolder` already checked) atomically; return
+    {file: sha256}. ``dates`` (``measured``, ``calibrated``: see :func:`input_dates`) go into
+    the X3P; without them the run's date is used (the file then differs between runs).
+
+    The point cloud takes every ``ply_step``-th cell in each direction (default 2: 0.2 mm
+    spacing on the default grid, a quarter of the cells; 1 keeps every cell)."""
+    from impress_gui.core.base.outdir import OutputFolder, writing
+
+    folder = out_dir if isinstance(out_dir, OutputFolder) else OutputFolder(
+        out_dir, "reconstruction", allowed=RECON_FILES)
+    run_date = run_info.get("date_utc") or datetime.now(timezone.utc).strftime(
+        "%Y-%m-%dT%H:%M:%SZ")
+    dates = dates or {"measured": run_date, "calibrated": run_date}
+    inputs = metadata.get("inputs") or {}
+    source = [f"source {k} sha256: {(inputs.get(k) or {}).get('sha256') or '-'}"
+              for k in ("video", "calibration")]
+    def desc(what: str) -> str:
+        return (f"IMPREsS workstation {__version__}: {what}; cell {rec.spec.pixel_mm} mm, "
+                f"x0 {rec.spec.x0_mm} mm, y0 {rec.spec.y0_mm} mm (rail frame, row 0 first); "
+                + "; ".join(source) + "; parameters: metadata.json")
+
+    h32 = rec.height_mm.astype(np.float32)
+    # each file is made, written and hashed by a task of its own: the encoders (zlib, PNG)
+    # release the GIL, so the files are made side by side
+    makers: dict[str, Callable[[], bytes]] = {
+        "heightmap.tif": lambda: _tiff_bytes(h32, rec.spec,
+                                             desc("fused height, mm, NaN = no data")),
+        "height_green.tif": lambda: _tiff_bytes(
+            rec.per_laser_mm["green"].astype(np.float32), rec.spec,
+            desc("green laser height, mm")),
+        "height_red.tif": lambda: _tiff_bytes(
+            rec.per_laser_mm["red"].astype(np.float32), rec.spec, desc("red laser height, mm")),
+        "difference.tif": lambda: _tiff_bytes(
+            rec.difference_mm.astype(np.float32), rec.spec, desc("green - red height, mm")),
+        "contribution.tif": lambda: _tiff_bytes(
+            rec.contribution.astype(np.uint8), rec.spec,
+            desc("contribution codes (metadata.json)")),
+        "contribution.png": lambda: _png_bytes(contribution_png(rec.contribution)),
+        "heightmap_8bit.png": lambda: _png_bytes(grey8(rec.height_mm)),
+        "heightmap_color.png": lambda: _png_bytes(pseudo_colour(rec.height_mm)),
+        "pointcloud.ply": lambda: ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step,
+                                            source),
+    }
+    # written straight into their files (no copy of the whole file in memory)
+    streamed: dict[str, Callable[[Path], None]] = {
+        "heightmap.x3p": lambda path: _write_file(path, lambda fh: write_x3p(
+            fh, rec.spec, rec.height_mm, dates["measured"],
+            "IMPREsS reconstruction; " + "; ".join(source)
+            + "; parameters, grid and height convention: metadata.json",
+            calibrated=dates["calibrated"])),
+    }
+    if rec.texture_rgb is not None:
+        makers["texture.png"] = lambda: _png_bytes(rec.texture_rgb)
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    from impress_gui.core.base.outdir import MARK_FILE, mark_bytes
+    from impress_gui.core.base.progress import report
+
+    def make(name: str) -> str:
+        if name in streamed:
+            streamed[name](folder.path(name))
+            return sha256_file(folder.path(name))
+        payload = makers[name]()
+        folder.path(name).write_bytes(payload)
+        return hashlib.sha256(payload).hexdigest()
+
+    made: dict[str, str] = {}
+    names = [*makers, *streamed]
+    order = sorted(names, key=lambda n: WRITE_ORDER.get(n, 9))
+    try:
+        with writing(folder.final):
+            folder.begin()
+            workers = max(1, min(WRITE_THREADS, os.cpu_count() or 1))
+            with ThreadPoolExecutor(workers, thread_name_prefix="impress-write") as pool:
+                futures = {pool.submit(make, n): n for n in order}
+                for i, fut in enumerate(as_completed(futures), 1):
+                    made[futures[fut]] = fut.result()
+                    report(progress, i / (len(names) + 1), f"written {futures[fut]}")
+            digests = {MARK_FILE: hashlib.sha256(mark_bytes("reconstruction")).hexdigest()}
+            digests.update((n, made[n]) for n in RECON_FILES if n in made)
+            meta = dict(metadata)
+            meta["files"] = digests
+            folder.path("metadata.json").write_text(dumps_json(meta))
+            folder.path("run.json").write_text(dumps_json(run_info))
+        report(progress, 1.0, "outputs written")
+        folder.commit()
+    except BaseException:
+        folder.abort()
+        raise
+    return digests
+
+
+def build_metadata(rec, cal, params, inputs: dict) -> dict:
+    return {
+        "format": RECON_FORMAT,
+        "version": 1,
+        "software": f"impress {__version__}",
+        "inputs": inputs,
+        "parameters": params.to_json(),
+        "frames": {"start": rec.frames[0], "stop": rec.frames[1]},
+        "regions_of_interest": {k: list(v) for k, v in rec.rois.items()},
+        "grid": rec.spec.to_json() | {
+            "convention": "cell [i, j] centred at rail (x0 + j*pixel, y0 + i*pixel) mm; rail "
+                          "frame origin = optical centre at calibration frame t1; +Y = motion; "
+                          "row 0 is the first row of every image file (as the camera sees it)"},
+        "export_frame": {"files": ["pointcloud.ply", "heightmap.x3p"], "frame": EXPORT_FRAME,
+                         "x_mm": "x0 + j*pixel", "y_mm": "-(y0 + i*pixel)", "z_mm": "height"},
+        "height": HEIGHT_CONVENTION,
+        "grey8": {"file": "heightmap_8bit.png", "mm_per_level": 0.1, "reference_level":
+                  GREY_OFFSET, "no_data_level": 0},
+        "contribution_codes": {str(k): v for k, v in CONTRIB_CODES.items()},
+        "calibration": {"roll_deg": cal.roll_deg, "tilt_deg": cal.tilt_deg,
+                        "speed_mm_s": cal.speed_mm_s,
+                        "implied_speed_mm_s": cal.implied_speed_mm_s},
+        "stats": rec.result_stats(),
+        "warnings": list(rec.warnings),
+    }
+
+
+def file_sha256(path) -> str:
+    return sha256_file(path)
+
+
+__all__ = ["write_reconstruction", "build_metadata", "atomic_write_bytes"]

@@ -1,0 +1,502 @@
+"""A digital cast (Qt-free): a closed triangle mesh of an impression, ready for a 3D printer.
+
+:func:`make_cast` turns a reconstruction's fused heightmap into a watertight solid (closed,
+2-manifold, every triangle wound counter-clockwise seen from outside): the surface on top, four
+vertical walls along the region's edges and a flat base ``base_mm`` below the surface's lowest
+point. :func:`cast_bytes` writes it as binary STL, PLY or OBJ; :func:`write_cast` does the whole
+job for ``impress cast`` (checks, mesh, file and its JSON sidecar, written atomically).
+
+Frame (see docs/formats.md, "Digital cast"): millimetres, right-handed, the export frame
+(:data:`~impress_gui.core.formats.writers.EXPORT_FRAME`: ``x = rail X``, ``y = -rail Y``, ``z`` up).
+
+- **negative** (the default): the impression as recorded. A surface vertex of cell ``[i, j]``
+  lies at ``(x, y, h)``, ``(x, y) = export_xy(spec, i, j)``, ``h`` the heightmap's value; the
+  solid is ``z_base <= z <= h(x, y)`` with ``z_base = min(h) - base_mm``.
+- **positive**: the cast poured into the impression, turned over as a physical cast is, so that
+  its relief faces up and shows the outsole's face as one looks at the sole. The poured solid
+  ``h(x, y) <= z <= max(h) + base_mm`` is rotated by 180 degrees about the y axis,
+  ``(x, y, z) -> (-x, y, -z)``: a proper rotation (determinant +1), never a reflection, so
+  nothing is mirrored that a physical cast would not show mirrored. A surface vertex lies at
+  ``(-x, y, -h)``, the base at ``-max(h) - base_mm``.
+
+Holes (NaN cells) inside the region are filled smoothly (a multigrid harmonic fill: the
+neighbours' mean, solved coarse to fine) and counted; the mesh is decimated by sampling every
+``step``-th cell (the region's last row and column always kept), the smallest step that keeps
+the triangle count at or under ``max_triangles``. Surface vertices lie exactly on heightmap
+cells (float32). Everything is deterministic: the same inputs give the same bytes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import struct
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from impress_gui import __version__
+from impress_gui.core.base.errors import FormatError, InputError
+from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.reconstruction.grid import GridSpec
+
+CAST_FORMAT = "impress.cast"
+CAST_VERSION = 1
+SUFFIXES = {".stl": "stl", ".ply": "ply", ".obj": "obj"}
+DEFAULT_BASE_MM = 5.0
+DEFAULT_MAX_TRIANGLES = 2_000_000
+MIN_TRIANGLES = 20  # the smallest solid: 2x2 surface nodes, 4 walls, a base fan
+MAX_BASE_MM = 1000.0
+CHUNK = 1 << 20  # triangles handled at a time in float64
+NEGATIVE_TRANSFORM = "identity: (x, y, z) -> (x, y, z)"
+POSITIVE_TRANSFORM = (
+    "rotation by 180 deg about the y axis: (x, y, z) -> (-x, y, -z) (determinant +1, a proper "
+    "rigid motion: the poured cast turned over, relief up)"
+)
+CAST_FRAME = (
+    "right-handed, in mm; before the transformation the export frame: x = rail X (the image's "
+    "columns, to the right), y = -rail Y (the image's first row has the largest y), z = height "
+    "up, towards the camera"
+)
+
+
+@dataclass(frozen=True)
+class CastParams:
+    """``crop_mm``: ``(x0, y0, x1, y1)`` in the export frame (mm, corners in any order), None
+    for the cells with data; ``base_mm`` > 0: the base's thickness below the lowest point."""
+
+    positive: bool = False
+    base_mm: float = DEFAULT_BASE_MM
+    crop_mm: tuple[float, float, float, float] | None = None
+    max_triangles: int = DEFAULT_MAX_TRIANGLES
+
+    def check(self) -> None:
+        b = self.base_mm
+        if not isinstance(b, (int, float)) or not math.isfinite(b) or not 0 < b <= MAX_BASE_MM:
+            raise InputError(f"the base thickness must be a number of mm above 0 and at most "
+                             f"{MAX_BASE_MM:g} (got {b})", code="E-CAST-BASE")
+        if isinstance(self.max_triangles, bool) or not isinstance(self.max_triangles, int) \
+                or self.max_triangles < MIN_TRIANGLES:
+            raise InputError(f"the triangle cap must be a whole number of at least "
+                             f"{MIN_TRIANGLES} (got {self.max_triangles})",
+                             code="E-CAST-TRIANGLES")
+        if self.crop_mm is not None:
+            c = self.crop_mm
+            if len(c) != 4 or not all(isinstance(v, (int, float)) and math.isfinite(v)
+                                      for v in c):
+                raise InputError("the crop must be four finite numbers x0,y0,x1,y1 (mm)",
+                                 code="E-CAST-CROP")
+            if c[0] == c[2] or c[1] == c[3]:
+                raise InputError("the crop has no area: x0 = x1 or y0 = y1", code="E-CAST-CROP")
+
+    def to_json(self) -> dict:
+        return {"mode": "positive" if self.positive else "negative",
+                "base_mm": float(self.base_mm),
+                "crop_mm": None if self.crop_mm is None else [float(v) for v in self.crop_mm],
+                "max_triangles": int(self.max_triangles)}
+
+
+@dataclass(frozen=True)
+class CastMesh:
+    """A closed, outward-oriented triangle mesh. ``vertices`` ``(N, 3)`` float32 mm;
+    ``triangles`` ``(M, 3)`` int64 indices, counter-clockwise seen from outside."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    params: CastParams
+    region: dict  # the cells used: rows/cols (first, stop), the crop in the export frame
+    step: int  # every step-th cell was sampled
+    filled_cells: int  # cells of the region without data, filled (full resolution)
+    filled_vertices: int  # surface vertices on filled cells
+    surface_shape: tuple[int, int]  # (rows, cols) of surface vertices
+    base_z_mm: float
+    volume_mm3: float
+
+    def bounding_box(self) -> dict:
+        lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
+        return {"min_mm": [round(float(v), 6) for v in lo],
+                "max_mm": [round(float(v), 6) for v in hi]}
+
+
+# ----- region and hole filling ---------------------------------------------------------------
+def crop_region(spec: GridSpec, height: np.ndarray,
+                crop_mm: tuple[float, float, float, float] | None) -> tuple[slice, slice]:
+    """The rows and columns of the region: the cells whose centres lie in ``crop_mm`` (export
+    frame, clipped to the grid), or the bounding box of the cells with data."""
+    ok = np.isfinite(height)
+    if not ok.any():
+        raise InputError("the heightmap has no data (every cell is NaN): nothing to cast",
+                         code="E-CAST-NO-DATA")
+    if crop_mm is None:
+        rows, cols = np.nonzero(ok.any(axis=1))[0], np.nonzero(ok.any(axis=0))[0]
+        r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    else:
+        x0, y0, x1, y1 = crop_mm
+        p = spec.pixel_mm
+        eps = 1e-9 * max(1.0, abs(x0), abs(x1), abs(y0), abs(y1))
+        # export x = x0_mm + j p; export y = -(y0_mm + i p)
+        c0 = max(0, math.ceil((min(x0, x1) - spec.x0_mm) / p - eps))
+        c1 = min(spec.shape[1], math.floor((max(x0, x1) - spec.x0_mm) / p + eps) + 1)
+        r0 = max(0, math.ceil((-max(y0, y1) - spec.y0_mm) / p - eps))
+        r1 = min(spec.shape[0], math.floor((-min(y0, y1) - spec.y0_mm) / p + eps) + 1)
+        if r1 - r0 < 2 or c1 - c0 < 2:
+            raise InputError(
+                f"the crop {x0:g},{y0:g},{x1:g},{y1:g} mm holds fewer than 2 x 2 cells of the "
+                f"grid (x {spec.x0_mm:g} to {spec.x0_mm + (spec.shape[1] - 1) * p:g} mm, y "
+                f"{-(spec.y0_mm + (spec.shape[0] - 1) * p):g} to {-spec.y0_mm:g} mm in the "
+                "export frame)", code="E-CAST-CROP")
+        if not ok[r0:r1, c0:c1].any():
+            raise InputError("the crop holds no cell with data: nothing to cast",
+                             code="E-CAST-NO-DATA")
+    if r1 - r0 < 2 or c1 - c0 < 2:
+        raise InputError("the cells with data span fewer than 2 x 2 cells: too small to cast",
+                         code="E-CAST-NO-DATA")
+    return slice(r0, r1), slice(c0, c1)
+
+
+def _relax(out: np.ndarray, unknown: np.ndarray, iterations: int) -> None:
+    """Jacobi steps of the neighbours' mean on the unknown cells (edges replicated)."""
+    for _ in range(iterations):
+        p = np.pad(out, 1, mode="edge")
+        mean = 0.25 * (p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:])
+        out[unknown] = mean[unknown]
+
+
+def fill_holes(height: np.ndarray, iterations: int = 6) -> np.ndarray:
+    """``height`` (2D, NaN = unknown, at least one known cell) with every NaN replaced by a
+    smooth harmonic fill (each filled cell the mean of its four neighbours), solved coarse to
+    fine: the NaN-aware 2 x 2 mean gives the next coarser level, its fill seeds the finer one,
+    a few Jacobi steps smooth it. Known cells are returned unchanged. float64."""
+    h = np.asarray(height, np.float64)
+    known = np.isfinite(h)
+    if known.all():
+        return h.copy()
+    if not known.any():
+        raise InputError("no cell with data to fill from", code="E-CAST-NO-DATA")
+    rows, cols = h.shape
+    if rows == 1 and cols == 1:
+        return h.copy()
+    pr, pc = rows % 2, cols % 2
+    v = np.pad(np.where(known, h, 0.0), ((0, pr), (0, pc)))
+    w = np.pad(known.astype(np.float64), ((0, pr), (0, pc)))
+    vs = v[0::2, 0::2] + v[1::2, 0::2] + v[0::2, 1::2] + v[1::2, 1::2]
+    ws = w[0::2, 0::2] + w[1::2, 0::2] + w[0::2, 1::2] + w[1::2, 1::2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        coarse = np.where(ws > 0, vs / np.maximum(ws, 1e-300), np.nan)
+    coarse = fill_holes(coarse, iterations)
+    seed = np.repeat(np.repeat(coarse, 2, axis=0), 2, axis=1)[:rows, :cols]
+    out = np.where(known, h, seed)
+    _relax(out, ~known, iterations)
+    return out
+
+
+# ----- the solid -----------------------------------------------------------------------------
+def _samples(n: int, step: int) -> np.ndarray:
+    idx = np.arange(0, n, step)
+    return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
+
+
+def triangle_count(rows: int, cols: int) -> int:
+    """Triangles of a solid on ``rows x cols`` surface nodes: the surface, walls and base fan."""
+    return 2 * (rows - 1) * (cols - 1) + 6 * (rows - 1 + cols - 1)
+
+
+def choose_step(rows: int, cols: int, max_triangles: int) -> int:
+    """The smallest sampling step whose solid has at most ``max_triangles`` triangles."""
+    step = max(1, math.floor(math.sqrt(2 * rows * cols / max_triangles)))
+    while True:
+        nr, nc = len(_samples(rows, step)), len(_samples(cols, step))
+        if triangle_count(nr, nc) <= max_triangles:
+            break
+        step += 1
+    while step > 1:
+        nr, nc = len(_samples(rows, step - 1)), len(_samples(cols, step - 1))
+        if triangle_count(nr, nc) > max_triangles:
+            break
+        step -= 1
+    return step
+
+
+def _boundary_loop(nr: int, nc: int) -> np.ndarray:
+    """Indices of the ``nr x nc`` node grid's boundary, once around (row 0 first)."""
+    grid = np.arange(nr * nc).reshape(nr, nc)
+    return np.concatenate([grid[0, :], grid[1:, -1], grid[-1, -2::-1], grid[-2:0:-1, 0]])
+
+
+def solid_from_grid(x: np.ndarray, y: np.ndarray, z: np.ndarray, base_z: float
+                    ) -> tuple[np.ndarray, np.ndarray, float]:
+    """A closed solid between a height field and the plane ``z = base_z`` below it.
+
+    ``x``, ``y``, ``z``: ``(nr, nc)`` node coordinates (mm) of a grid that is a rectangle in
+    xy (any orientation, possibly mirrored). Returns float32 vertices, int64 triangles wound
+    counter-clockwise seen from outside (the winding is consistent by construction; its sense
+    is set by the signed volume), and the volume in mm^3."""
+    nr, nc = z.shape
+    top = np.column_stack([x.ravel(), y.ravel(), z.ravel()])
+    loop = _boundary_loop(nr, nc)
+    n_top, n_loop = nr * nc, len(loop)
+    bottom = np.column_stack([top[loop, 0], top[loop, 1], np.full(n_loop, base_z)])
+    centre = np.array([[0.5 * (x.min() + x.max()), 0.5 * (y.min() + y.max()), base_z]])
+    verts = np.concatenate([top, bottom, centre]).astype(np.float32)
+    g = np.arange(n_top).reshape(nr, nc)
+    a, b, c, d = g[:-1, :-1].ravel(), g[:-1, 1:].ravel(), g[1:, :-1].ravel(), g[1:, 1:].ravel()
+    surface = np.concatenate([np.column_stack([a, c, d]), np.column_stack([a, d, b])])
+    t0, t1 = loop, np.roll(loop, -1)
+    b0 = n_top + np.arange(n_loop)
+    b1 = np.roll(b0, -1)
+    walls = np.concatenate([np.column_stack([t0, t1, b1]), np.column_stack([t0, b1, b0])])
+    fan = np.column_stack([np.full(n_loop, n_top + n_loop), b0, b1])
+    tris = np.concatenate([surface, walls, fan]).astype(np.int64)
+    volume = 0.0
+    for k in range(0, len(tris), CHUNK):  # in pieces: float64 temporaries stay small
+        p = verts[tris[k : k + CHUNK]].astype(np.float64)
+        volume += float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum())
+    volume /= 6.0
+    if volume < 0:
+        tris = tris[:, [0, 2, 1]]
+        volume = -volume
+    return verts, np.ascontiguousarray(tris), volume
+
+
+def make_cast(height: np.ndarray, spec: GridSpec, params: CastParams,
+              progress: ProgressCallback | None = None,
+              cancel: CancelToken | None = None) -> CastMesh:
+    """The cast of ``height`` (float32 mm on ``spec``, NaN = no data); see the module's
+    docstring for the frame and the two modes."""
+    params.check()
+    if tuple(height.shape) != tuple(spec.shape):
+        raise InputError(f"height map {height.shape} does not match the grid {spec.shape}")
+    report(progress, 0.0, "choosing the region")
+    rs, cs = crop_region(spec, height, params.crop_mm)
+    region = np.asarray(height[rs, cs], np.float64)
+    missing = ~np.isfinite(region)
+    if cancel is not None:
+        cancel.check()
+    report(progress, 0.1, f"filling {int(missing.sum())} cells without data")
+    filled = fill_holes(region) if missing.any() else region
+    if cancel is not None:
+        cancel.check()
+    rows, cols = region.shape
+    step = choose_step(rows, cols, params.max_triangles)
+    ri, ci = _samples(rows, step), _samples(cols, step)
+    report(progress, 0.5, f"building the mesh (every {step} cell(s))")
+    jj, ii = np.meshgrid(cs.start + ci, rs.start + ri)
+    from impress_gui.core.formats.writers import export_xy
+
+    x, y = export_xy(spec, ii.astype(np.float64), jj.astype(np.float64))
+    # the heights the file will hold: the heightmap's float32 values, exactly
+    z = filled[np.ix_(ri, ci)].astype(np.float32).astype(np.float64)
+    if params.positive:
+        x, z = -x, -z  # the rotation by 180 deg about y (the y coordinate is unchanged)
+    base_z = float(np.float32(z.min() - params.base_mm))
+    verts, tris, volume = solid_from_grid(x, y, z, base_z)
+    if cancel is not None:
+        cancel.check()
+    p = spec.pixel_mm
+    crop_export = [spec.x0_mm + cs.start * p, -(spec.y0_mm + (rs.stop - 1) * p),
+                   spec.x0_mm + (cs.stop - 1) * p, -(spec.y0_mm + rs.start * p)]
+    region_doc = {"rows": [rs.start, rs.stop], "cols": [cs.start, cs.stop],
+                  "cells": [rows, cols],
+                  "crop_mm": [round(v, 9) for v in crop_export],
+                  "note": "cell rows/cols are [first, stop) of the reconstruction's grid; "
+                          "crop_mm is x0,y0,x1,y1 of the cell centres in the export frame"}
+    report(progress, 1.0, "mesh ready")
+    return CastMesh(verts, tris, params, region_doc, step, int(missing.sum()),
+                    int(missing[np.ix_(ri, ci)].sum()), (len(ri), len(ci)), base_z, volume)
+
+
+# ----- files ---------------------------------------------------------------------------------
+def transform_matrix(positive: bool) -> list[list[float]]:
+    """The 4 x 4 matrix taking export-frame points to the cast's coordinates."""
+    s = -1.0 if positive else 1.0
+    return [[s, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, s, 0.0], [0.0, 0.0, 0.0, 1.0]]
+
+
+def _g(v: float) -> str:
+    return f"{v:g}"
+
+
+def stl_header(mesh: CastMesh, metadata_sha256: str | None) -> bytes:
+    """80 ASCII bytes: software, mode, base, triangle cap, crop and as much of the
+    reconstruction's metadata.json SHA-256 as fits (the sidecar has everything)."""
+    p = mesh.params
+    crop = "data" if p.crop_mm is None else ",".join(_g(v) for v in p.crop_mm)
+    head = (f"IMPREsS {__version__} cast {'pos' if p.positive else 'neg'} b={_g(p.base_mm)} "
+            f"t={p.max_triangles} c={crop} md=")
+    room = 80 - len(head)
+    if room < 12:  # a long crop gives way to the hash's first 12 digits
+        head = head[: 80 - 12 - 4] + "~ md="
+        room = 80 - len(head)
+    text = head + (metadata_sha256 or "none")[:room]
+    return text.encode("ascii", "replace").ljust(80, b" ")[:80]
+
+
+def stl_bytes(mesh: CastMesh, header: bytes) -> bytes:
+    """Binary STL: the header, the triangle count, per triangle its unit normal and corners."""
+    v = mesh.vertices
+    t = mesh.triangles
+    rec = np.zeros(len(t), dtype=[("n", "<f4", (3,)), ("v", "<f4", (3, 3)), ("a", "<u2")])
+    for k in range(0, len(t), CHUNK):
+        corners = v[t[k : k + CHUNK]]  # (m, 3, 3) float32
+        p = corners.astype(np.float64)
+        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        norm = np.linalg.norm(n, axis=1, keepdims=True)
+        rec["n"][k : k + CHUNK] = np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+        rec["v"][k : k + CHUNK] = corners
+    return header[:80].ljust(80, b" ") + struct.pack("<I", len(t)) + rec.tobytes()
+
+
+def ply_mesh_bytes(mesh: CastMesh, comments: list[str]) -> bytes:
+    """Binary little-endian PLY: float32 x, y, z vertices and triangles (uchar count, int
+    indices); each of ``comments`` is one header comment line."""
+    faces = np.zeros(len(mesh.triangles), dtype=[("k", "u1"), ("i", "<i4", (3,))])
+    faces["k"] = 3
+    faces["i"] = mesh.triangles
+    lines = "".join(f"comment {' '.join(str(c).split())}\n" for c in comments)
+    header = ("ply\nformat binary_little_endian 1.0\n" + lines +
+              f"element vertex {len(mesh.vertices)}\nproperty float x\nproperty float y\n"
+              f"property float z\nelement face {len(mesh.triangles)}\n"
+              "property list uchar int vertex_indices\nend_header\n")
+    return (header.encode("ascii", "backslashreplace")
+            + np.ascontiguousarray(mesh.vertices, "<f4").tobytes() + faces.tobytes())
+
+
+def obj_bytes(mesh: CastMesh, comments: list[str]) -> bytes:
+    """Wavefront OBJ: ``#`` comment lines, ``v x y z`` (the float32 values exactly, 9
+    significant digits), ``f a b c`` (1-based)."""
+    import io
+
+    buf = io.BytesIO()
+    for c in comments:
+        buf.write(f"# {' '.join(str(c).split())}\n".encode("ascii", "backslashreplace"))
+    np.savetxt(buf, mesh.vertices.astype(np.float64), fmt="v %.9g %.9g %.9g")
+    np.savetxt(buf, mesh.triangles + 1, fmt="f %d %d %d")
+    return buf.getvalue()
+
+
+def cast_bytes(mesh: CastMesh, fmt: str, provenance: Mapping) -> bytes:
+    """The mesh as ``fmt`` ("stl", "ply" or "obj") carrying ``provenance`` (the sidecar's
+    document without the mesh file's own hash): in the STL header (short), as PLY/OBJ
+    comments (in full)."""
+    if fmt == "stl":
+        src = (provenance.get("inputs") or {}).get("reconstruction") or {}
+        return stl_bytes(mesh, stl_header(mesh, src.get("metadata_json_sha256")))
+    from impress_gui.core.formats.provenance import comment_lines
+
+    lines = [f"IMPREsS workstation {__version__} digital cast; units mm",
+             *comment_lines(provenance)]
+    if fmt == "ply":
+        return ply_mesh_bytes(mesh, lines)
+    if fmt == "obj":
+        return obj_bytes(mesh, lines)
+    raise InputError(f"unknown mesh format {fmt!r}: use .stl, .ply or .obj",
+                     code="E-CAST-SUFFIX")
+
+
+def cast_document(mesh: CastMesh, spec: GridSpec, source: Mapping, heightmap_sha256: str,
+                  fmt: str) -> dict:
+    """The sidecar's record (without the mesh file's name, size and hash)."""
+    p = mesh.params
+    return {
+        "format": CAST_FORMAT,
+        "version": CAST_VERSION,
+        "software": f"IMPREsS workstation {__version__}",
+        "inputs": {"reconstruction": {
+            "folder": source.get("reconstruction"),
+            "metadata_json_sha256": source.get("metadata_json_sha256"),
+            "heightmap_tif_sha256": heightmap_sha256,
+            "video_sha256": source.get("video_sha256"),
+            "calibration_sha256": source.get("calibration_sha256"),
+            "reconstruction_software": source.get("reconstruction_software"),
+            **({"note": source["note"]} if source.get("note") else {}),
+        }},
+        "parameters": p.to_json(),
+        "frame": {
+            "units": "mm",
+            "handedness": "right",
+            "description": CAST_FRAME,
+            "transformation": POSITIVE_TRANSFORM if p.positive else NEGATIVE_TRANSFORM,
+            "matrix": transform_matrix(p.positive),
+            "surface": ("the impression as recorded: a vertex of cell [i, j] at (x, y, h)"
+                        if not p.positive else
+                        "the outsole's positive, relief up: a vertex of cell [i, j] at "
+                        "(-x, y, -h)"),
+        },
+        "grid": spec.to_json(),
+        "region": mesh.region,
+        "holes": {"filled_cells": mesh.filled_cells, "filled_vertices": mesh.filled_vertices,
+                  "method": "harmonic fill (each cell the mean of its 4 neighbours), solved "
+                            "coarse to fine"},
+        "mesh": {
+            "format": fmt,
+            "triangles": int(len(mesh.triangles)),
+            "vertices": int(len(mesh.vertices)),
+            "surface_vertices": list(mesh.surface_shape),
+            "step_cells": mesh.step,
+            "vertex_spacing_mm": round(mesh.step * spec.pixel_mm, 9),
+            "closed": True,
+            "orientation": "counter-clockwise seen from outside (outward normals)",
+            "base_z_mm": round(mesh.base_z_mm, 6),
+            "volume_mm3": round(mesh.volume_mm3, 3),
+            "bounding_box": mesh.bounding_box(),
+        },
+    }
+
+
+def write_cast(recon: str | Path, output: str | Path, params: CastParams,
+               progress: ProgressCallback | None = None,
+               cancel: CancelToken | None = None) -> dict:
+    """Make the cast of a reconstruction folder and write it to ``output`` (.stl, .ply or
+    .obj) with its sidecar ``output + ".json"``; both atomically. Returns the sidecar's
+    document. Every check (folder, output, parameters) is made before any work."""
+    from impress_gui.core.base.fileio import atomic_write_bytes, dumps_json, sha256_file
+    from impress_gui.core.base.outdir import check_output_file
+    from impress_gui.core.base.progress import sub_progress
+    from impress_gui.core.formats.provenance import reconstruction_source
+    from impress_gui.core.measure.readings import load_reconstruction
+
+    folder = Path(recon)
+    if not folder.exists():
+        raise InputError(f"{folder}: no such reconstruction folder", code="E-CAST-NO-RECON")
+    if not folder.is_dir():
+        raise InputError(f"{folder} is a file, not a reconstruction folder (give the folder "
+                         "impress process wrote)", code="E-CAST-NOT-FOLDER")
+    out = check_output_file(output, inputs=(folder,), formats=None)
+    fmt = SUFFIXES.get(out.suffix.lower())
+    if fmt is None:
+        raise InputError(f"{output}: the name must end in .stl, .ply or .obj (the mesh's "
+                         "format)", code="E-CAST-SUFFIX")
+    sidecar = check_output_file(out.with_name(out.name + ".json"), inputs=(folder,),
+                                formats=(CAST_FORMAT,))
+    params.check()
+    report(progress, 0.0, f"reading {folder}")
+    data = load_reconstruction(folder, layers=("fused",))
+    source = reconstruction_source(data.metadata, data.folder)
+    tif_sha = sha256_file(folder / "heightmap.tif")
+    recorded = (data.metadata.get("files") or {}).get("heightmap.tif")
+    if recorded is not None and recorded != tif_sha:
+        raise FormatError(f"{folder / 'heightmap.tif'} is not the heightmap metadata.json "
+                          "records (its SHA-256 differs): it changed after processing; process "
+                          "the scan again", code="E-CAST-HASH")
+    mesh = make_cast(data.height_mm, data.spec, params, sub_progress(progress, 0.1, 0.8),
+                     cancel)
+    doc = cast_document(mesh, data.spec, source, tif_sha, fmt)
+    report(progress, 0.8, f"writing {out.name}")
+    payload = cast_bytes(mesh, fmt, doc)
+    if cancel is not None:
+        cancel.check()
+    atomic_write_bytes(out, payload)
+    doc["mesh"] = {"file": out.name, "bytes": len(payload),
+                   "sha256": hashlib.sha256(payload).hexdigest(), **doc["mesh"]}
+    atomic_write_bytes(sidecar, dumps_json(doc).encode("utf-8"))
+    report(progress, 1.0, "done")
+    return doc
+
+
+def read_cast_document(path: str | Path) -> dict:
+    """A cast sidecar (``impress.cast`` v1), checked."""
+    from impress_gui.core.base.fileio import read_json
+
+    return read_json(path, CAST_FORMAT, (CAST_VERSION,))

@@ -1,0 +1,173 @@
+"""Accumulating scattered stripe profiles into a regular heightmap grid.
+
+Grid convention (shared with the simulator's truth): cell ``[i, j]`` is centred at rail
+coordinates ``x = x0_mm + j * pixel_mm``, ``y = y0_mm + i * pixel_mm``; arrays are row-major.
+Consecutive stripe profiles are filled in between (linear where the surface is continuous,
+nearest where it steps), so a scan at any speed gives a gap-free map where a laser saw the
+surface.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    x0_mm: float
+    y0_mm: float
+    pixel_mm: float
+    shape: tuple[int, int]  # (rows along Y, cols along X)
+
+    @classmethod
+    def covering(cls, x_range, y_range, pixel_mm: float) -> GridSpec:
+        x0 = np.floor(x_range[0] / pixel_mm) * pixel_mm
+        y0 = np.floor(y_range[0] / pixel_mm) * pixel_mm
+        w = int(np.ceil((x_range[1] - x0) / pixel_mm)) + 1
+        h = int(np.ceil((y_range[1] - y0) / pixel_mm)) + 1
+        return cls(float(x0), float(y0), float(pixel_mm), (h, w))
+
+    def xs(self) -> np.ndarray:
+        return self.x0_mm + self.pixel_mm * np.arange(self.shape[1])
+
+    def ys(self) -> np.ndarray:
+        return self.y0_mm + self.pixel_mm * np.arange(self.shape[0])
+
+    def to_json(self) -> dict:
+        return {"x0_mm": self.x0_mm, "y0_mm": self.y0_mm, "pixel_mm": self.pixel_mm,
+                "shape": list(self.shape)}
+
+
+class HeightAccumulator:
+    """Sum and count of heights per cell, filled between consecutive profiles."""
+
+    def __init__(self, spec: GridSpec, max_gap_mm: float, max_step_mm: float) -> None:
+        self.spec = spec
+        # float32 sums: heights within +-1 m summed over a cell's few hundred samples keep
+        # micrometre precision; uint16 counts (a cell gets at most a few hundred samples)
+        self.sum = np.zeros(spec.shape, np.float32)
+        self.count = np.zeros(spec.shape, np.uint16)
+        self.max_gap_mm = max_gap_mm
+        self.max_step_mm = max_step_mm
+        self._prev: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._splat: Any = None  # the compiled kernel, looked up on first use
+
+    def reset_chain(self) -> None:
+        self._prev = None
+
+    def add_profile(self, x, y, h, valid) -> None:
+        """Add one frame's (upsampled) profile; fill towards the previous one: each point
+        pairs with the same point of the previous profile when both are valid and closer
+        than ``max_gap_mm`` (see :func:`impress_gui.core.reconstruction.kernels.splat_heights`)."""
+        if self._splat is None:
+            from impress_gui.core.reconstruction.compiled import kernels
+
+            self._splat = kernels().splat_heights
+        prev = self._prev
+        self._prev = (x, y, h, valid)
+        s = self.spec
+        has_prev = prev is not None
+        px, py, ph, pv = prev if prev is not None else (x, y, h, valid)
+        self._splat(self.sum, self.count, s.x0_mm, s.y0_mm, s.pixel_mm, x, y, h, valid,
+                    px, py, ph, pv, has_prev, float(self.max_gap_mm), float(self.max_step_mm))
+
+    def mean(self) -> np.ndarray:
+        from impress_gui.core.reconstruction.compiled import kernels
+
+        out = np.empty(self.spec.shape, np.float32)
+        kernels().mean_heights(self.sum, self.count, out)
+        return out
+
+    def mean_rows(self, rows: slice, out: np.ndarray) -> None:
+        """:meth:`mean` of grid rows ``rows`` into the same rows of ``out``."""
+        from impress_gui.core.reconstruction.compiled import kernels
+
+        kernels().mean_heights(self.sum[rows], self.count[rows], out[rows])
+
+
+class ColorAccumulator:
+    """Sum and count of colours per cell (the registered texture); filled by
+    :func:`impress_gui.core.reconstruction.kernels.texture_rows`.
+
+    With ``ring_rows`` (a power of two) the sums hold only that many grid rows at a time:
+    grid row ``i`` in row ``i & mask``. Rows are then taken out in scan order
+    (:meth:`take_rows`), which frees theirs for the rows that follow; the caller keeps every
+    row it still adds to within one ring."""
+
+    def __init__(self, spec: GridSpec, max_gap_mm: float, ring_rows: int | None = None) -> None:
+        self.spec = spec
+        rows = spec.shape[0] if ring_rows is None else ring_rows
+        if ring_rows is not None and (ring_rows <= 0 or ring_rows & (ring_rows - 1)):
+            raise ValueError("ring_rows must be a power of two")
+        self.rows = rows
+        self.mask = -1 if ring_rows is None else ring_rows - 1
+        self.sum = np.zeros((rows, spec.shape[1], 3), np.float32)
+        self.count = np.zeros((rows, spec.shape[1]), np.uint16)
+        self.max_gap_mm = max_gap_mm
+
+    def mean(self) -> np.ndarray:
+        from impress_gui.core.reconstruction.compiled import kernels
+
+        assert self.mask == -1, "a ring's rows are taken out with take_rows"
+        out = np.empty((*self.spec.shape, 3), np.uint8)
+        kernels().mean_colours(self.sum, self.count, out)
+        return out
+
+    def mean_rows(self, rows: slice, out: np.ndarray) -> None:
+        """:meth:`mean` of grid rows ``rows`` into the same rows of ``out`` (whole-grid sums)."""
+        from impress_gui.core.reconstruction.compiled import kernels
+
+        assert self.mask == -1, "a ring's rows are taken out with take_rows"
+        kernels().mean_colours(self.sum[rows], self.count[rows], out[rows])
+
+    def take_rows(self, rows: slice, out: np.ndarray) -> None:
+        """The mean colours of grid rows ``rows`` into the same rows of ``out``; in a ring,
+        their sums are then cleared for the rows that follow."""
+        from impress_gui.core.reconstruction.compiled import kernels
+
+        if self.mask == -1:
+            self.mean_rows(rows, out)
+            return
+        a = rows.start
+        while a < rows.stop:
+            r = a & self.mask
+            n = min(rows.stop - a, self.rows - r)
+            kernels().mean_colours(self.sum[r : r + n], self.count[r : r + n], out[a : a + n])
+            self.sum[r : r + n] = 0
+            self.count[r : r + n] = 0
+            a += n
+
+
+def fuse(h_green: np.ndarray, h_red: np.ndarray, tol_mm: float):
+    """Fuse two per-laser maps. Returns (fused, difference green - red, contribution) where
+    contribution is 0 none, 1 green only, 2 red only, 3 both agreeing (mean), 4 both
+    disagreeing (the value nearer the local consensus: the mean of the cells fused from
+    agreeing or single lasers in the 7 x 7 square around it)."""
+    fused = np.empty(h_green.shape, np.float32)
+    diff = np.empty(h_green.shape, np.float32)
+    contrib = np.empty(h_green.shape, np.uint8)
+    fuse_rows(np.ascontiguousarray(h_green, np.float32), np.ascontiguousarray(h_red, np.float32),
+              tol_mm, fused, diff, contrib, 0, h_green.shape[0])
+    return fused, diff, contrib
+
+
+#: half size of the square whose consensus decides between disagreeing lasers
+FUSE_RADIUS = 3
+
+
+def fuse_rows(h_green, h_red, tol_mm: float, fused, diff, contrib, lo: int, hi: int,
+              resolve: tuple[int, int] | None = None) -> None:
+    """:func:`fuse` on rows ``lo .. hi - 1`` of preallocated maps, then the conflicts of rows
+    ``resolve`` (default the same rows; they need the first pass :data:`FUSE_RADIUS` rows
+    beyond them). Fusing a map band by band gives the same result as all at once."""
+    from impress_gui.core.reconstruction.compiled import kernels
+
+    k = kernels()
+    conflicts = k.fuse_rows(h_green, h_red, float(tol_mm), fused, diff, contrib, lo, hi) \
+        if hi > lo else 0
+    a, b = resolve if resolve is not None else (lo, hi)
+    if b > a and (conflicts or resolve is not None):
+        k.resolve_conflicts(h_green, h_red, FUSE_RADIUS, fused, contrib, a, b)

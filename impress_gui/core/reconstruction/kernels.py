@@ -1,0 +1,434 @@
+"""Compiled per-frame kernels of the reconstruction (numba).
+
+The frame loop must cost little beside decoding (issue 4: processing time <= 1.3 x decode-only
+time). What numpy does as dozens of whole-array passes per frame, these kernels do in one pass
+over the image columns. Each one states the numpy expression it replaces in its docstring; the
+readable numpy reference of the stripe detector stays in :mod:`impress_gui.core.reconstruction.stripes` and the
+tests check the two agree on simulated frames.
+
+All kernels release the GIL (the decoder thread keeps running) and are deterministic: no
+fast-math, no parallel reductions, a fixed order of accumulation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from impress_gui.core.reconstruction.jit import helper as _jit
+from impress_gui.core.reconstruction.jit import kernel as _kernel
+
+HSV_SHIFT = 12
+
+
+def hsv_tables() -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's fixed-point division tables of its 8-bit RGB->HSV conversion (hue range 180)."""
+    i = np.arange(256, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        sdiv = np.where(i > 0, np.rint((255 << HSV_SHIFT) / i), 0).astype(np.int64)
+        hdiv = np.where(i > 0, np.rint((180 << HSV_SHIFT) / (6.0 * i)), 0).astype(np.int64)
+    return sdiv, hdiv
+
+
+@_jit
+def _rgb(yv, cbv, crv):
+    """BT.601 limited-range YCbCr -> RGB, clipped to 0..255 (as ``stripes.Planes.rgb``)."""
+    yy = (yv - 16.0) * 1.164
+    cbf = cbv - 128.0
+    crf = crv - 128.0
+    r = min(max(yy + 1.596 * crf, 0.0), 255.0)
+    g = min(max(yy - 0.392 * cbf - 0.813 * crf, 0.0), 255.0)
+    b = min(max(yy + 2.017 * cbf, 0.0), 255.0)
+    return r, g, b
+
+
+@_jit
+def _hsv8(r, g, b, sdiv, hdiv):
+    """OpenCV's COLOR_RGB2HSV for one 8-bit pixel: (h 0..179, s, v)."""
+    v = max(r, g, b)
+    vmin = min(r, g, b)
+    diff = v - vmin
+    s = (diff * sdiv[v] + (1 << (HSV_SHIFT - 1))) >> HSV_SHIFT
+    if v == r:
+        h = g - b
+    elif v == g:
+        h = b - r + 2 * diff
+    else:
+        h = r - g + 4 * diff
+    h = (h * hdiv[diff] + (1 << (HSV_SHIFT - 1))) >> HSV_SHIFT
+    if h < 0:
+        h += 180
+    return h, s, v
+
+
+@_jit
+def _window(y, c, centre, k, rr, sig):
+    """Fill ``rr``/``sig`` with the ``2k+1`` rows around ``centre`` of column ``c`` and the luma
+    above the window's minimum; return (top, sum above half maximum, centre of mass)."""
+    h = y.shape[0]
+    n = 2 * k + 1
+    lo = 1e9
+    hi = -1e9
+    for j in range(n):
+        r = min(max(centre + j - k, 0), h - 1)
+        rr[j] = r
+        v = float(y[r, c])
+        sig[j] = v
+        lo = min(lo, v)
+        hi = max(hi, v)
+    top = hi - lo
+    half = 0.5 * top
+    wsum = 0.0
+    acc = 0.0
+    for j in range(n):
+        sig[j] -= lo
+        a = sig[j] - half
+        if a > 0:
+            wsum += a
+            acc += a * rr[j]
+    return top, wsum, (acc / wsum) if wsum > 0 else np.nan
+
+
+@_kernel(
+    "void(uint8[:, :], uint8[:, :], uint8[:, :], int64, int64[:], int64, int64, int64, int64, int64, float64, int64, int64, float64, boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64, int64[:], int64[:], float64[:], float32[:])"
+)
+def detect_stripe(y, cb, cr, s, band_start, band_height, sign, ch, o1, o2, min_peak, k,
+                  max_width, max_wrong_lean, use_hue, hue_lo, hue_hi, min_sat, min_value,
+                  use_tint, min_tint, lut, lut_margin, sdiv, hdiv, rows_out, strength_out):
+    """One laser's stripe in every column: the compiled form of ``stripes.detect_planes_numpy``
+    (same steps, same thresholds). ``lut`` is a (64, 64) table or an empty (0, 0) array."""
+    h, w = y.shape
+    sh = 1 if s == 2 else 0  # chroma subsampling as a shift (4:2:0 or full resolution)
+    r0 = band_start.min()
+    r0 -= r0 % 2
+    r1 = min(h, band_start.max() + band_height)
+    n = 2 * k + 1
+    rr = np.empty(n, np.int64)
+    sig = np.empty(n, np.float64)
+    use_lut = lut.shape[0] > 0
+    # 1. candidate: per column the brightest luma biased towards the laser's chroma, at every
+    # second row of the column's band (row-major: memory is read in order)
+    # the score and (4095 - the row's index) packed in one integer: a plain running maximum,
+    # which compiles to vector instructions, picks the first row of equal maxima
+    # rows inside every column's band skip the per-column band test
+    best = np.full(w, np.int32(-(1 << 30)), np.int32)
+    crx = np.empty(w, np.int32)
+    lo = band_start.astype(np.int32)
+    hi = lo + np.int32(band_height)
+    sg = np.int32(sign)
+    all_lo = band_start.max()
+    all_hi = band_start.min() + band_height
+    for i, r in enumerate(range(r0, r1, 2)):
+        yr = y[r]
+        crr = cr[r >> sh]
+        if sh:  # 4:2:0: one chroma sample for two columns
+            for c in range(w >> 1):
+                q = sg * (np.int32(crr[c]) - np.int32(128))
+                crx[2 * c] = q
+                crx[2 * c + 1] = q
+            if w & 1:
+                crx[w - 1] = sg * (np.int32(crr[(w - 1) >> 1]) - np.int32(128))
+        else:
+            for c in range(w):
+                crx[c] = sg * (np.int32(crr[c]) - np.int32(128))
+        r32 = np.int32(r)
+        tag = np.int32(4095 - i)
+        if all_lo <= r < all_hi:
+            for c in range(w):
+                v = np.int32(yr[c]) + crx[c]
+                best[c] = max(best[c], v * np.int32(4096) + tag)
+        else:
+            for c in range(w):
+                v = np.int32(yr[c]) + crx[c]
+                v = v if (r32 >= lo[c]) & (r32 < hi[c]) else np.int32(-1000)
+                best[c] = max(best[c], v * np.int32(4096) + tag)
+    for c in range(w):
+        rows_out[c] = np.nan
+        strength_out[c] = 0.0
+        b0 = band_start[c]
+        cc = c >> sh
+        if (best[c] >> 12) <= -1000:
+            continue  # no row of the column's band was searched
+        coarse = r0 + 2 * (4095 - (best[c] & 4095))
+        # fine: the brightest luma row within +-2 rows
+        peak = -1
+        bestv = -1
+        for o in range(-2, 3):
+            r = min(max(coarse + o, 0), h - 1)
+            if int(y[r, c]) > bestv:
+                bestv = int(y[r, c])
+                peak = r
+        # 2. centre of mass of the luma above half maximum, in a window re-centred once
+        top, wsum, centre = _window(y, c, peak, k, rr, sig)
+        if not math.isnan(centre) and int(np.rint(centre)) != peak:  # else: the same window
+            peak = int(np.rint(centre))
+            top, wsum, centre = _window(y, c, peak, k, rr, sig)
+        pi = peak - b0
+        if not (top >= min_peak and wsum > 0 and pi >= k and pi < band_height - k):
+            continue
+        if not (sig[0] < 0.7 * top and sig[n - 1] < 0.7 * top):
+            continue  # an edge, not a peak
+        if n > max_width:  # else the window cannot hold a stripe wider than max_width
+            width = 0
+            for j in range(n):
+                if sig[j] > 0.5 * top:
+                    width += 1
+            if width > max_width:
+                continue
+        # 3. the halo leans to this laser's colour (judged against the window's ends)
+        bg = 0.5 * (float(cr[rr[0] >> sh, cc]) + float(cr[rr[n - 1] >> sh, cc]))
+        lean = 0.0
+        nh = 0
+        for j in range(n):
+            if sig[j] > 0.2 * top and sig[j] < 0.65 * top:
+                lean += sign * (float(cr[rr[j] >> sh, cc]) - bg)
+                nh += 1
+        if lean / max(nh, 1) <= -max_wrong_lean:
+            continue
+        # 4. the method's colour test on the central rows
+        colour = False
+        for j in range(k - 3, k + 4):
+            r = rr[j]
+            rgb = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+            rf = rgb[ch]
+            of = max(rgb[o1], rgb[o2])
+            # the three tests are alternatives: the cheapest first
+            if use_tint and rf - of >= min_tint and rf >= min_value:
+                colour = True
+                break
+            if use_hue:
+                hh, ss, vv = _hsv8(int(rgb[0]), int(rgb[1]), int(rgb[2]), sdiv, hdiv)
+                if ss >= min_sat and vv >= min_value:
+                    for q in range(hue_lo.shape[0]):
+                        if hue_lo[q] <= hh <= hue_hi[q]:
+                            colour = True
+            if use_lut:
+                q0 = int(min(max(rgb[o1] + 0.5, 0.0), 255.0)) >> 2
+                q1 = int(min(max(rgb[o2] + 0.5, 0.0), 255.0)) >> 2
+                if int(min(max(rf + 0.5, 0.0), 255.0)) > lut[q0, q1] + lut_margin:
+                    colour = True
+            if colour:
+                break
+        if colour:
+            rows_out[c] = centre
+            strength_out[c] = top
+
+
+@_kernel(
+    "void(float64[:], boolean[:], int64[:], float64[:, :, :], float64[:], float64, float64, float64[:], float64[:], float64[:], float64[:])"
+)
+def triangulate(rows, valid, band_start, rays, normal, offset, travel, ref, x_out, y_out,
+                h_out):
+    """Stripe rows -> rail-frame points on the laser plane and their heights.
+
+    ``rays[c, j]`` is the rail-frame ray direction through column ``c`` at image row
+    ``band_start[c] + j`` (lens distortion undone once, before the loop); a sub-pixel row
+    interpolates linearly between the two rows around it. ``ref = (c0, cx, cy)``: the
+    reference surface depth ``c0 + cx x + cy y`` (height = reference depth - depth). Travel is
+    added to y. NaN where not ``valid`` or where the ray runs parallel to the plane."""
+    nt = rays.shape[1]
+    for c in range(rows.shape[0]):
+        x_out[c] = np.nan
+        y_out[c] = np.nan
+        h_out[c] = np.nan
+        if not valid[c]:
+            continue
+        t = rows[c] - band_start[c]
+        j = min(max(int(math.floor(t)), 0), nt - 2)
+        f = t - j
+        d0 = rays[c, j, 0] + f * (rays[c, j + 1, 0] - rays[c, j, 0])
+        d1 = rays[c, j, 1] + f * (rays[c, j + 1, 1] - rays[c, j, 1])
+        d2 = rays[c, j, 2] + f * (rays[c, j + 1, 2] - rays[c, j, 2])
+        den = d0 * normal[0] + d1 * normal[1] + d2 * normal[2]
+        if abs(den) <= 1e-12:
+            continue
+        lam = offset / den
+        x = lam * d0
+        yy = lam * d1 + travel
+        x_out[c] = x
+        y_out[c] = yy
+        h_out[c] = ref[0] + ref[1] * x + ref[2] * yy - lam * d2
+
+
+@_kernel(
+    "void(float64[:], float64[:], float64[:], boolean[:], int64, float64, float64[:], float64[:], float64[:], boolean[:])"
+)
+def upsample(x, y, h, valid, k, max_step, xo, yo, ho, vo):
+    """``k - 1`` points between neighbouring columns of a profile (``grid.upsample_profile``):
+    linear where the surface is continuous, the nearer neighbour across a step."""
+    n = x.shape[0]
+    for i in range(n - 1):
+        both = valid[i] and valid[i + 1]
+        step = abs(h[i + 1] - h[i]) > max_step
+        o = i * k
+        xo[o], yo[o], ho[o], vo[o] = x[i], y[i], h[i], valid[i]
+        for j in range(1, k):
+            t = j / k
+            if step:
+                a = i if t < 0.5 else i + 1
+                xo[o + j], yo[o + j], ho[o + j] = x[a], y[a], h[a]
+            else:
+                xo[o + j] = x[i] + t * (x[i + 1] - x[i])
+                yo[o + j] = y[i] + t * (y[i + 1] - y[i])
+                ho[o + j] = h[i] + t * (h[i + 1] - h[i])
+            vo[o + j] = both
+    o = (n - 1) * k
+    xo[o], yo[o], ho[o], vo[o] = x[n - 1], y[n - 1], h[n - 1], valid[n - 1]
+
+
+@_jit
+def _nanmin(a, b):
+    return np.nan if (math.isnan(a) or math.isnan(b)) else min(a, b)
+
+
+@_jit
+def _nanmax(a, b):
+    return np.nan if (math.isnan(a) or math.isnan(b)) else max(a, b)
+
+
+@_kernel(
+    "int64(float64[:], float64, int64, int64[:], float64[:, :, :], float64[:], float64, float64, float64[:], float64, int64, boolean[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], boolean[:], float64[:])"
+)
+def stripe_profile(rows, tol_px, min_cols, band_start, rays, normal, offset, travel, ref,
+                   max_step, k, valid, x, y, h, xo, yo, ho, vo, y_range):
+    """One laser's stripe rows -> the upsampled profile to add to its heightmap, in one call:
+
+    * ``valid``: columns whose row continues into a neighbouring column within ``tol_px``
+      (a stripe is a curve, isolated hits are noise); fewer than ``min_cols`` of them: no
+      stripe in this frame, nothing else is done;
+    * :func:`triangulate` into ``x``/``y``/``h``; single-column spikes dropped (a height farther
+      than ``max_step`` from the median of itself and its two neighbours: steps survive, at a
+      step the median follows one side);
+    * :func:`upsample` into ``xo``/``yo``/``ho``/``vo``, and ``y_range`` = the least and
+      greatest Y of the valid upsampled points (NaN if none).
+
+    Returns the number of connected columns."""
+    n = rows.shape[0]
+    for c in range(n):
+        valid[c] = False
+    for c in range(n - 1):
+        d = abs(rows[c + 1] - rows[c])
+        if not math.isnan(d) and d <= tol_px:  # NaN rows never link
+            valid[c] = True
+            valid[c + 1] = True
+    n_ok = 0
+    for c in range(n):
+        if valid[c]:
+            n_ok += 1
+    y_range[0] = np.nan
+    y_range[1] = np.nan
+    if n_ok < min_cols:
+        return n_ok
+    triangulate(rows, valid, band_start, rays, normal, offset, travel, ref, x, y, h)
+    # despiked heights; the columns kept are those with a finite one
+    hd = np.empty(n)
+    for c in range(n):
+        hd[c] = h[c]
+    for c in range(1, n - 1):
+        a, b, e = h[c - 1], h[c], h[c + 1]
+        med = _nanmax(_nanmin(a, b), _nanmin(_nanmax(a, b), e))
+        if not math.isnan(med) and abs(b - med) > max_step:
+            hd[c] = np.nan
+    ok = np.empty(n, np.bool_)
+    for c in range(n):
+        ok[c] = valid[c] and not math.isnan(hd[c])
+    upsample(x, y, hd, ok, k, max_step, xo, yo, ho, vo)
+    lo = np.inf
+    hi = -np.inf
+    for i in range(vo.shape[0]):
+        if vo[i]:
+            lo = min(lo, yo[i])
+            hi = max(hi, yo[i])
+    if lo <= hi:
+        y_range[0] = lo
+        y_range[1] = hi
+    return n_ok
+
+
+@_jit
+def _add(total, count, x0, y0, g, x, y, v):
+    j = int(np.rint((x - x0) / g))
+    i = int(np.rint((y - y0) / g))
+    if 0 <= i < count.shape[0] and 0 <= j < count.shape[1] and count[i, j] < 65535:
+        total[i, j] += v
+        count[i, j] += 1
+
+
+@_kernel(
+    "void(float32[:, :], uint16[:, :], float64, float64, float64, float64[:], float64[:], float64[:], boolean[:], float64[:], float64[:], float64[:], boolean[:], boolean, float64, float64)"
+)
+def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev, max_gap,
+                  max_step):
+    """Add one upsampled profile to the per-cell sums and counts, filling the strip towards
+    the previous profile: each point pairs with the same point of the previous frame when both
+    are valid and closer than ``max_gap``; the segment between them is sampled at most one
+    cell apart along each axis, so it leaves no cell out (linear heights, or the nearer end's
+    across a step). Unpaired points are added alone."""
+    hgt, wid = count.shape
+    ig = 1.0 / g
+    for i in range(x.shape[0]):
+        if not v[i]:
+            continue
+        dx = x[i] - px[i] if has_prev else 0.0
+        dy = y[i] - py[i] if has_prev else 0.0
+        gap = math.hypot(dx, dy)
+        if not (has_prev and pv[i] and gap <= max_gap):
+            _add(total, count, x0, y0, g, x[i], y[i], h[i])
+            continue
+        n = max(1, int(math.ceil(max(abs(dx), abs(dy)) * ig)))
+        step = abs(h[i] - ph[i]) > max_step
+        # in cells: the previous end, and the step towards this point
+        fx, fy = (px[i] - x0) * ig, (py[i] - y0) * ig
+        sx, sy = dx * ig / n, dy * ig / n
+        for m in range(1, n + 1):  # the previous end was added with the previous frame
+            jj = int(np.rint(fx + m * sx))
+            ii = int(np.rint(fy + m * sy))
+            if not (0 <= ii < hgt and 0 <= jj < wid) or count[ii, jj] == 65535:
+                continue
+            t = m / n
+            if step:
+                hv = ph[i] if t < 0.5 else h[i]
+            else:
+                hv = ph[i] + t * (h[i] - ph[i])
+            total[ii, jj] += hv
+            count[ii, jj] += 1
+
+
+@_kernel(
+    "void(uint8[:, :], uint8[:, :], uint8[:, :], int64, int64[:], int64[:], float64[:], float64[:], uint8[:, :])"
+)
+def sample_rgb(y, cb, cr, s, u0, v0, fu, fv, out):
+    """Bilinear RGB of a frame's YCbCr planes at fixed sub-pixel positions (the texture row):
+    ``u0``/``v0`` the top-left pixel, ``fu``/``fv`` the fractions; rounded to 8 bits."""
+    sh = 1 if s == 2 else 0
+    acc = np.empty(3)
+    for i in range(u0.shape[0]):
+        a, b = u0[i], v0[i]
+        wu, wv = fu[i], fv[i]
+        for q in range(3):
+            acc[q] = 0.0
+        for dv in range(2):
+            for du in range(2):
+                wgt = (wu if du else 1.0 - wu) * (wv if dv else 1.0 - wv)
+                r, c = b + dv, a + du
+                rgb = _rgb(float(y[r, c]), float(cb[r >> sh, c >> sh]), float(cr[r >> sh, c >> sh]))
+                for q in range(3):
+                    acc[q] += wgt * rgb[q]
+        for q in range(3):  # as np.clip(acc + 0.5, 0, 255).astype(np.uint8)
+            out[i, q] = np.uint8(min(max(acc[q] + 0.5, 0.0), 255.0))
+
+
+# the grid's kernels
+from impress_gui.core.reconstruction.grid_kernels import (  # noqa: E402
+    band_rays,
+    fuse_rows,
+    mean_colours,
+    mean_heights,
+    resolve_conflicts,
+    texture_rows,
+)
+
+__all__ = ["detect_stripe", "triangulate", "upsample", "stripe_profile", "splat_heights", "sample_rgb",
+           "hsv_tables", "fuse_rows", "mean_colours", "mean_heights", "resolve_conflicts",
+           "texture_rows", "band_rays"]

@@ -1,0 +1,560 @@
+"""Reconstruction: scan video + scene calibration -> per-laser and fused heightmaps, registered
+texture and point cloud on one rail-frame grid.
+
+Streaming: a decoder thread feeds a bounded queue (it starts at once, while the run's tables
+are prepared); each frame is reduced at once to two stripe profiles and one texture row, so
+memory does not grow with the video's length (only the output grids, which grow with the
+scanned area). Grid rows the lasers have left behind are finished - means, fusion, texture -
+by a worker thread during the loop (:mod:`impress_gui.core.reconstruction.finish`).
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from impress_gui.core.base.errors import InputError, ReconstructionError, VideoError
+from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.reconstruction.compiled import kernels as _kernels
+from impress_gui.core.reconstruction.finish import RowFinisher, TextureInputs, stripe_footprint
+from impress_gui.core.reconstruction.grid import ColorAccumulator, GridSpec, HeightAccumulator
+from impress_gui.core.reconstruction.stripes import (
+    LASERS,
+    METHODS,
+    BackgroundLUT,
+    Planes,
+    StripeDetector,
+    StripeParams,
+)
+from impress_gui.core.reconstruction.texture import RowSpool, reference_coeffs
+
+
+@dataclass(frozen=True)
+class ProcessParams:
+    """Processing parameters (all recorded in the output's metadata)."""
+
+    method: str = "combined"
+    frame_start: int | None = None  # first frame (default: after the start ramp)
+    frame_stop: int | None = None  # one past the last frame
+    grid_mm: float = 0.1
+    height_range_mm: tuple[float, float] = (-40.0, 60.0)  # for automatic regions of interest
+    rois: dict[str, tuple[int, int]] = field(default_factory=dict)  # rows; empty = automatic
+    min_peak: float = 25.0
+    fuse_tolerance_mm: float = 0.5
+    max_step_mm: float = 0.8  # larger jumps between neighbours are edges, not slopes
+    texture: bool = True
+    lut_frames: int = 12
+
+    def validate(self) -> None:
+        if self.method not in METHODS:
+            raise InputError(f"unknown detection method {self.method!r} (use one of "
+                             f"{', '.join(METHODS)})", code="E-PARAM")
+        if not 0.01 <= self.grid_mm <= 5.0:
+            raise InputError("grid resolution must be between 0.01 and 5 mm", code="E-PARAM")
+        lo, hi = self.height_range_mm
+        if not lo < hi:
+            raise InputError("height range must be (low, high) with low < high", code="E-PARAM")
+        if self.frame_start is not None and self.frame_start < 0:
+            raise InputError("the first frame must not be negative", code="E-PARAM")
+        if (self.frame_start is not None and self.frame_stop is not None
+                and self.frame_stop <= self.frame_start):
+            raise InputError("the frame range is empty", code="E-PARAM")
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["height_range_mm"] = list(self.height_range_mm)
+        d["rois"] = {k: list(v) for k, v in self.rois.items()}
+        return d
+
+
+@dataclass
+class Reconstruction:
+    """A finished reconstruction. ``stats`` mixes figures of the result (deterministic) and of
+    the run (timings, how far the finishing got during the loop): :meth:`run_stats` and
+    :meth:`result_stats` separate them."""
+
+    spec: GridSpec
+    height_mm: np.ndarray  # fused, float32, NaN = no data
+    per_laser_mm: dict[str, np.ndarray]
+    difference_mm: np.ndarray
+    contribution: np.ndarray  # uint8 codes, see grid.fuse
+    texture_rgb: np.ndarray | None
+    frames: tuple[int, int]
+    rois: dict[str, tuple[int, int]]
+    stats: dict
+    warnings: list[str]
+
+    #: statistics that depend on the run (timing, machine load), not only on the inputs
+    RUN_KEYS = ("frames_per_second", "rows_finished_in_loop", "finished_after_loop")
+
+    def run_stats(self) -> dict:
+        return {k: v for k, v in self.stats.items() if k.startswith("seconds")
+                or k in self.RUN_KEYS}
+
+    def result_stats(self) -> dict:
+        run = self.run_stats()
+        return {k: v for k, v in self.stats.items() if k not in run}
+
+
+def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) -> dict:
+    """Rows where each laser's stripe can appear for surfaces within the height range."""
+    w, h = size
+    rot = cal.rotation
+    out = {}
+    us = np.linspace(0, w - 1, 33)
+    for name in LASERS:
+        plane = cal.planes[name].plane
+        rows = []
+        for hgt in height_range_mm:
+            # points of the plane at this height below the camera, across the image
+            z = float(cal.reference_depth(np.array(0.0), np.array(0.0))) - hgt
+            # ideal-frame line: plane n.X = d with Z = z -> sample X across the view
+            xs = np.linspace(-z * w / cal.intrinsics.fx, z * w / cal.intrinsics.fx, 65)
+            n, d = plane.normal, plane.offset_mm
+            ys = (d - n[0] * xs - n[2] * z) / n[1]
+            pts = np.column_stack([xs, ys, np.full_like(xs, z)])
+            uv = cal.intrinsics.project(pts @ rot)
+            ok = (uv[:, 0] >= 0) & (uv[:, 0] < w)
+            rows.extend(uv[ok, 1].tolist())
+        if not rows:
+            raise ReconstructionError(f"the {name} laser's stripe falls outside the image",
+                                      code="E-NO-STRIPE")
+        a = int(np.floor(min(rows))) - 8
+        b = int(np.ceil(max(rows))) + 9
+        out[name] = (max(0, a - a % 2), min(h, b + b % 2))
+    del us
+    g, r = out["green"], out["red"]
+    if g[0] < r[1] and r[0] < g[1]:  # overlapping bands: split between the two stripes
+        lo, hi = sorted(LASERS, key=lambda n: sum(out[n]))
+        cut = (out[lo][1] + out[hi][0]) // 2
+        cut -= cut % 2
+        out[lo] = (out[lo][0], cut)
+        out[hi] = (cut, out[hi][1])
+    return out
+
+
+def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
+                 rois: dict[str, tuple[int, int]] | None = None, margin_px: int = 8):
+    """Per laser, the first row to search in every column and the band height: where the
+    stripe can fall for surfaces within the height range (clipped to ``rois`` when given)."""
+    w, h = size
+    out = {}
+    cols = np.arange(w, dtype=np.float64)
+    lo_h, hi_h = height_range_mm
+    for name in LASERS:
+        plane = cal.planes[name].plane
+        z_ref = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
+        rmin = np.full(w, np.inf)
+        rmax = np.full(w, -np.inf)
+        for hgt in np.linspace(lo_h, hi_h, 9):
+            z = z_ref - hgt
+            xs = np.linspace(-1.2 * z * w / cal.intrinsics.fx, 1.2 * z * w / cal.intrinsics.fx, 257)
+            n, d = plane.normal, plane.offset_mm
+            ys = (d - n[0] * xs - n[2] * z) / n[1]
+            uv = cal.intrinsics.project(np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation)
+            order = np.argsort(uv[:, 0])
+            r = np.interp(cols, uv[order, 0], uv[order, 1])
+            rmin, rmax = np.minimum(rmin, r), np.maximum(rmax, r)
+        start = np.floor(rmin).astype(np.int64) - margin_px
+        stop = np.ceil(rmax).astype(np.int64) + margin_px + 1
+        if rois and name in rois:
+            a, b = rois[name]
+            start, stop = np.maximum(start, a), np.minimum(stop, b)
+        start = np.clip(start, 0, h - 1)
+        stop = np.clip(stop, start + 1, h)
+        out[name] = (start, int(max(1, (stop - start).max())))
+    return out
+
+
+class _Frames:
+    """Decoded frames as ``(index, frame)`` from a background thread, through a bounded queue."""
+
+    def __init__(self, video, start: int, stop: int, cancel: CancelToken, depth: int = 6):
+        """Start decoding ``video`` (owned from now on: closed by :meth:`close`)."""
+        self.q: queue.Queue = queue.Queue(maxsize=depth)
+        self.video, self.start, self.stop, self.cancel = video, start, stop, cancel
+        self.error: BaseException | None = None
+        self._stop = False
+        self.thread = threading.Thread(target=self._run, name="impress-decode", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        try:
+            for k, frame in self.video.iter_frames(self.start, self.stop, raw=True):
+                if self.cancel.cancelled or self._stop:
+                    break
+                self.q.put((k, frame))
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
+            self.error = exc
+        finally:
+            self.q.put(None)
+
+    def __iter__(self):
+        while True:
+            item = self.q.get()
+            if item is None:
+                if self.error is not None:
+                    raise self.error
+                return
+            yield item
+
+    def limit(self, depth: int) -> None:
+        """Hold at most ``depth`` decoded frames from now on."""
+        with self.q.mutex:
+            self.q.maxsize = depth
+
+    def close(self) -> None:
+        self._stop = True
+        while self.thread.is_alive():
+            try:
+                self.q.get(timeout=0.1)
+            except queue.Empty:
+                pass
+        self.thread.join()
+        self.video.close()
+
+
+def learn_background(video, start: int, stop: int, rois: dict, n_frames: int,
+                     cancel: CancelToken | None = None, threads: int = 1) -> BackgroundLUT:
+    """The background lookup tables from about ``n_frames`` frames spread over the range
+    (keyframes: cheap to read, decoded on ``threads`` threads), outside the lasers' regions
+    of interest."""
+    lut = BackgroundLUT()
+    ks = video.quick_frames(start, stop, n_frames)
+    for a in range(0, len(ks), 4):  # a few at a time: a cancel is seen soon
+        if cancel is not None:
+            cancel.check()
+        for rgb in video.read_many(ks[a : a + 4], threads):
+            lut.learn(rgb, list(rois.values()))
+    return lut
+
+
+def _default_range(video, cal: SceneCalibration, params: ProcessParams) -> tuple[int, int]:
+    n = video.frame_count
+    start = params.frame_start if params.frame_start is not None else min(n - 1, int(round(0.5 * video.fps)))
+    stop = params.frame_stop if params.frame_stop is not None else max(start + 1, n - int(round(0.5 * video.fps)))
+    if start >= n:
+        raise InputError(f"the first frame {start} is beyond the video's {n} frames",
+                         code="E-FRAME-RANGE")
+    return start, min(stop, n)
+
+
+def reconstruct(video, cal: SceneCalibration, params: ProcessParams = ProcessParams(),
+                progress: ProgressCallback | None = None, cancel: CancelToken | None = None,
+                preview=None, preview_every_s: float | None = None) -> Reconstruction:
+    """Run the whole reconstruction on an open video.
+
+    ``preview``, if given, is called about every ``preview_every_s`` seconds (default
+    :data:`PREVIEW_EVERY_S`) with a small
+    (longest side <= 480 cells) float32 heightmap of what has been measured so far (mean of
+    the two lasers, NaN where nothing yet) - for a display that grows during the run."""
+    spool = RowSpool() if params.texture else None
+    try:
+        every = PREVIEW_EVERY_S if preview_every_s is None else preview_every_s
+        return _reconstruct(video, cal, params, progress, cancel, spool, preview, every)
+    finally:
+        if spool is not None:
+            spool.close()
+
+
+PREVIEW_EVERY_S = 1.5
+
+
+#: a stripe found in fewer of the picture's columns than this (on average over the frames in
+#: which it is found at all) is reported: the method is losing most of the data
+LOW_COLUMN_SHARE = 0.5
+
+
+def _preview_step(shape) -> int:
+    return max(1, int(np.ceil(max(shape) / 480)))
+
+
+def _preview_spec(spec: GridSpec, preview: np.ndarray) -> GridSpec:
+    """The grid of a decimated preview map (same origin, larger cells)."""
+    step = _preview_step(spec.shape)
+    return GridSpec(spec.x0_mm, spec.y0_mm, spec.pixel_mm * step, preview.shape)
+
+
+def _preview_map(acc: dict) -> np.ndarray:
+    """Decimated mean height over both lasers' accumulators so far."""
+    shape = next(iter(acc.values())).sum.shape
+    step = _preview_step(shape)
+    total = sum(a.sum[::step, ::step].astype(np.float32) for a in acc.values())
+    count = sum(a.count[::step, ::step].astype(np.float32) for a in acc.values())
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / count, np.nan).astype(np.float32)
+
+
+def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
+                 preview_every_s: float = 1.5) -> Reconstruction:
+    params.validate()
+    cancel = cancel or CancelToken()
+    t_start = time.perf_counter()
+    w, h = video.size
+    cal.intrinsics.check_image_size(w, h)
+    start, stop = _default_range(video, cal, params)
+    rois = dict(params.rois) or laser_rois(cal, (w, h), params.height_range_mm)
+    sp = StripeParams(method=params.method, rois=rois, min_peak=params.min_peak)
+    sp.validate(h)
+    # the background tables (the seed's LUT method) are learned from keyframes spread over
+    # the range, through the caller's reader, beside everything else; decoding starts at once
+    # on a second reader, into a deeper queue while the run's tables are prepared
+    with ThreadPoolExecutor(1, thread_name_prefix="impress-lut") as pool:
+        lut = pool.submit(learn_background, video, start, stop, rois, params.lut_frames,
+                          cancel, 2) if params.method in ("lut", "combined") else None
+        frames = _Frames(video.clone(DECODE_THREADS), start, stop, cancel, SETUP_QUEUE_FRAMES)
+        try:
+            return _process(video, cal, params, progress, cancel, spool, preview,
+                            preview_every_s, frames, (start, stop), rois, sp, t_start, lut)
+        finally:
+            frames.close()
+
+
+#: decoding threads of the main pass: frame threading with more threads than cores keeps both
+#: cores busy (H.264 frames wait on their references; on this 2-core machine decoding alone
+#: uses 1.6 cores with 2-4 threads, 1.9 with 8; docs/accuracy.md)
+DECODE_THREADS = 8
+#: frames decoded ahead while the run is being prepared (~3 MB each at 1080p), and after
+SETUP_QUEUE_FRAMES = 24
+LOOP_QUEUE_FRAMES = 8
+
+
+def _process(video, cal, params, progress, cancel, spool, preview, preview_every_s, frames,
+             frame_range, rois, sp, t_start, lut_job) -> Reconstruction:
+    """The run after the decoder has started: tables, the frame loop, the finish."""
+    start, stop = frame_range
+    w, h = video.size
+    kern = _kernels()  # loaded (or waited for) before the tables that use them
+    times = video.times_s
+    travel = cal.travel_mm(times)
+    intr, rot = cal.intrinsics, cal.rotation
+
+    # ----- grid extent and sampling ----------------------------------------------------------
+    per_frame_travel = float(np.median(np.abs(np.diff(travel[start:stop])))) if stop - start > 1 else 0.1
+    z_ref0 = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
+    # the deepest surface of the height range: where neighbouring pixels lie farthest apart
+    z_deep = z_ref0 - min(params.height_range_mm[0], 0.0)
+    bands = column_bands(cal, (w, h), params.height_range_mm, rois)
+    rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
+    k_up = max(upsampling(rays[n], z_deep, params.grid_mm) for n in LASERS)
+    # grid extent: wherever a stripe point can land (the bands' rays on the laser planes,
+    # along the travel of the frame range), and 2 mm more
+    foot = [stripe_footprint(rays[n], cal.planes[n].plane.normal,
+                             float(cal.planes[n].plane.offset_mm)) for n in LASERS]
+    x_rng = (min(f[0][0] for f in foot) - 2, max(f[0][1] for f in foot) + 2)
+    t0, t1 = travel[start], travel[stop - 1]
+    y_rng = (min(t0, t1) + min(f[1][0] for f in foot) - 2,
+             max(t0, t1) + max(f[1][1] for f in foot) + 2)
+    spec = GridSpec.covering(x_rng, y_rng, params.grid_mm)
+    if spec.shape[0] * spec.shape[1] > 400e6:
+        raise InputError("the output grid would exceed 400 million cells; use a coarser grid",
+                         code="E-PARAM")
+    max_gap = 2.5 * per_frame_travel + 2 * params.grid_mm + 0.1
+    acc = {n: HeightAccumulator(spec, max_gap, params.max_step_mm) for n in LASERS}
+    found_frames = dict.fromkeys(LASERS, 0)
+    found_cols = dict.fromkeys(LASERS, 0)  # stripe columns found, summed over frames
+
+    # texture: the row through the principal point after undistortion
+    tex_acc = ColorAccumulator(spec, max_gap) if params.texture else None
+    tex_rows = spool
+    if params.texture:
+        x_px = (np.arange(w) - intr.cx) / intr.fx
+        px_rays = np.column_stack([x_px, np.zeros(w), np.ones(w)]) @ rot.T
+        k_tex = upsampling(px_rays[:, None, :], z_deep, params.grid_mm)
+        xn = np.linspace(-(intr.cx) / intr.fx, (w - 1 - intr.cx) / intr.fx, w * k_tex)
+        tu, tv = intr.distort_normalized(xn, np.zeros_like(xn))
+        tex_ok = (tu >= 0) & (tu <= w - 1) & (tv >= 0) & (tv <= h - 1)
+        tu, tv = tu[tex_ok], tv[tex_ok]
+        tex_rays = (np.column_stack([xn, np.zeros_like(xn), np.ones_like(xn)]) @ rot.T)[tex_ok]
+        u0 = np.clip(np.floor(tu).astype(np.int64), 0, w - 2)
+        v0 = np.clip(np.floor(tv).astype(np.int64), 0, h - 2)
+        tex_sample = (u0, v0, tu - u0, tv - v0)
+        tex_colours = np.empty((len(tu), 3), np.uint8)
+
+    ref = reference_coeffs(cal)
+    profile = {n: _Profile(w, k_up) for n in LASERS}
+    min_cols = max(2, int(0.02 * w))
+    offsets = dict(zip(LASERS, (f[1] for f in foot)))
+    finisher = RowFinisher(spec, acc, params.fuse_tolerance_mm, offsets,
+                           _direction(travel[start:stop]),
+                           TextureInputs(tex_rows, tex_rays, travel, ref, tex_acc)
+                           if tex_rows is not None and tex_acc is not None else None)
+    lut = lut_job.result() if lut_job is not None else None
+    detect = {n: StripeDetector(n, bands[n][0], bands[n][1], sp, lut) for n in LASERS}
+    plane = {n: cal.planes[n].plane for n in LASERS}
+    report(progress, 0.03, "background learned")
+    frames.limit(LOOP_QUEUE_FRAMES)
+    frames_seen = [0]
+    last_preview = [time.perf_counter()]
+    n_total = stop - start
+    t_loop = time.perf_counter()
+    # frames the decoder reports as damaged (filled in by the decoding thread before a frame
+    # is queued) give no stripe points: their rows are left to the neighbouring frames
+    damage = getattr(frames.video, "damage", {})
+    skipped = [0]
+    try:
+        for k, frame in frames:
+            cancel.check()
+            frames_seen[0] += 1
+            planes = Planes.from_av(frame) if not isinstance(frame, np.ndarray) else \
+                Planes.from_rgb(frame)
+            s_k = float(travel[k])
+            bad = k in damage
+            skipped[0] += bad
+            for name in LASERS:
+                if bad:
+                    profile[name].next()
+                    acc[name].reset_chain()
+                    continue
+                res = detect[name](planes)
+                pr = profile[name]
+                up = pr.next()
+                pl = plane[name]
+                n_ok = kern.stripe_profile(
+                    res.rows, CONNECT_PX, min_cols, bands[name][0], rays[name], pl.normal,
+                    float(pl.offset_mm), s_k, ref, params.max_step_mm, pr.k, pr.valid,
+                    pr.x, pr.y, pr.h, *up, pr.y_range)
+                if n_ok < min_cols:  # a few isolated hits are not a stripe
+                    acc[name].reset_chain()
+                    continue
+                found_frames[name] += 1
+                found_cols[name] += int(n_ok)
+                pr.used()
+                acc[name].add_profile(*up)
+                finisher.check_range(name, s_k, pr.y_range)
+            if params.texture:
+                kern.sample_rgb(planes.y, planes.cb, planes.cr, planes.chroma_step,
+                                *tex_sample, tex_colours)
+                tex_rows.append(k, tex_colours)
+            i = k - start + 1
+            if i % 8 == 0:
+                finisher.post(s_k)
+            if preview is not None and time.perf_counter() - last_preview[0] > preview_every_s:
+                last_preview[0] = time.perf_counter()
+                pm = _preview_map(acc)
+                preview(pm, spec=_preview_spec(spec, pm))
+            if i % 25 == 0 or i == n_total:
+                el = time.perf_counter() - t_loop
+                report(progress, 0.05 + 0.85 * i / n_total,
+                       f"frame {i}/{n_total} ({i / max(el, 1e-9):.1f} frames/s)")
+    finally:
+        frames.close()
+        finisher.close()
+    cancel.check()  # the reader stops early on cancel: never take that as a finished run
+    if frames_seen[0] < n_total:
+        raise VideoError(f"the video ended at frame {start + frames_seen[0]} before frame "
+                         f"{stop - 1}", code="E-VIDEO-TRUNCATED")
+    loop_s = time.perf_counter() - t_loop
+    warnings = []
+    for name in LASERS:
+        if found_frames[name] == 0:
+            raise ReconstructionError(f"the {name} laser's stripe was never found in frames "
+                                      f"{start}..{stop - 1} (rows {rois[name]})",
+                                      code="E-NO-STRIPE")
+        if found_frames[name] < 0.5 * n_total:
+            warnings.append(f"the {name} stripe was found in only {found_frames[name]} of "
+                            f"{n_total} frames")
+        # a stripe crosses the whole picture: a method that finds it in few columns of the
+        # frames where it sees it at all drops most of the data (e.g. hue on compressed video)
+        share = found_cols[name] / max(1, found_frames[name] * w)
+        if found_frames[name] and share < LOW_COLUMN_SHARE:
+            warnings.append(
+                f"W-LOW-FILL: the {name} stripe was found in only {100 * share:.0f} % of the "
+                f"image columns on average (method {params.method}): most of the surface has "
+                "no data; the combined method usually finds far more")
+    t_finish = time.perf_counter()
+    report(progress, 0.93, "finishing the maps and the texture")
+    finisher.finish()
+    per, fused = finisher.per, finisher.fused
+    total_s = time.perf_counter() - t_start
+    stats = {
+        "frames_processed": n_total,
+        "stripe_frames": found_frames,
+        "cells": int(fused.size),
+        "cells_fused": int(np.isfinite(fused).sum()),
+        "cells_green": int(np.isfinite(per["green"]).sum()),
+        "cells_red": int(np.isfinite(per["red"]).sum()),
+        "seconds_total": round(total_s, 3),
+        "seconds_setup": round(t_loop - t_start, 3),
+        "seconds_frame_loop": round(loop_s, 3),
+        "seconds_finish": round(time.perf_counter() - t_finish, 3),
+        "rows_finished_in_loop": round(finisher.rows_during_loop / spec.shape[0], 3),
+        "frames_per_second": round(n_total / max(loop_s, 1e-9), 2),
+        "frames_damaged_skipped": skipped[0],
+        "stripe_column_share": {n: round(found_cols[n] / max(1, found_frames[n] * w), 3)
+                                for n in LASERS},
+    }
+    report(progress, 1.0, "done")
+    if finisher.broken:
+        stats["finished_after_loop"] = finisher.broken
+    return Reconstruction(spec, fused, per, finisher.diff, finisher.contrib, finisher.tex,
+                          (start, stop), rois, stats, warnings)
+
+
+def _direction(travel: np.ndarray) -> int:
+    """+1 / -1 when the camera moves one way frame by frame, else 0."""
+    d = np.diff(travel)
+    if len(d) and (d > 0).all():
+        return 1
+    if len(d) and (d < 0).all():
+        return -1
+    return 0
+
+
+def upsampling(rays: np.ndarray, depth_mm: float, grid_mm: float) -> int:
+    """Points per pixel step (``k``) that put neighbouring points of a profile at most one grid
+    cell apart along each axis, for a surface ``depth_mm`` deep: ``rays`` ``(W, n, 3)`` are
+    rail-frame directions through neighbouring columns (axis 0). One cell apart along each axis
+    leaves no cell of a row out, and the fill towards the previous row (at most one cell per
+    step too) then covers the strip between two rows."""
+    plan = rays[..., :2] / rays[..., 2:3]
+    step = float(np.abs(np.diff(plan, axis=0)).max()) * depth_mm
+    return max(1, int(np.ceil(step / grid_mm)))
+
+
+def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int) -> np.ndarray:
+    """Rail-frame ray directions ``(W, band height + 1, 3)`` through every column at the
+    integer rows of its band (lens distortion undone once here, not per frame)."""
+    b0, bh = band
+    intr = cal.intrinsics
+    coeffs = np.zeros(8)
+    coeffs[: intr.dist_coeffs.size] = intr.dist_coeffs[:8]
+    rays = np.empty((len(b0), bh + 1, 3))
+    _kernels().band_rays(np.ascontiguousarray(b0, np.int64), int(height),
+                         np.ascontiguousarray(intr.camera_matrix, np.float64), coeffs,
+                         intr.dist_coeffs.size == 8,
+                         np.ascontiguousarray(cal.rotation, np.float64), rays)
+    return rays
+
+
+#: stripe rows of neighbouring columns closer than this (pixels) belong to one curve
+CONNECT_PX = 2.0
+
+
+class _Profile:
+    """Per-laser arrays of one frame's profile, reused from frame to frame: the upsampled
+    profile alternates between two sets, as the accumulator keeps the previous frame's."""
+
+    def __init__(self, w: int, k_up: int) -> None:
+        self.x, self.y, self.h = (np.empty(w) for _ in range(3))
+        self.valid = np.empty(w, bool)
+        self.y_range = np.empty(2)
+        self.k = k_up
+        n = (w - 1) * k_up + 1
+        self._sets = [(np.empty(n), np.empty(n), np.empty(n), np.empty(n, bool))
+                      for _ in range(2)]
+        self._i = 0
+
+    def next(self):
+        """The set to fill with this frame's upsampled profile (x, y, height, valid)."""
+        return self._sets[self._i]
+
+    def used(self) -> None:
+        """The set was handed to the accumulator: the next frame fills the other one."""
+        self._i ^= 1

@@ -1,0 +1,402 @@
+"""Laser-stripe detection: per frame, per laser, a sub-pixel row for every image column.
+
+Three methods share one sub-pixel stage:
+
+- ``hue``: the seed's HSV method - hue inside the laser's range with saturation/value floors,
+  dilated vertically so the saturated (white) core joins its coloured halo;
+- ``lut``: the seed's background model - a table ``Cmax[a, b]`` of the largest laser-channel
+  value seen in the background for each pair of the other two channels; a pixel is laser light
+  when its laser channel exceeds that (a saturated white core does: the background never shows
+  white with both other channels at full scale);
+- ``combined`` (default): a pixel is laser light when either test says so.
+
+The peak is decided by colour but located on the sharpest signal, the luma (in 4:2:0 video the
+colour has half the vertical resolution): centre of mass of the background-subtracted luma above
+half of its maximum, in a window around the strongest laser pixel of the column.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from impress_gui.core.base.errors import InputError
+
+LASERS = ("green", "red")
+METHODS = ("combined", "hue", "lut")
+_CH = {"red": 0, "green": 1}  # laser channel in RGB
+_OTHERS = {"red": (1, 2), "green": (0, 2)}
+LUT_SHIFT = 2  # tables are 64 x 64 (channel values >> 2)
+
+
+@dataclass(frozen=True)
+class StripeParams:
+    """Detection parameters. ``rois`` maps a laser to its band of rows ``(first, stop)``."""
+
+    method: str = "combined"
+    rois: dict[str, tuple[int, int]] = field(default_factory=dict)
+    min_peak: float = 25.0  # luma above the column's local background, grey levels
+    half_window_px: int = 6
+    hue_ranges: dict[str, tuple[tuple[int, int], ...]] = field(
+        default_factory=lambda: {"green": ((40, 90),), "red": ((0, 10), (165, 180))}
+    )
+    min_saturation: int = 60
+    min_value: int = 120
+    lut_margin: int = 6
+    min_tint: int = 12
+    max_wrong_lean: float = 4.0  # chroma units: the halo leaning to the other laser's colour
+    max_width_px: int = 20
+
+    def validate(self, height: int | None = None) -> None:
+        if self.method not in METHODS:
+            raise InputError(f"unknown detection method {self.method!r}; use one of "
+                             f"{', '.join(METHODS)}", code="E-PARAM")
+        for name, (a, b) in self.rois.items():
+            if name not in LASERS:
+                raise InputError(f"unknown laser {name!r} in regions of interest", code="E-PARAM")
+            if not (0 <= a < b) or (height is not None and b > height):
+                raise InputError(f"region of interest of the {name} laser (rows {a}..{b}) is "
+                                 f"outside the image", code="E-PARAM")
+        if not 1 <= self.half_window_px <= 30 or self.min_peak <= 0:
+            raise InputError("half_window_px must be 1..30 and min_peak positive", code="E-PARAM")
+
+
+def luma(rgb: np.ndarray) -> np.ndarray:
+    """BT.601 luma of an RGB band as float32 (what H.264 stores at full resolution)."""
+    rgb = rgb.astype(np.float32, copy=False)
+    return 0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]
+
+
+class BackgroundLUT:
+    """The seed's RGB lookup tables, one per laser, learned from pixels outside both ROIs."""
+
+    def __init__(self) -> None:
+        self.tables = {name: np.full((64, 64), -1, np.int16) for name in LASERS}
+        self.samples = 0
+
+    def learn(self, rgb: np.ndarray, exclude_rows: list[tuple[int, int]], step: int = 2) -> None:
+        keep = np.ones(rgb.shape[0], bool)
+        for a, b in exclude_rows:
+            keep[max(0, a - 10) : b + 10] = False
+        px = rgb[keep][::step, ::step].reshape(-1, 3)
+        q = (px >> LUT_SHIFT).astype(np.intp)
+        for name in LASERS:
+            c = _CH[name]
+            o1, o2 = _OTHERS[name]
+            t = self.tables[name]
+            np.maximum.at(t, (q[:, o1], q[:, o2]), px[:, c].astype(np.int16))
+        self.samples += len(px)
+
+    def mask(self, name: str, rgb: np.ndarray, margin: int) -> np.ndarray:
+        c = _CH[name]
+        o1, o2 = _OTHERS[name]
+        t = self.tables[name]
+        lim = t[rgb[..., o1] >> LUT_SHIFT, rgb[..., o2] >> LUT_SHIFT]
+        return rgb[..., c].astype(np.int16) > lim + margin
+
+
+def hue_mask(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
+    import cv2
+
+    hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV)
+    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    m = np.zeros(h.shape, bool)
+    for lo, hi in params.hue_ranges[name]:
+        m |= (h >= lo) & (h <= hi)
+    m &= (s >= params.min_saturation) & (v >= params.min_value)
+    return m
+
+
+def tint_mask(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
+    """Bright pixels tinted towards the laser's colour: the halo of a stripe that saturates
+    to white on a bright surface, where hue and saturation tests fail."""
+    c = _CH[name]
+    o1, o2 = _OTHERS[name]
+    ch = rgb[..., c].astype(np.int16)
+    excess = ch - np.maximum(rgb[..., o1], rgb[..., o2]).astype(np.int16)
+    return (excess >= params.min_tint) & (ch >= params.min_value)
+
+
+@dataclass
+class StripeResult:
+    """Per column: sub-pixel row (NaN where no stripe) and a confidence (peak above
+    background, grey levels)."""
+
+    rows: np.ndarray  # (W,) float64, full-image row coordinates
+    strength: np.ndarray  # (W,) float32
+
+    @property
+    def found(self) -> np.ndarray:
+        return np.isfinite(self.rows)
+
+    def copy(self) -> StripeResult:
+        return StripeResult(self.rows.copy(), self.strength.copy())
+
+
+def _dilate_rows(mask: np.ndarray, k: int) -> np.ndarray:
+    import cv2
+
+    kernel = np.ones((2 * k + 1, 1), np.uint8)
+    return cv2.dilate(mask.view(np.uint8), kernel).astype(bool)
+
+
+@dataclass
+class Planes:
+    """A frame (or band) as BT.601 limited-range YCbCr planes, the way H.264 stores it: luma
+    ``y`` at full resolution, chroma ``cb``/``cr`` at ``chroma_step`` (2 for 4:2:0 video, 1 for
+    frames converted from RGB)."""
+
+    y: np.ndarray  # (H, W) uint8
+    cb: np.ndarray
+    cr: np.ndarray
+    chroma_step: int = 2
+
+    @classmethod
+    def from_rgb(cls, rgb: np.ndarray) -> Planes:
+        f = rgb.astype(np.float32)
+        r, g, b = f[..., 0], f[..., 1], f[..., 2]
+        y = 16 + (65.481 * r + 128.553 * g + 24.966 * b) / 255
+        cb = 128 + (-37.797 * r - 74.203 * g + 112.0 * b) / 255
+        cr = 128 + (112.0 * r - 93.786 * g - 18.214 * b) / 255
+        q = [np.clip(np.rint(a), 0, 255).astype(np.uint8) for a in (y, cb, cr)]
+        return cls(q[0], q[1], q[2], 1)
+
+    @classmethod
+    def from_av(cls, frame) -> Planes:
+        """Zero-copy views of a decoded yuv420p PyAV frame's planes."""
+        if frame.format.name not in ("yuv420p", "yuvj420p"):
+            frame = frame.reformat(format="yuv420p")
+        w, h = frame.width, frame.height
+        views = []
+        for i, (pw, ph) in enumerate(((w, h), ((w + 1) // 2, (h + 1) // 2),
+                                      ((w + 1) // 2, (h + 1) // 2))):
+            pl = frame.planes[i]
+            arr = np.frombuffer(pl, np.uint8).reshape(-1, pl.line_size)
+            views.append(arr[:ph, :pw])
+        return cls(views[0], views[1], views[2], 2)
+
+    def rgb(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """RGB (float32, 0..255) of the pixels at ``rows``/``cols`` (broadcast arrays)."""
+        s = self.chroma_step
+        y = (self.y[rows, cols].astype(np.float32) - 16) * 1.164
+        cb = self.cb[rows // s, cols // s].astype(np.float32) - 128
+        cr = self.cr[rows // s, cols // s].astype(np.float32) - 128
+        rgb = np.stack([y + 1.596 * cr, y - 0.392 * cb - 0.813 * cr, y + 2.017 * cb], axis=-1)
+        return np.clip(rgb, 0, 255)
+
+
+def _hue_ok(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
+    import cv2
+
+    flat = np.ascontiguousarray(rgb.reshape(1, -1, 3).astype(np.uint8))
+    hsv = cv2.cvtColor(flat, cv2.COLOR_RGB2HSV).reshape(*rgb.shape)
+    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    m = np.zeros(h.shape, bool)
+    for lo, hi in params.hue_ranges[name]:
+        m |= (h >= lo) & (h <= hi)
+    return m & (s >= params.min_saturation) & (v >= params.min_value)
+
+
+def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height: int,
+                  params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
+    """Detect one laser's stripe; column ``c`` is searched in rows
+    ``band_start[c] .. band_start[c] + band_height``. The compiled kernel
+    (:func:`impress_gui.core.reconstruction.kernels.detect_stripe`) of :func:`detect_planes_numpy`."""
+    return StripeDetector(name, band_start, band_height, params, lut)(planes).copy()
+
+
+class StripeDetector:
+    """:func:`detect_planes` for one laser, frame after frame: the kernel's arguments are
+    prepared once, and each call's result is in arrays the next call overwrites."""
+
+    def __init__(self, name: str, band_start: np.ndarray, band_height: int,
+                 params: StripeParams, lut: BackgroundLUT | None) -> None:
+        from impress_gui.core.reconstruction.compiled import kernels
+
+        method = params.method
+        if method == "lut" and lut is None:
+            raise InputError("the lookup-table method needs a learned background",
+                             code="E-PARAM")
+        w = len(band_start)
+        ranges = params.hue_ranges[name]
+        table = lut.tables[name] if (lut is not None and method in ("lut", "combined")) else \
+            np.zeros((0, 0), np.int16)
+        sdiv, hdiv = _hsv_tables()
+        o1, o2 = _OTHERS[name]
+        self.result = StripeResult(np.empty(w, np.float64), np.empty(w, np.float32))
+        self._kernel = kernels().detect_stripe
+        self._args = (
+            np.ascontiguousarray(band_start, dtype=np.int64), int(band_height),
+            1 if name == "red" else -1, _CH[name], o1, o2, float(params.min_peak),
+            int(params.half_window_px), int(params.max_width_px), float(params.max_wrong_lean),
+            method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
+            np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
+            int(params.min_value), method == "combined", float(params.min_tint), table,
+            int(params.lut_margin), sdiv, hdiv, self.result.rows, self.result.strength)
+
+    def __call__(self, planes: Planes) -> StripeResult:
+        if planes.y.shape[1] != len(self.result.rows):
+            raise InputError(f"a frame {planes.y.shape[1]} pixels wide, bands for "
+                             f"{len(self.result.rows)}", code="E-SIZE-MISMATCH")
+        self._kernel(planes.y, planes.cb, planes.cr, planes.chroma_step, *self._args)
+        return self.result
+
+
+_HSV_TABLES: tuple | None = None
+
+
+def _hsv_tables():
+    global _HSV_TABLES
+    if _HSV_TABLES is None:
+        from impress_gui.core.reconstruction.compiled import kernels
+
+        _HSV_TABLES = kernels().hsv_tables()
+    return _HSV_TABLES
+
+
+def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_height: int,
+                        params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
+    """The readable numpy reference of :func:`detect_planes` (the tests check they agree).
+
+    1. candidate: per column the brightest pixel of luma biased towards the laser's chroma;
+    2. the method's colour test (hue, background table, tint) on the pixels around it;
+    3. centre of mass of the background-subtracted luma above half maximum, with checks that
+       it is a peak (not an edge) leaning to this laser's colour."""
+    method = params.method
+    if method == "lut" and lut is None:
+        raise InputError("the lookup-table method needs a learned background", code="E-PARAM")
+    h, w = planes.y.shape
+    cols = np.arange(w)
+    s = planes.chroma_step
+    # one rectangular slice covering every column's band (views, no gathering), searched at
+    # every second row (a stripe is several rows wide) with the rows outside a column's own
+    # band pushed out; chroma rows match the even luma rows of 4:2:0 video
+    r0 = int(band_start.min())
+    r0 -= r0 % 2
+    r1 = int(min(h, (band_start + band_height).max()))
+    yb = planes.y[r0:r1:2].astype(np.int16)
+    crb = planes.cr[r0 // s : r0 // s + yb.shape[0] * 2 // s : 2 // s if s < 2 else 1]
+    if s > 1:
+        import cv2
+
+        crb = cv2.resize(crb, (crb.shape[1] * s, crb.shape[0]), interpolation=cv2.INTER_NEAREST)
+    crb = crb[: yb.shape[0], :w]
+    score = yb + (crb.astype(np.int16) - 128) * (1 if name == "red" else -1)
+    rows_c = r0 + 2 * np.arange(yb.shape[0])
+    rel = rows_c[:, None] - band_start[None, :]
+    score[(rel < 0) | (rel >= band_height)] = -1000
+    # argmax along axis 0 is slow in numpy; a max over (score, reversed row) pairs packed in
+    # one integer is fast and picks the same row (the first of equal maxima)
+    nr = yb.shape[0]
+    packed = score.astype(np.int32) * 4096 + (4095 - np.arange(nr, dtype=np.int32))[:, None]
+    coarse = r0 + 2 * (4095 - (packed.max(axis=0) & 4095))
+    # fine: the brightest luma row within +-2 rows of the coarse candidate
+    fine_offs = np.arange(-2, 3)
+    fr = np.clip(coarse[None, :] + fine_offs[:, None], 0, h - 1)
+    peak = fr[planes.y[fr, cols[None, :]].argmax(axis=0), cols]
+    peak_i = peak - band_start
+    sign = 1 if name == "red" else -1
+    k = params.half_window_px
+    offs = np.arange(-k, k + 1)
+
+    def window(centre_rows):
+        rr = np.clip(centre_rows[None, :] + offs[:, None], 0, h - 1)  # (2k+1, W) image rows
+        win = planes.y[rr, cols[None, :]].astype(np.float32)
+        sig = win - win.min(axis=0)
+        top = sig.max(axis=0)
+        above = np.clip(sig - 0.5 * top, 0, None)
+        wsum = above.sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            centre = (above * rr).sum(axis=0) / wsum
+        return rr, sig, top, wsum, centre
+
+    # the brightest row may sit at one edge of a saturated core: centre the window on the
+    # first estimate and measure again
+    rr, sig, top, wsum, centre = window(peak)
+    peak = np.where(np.isfinite(centre), np.rint(np.nan_to_num(centre)), peak).astype(np.int64)
+    rr, sig, top, wsum, centre = window(peak)
+    peak_i = peak - band_start
+    width = (sig > 0.5 * top).sum(axis=0)
+    ok = (top >= params.min_peak) & (wsum > 0) & (width <= params.max_width_px)
+    ok &= (peak_i >= k) & (peak_i < band_height - k)
+    ok &= (sig[0] < 0.7 * top) & (sig[-1] < 0.7 * top)
+    # which laser: the stripe's halo (not its white core) shifts the chroma of the surface it
+    # falls on towards this laser's colour - judged against the background at the window's
+    # ends, so red or green soil does not decide it; the other laser's stripe is refused
+    crw = planes.cr[rr // s, (cols // s)[None, :]].astype(np.float32)
+    cr_bg = 0.5 * (crw[0] + crw[-1])
+    halo = (sig > 0.2 * top) & (sig < 0.65 * top)
+    lean = (sign * (crw - cr_bg) * halo).sum(axis=0) / np.maximum(halo.sum(axis=0), 1)
+    ok &= lean > -params.max_wrong_lean  # only a clear lean to the other colour refuses
+    # the method's colour test on the central rows (a white core sits between coloured halo)
+    core = slice(k - 3, k + 4)
+    rgb = planes.rgb(rr[core], cols[None, :])  # (7, W, 3)
+    colour = np.zeros(rgb.shape[:2], bool)
+    if method in ("hue", "combined"):
+        colour |= _hue_ok(name, rgb, params)
+    if method == "combined":
+        c, (o1, o2) = _CH[name], _OTHERS[name]
+        colour |= ((rgb[..., c] - np.maximum(rgb[..., o1], rgb[..., o2]) >= params.min_tint)
+                   & (rgb[..., c] >= params.min_value))
+    if method in ("lut", "combined") and lut is not None:
+        colour |= lut.mask(name, np.clip(rgb + 0.5, 0, 255).astype(np.uint8), params.lut_margin)
+    ok &= colour.any(axis=0)
+    out_rows = np.where(ok, centre, np.nan)
+    return StripeResult(out_rows, np.where(ok, top, 0).astype(np.float32))
+
+
+def detect_band(name: str, rgb_band: np.ndarray, y_band: np.ndarray | None, row0: int,
+                params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
+    """Detect one laser's stripe in an RGB band of rows starting at image row ``row0``."""
+    planes = Planes.from_rgb(rgb_band)
+    h, w = rgb_band.shape[:2]
+    res = detect_planes(name, planes, np.zeros(w, np.int64), h, params, lut)
+    return StripeResult(res.rows + row0, res.strength)
+
+
+def detect(rgb: np.ndarray, params: StripeParams, lut: BackgroundLUT | None = None,
+           lasers=LASERS) -> dict[str, StripeResult]:
+    """Detect every laser's stripe in a full RGB frame inside its region of interest."""
+    out = {}
+    for name in lasers:
+        a, b = params.rois.get(name, (0, rgb.shape[0]))
+        out[name] = detect_band(name, rgb[a:b], None, a, params, lut)
+    return out
+
+
+def auto_rois(frames: list[np.ndarray], margin_px: int | None = None) -> dict[str, tuple[int, int]]:
+    """Default regions of interest: around the band of rows where each laser's colour is
+    strongest in sample frames, widened by ``margin_px`` (default 1/12 of the image height)
+    and never overlapping the other laser's band. Raise when a laser is never seen."""
+    h = frames[0].shape[0]
+    margin = margin_px if margin_px is not None else max(12, h // 12)
+    runs, peaks = {}, {}
+    for name in LASERS:
+        counts = np.zeros(h)
+        c = _CH[name]
+        o1, o2 = _OTHERS[name]
+        for f in frames:
+            f16 = f.astype(np.int16)
+            excess = f16[..., c] - np.maximum(f16[..., o1], f16[..., o2])
+            counts += ((excess > 25) & (f16[..., c] > 200)).sum(axis=1)
+        if counts.sum() < 0.2 * frames[0].shape[1] * len(frames):
+            raise InputError(f"the {name} laser's stripe is not visible in the sampled frames",
+                             code="E-NO-STRIPE")
+        smooth = np.convolve(counts, np.ones(5) / 5, mode="same")
+        pk = int(np.argmax(smooth))
+        strong = smooth > 0.1 * smooth[pk]
+        a = pk
+        while a > 0 and strong[a - 1]:
+            a -= 1
+        b = pk
+        while b < h - 1 and strong[b + 1]:
+            b += 1
+        runs[name], peaks[name] = (a, b + 1), pk
+    rois = {n: (max(0, a - margin), min(h, b + margin)) for n, (a, b) in runs.items()}
+    lo, hi = sorted(LASERS, key=lambda n: peaks[n])
+    if rois[lo][1] > rois[hi][0]:
+        cut = (runs[lo][1] + runs[hi][0]) // 2
+        rois[lo] = (rois[lo][0], max(runs[lo][1], cut))
+        rois[hi] = (min(runs[hi][0], cut), rois[hi][1])
+    return rois

@@ -1,0 +1,188 @@
+"""The registered texture: one row per frame through the principal point, mapped onto the
+heightmap's grid after the heights are known.
+
+During the frame loop each frame's row is sampled and spooled to a temporary file
+(:class:`RowSpool`, memory stays flat). A :class:`TextureMapper` casts each row's rays onto the
+fused surface and splats the colours into the grid, in scan order: during the loop for rows
+whose surface is already final (:mod:`impress_gui.core.reconstruction.finish`), or all at once afterwards
+(:func:`map_texture`, on two threads).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.reconstruction.compiled import kernels as _kernels
+from impress_gui.core.reconstruction.grid import ColorAccumulator, GridSpec
+
+
+def reference_coeffs(cal: SceneCalibration) -> np.ndarray:
+    """``(c0, cx, cy)`` with ``reference_depth(x, y) = c0 + cx x + cy y`` (a plane)."""
+    c0 = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
+    cx = float(cal.reference_depth(np.array(1.0), np.array(0.0))) - c0
+    cy = float(cal.reference_depth(np.array(0.0), np.array(1.0))) - c0
+    return np.array([c0, cx, cy])
+
+
+class RowSpool:
+    """Texture rows (uint8 RGB, one per frame) spooled to an anonymous temporary file, so
+    memory stays flat however long the video is; read back in order for the mapping."""
+
+    def __init__(self) -> None:
+        import tempfile
+        import threading
+
+        self._fh = tempfile.TemporaryFile()
+        self._lock = threading.Lock()
+        self._frames: list[int] = []
+        self._width = 0
+
+    def append(self, k: int, colours: np.ndarray) -> None:
+        """Spool frame ``k``'s row: ``(N, 3)`` uint8, or floats (rounded, clipped to 0..255)."""
+        row = colours if colours.dtype == np.uint8 else \
+            np.clip(colours + 0.5, 0, 255).astype(np.uint8)
+        self._width = len(row)
+        with self._lock:
+            self._fh.seek(0, 2)
+            self._fh.write(np.ascontiguousarray(row).data)
+        self._frames.append(k)
+
+    @property
+    def frames(self) -> np.ndarray:
+        return np.array(self._frames, np.int64)
+
+    def frames_between(self, a: int, b: int) -> np.ndarray:
+        """Frame indices of rows ``a .. b - 1`` (while rows are still being appended)."""
+        return np.array(self._frames[a:b], np.int64)
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def rows(self, a: int, b: int) -> np.ndarray:
+        """Rows ``a .. b - 1`` as ``(b - a, width, 3)`` uint8 (safe from several threads)."""
+        size = self._width * 3
+        with self._lock:
+            self._fh.seek(size * a)
+            data = self._fh.read(size * (b - a))
+        return np.frombuffer(bytearray(data), np.uint8).reshape(b - a, self._width, 3)
+
+    def close(self) -> None:
+        self._fh.close()
+
+
+def texture_reach(ay: np.ndarray, ref: np.ndarray, max_gap: float) -> float:
+    """How far (mm along Y) from its camera position a texture row's samples can land: the
+    footprint of the row's rays at the deepest plausible surface (heights within +-200 mm of
+    the reference, grid within 2 m of the origin) plus the fill towards the previous row."""
+    z_far = abs(ref[0]) + 200.0 + abs(ref[1]) * 2000 + abs(ref[2]) * 2000
+    return float(np.max(np.abs(ay))) * z_far + max_gap + 5.0
+
+
+class TextureMapper:
+    """Maps texture rows, in scan order, onto the grid: each row's rays meet the surface
+    (fixed-point iteration on ``height``, the fused heightmap: float32, missing cells NaN and
+    taken at the reference), then the colours are splatted, filling the strip towards the
+    previous row (which the mapper remembers between calls)."""
+
+    def __init__(self, rays: np.ndarray, ref: np.ndarray, spec: GridSpec,
+                 acc: ColorAccumulator, height: np.ndarray) -> None:
+        self.ax = np.ascontiguousarray(rays[:, 0] / rays[:, 2])
+        self.ay = np.ascontiguousarray(rays[:, 1] / rays[:, 2])
+        self.ref, self.spec, self.acc, self.height = ref, spec, acc, height
+        n = len(self.ax)
+        self.state = (np.zeros(n), np.zeros(n), np.zeros((n, 3)), np.zeros(1, np.bool_))
+
+    def map(self, travels: np.ndarray, colours: np.ndarray, i_lo: int = 0,
+            i_hi: int | None = None) -> int:
+        """Map rows (camera travel ``travels``, colours ``(n, N, 3)`` uint8) onto grid rows
+        ``i_lo .. i_hi - 1``; returns how many samples fell on other rows (not added).
+        ``i_lo == i_hi`` only moves the remembered previous row."""
+        sp, acc = self.spec, self.acc
+        hi = sp.shape[0] if i_hi is None else i_hi
+        return int(_kernels().texture_rows(self.ax, self.ay, np.ascontiguousarray(travels, np.float64),
+                                           self.ref, self.height, sp.x0_mm, sp.y0_mm, sp.pixel_mm,
+                                           colours, acc.sum, acc.count, acc.mask,
+                                           float(acc.max_gap_mm), *self.state, i_lo, hi))
+
+
+def map_texture(rows, rays, travel, height, spec: GridSpec, ref: np.ndarray,
+                acc: ColorAccumulator, chunk: int = 128) -> np.ndarray:
+    """Each texture row's rays meet the reconstructed surface (fixed-point iteration on the
+    fused heightmap, missing cells taken at the reference); colours are splatted there.
+
+    The decoder has finished, so two threads share the work: one owns the grid rows before
+    the middle of the scan, the other the rest, and each maps the texture rows that can reach
+    its part. A cell's samples thus arrive in the same order as with one thread (the result
+    does not depend on the split); each thread counts samples of rows only it mapped that
+    fell in the other's part, and if there are any, the split was too tight and the mapping
+    is redone in one thread."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    height = np.ascontiguousarray(height, np.float32)
+    frames = rows.frames
+    s = np.asarray(travel, np.float64)[frames]
+    n_rows = len(frames)
+
+    def run(lo: int, hi: int, i_lo: int, i_hi: int, exclusive: tuple[int, int]) -> int:
+        """Map spool rows lo..hi-1 (after one unsplatted row to start the fill) onto grid
+        rows i_lo..i_hi-1; return samples of the ``exclusive`` rows that fell elsewhere."""
+        mapper = TextureMapper(rays, ref, spec, acc, height)
+        if lo > 0:
+            mapper.map(s[lo - 1 : lo], rows.rows(lo - 1, lo), 0, 0)
+        stray = 0
+        for a in range(lo, hi, chunk):
+            b = min(hi, a + chunk)
+            for c0, c1 in _split(a, b, exclusive):
+                miss = mapper.map(s[c0:c1], rows.rows(c0, c1), i_lo, i_hi)
+                if exclusive[0] <= c0 and c1 <= exclusive[1]:
+                    stray += miss
+        return stray
+
+    ax, ay = rays[:, 0] / rays[:, 2], rays[:, 1] / rays[:, 2]
+    plan = texture_split(s, ax, ay, ref, spec, float(acc.max_gap_mm)) if n_rows > 4 * chunk \
+        else None
+    if plan is not None:
+        (a_rows, a_excl, a_cells), (b_rows, b_excl, b_cells) = plan
+        with ThreadPoolExecutor(2, thread_name_prefix="impress-texture") as pool:
+            fa = pool.submit(run, a_rows[0], a_rows[1], a_cells[0], a_cells[1], a_excl)
+            fb = pool.submit(run, b_rows[0], b_rows[1], b_cells[0], b_cells[1], b_excl)
+            stray = fa.result() + fb.result()
+        if stray == 0:
+            return acc.mean()
+        acc.sum[:] = 0
+        acc.count[:] = 0
+    run(0, n_rows, 0, spec.shape[0], (0, 0))
+    return acc.mean()
+
+
+def _split(a: int, b: int, cut: tuple[int, int]):
+    """``a..b`` cut at the ends of ``cut`` (so no piece straddles them)."""
+    edges = sorted({a, b, *[c for c in cut if a < c < b]})
+    return list(zip(edges[:-1], edges[1:]))
+
+
+def texture_split(s, ax, ay, ref, spec: GridSpec, max_gap: float):
+    """Two halves of the texture mapping: ``((rows, exclusive rows, grid rows), ...)`` or
+    None when the camera's travel is not monotonic. A texture row's samples lie within
+    :func:`texture_reach` of its camera position; generous, and checked by the caller."""
+    d = np.diff(s)
+    if not (np.all(d > 0) or np.all(d < 0)):
+        return None
+    reach = texture_reach(ay, ref, max_gap)
+    n = len(s)
+    mid = n // 2
+    i_mid = int(np.clip(np.rint((s[mid] - spec.y0_mm) / spec.pixel_mm), 1, spec.shape[0] - 1))
+    y_mid = spec.y0_mm + (i_mid - 0.5) * spec.pixel_mm  # the boundary between the two parts
+    below = s - reach < y_mid  # rows that may reach the grid rows before i_mid
+    above = s + reach >= y_mid
+    lo_rows, hi_rows = (below, above) if d[0] > 0 else (above, below)
+    # with monotonic travel both sets are runs: one from the first row, one to the last
+    a_end = int(np.argmin(lo_rows)) if not lo_rows.all() else n
+    b_start = int(np.argmax(hi_rows))
+    if not (lo_rows[:a_end].all() and hi_rows[b_start:].all()) or b_start == 0 or a_end == n:
+        return None
+    cells_first, cells_second = (0, i_mid), (i_mid, spec.shape[0])
+    if d[0] < 0:
+        cells_first, cells_second = cells_second, cells_first
+    return ((0, a_end), (0, b_start), cells_first), ((b_start, n), (a_end, n), cells_second)

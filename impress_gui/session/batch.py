@@ -1,0 +1,278 @@
+"""Many scans in one run: ``impress batch MANIFEST -o BATCH``.
+
+A manifest (``impress.batch`` JSON) lists the scans: each a name, a video, a calibration and
+optionally processing parameters. Every scan is processed by
+:func:`~impress_gui.core.reconstruction.pipeline.process_files` (the same call as ``impress process``) into
+``BATCH/<name>/``; ``BATCH/summary.csv`` and ``BATCH/summary.json`` list the outcome of each.
+
+- **Locally** the scans run in a pool of processes sized to the machine (cores, and memory at
+  about :data:`GB_PER_JOB` per reconstruction), or ``jobs`` of them.
+- **On a cluster** (``scheduler`` = a Dask distributed scheduler's address, or a
+  :class:`distributed.Client`): the same per-scan job is submitted to it. The machines must see
+  the videos and the batch folder at the same paths (a shared drive).
+- **Resumption**: a scan whose folder already holds a complete result made from the same
+  inputs (same SHA-256) with the same parameters is not processed again ("done earlier"); a run
+  interrupted part way goes on where it stopped.
+
+The batch folder is an output folder of the product (``kind`` ``batch``): it is refused when it
+holds anything else, and every scan's folder follows the rules of ``impress process``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from impress_gui.core.base.errors import FormatError, ImpressError, InputError
+from impress_gui.core.base.fileio import dumps_json, read_json
+
+BATCH_FORMAT = "impress.batch"
+GB_PER_JOB = 2.5
+SUMMARY_FILES = ("summary.csv", "summary.json")
+#: processing parameters a manifest may set (the others keep their defaults)
+PARAM_KEYS = ("method", "frame_start", "frame_stop", "grid_mm", "min_peak", "texture", "fps")
+
+
+@dataclass(frozen=True)
+class BatchItem:
+    name: str
+    video: Path
+    calibration: Path
+    params: dict = field(default_factory=dict)
+
+
+def _safe_name(name: str, where: str) -> str:
+    if (not name or name.startswith(".") or "/" in name or "\\" in name or name in SUMMARY_FILES
+            or len(name) > 120 or name != name.strip()):
+        raise FormatError(f"{where}: the scan name {name!r} cannot be a folder name (no '/', no "
+                          "leading dot, at most 120 characters)", code="E-BATCH")
+    return name
+
+
+def load_manifest(path: str | os.PathLike) -> list[BatchItem]:
+    """Read a batch manifest; paths in it are relative to the manifest's folder."""
+    path = Path(path)
+    doc = read_json(path, BATCH_FORMAT)
+    scans = doc.get("scans")
+    if not isinstance(scans, list) or not scans:
+        raise FormatError(f"{path}: 'scans' must be a non-empty list", code="E-BATCH")
+    base = path.parent
+    items: list[BatchItem] = []
+    seen: set[str] = set()
+    for i, s in enumerate(scans):
+        where = f"{path}: scan {i + 1}"
+        if not isinstance(s, dict):
+            raise FormatError(f"{where} must be an object", code="E-BATCH")
+        try:
+            name = _safe_name(str(s.get("name") or Path(str(s["video"])).stem), where)
+            video = base / str(s["video"])
+            cal = base / str(s["calibration"])
+        except KeyError as exc:
+            raise FormatError(f"{where}: the field {exc.args[0]!r} is missing",
+                              code="E-BATCH") from None
+        if name in seen:
+            raise FormatError(f"{where}: the name {name!r} is used twice", code="E-BATCH")
+        seen.add(name)
+        params = s.get("parameters") or {}
+        if not isinstance(params, dict) or set(params) - set(PARAM_KEYS):
+            raise FormatError(f"{where}: parameters may only set {', '.join(PARAM_KEYS)}",
+                              code="E-BATCH")
+        items.append(BatchItem(name, video, cal, dict(params)))
+    return items
+
+
+def _params(item: BatchItem):
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams
+
+    p = {k: v for k, v in item.params.items() if k != "fps"}
+    try:
+        params = ProcessParams(**p)
+        params.validate()
+    except TypeError:
+        raise InputError(f"scan {item.name}: unusable parameters", code="E-BATCH") from None
+    return params
+
+
+def process_one(item: BatchItem, out_dir: str) -> dict[str, Any]:
+    """One scan (run in a worker process or on a cluster): its summary row. Never raises for
+    a scan's own failure: the row says what went wrong (its code and message)."""
+    from impress_gui.core.reconstruction.pipeline import process_files
+
+    out = Path(out_dir) / item.name
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"name": item.name, "video": str(item.video),
+                           "calibration": str(item.calibration), "folder": str(out)}
+    try:
+        params = _params(item)
+        done = _done_earlier(item, out, params)
+        if done is not None:
+            return row | done | {"status": "done earlier"}
+        meta = process_files(item.video, item.calibration, out, params, fps=item.params.get("fps"))
+        row |= _row_from_metadata(meta) | {"status": "processed"}
+    except ImpressError as exc:
+        row |= {"status": "failed", "code": exc.code, "message": str(exc)}
+    except MemoryError:
+        row |= {"status": "failed", "code": "E-MEMORY", "message": "not enough memory"}
+    except OSError as exc:
+        from impress_gui.core.base.outdir import reason
+
+        row |= {"status": "failed", "code": "E-IO", "message": reason(exc)}
+    row["seconds"] = round(time.perf_counter() - t0, 3)
+    return row
+
+
+def _row_from_metadata(meta: dict) -> dict[str, Any]:
+    st = meta.get("stats") or {}
+    return {"video_sha256": (meta.get("inputs") or {}).get("video", {}).get("sha256"),
+            "calibration_sha256": (meta.get("inputs") or {}).get("calibration", {}).get("sha256"),
+            "frames": f"{meta['frames']['start']}..{meta['frames']['stop'] - 1}",
+            "cells_fused": st.get("cells_fused"), "warnings": len(meta.get("warnings") or []),
+            "code": "", "message": "; ".join(meta.get("warnings") or [])}
+
+
+def _done_earlier(item: BatchItem, out: Path, params) -> dict[str, Any] | None:
+    """The row of a complete earlier result of exactly this job in ``out``, else None."""
+    from impress_gui.core.base.fileio import sha256_file
+    from impress_gui.core.base.outdir import read_mark
+
+    meta_path = out / "metadata.json"
+    if not meta_path.is_file() or read_mark(out) is None:
+        return None
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        ins = meta["inputs"]
+        same = (meta.get("parameters") == params.to_json()
+                and ins["calibration"]["sha256"] == sha256_file(item.calibration)
+                and ins["video"]["sha256"] == _video_sha(item.video))
+        files_ok = all((out / n).is_file() for n in meta.get("files", {}))
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return _row_from_metadata(meta) if same and files_ok else None
+
+
+def _video_sha(path: Path) -> str:
+    from impress_gui.core.base.fileio import sha256_path
+
+    return sha256_path(path)
+
+
+def default_jobs() -> int:
+    cores = os.cpu_count() or 1
+    try:
+        import psutil
+
+        mem_gb = psutil.virtual_memory().available / 2**30
+    except ImportError:
+        mem_gb = cores * GB_PER_JOB
+    return max(1, min(cores, int(mem_gb // GB_PER_JOB)))
+
+
+def run_batch(items: list[BatchItem], out_dir: str | os.PathLike, jobs: int | None = None,
+              scheduler: Any = None, progress: Callable[[float, str], None] | None = None,
+              manifest: str | os.PathLike | None = None) -> list[dict[str, Any]]:
+    """Process ``items`` into ``out_dir``; return the summary rows (manifest order) after
+    writing ``summary.csv`` and ``summary.json``."""
+    from impress_gui.core.base.outdir import MARK_FILE, check_output_dir, mark_bytes, writing
+
+    names = [i.name for i in items]
+    inputs = [p for i in items for p in (i.video, i.calibration)]
+    if manifest is not None:
+        inputs.append(Path(manifest))
+    # the batch folder: new, empty or an earlier batch's (its scans' folders and summaries)
+    allowed = {*names, *SUMMARY_FILES}
+    out = check_output_dir(out_dir, "batch", inputs, allowed=None)
+    from impress_gui.core.base.outdir import read_mark
+
+    if out.exists() and read_mark(out) is not None:
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in allowed | {MARK_FILE}
+                         and not p.name.startswith("."))
+        if foreign:
+            from impress_gui.core.base.outdir import OutputError
+
+            raise OutputError(f"{out} holds {', '.join(foreign[:5])}, which this batch does not "
+                              "write: nothing is changed; name another folder",
+                              code="E-OUTPUT-NOT-EMPTY")
+    with writing(out):
+        out.mkdir(parents=True, exist_ok=True)
+        if not (out / MARK_FILE).exists():
+            (out / MARK_FILE).write_bytes(mark_bytes("batch"))
+    rows: dict[str, dict[str, Any]] = {}
+    n = len(items)
+
+    def done(row: dict[str, Any]) -> None:
+        rows[row["name"]] = row
+        if progress is not None:
+            progress(len(rows) / n, f"{row['name']}: {row['status']}"
+                     + (f" [{row['code']}]" if row.get("code") else ""))
+
+    if scheduler is not None:
+        _run_dask(items, str(out), scheduler, done)
+    else:
+        _run_local(items, str(out), jobs or default_jobs(), done)
+    ordered = [rows[name] for name in names]
+    write_summary(ordered, out)
+    return ordered
+
+
+def _run_local(items: list[BatchItem], out: str, jobs: int, done) -> None:
+    if jobs <= 1 or len(items) == 1:
+        for item in items:
+            done(process_one(item, out))
+        return
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    # "spawn": a clean interpreter per worker (no inherited threads or Qt state)
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as pool:
+        futures = [pool.submit(process_one, item, out) for item in items]
+        for fut in as_completed(futures):
+            done(fut.result())
+
+
+def _run_dask(items: list[BatchItem], out: str, scheduler: Any, done) -> None:
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise InputError("--scheduler needs the dask distributed package "
+                         "(pip install 'dask[distributed]')", code="E-BATCH") from None
+    own = not isinstance(scheduler, Client)
+    try:
+        client = Client(scheduler, timeout=30) if own else scheduler
+    except (OSError, TimeoutError, ValueError):
+        raise InputError(f"no Dask scheduler answers at {scheduler}",
+                         code="E-BATCH-SCHEDULER") from None
+    try:
+        futures = [client.submit(process_one, item, out, pure=False, key=f"impress-{item.name}")
+                   for item in items]
+        for fut in as_completed(futures):
+            done(fut.result())
+    finally:
+        if own:
+            client.close()
+
+
+SUMMARY_COLUMNS = ("name", "status", "code", "frames", "cells_fused", "warnings", "seconds",
+                   "video", "video_sha256", "calibration", "calibration_sha256", "folder",
+                   "message")
+
+
+def write_summary(rows: Iterable[dict[str, Any]], out: Path) -> None:
+    from impress_gui.core.base.fileio import atomic_write_bytes
+
+    rows = list(rows)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, SUMMARY_COLUMNS, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: r.get(k, "") for k in SUMMARY_COLUMNS})
+    atomic_write_bytes(out / "summary.csv", buf.getvalue().encode("utf-8"))
+    doc = {"format": "impress.batch-summary", "version": 1,
+           "scans": [{k: r.get(k) for k in SUMMARY_COLUMNS} for r in rows]}
+    atomic_write_bytes(out / "summary.json", dumps_json(doc).encode("utf-8"))

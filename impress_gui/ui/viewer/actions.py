@@ -1,0 +1,459 @@
+"""The viewer's exports: heightmap TIFF, X3P, PLY, figure PNG, profile CSV/PNG, the HTML
+report and the 3D view. Files are written atomically in the background and recorded in the
+project's outputs (with their SHA-256) and log."""
+
+from __future__ import annotations
+
+import hashlib
+import platform
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import QBuffer, QByteArray, QIODevice
+
+from impress_gui.core.base.fileio import atomic_write_bytes
+from impress_gui.core.formats import provenance as P
+from impress_gui.core.formats.figures import colourise, figure, png_bytes, report_html
+from impress_gui.core.formats.writers import ply_bytes, x3p_bytes
+from impress_gui.core.measure import readings as M
+from impress_gui.core.reconstruction.grid import GridSpec
+from impress_gui.ui.viewer.image import auto_levels
+from impress_gui.ui.viewer.view3d import Surface3DWindow
+
+if TYPE_CHECKING:  # pragma: no cover
+    from impress_gui.ui.viewer.tab import ViewerTab
+
+MAX_PLY_POINTS = 10_000_000
+FILTERS = {
+    "tiff": "TIFF (*.tif *.tiff)",
+    "x3p": "X3P (*.x3p)",
+    "ply": "PLY point cloud (*.ply)",
+    "png": "PNG image (*.png)",
+    "csv": "CSV (*.csv)",
+    "html": "HTML report (*.html)",
+}
+
+
+def _case_signature(proj) -> dict | None:
+    """The signed case record's key and head signature (None for an unsaved project)."""
+    if getattr(proj, "root", None) is None or not hasattr(proj, "signature_info"):
+        return None
+    try:
+        info = proj.signature_info()
+    except Exception:  # noqa: BLE001 - an export never fails for want of a signature
+        return None
+    return {k: info.get(k) for k in ("signed", "algorithm", "key_fingerprint", "public_key",
+                                     "user", "head_signature", "log_head")}
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def _tiff_bytes(arr: np.ndarray, prov: dict | None = None, spec: GridSpec | None = None) -> bytes:
+    """Float32 TIFF; with ``prov`` its ImageDescription is ``... provenance {JSON}``, Software
+    names the version; with ``spec`` the resolution tags give the cell size (pixels per cm)."""
+    import io
+
+    import tifffile
+
+    extra: dict = {}
+    if spec is not None:
+        ppcm = 10.0 / spec.pixel_mm
+        extra = {"resolution": (ppcm, ppcm), "resolutionunit": "CENTIMETER"}
+    buf = io.BytesIO()
+    tifffile.imwrite(
+        buf,
+        arr,
+        compression="zlib",
+        metadata=None,
+        software=P.SOFTWARE if prov is not None else None,
+        # a description starting with "{" is taken by tifffile for its own shaped metadata
+        description=f"{P.SOFTWARE} heightmap; provenance {P.to_json(prov)}" if prov else None,
+        **extra,
+    )
+    return buf.getvalue()
+
+
+class ViewerActions:
+    def __init__(self, tab: ViewerTab) -> None:
+        self.tab = tab
+        self.windows: list[Surface3DWindow] = []
+        b = tab.exports.buttons
+        b["tiff"].clicked.connect(lambda: self.export_tiff())
+        b["x3p"].clicked.connect(lambda: self.export_x3p())
+        b["ply"].clicked.connect(lambda: self.export_ply())
+        b["png"].clicked.connect(lambda: self.export_png())
+        b["profile_csv"].clicked.connect(lambda: self.export_profile_csv())
+        b["profile_png"].clicked.connect(lambda: self.export_profile_png())
+        b["report"].clicked.connect(lambda: self.export_report())
+        b["view3d"].clicked.connect(lambda: self.open_3d())
+        tab.table.export_button.clicked.connect(lambda: self.export_measurements_csv())
+
+    # ----- helpers -----------------------------------------------------------------------------
+    def _path(self, path, title: str, filt: str, suffix: str) -> Path | None:
+        if path is None:
+            start = str(self.tab.project.root or "")
+            path = self.tab.dialogs.save_file(title, FILTERS[filt], start)
+        if not path:
+            return None
+        p = Path(path)
+        return p if p.suffix else p.with_suffix(suffix)
+
+    def _need_data(self) -> bool:
+        if self.tab.data is None:
+            self.tab.messenger.info("Export", "Open a reconstruction first.")
+            return False
+        return True
+
+    def _inputs(self) -> list:
+        """The evidence and the reconstruction's files: an export may not replace them."""
+        proj = self.tab.project
+        out = []
+        try:
+            if proj.video_path() is not None:
+                out.append(proj.video_path())
+        except Exception:  # noqa: BLE001 - a project without a usable video path
+            pass
+        return out
+
+    def _write(self, what: str, path: Path, kind: str, make_bytes) -> bool:
+        """Render ``make_bytes()`` in the background, write atomically, record the output."""
+
+        from impress_gui.core.base.outdir import check_output_file
+
+        def task(progress, cancel):
+            # never over the evidence, a folder or a link; an existing export of ours is
+            # replaced (the file dialog has asked)
+            check_output_file(path, inputs=self._inputs(), formats=None)
+            data = make_bytes()
+            cancel.check()
+            atomic_write_bytes(path, data)
+            return hashlib.sha256(data).hexdigest()
+
+        def done(sha: str) -> None:
+            self.tab.project.add_output(path, kind, sha256=sha)
+            self.tab.changed.emit()
+            self.tab.status.emit(f"{what} written to {path}")
+
+        return self.tab.tasks.run(f"Writing {what}", task, done, f"Cannot write the {what}")
+
+    def _height_for_export(self) -> tuple[np.ndarray, str]:
+        tab = self.tab
+        note = f"layer {tab.measure_key()}" + ("; levelled" if tab.plane is not None else "")
+        return tab.measure_height(), note
+
+    def provenance(self, export: str, parameters: dict | None = None, grid: bool = True) -> dict:
+        """The provenance dictionary of an export of the open reconstruction (built here, on
+        the GUI thread): version, source hashes, grid, levelling plane and ``parameters``."""
+        tab, data = self.tab, self.tab.data
+        source = None if data is None else P.reconstruction_source(data.metadata, data.folder)
+        plane = None if tab.plane is None else tab.plane.to_json()
+        prov = P.export_provenance(
+            export,
+            source,
+            spec=data.spec if grid and data is not None else None,
+            plane=plane,
+            parameters=parameters,
+        )
+        # the case record's signer and head signature tie the export to the signed case
+        prov["case_record"] = _case_signature(tab.project)
+        return prov
+
+    # ----- map exports ---------------------------------------------------------------------------
+    def export_tiff(self, path=None) -> bool:
+        if not self._need_data() or not (
+            p := self._path(path, "Export the heightmap", "tiff", ".tif")
+        ):
+            return False
+        h, _note = self._height_for_export()
+        spec = self.tab.data.spec
+        prov = self.provenance(
+            "heightmap-tiff", {"layer": self.tab.measure_key(), "dtype": "float32, mm"}
+        )
+        return self._write(
+            "heightmap TIFF",
+            p,
+            "heightmap-tiff",
+            lambda: _tiff_bytes(np.asarray(h, np.float32), prov, spec),
+        )
+
+    def export_x3p(self, path=None) -> bool:
+        if not self._need_data() or not (p := self._path(path, "Export X3P", "x3p", ".x3p")):
+            return False
+        h, note = self._height_for_export()
+        spec = self.tab.data.spec
+        prov = self.provenance("x3p", {"layer": self.tab.measure_key()})
+        comment = f"IMPREsS viewer export; {note}; provenance {P.to_json(prov)}"
+        # the dates of the scan and its calibration (recorded with the reconstruction), so that
+        # the same data exported twice gives the same file; the export's time for older data
+        dates = dict(self.tab.data.metadata.get("dates") or {})
+        measured = str(dates.get("measured") or _now())
+        calibrated = str(dates.get("calibrated") or measured)
+        return self._write("X3P", p, "x3p",
+                           lambda: x3p_bytes(spec, h, measured, comment, calibrated=calibrated))
+
+    def export_ply(self, path=None) -> bool:
+        if not self._need_data() or not (p := self._path(path, "Export PLY", "ply", ".ply")):
+            return False
+        h, _note = self._height_for_export()
+        data = self.tab.data
+        step = max(1, int(np.ceil(np.sqrt(h.size / MAX_PLY_POINTS))))
+        prov = self.provenance(
+            "ply",
+            {
+                "layer": self.tab.measure_key(),
+                "step_cells": step,
+                "colours": "texture" if data.texture_rgb is not None else "grey",
+            },
+        )
+        lines = P.comment_lines(prov)
+        return self._write(
+            "PLY", p, "ply", lambda: ply_bytes(data.spec, h, data.texture_rgb, step, lines)
+        )
+
+    def figure_maker(self):
+        """A function ``(max_px) -> RGB figure`` of the shown layer (title, measurements, scale
+        bar, colour bar), with everything it needs captured here on the GUI thread so that
+        it can run in a worker."""
+        return self._figure()[0]
+
+    def _figure(self):
+        """``(figure_maker, parameters)``: the maker and what shaped the figure (layer, colour
+        map, range, levelling) for its provenance."""
+        tab = self.tab
+        key = tab.display.layer_key()
+        proj = tab.project
+        title = (
+            f"Case {proj.case_id or '-'}, evidence {proj.evidence_id or '-'}: "
+            f"{tab.display.layer.currentText()}" + (" (levelled)" if tab.plane is not None else "")
+        )
+        spec, ms = tab.data.spec, [dict(m) for m in proj.measurements]
+        if key in ("fused", "green", "red", "difference") and key in tab.data.layers:
+            arr = tab.measure_height(key) if key != "difference" else tab.data.layers[key]
+            lut = pg.colormap.get(tab.display.cmap.currentText()).getLookupTable(nPts=256)
+            vrange = tab.map.levels()
+            unit = "green-red (mm)" if key == "difference" else "height (mm)"
+            params = {
+                "layer": key,
+                "colour_map": tab.display.cmap.currentText(),
+                "range_mm": [float(v) for v in vrange],
+                "levelled": tab.plane is not None and key != "difference",
+            }
+            return lambda max_px=6000: figure(
+                spec,
+                height=arr,
+                lut=lut,
+                vrange=vrange,
+                title=title,
+                measurements=ms,
+                max_px=max_px,
+                unit_label=unit,
+            ), params
+        rgb = {"texture": tab.data.texture_rgb, "contribution": tab._contribution_rgb}.get(key)
+        if key == "hillshade" and tab._hillshade is not None:
+            rgb = tab._hillshade[1]
+        if rgb is None:  # fall back to the fused heights
+            arr = tab.measure_height("fused")
+            lut = pg.colormap.get("turbo").getLookupTable(nPts=256)
+            vrange = auto_levels(arr, tab.data.spec, tab._target_mm)
+            params = {
+                "layer": "fused",
+                "colour_map": "turbo",
+                "range_mm": [float(v) for v in vrange],
+                "levelled": tab.plane is not None,
+            }
+            return lambda max_px=6000: figure(
+                spec,
+                height=arr,
+                lut=lut,
+                vrange=vrange,
+                title=title,
+                measurements=ms,
+                max_px=max_px,
+            ), params
+        return (
+            lambda max_px=6000: figure(spec, rgb=rgb, title=title, measurements=ms, max_px=max_px)
+        ), {"layer": key}
+
+    def export_png(self, path=None) -> bool:
+        if not self._need_data() or not (p := self._path(path, "Export a figure", "png", ".png")):
+            return False
+        fig, params = self._figure()
+        prov = self.provenance(
+            "figure-png",
+            params | {"measurements": len(self.tab.project.measurements), "max_px": 6000},
+        )
+        return self._write("figure", p, "figure-png", lambda: png_bytes(fig(), prov))
+
+    # ----- profile -------------------------------------------------------------------------------
+    def export_profile_csv(self, path=None) -> bool:
+        tab = self.tab
+        if tab.profile is None:
+            tab.messenger.info("Profile", "Place the ruler first: its profile is exported.")
+            return False
+        if not (p := self._path(path, "Export the profile", "csv", ".csv")):
+            return False
+        text = M.profile_csv(tab.profile, tab.step, self._profile_provenance("profile-csv"))
+        return self._write("profile CSV", p, "profile-csv", lambda: text.encode("utf-8"))
+
+    def _profile_provenance(self, export: str) -> dict:
+        pr = self.tab.profile
+        params: dict = {"layer": self.tab.measure_key()}
+        if pr is not None:
+            params |= {
+                "start_mm": [float(v) for v in pr.start],
+                "end_mm": [float(v) for v in pr.end],
+                "width_mm": float(pr.width_mm),
+            }
+        return self.provenance(export, params)
+
+    def profile_png_bytes(self) -> bytes:
+        pix = self.tab.profile_plot.grab()
+        arr = QByteArray()
+        buf = QBuffer(arr)
+        buf.open(QIODevice.OpenModeFlag.WriteOnly)
+        pix.save(buf, "PNG")
+        buf.close()
+        return bytes(arr.data())
+
+    def export_profile_png(self, path=None) -> bool:
+        if self.tab.profile is None:
+            self.tab.messenger.info("Profile", "Place the ruler first: its profile is exported.")
+            return False
+        if not (p := self._path(path, "Export the profile plot", "png", ".png")):
+            return False
+        data = P.png_with_text(
+            self.profile_png_bytes(),
+            P.png_provenance_text(self._profile_provenance("profile-png")),
+        )
+        return self._write("profile PNG", p, "profile-png", lambda: data)
+
+    def export_measurements_csv(self, path=None) -> bool:
+        if not (p := self._path(path, "Export the measurements", "csv", ".csv")):
+            return False
+        prov = self.provenance("measurements-csv", grid=False)
+        text = M.measurements_csv(self.tab.project.measurements, prov)
+        return self._write("measurements CSV", p, "measurements-csv", lambda: text.encode("utf-8"))
+
+    # ----- report --------------------------------------------------------------------------------
+    def export_report(self, path=None) -> bool:
+        tab = self.tab
+        if not self._need_data() or not (
+            p := self._path(path, "Write the report", "html", ".html")
+        ):
+            return False
+        proj, data = tab.project, tab.data
+        meta = dict(data.metadata)
+        cal = proj.calibration
+        cal_info = None
+        if cal is not None:
+            cal_info = {
+                "roll (deg)": cal.roll_deg,
+                "tilt (deg)": cal.tilt_deg,
+                "rail speed (mm/s)": cal.speed_mm_s,
+                "speed implied by the target (mm/s)": cal.implied_speed_mm_s,
+                "corner reprojection RMS (px)": cal.reprojection_rms_px,
+            }
+            for name, f in cal.planes.items():
+                cal_info[f"{name} laser plane fit RMS (mm)"] = f.rms_mm
+                cal_info[f"{name} laser plane points"] = f.n_points
+            cal_info["warnings"] = "; ".join(cal.warnings) or "none"
+        elif "calibration" in meta:
+            cal_info = {k: v for k, v in meta["calibration"].items()}
+        inputs = dict(meta.get("inputs", {}))
+        if proj.video is not None:
+            inputs["evidence video (project)"] = {
+                "path": proj.video.path,
+                "sha256": proj.video.sha256,
+            }
+        files = meta.get("files", {})
+        for name in ("heightmap.tif", "texture.png"):
+            if name in files:
+                inputs[f"reconstruction {name}"] = {
+                    "path": str(data.folder / name) if data.folder else name,
+                    "sha256": files[name],
+                }
+        g = data.spec
+        recon = {
+            "folder": str(data.folder or ""),
+            "software": meta.get("software", ""),
+            "grid": f"{g.shape[1]} x {g.shape[0]} cells of {g.pixel_mm} mm, origin "
+            f"({g.x0_mm:.2f}, {g.y0_mm:.2f}) mm",
+            "frames": str(meta.get("frames", "")),
+            "parameters": str(meta.get("parameters", "")),
+            "height convention": meta.get("height", ""),
+            "warnings": "; ".join(meta.get("warnings", [])) or "none",
+            "host": platform.node(),
+        }
+        level = (
+            None
+            if tab.plane is None
+            else {
+                "plane": f"z = {tab.plane.a:.6f} x + {tab.plane.b:.6f} y + {tab.plane.c:.4f} mm",
+                "tilt (deg)": tab.plane.tilt_deg,
+                "fit RMS (mm)": tab.plane.rms_mm,
+                "cells": tab.plane.n,
+            }
+        )
+        case = {
+            "case_id": proj.case_id,
+            "evidence_id": proj.evidence_id,
+            "examiner": proj.examiner,
+            "notes": proj.notes,
+            "project": str(proj.root or "not saved"),
+            "signature": _case_signature(proj),
+        }
+        profile_png = self.profile_png_bytes() if tab.profile is not None else None
+        measurements = [dict(m) for m in proj.measurements]
+        fig = self.figure_maker()
+
+        def make() -> bytes:
+            images = [
+                (
+                    "Map with the measurements (scale bar and colour bar in mm)",
+                    png_bytes(fig(max_px=2400)),
+                )
+            ]
+            if profile_png is not None:
+                images.append(("Depth profile along the ruler", profile_png))
+            return report_html(
+                case=case,
+                reconstruction=recon,
+                calibration=cal_info,
+                measurements=measurements,
+                images=images,
+                inputs=inputs,
+                created_utc=_now(),
+                levelling=level,
+            ).encode("utf-8")
+
+        return self._write("report", p, "report-html", make)
+
+    # ----- 3D ------------------------------------------------------------------------------------
+    def open_3d(self) -> Surface3DWindow | None:
+        tab = self.tab
+        if not self._need_data():
+            return None
+        h, spec = tab.measure_height(), tab.data.spec
+        step = max(1, int(np.ceil(np.sqrt(h.size / 300_000))))
+        small = np.ascontiguousarray(h[::step, ::step])
+        small_spec = GridSpec(spec.x0_mm, spec.y0_mm, spec.pixel_mm * step, small.shape)
+        if tab.display.layer_key() == "texture" and tab.data.texture_rgb is not None:
+            colours = np.ascontiguousarray(tab.data.texture_rgb[::step, ::step])
+        else:
+            lut = pg.colormap.get(tab.display.cmap.currentText()).getLookupTable(nPts=256)
+            colours = colourise(small, lut, tab.map.levels())
+        win = Surface3DWindow(small, small_spec, colours, "3D view - IMPREsS")
+        self.windows.append(win)
+        win.show()
+        return win
+
+    def shutdown(self) -> None:
+        for w in self.windows:
+            w.shutdown()
+            w.close()
+        self.windows.clear()

@@ -1,0 +1,299 @@
+"""The viewer's side panels: display (layer, colours, range, blend, light), tools (mode,
+readout, ruler, levelling), the measurement list and the export buttons. They only gather
+inputs and show results; :class:`~impress_gui.ui.viewer.tab.ViewerTab` does the work."""
+
+from __future__ import annotations
+
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtWidgets import (
+    QAbstractItemView,
+    QButtonGroup,
+    QComboBox,
+    QDoubleSpinBox,
+    QGridLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QSlider,
+    QTableWidget,
+    QTableWidgetItem,
+    QToolButton,
+    QVBoxLayout,
+    QWidget,
+)
+
+LAYERS = (
+    ("fused", "Heightmap (fused)"),
+    ("green", "Green laser heightmap"),
+    ("red", "Red laser heightmap"),
+    ("difference", "Difference green - red"),
+    ("contribution", "Contribution (which laser)"),
+    ("texture", "Texture"),
+    ("hillshade", "Hillshade"),
+)
+COLOUR_MAPS = ("turbo", "viridis", "CET-L1", "magma", "cividis", "CET-D1")
+MODES = (
+    ("pan", "Pan"),
+    ("ruler", "Ruler"),
+    ("marker", "Marker"),
+    ("level3", "Level: 3 points"),
+    ("region", "Level: region"),
+)
+
+
+def _spin(
+    lo: float, hi: float, value: float, step: float, decimals: int = 2, suffix: str = " mm"
+) -> QDoubleSpinBox:
+    s = QDoubleSpinBox()
+    s.setRange(lo, hi)
+    s.setDecimals(decimals)
+    s.setSingleStep(step)
+    s.setValue(value)
+    s.setSuffix(suffix)
+    s.setKeyboardTracking(False)
+    return s
+
+
+class DisplayPanel(QGroupBox):
+    layer_changed = Signal(str)
+    cmap_changed = Signal(str)
+    range_changed = Signal(float, float)
+    auto_range = Signal()
+    blend_changed = Signal(float)
+    light_changed = Signal(float, float)
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__("Display", parent)
+        g = QGridLayout(self)
+        self.layer = QComboBox()
+        for key, text in LAYERS:
+            self.layer.addItem(text, key)
+        self.layer.currentIndexChanged.connect(lambda _i: self.layer_changed.emit(self.layer_key()))
+        self.cmap = QComboBox()
+        self.cmap.addItems(COLOUR_MAPS)
+        self.cmap.currentTextChanged.connect(self.cmap_changed)
+        self.lo = _spin(-1000, 1000, 0, 0.1)
+        self.hi = _spin(-1000, 1000, 1, 0.1)
+        for s in (self.lo, self.hi):
+            s.valueChanged.connect(
+                lambda _v: self.range_changed.emit(self.lo.value(), self.hi.value())
+            )
+        self.auto_button = QPushButton("Auto")
+        self.auto_button.setToolTip(
+            "Automatic colour range: the 1 and 99 percentiles of the heights of the evidence "
+            "area (the calibration target left out when the reconstruction knows where it "
+            "is). A range you type or drag stays until you press Auto."
+        )
+        self.auto_button.clicked.connect(self.auto_range)
+        self.blend = QSlider(Qt.Orientation.Horizontal)
+        self.blend.setRange(0, 100)
+        self.blend.setToolTip("0: the layer only; 100: the registered texture only")
+        self.blend.valueChanged.connect(lambda v: self.blend_changed.emit(v / 100.0))
+        self.azimuth = _spin(0, 360, 315, 15, 0, " °")
+        self.azimuth.setWrapping(True)
+        self.azimuth.setToolTip(
+            "Where the light comes from, in degrees clockwise from the top of the screen "
+            "(315: upper left, under which a hollow looks hollow)"
+        )
+        self.elevation = _spin(1, 90, 35, 5, 0, " °")
+        self.elevation.setToolTip("The light's height above the ground, in degrees")
+        for s in (self.azimuth, self.elevation):
+            s.valueChanged.connect(
+                lambda _v: self.light_changed.emit(self.azimuth.value(), self.elevation.value())
+            )
+        rows = (("Layer", self.layer), ("Colours", self.cmap))
+        for r, (text, w) in enumerate(rows):
+            g.addWidget(QLabel(text), r, 0)
+            g.addWidget(w, r, 1, 1, 3)
+        g.addWidget(QLabel("Range"), 2, 0)
+        g.addWidget(self.lo, 2, 1)
+        g.addWidget(self.hi, 2, 2)
+        g.addWidget(self.auto_button, 2, 3)
+        g.addWidget(QLabel("Texture blend"), 3, 0)
+        g.addWidget(self.blend, 3, 1, 1, 3)
+        g.addWidget(QLabel("Light az/elev"), 4, 0)
+        g.addWidget(self.azimuth, 4, 1)
+        g.addWidget(self.elevation, 4, 2)
+
+    def layer_key(self) -> str:
+        return str(self.layer.currentData())
+
+    def set_layer(self, key: str) -> None:
+        self.layer.setCurrentIndex(self.layer.findData(key))
+
+    def show_range(self, lo: float, hi: float) -> None:
+        for s, v in ((self.lo, lo), (self.hi, hi)):
+            s.blockSignals(True)
+            s.setValue(v)
+            s.blockSignals(False)
+
+
+class ToolPanel(QGroupBox):
+    """Mode buttons, cursor readout, ruler/profile settings and levelling."""
+
+    mode_changed = Signal(str)
+    settings_changed = Signal()
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__("Measure", parent)
+        v = QVBoxLayout(self)
+        row = QHBoxLayout()
+        self.mode_group = QButtonGroup(self)
+        self.mode_buttons: dict[str, QToolButton] = {}
+        for key, text in MODES:
+            b = QToolButton()
+            b.setText(text)
+            b.setCheckable(True)
+            b.clicked.connect(lambda _c, k=key: self.mode_changed.emit(k))
+            self.mode_group.addButton(b)
+            self.mode_buttons[key] = b
+            row.addWidget(b)
+        self.mode_buttons["pan"].setChecked(True)
+        v.addLayout(row)
+        self.hint = QLabel("")
+        self.hint.setWordWrap(True)
+        self.hint.setStyleSheet("color: #666")
+        v.addWidget(self.hint)
+        g = QGridLayout()
+        self.radius = _spin(0, 20, 0.5, 0.1)
+        self.radius.setToolTip("Heights are averaged over the cells within this radius")
+        self.width = _spin(0, 50, 1.0, 0.1)
+        self.width.setToolTip(
+            "The profile is averaged across this width (perpendicular to the ruler)"
+        )
+        for s in (self.radius, self.width):
+            s.valueChanged.connect(lambda _v: self.settings_changed.emit())
+        g.addWidget(QLabel("Averaging radius"), 0, 0)
+        g.addWidget(self.radius, 0, 1)
+        g.addWidget(QLabel("Profile width"), 1, 0)
+        g.addWidget(self.width, 1, 1)
+        v.addLayout(g)
+        self.readout = QLabel("Cursor: -")
+        self.readout.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.ruler_text = QLabel("Ruler: choose Ruler and click two points")
+        self.step_text = QLabel("Step (B - A): -")
+        for lab in (self.readout, self.ruler_text, self.step_text):
+            lab.setWordWrap(True)
+            lab.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+            v.addWidget(lab)
+        row = QHBoxLayout()
+        self.add_ruler_button = QPushButton("Add ruler to measurements")
+        self.clear_ruler_button = QPushButton("Clear ruler")
+        row.addWidget(self.add_ruler_button)
+        row.addWidget(self.clear_ruler_button)
+        v.addLayout(row)
+        self.level_text = QLabel("Levelling: off (heights relative to the calibration's ground)")
+        self.level_text.setWordWrap(True)
+        v.addWidget(self.level_text)
+        row = QHBoxLayout()
+        self.fit_region_button = QPushButton("Fit plane to region")
+        self.clear_level_button = QPushButton("Clear levelling")
+        row.addWidget(self.fit_region_button)
+        row.addWidget(self.clear_level_button)
+        v.addLayout(row)
+
+    def set_mode(self, key: str) -> None:
+        self.mode_buttons[key].setChecked(True)
+
+
+class MeasurementTable(QGroupBox):
+    """The project's measurements: number, kind, label (editable), value, note (editable)."""
+
+    edited = Signal(int, str, str)  # row, field ("label" | "note"), text
+    COLUMNS = ("#", "Kind", "Label", "Value", "Note")
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__("Measurements and annotations", parent)
+        v = QVBoxLayout(self)
+        self.table = QTableWidget(0, len(self.COLUMNS))
+        self.table.setHorizontalHeaderLabels(self.COLUMNS)
+        self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        self.table.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
+        self.table.verticalHeader().hide()
+        self.table.horizontalHeader().setStretchLastSection(True)
+        self.table.itemChanged.connect(self._on_item_changed)
+        v.addWidget(self.table)
+        row = QHBoxLayout()
+        self.show_button = QPushButton("Show")
+        self.show_button.setToolTip("Put the ruler (or view) on the selected measurement")
+        self.update_button = QPushButton("Update from ruler")
+        self.delete_button = QPushButton("Delete")
+        self.export_button = QPushButton("Export CSV...")
+        for b in (self.show_button, self.update_button, self.delete_button, self.export_button):
+            row.addWidget(b)
+        v.addLayout(row)
+        self._filling = False
+
+    def fill(self, measurements: list[dict]) -> None:
+        self._filling = True
+        self.table.setRowCount(len(measurements))
+        for r, m in enumerate(measurements):
+            cells = (
+                str(r + 1),
+                m.get("kind", ""),
+                m.get("label", ""),
+                summary(m),
+                m.get("note", ""),
+            )
+            for c, text in enumerate(cells):
+                item = QTableWidgetItem(text)
+                flags = Qt.ItemFlag.ItemIsSelectable | Qt.ItemFlag.ItemIsEnabled
+                if c in (2, 4):
+                    flags |= Qt.ItemFlag.ItemIsEditable
+                item.setFlags(flags)
+                self.table.setItem(r, c, item)
+        self.table.resizeColumnsToContents()
+        self._filling = False
+
+    def selected_row(self) -> int | None:
+        rows = self.table.selectionModel().selectedRows()
+        return rows[0].row() if rows else None
+
+    def _on_item_changed(self, item: QTableWidgetItem) -> None:
+        if self._filling:
+            return
+        fields = {2: "label", 4: "note"}
+        if item.column() in fields:
+            self.edited.emit(item.row(), fields[item.column()], item.text())
+
+
+def _mm(v) -> str:
+    return "-" if v is None else f"{v:.3f} mm"
+
+
+def summary(m: dict) -> str:
+    """One line of a measurement's main values."""
+    v = m.get("values", {})
+    kind = m.get("kind")
+    if kind == "ruler":
+        text = f"xy {_mm(v.get('xy_mm'))}, 3D {_mm(v.get('d3_mm'))}, dz {_mm(v.get('dz_mm'))}"
+        if "step_mm" in v:
+            text += f"; step {_mm(v.get('step_mm'))} ± {_mm(v.get('step_sd_mm'))}"
+        return text
+    if kind in ("point", "annotation"):
+        return f"height {_mm(v.get('height_mm'))}"
+    if kind == "plane":
+        return f"tilt {v.get('tilt_deg', 0):.3f}°, RMS {_mm(v.get('rms_mm'))}"
+    return ""
+
+
+class ExportPanel(QGroupBox):
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__("Export", parent)
+        g = QGridLayout(self)
+        self.buttons: dict[str, QPushButton] = {}
+        items = (
+            ("tiff", "Heightmap TIFF..."),
+            ("x3p", "X3P..."),
+            ("ply", "PLY..."),
+            ("png", "Figure PNG..."),
+            ("profile_csv", "Profile CSV..."),
+            ("profile_png", "Profile PNG..."),
+            ("report", "Report (HTML)..."),
+            ("view3d", "3D view..."),
+        )
+        for k, (key, text) in enumerate(items):
+            b = QPushButton(text)
+            self.buttons[key] = b
+            g.addWidget(b, k // 2, k % 2)

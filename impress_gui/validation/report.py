@@ -1,0 +1,400 @@
+"""The validation table (text) and report (one self-contained HTML file with inline PNG
+figures) from a validation record (:mod:`impress_gui.validation.run`). Qt-free."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from impress_gui.core.base.fileio import atomic_write_bytes
+from impress_gui.validation import protocol as V
+
+REPORT_FILE = "validation_report.html"
+TABLE_FILE = "validation_table.txt"
+
+
+def _f(v, nd: int = 3) -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.{nd}f}"
+
+
+def table_rows(record: dict) -> list[dict]:
+    """Rows of the thesis-layout table: ours and, where the thesis has the row, its figures."""
+    rows = []
+    for group, s in record.get("summary", {}).items():
+        thesis = V.THESIS_TABLE.get(group)
+        rows.append(
+            {"group": group, "xy": s["xy"], "z": s["z"], "thesis": list(thesis) if thesis else None}
+        )
+    return rows
+
+
+def format_table(record: dict) -> str:
+    """The table in the thesis' layout with its figures beside ours, then the acceptance
+    verdict and the plane and sphere quantities."""
+    w = max([len(r["group"]) for r in table_rows(record)] + [20])
+    head = (
+        f"{'':{w}}  {'--------------- this software ---------------':45}  "
+        f"{'----- thesis table 4.1 -----':28}\n"
+        f"{'Absolute errors (mm)':{w}}  {'xy ME':>7}{'xy SD':>7}{'z ME':>7}{'z SD':>7}"
+        f"{'n xy/z':>9}{'fail':>6}   {'xy ME':>6}{'xy SD':>6}{'z ME':>6}{'z SD':>6}\n"
+    )
+    lines = [head.rstrip("\n")]
+    for r in table_rows(record):
+        xy, z, th = r["xy"], r["z"], r["thesis"]
+        fails = xy["failed"] + z["failed"]
+        thesis = "".join(f"{v:6.2f}" for v in th) if th else ""
+        if r["group"] == "Overall" and th:
+            thesis += f"  ({V.THESIS_READINGS} readings)"
+        if r["group"] == "Overall":
+            lines.append("-" * (w + 84))
+        lines.append(
+            f"{r['group']:{w}}  {_f(xy['mean_abs_mm']):>7}{_f(xy['sd_mm']):>7}"
+            f"{_f(z['mean_abs_mm']):>7}{_f(z['sd_mm']):>7}"
+            f"{xy['n']:>5}/{z['n']:<3}{fails:>6}   {thesis}"
+        )
+    acc = record.get("acceptance", {})
+    if acc:
+        lines.append("")
+        lines.append(
+            f"Acceptance (5x better than the thesis): xy mean {_f(acc.get('xy_mean_mm'))} mm "
+            f"<= {V.BAR_XY_MM} mm: {'PASS' if acc.get('xy_ok') else 'FAIL'}; z mean "
+            f"{_f(acc.get('z_mean_mm'))} mm <= {V.BAR_Z_MM} mm: "
+            f"{'PASS' if acc.get('z_ok') else 'FAIL'}"
+            + ("" if acc.get("all_placements") else "  (not all six placements were run)")
+        )
+    if "flat" in record:
+        f = record["flat"]
+        lines.append(
+            f"Plane (VDI/VDE 2634-2 flatness): F = {_f(f['flatness_mm'])} mm (0.3 % trimmed; "
+            f"untrimmed range {_f(f['range_mm'])} mm), RMS {_f(f['rms_mm'])} mm, height offset "
+            f"{_f(f['offset_mm'])} mm, tilt {_f(f['tilt_deg'], 4)} deg, over "
+            f"{f['x_mm'][1] - f['x_mm'][0]:.0f} x {f['y_mm'][1] - f['y_mm'][0]:.0f} mm "
+            f"({f['n']} cells)"
+        )
+    if "spheres" in record:
+        s = record["spheres"]
+        d, sp = s["diameter"], s["spacing"]
+        lines.append(
+            f"Spheres (VDI/VDE 2634-2): {d['n']} spheres, diameter error (PS) mean "
+            f"{_f(d['mean_abs_mm'])} max {_f(d['max_abs_mm'])} mm; form (PF) max "
+            f"{_f(s['form_max_mm'])} mm; centre-distance error (SD) over {sp['n']} pairs mean "
+            f"{_f(sp['mean_abs_mm'])} max {_f(sp['max_abs_mm'])} mm"
+        )
+    return "\n".join(lines) + "\n"
+
+
+# ----- figures -------------------------------------------------------------------------------
+def _png_data_uri(rgb: np.ndarray) -> str:
+    import cv2
+
+    ok, enc = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:
+        raise OSError("PNG encoding failed")
+    return "data:image/png;base64," + base64.b64encode(enc.tobytes()).decode("ascii")
+
+
+def _text(img, s, org, scale=0.45, colour=(0, 0, 0), thick=1):
+    import cv2
+
+    cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thick, cv2.LINE_AA)
+
+
+def bar_chart(record: dict) -> np.ndarray:
+    """Mean absolute error (bar) +- SD (whisker) per placement, xy and z, ours beside the
+    thesis', on one linear scale in mm."""
+    import cv2
+
+    rows = table_rows(record)
+    w_row, left, top, h_plot = 150, 60, 40, 300
+    width = max(520, left + w_row * len(rows) + 20)
+    img = np.full((top + h_plot + 90, width, 3), 255, np.uint8)
+    vmax = 2.2
+    for r in rows:
+        for m_i, s_i in ((0, 1), (2, 3)):
+            if r["thesis"]:
+                vmax = max(vmax, r["thesis"][m_i] + r["thesis"][s_i])
+
+    def y_of(v):
+        return int(top + h_plot - h_plot * min(v, vmax) / vmax)
+
+    for k in range(0, int(vmax * 2) + 1):
+        v = k / 2
+        y = y_of(v)
+        cv2.line(img, (left, y), (width - 10, y), (225, 225, 225), 1)
+        _text(img, f"{v:.1f}", (8, y + 4))
+    _text(img, "mean |error| (mm), whisker = SD; dashed: the acceptance bars", (left, 22))
+    for bar, colour in ((V.BAR_XY_MM, (31, 119, 180)), (V.BAR_Z_MM, (214, 39, 40))):
+        y = y_of(bar)
+        for x in range(left, width - 10, 12):
+            cv2.line(img, (x, y), (min(x + 6, width - 10), y), colour, 1)
+    colours = {
+        ("xy", "ours"): (31, 119, 180),
+        ("z", "ours"): (214, 39, 40),
+        ("xy", "thesis"): (158, 202, 225),
+        ("z", "thesis"): (252, 174, 145),
+    }
+    for i, r in enumerate(rows):
+        x0 = left + i * w_row + 10
+        bars = [
+            ("xy", "ours", r["xy"]["mean_abs_mm"], r["xy"]["sd_mm"]),
+            ("xy", "thesis", *(r["thesis"][0:2] if r["thesis"] else (None, None))),
+            ("z", "ours", r["z"]["mean_abs_mm"], r["z"]["sd_mm"]),
+            ("z", "thesis", *(r["thesis"][2:4] if r["thesis"] else (None, None))),
+        ]
+        for j, (ax, who, mean, sd) in enumerate(bars):
+            if mean is None:
+                continue
+            xa = x0 + j * 30
+            cv2.rectangle(img, (xa, y_of(mean)), (xa + 24, y_of(0)), colours[(ax, who)], -1)
+            if sd:
+                xc = xa + 12
+                cv2.line(img, (xc, y_of(mean)), (xc, y_of(mean + sd)), (60, 60, 60), 1)
+                cv2.line(img, (xc - 5, y_of(mean + sd)), (xc + 5, y_of(mean + sd)), (60, 60, 60), 1)
+        label = r["group"].replace("Order ", "").replace("each ", "").replace(" degrees", "")
+        for k, part in enumerate(_wrap(label, 20)):
+            _text(img, part, (x0, top + h_plot + 18 + 15 * k), 0.38)
+    lx = left
+    for (ax, who), c in colours.items():
+        cv2.rectangle(img, (lx, top + h_plot + 66), (lx + 14, top + h_plot + 80), c, -1)
+        _text(img, f"{ax} {who}", (lx + 18, top + h_plot + 78), 0.4)
+        lx += 110
+    return img
+
+
+def _wrap(s: str, n: int) -> list[str]:
+    out, cur = [], ""
+    for word in s.split():
+        if cur and len(cur) + 1 + len(word) > n:
+            out.append(cur)
+            cur = word
+        else:
+            cur = f"{cur} {word}".strip()
+    return [*out, cur] if cur else out
+
+
+def scan_figure(folder: Path, readings: list[dict], max_px: int = 560) -> np.ndarray | None:
+    """The reconstruction around the readings, pseudo-coloured, with each profile line drawn
+    (green: within the bar, red: above it or failed)."""
+    import cv2
+
+    from impress_gui.core.formats.writers import pseudo_colour
+    from impress_gui.core.measure.readings import load_reconstruction
+
+    try:
+        rec = load_reconstruction(folder, layers=("fused",))
+    except Exception:  # noqa: BLE001 - a figure is optional: the report says it is missing
+        return None
+    pts = np.array([p for r in readings for p in (r["start_mm"], r["end_mm"])], float)
+    if not len(pts):
+        return None
+    lo, hi = pts.min(0) - 25.0, pts.max(0) + 25.0
+    sub, sspec = V.crop(rec.height_mm, rec.spec, (lo[0], hi[0]), (lo[1], hi[1]))
+    scale = min(1.0, max_px / max(sub.shape))
+    img = pseudo_colour(np.asarray(sub), bar=False)
+    img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+
+    def px(p):
+        return (
+            int(round((p[0] - sspec.x0_mm) / sspec.pixel_mm * scale)),
+            int(round((p[1] - sspec.y0_mm) / sspec.pixel_mm * scale)),
+        )
+
+    def ok(r) -> bool:
+        bar = V.BAR_XY_MM if r["axis"] == "xy" else V.BAR_Z_MM
+        return r["error_mm"] is not None and abs(r["error_mm"]) <= bar
+
+    for r in sorted(readings, key=ok, reverse=True):  # the ones above the bar drawn last
+        colour = (0, 160, 0) if ok(r) else (220, 0, 0)
+        cv2.line(img, px(r["start_mm"]), px(r["end_mm"]), colour, 1)
+    return img
+
+
+# ----- the report ----------------------------------------------------------------------------
+_CSS = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 7px;
+text-align:right;font-size:13px}th{background:#eee}td.l,th.l{text-align:left}
+.pass{color:#080;font-weight:bold}.fail{color:#b00;font-weight:bold}code{font-size:12px}
+img{border:1px solid #ccc;margin:4px}"""
+
+
+def _cell(v, nd=3) -> str:
+    return f"<td>{_f(v, nd)}</td>"
+
+
+def report_html(record: dict, figures: bool = True) -> str:
+    e = html.escape
+    acc = record.get("acceptance", {})
+    title = (
+        "IMPREsS method validation - simulator"
+        if record.get("kind") == "simulator"
+        else f"IMPREsS method validation - {record.get('name', 'real scans')}"
+    )
+    out = [
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{e(title)}</title>"
+        f"<style>{_CSS}</style></head><body><h1>{e(title)}</h1>"
+    ]
+    out.append(
+        "<table>"
+        + "".join(
+            f"<tr><th class='l'>{e(k)}</th><td class='l'>{e(str(v))}</td></tr>"
+            for k, v in (
+                ("Software", record.get("software")),
+                ("Date (UTC)", record.get("date_utc")),
+                ("Host", record.get("host")),
+                ("Python", record.get("python")),
+                ("Kind", record.get("kind")),
+            )
+        )
+        + "</table>"
+    )
+    if record.get("config"):
+        out.append(
+            "<h2>Parameters</h2><pre>" + e(json.dumps(record["config"], indent=1)) + "</pre>"
+        )
+    out.append(
+        "<h2>Absolute errors in the thesis' layout (table 4.1)</h2><table><tr>"
+        "<th class='l' rowspan=2>Placement</th><th colspan=6>this software</th>"
+        "<th colspan=4>thesis (208 readings)</th></tr><tr>"
+        "<th>xy ME</th><th>xy SD</th><th>z ME</th><th>z SD</th><th>n xy/z</th>"
+        "<th>failed</th><th>xy ME</th><th>xy SD</th><th>z ME</th><th>z SD</th></tr>"
+    )
+    for r in table_rows(record):
+        xy, z, th = r["xy"], r["z"], r["thesis"]
+        out.append(
+            f"<tr><td class='l'>{e(r['group'])}</td>"
+            + _cell(xy["mean_abs_mm"])
+            + _cell(xy["sd_mm"])
+            + _cell(z["mean_abs_mm"])
+            + _cell(z["sd_mm"])
+            + f"<td>{xy['n']}/{z['n']}</td><td>{xy['failed'] + z['failed']}</td>"
+            + ("".join(_cell(v, 2) for v in th) if th else "<td colspan=4></td>")
+            + "</tr>"
+        )
+    out.append("</table>")
+    if acc:
+
+        def verdict(ok):
+            return "<span class='pass'>PASS</span>" if ok else "<span class='fail'>FAIL</span>"
+
+        out.append(
+            f"<p>Acceptance (five times better than the thesis' overall means): xy "
+            f"mean {_f(acc.get('xy_mean_mm'))} mm &le; {V.BAR_XY_MM} mm "
+            f"{verdict(acc.get('xy_ok'))}; z mean {_f(acc.get('z_mean_mm'))} mm &le; "
+            f"{V.BAR_Z_MM} mm {verdict(acc.get('z_ok'))}."
+            + ("" if acc.get("all_placements") else " <b>Not all six placements were run.</b>")
+            + "</p>"
+        )
+    out.append(
+        "<p>Protocol: per target four dimensions (widths in xy, heights in z) measured "
+        "with the product's profile tools (a 2 mm wide profile across the target at "
+        "three stations, after levelling on the plate around it) and compared with the "
+        "known dimensions. Slotted target A: widths and depths of its two widest slots; "
+        "stepped target B: widths of treads 2 and 3, rise of the first step and of the "
+        "whole stair. The thesis' own four measurements are in its missing figure 4.6b/c."
+        "</p>"
+    )
+    if figures and record.get("summary"):
+        out.append(f"<img alt='errors per placement' src='{_png_data_uri(bar_chart(record))}'>")
+    out.append("<pre>" + e(format_table(record)) + "</pre>")
+    if "flat" in record or "spheres" in record:
+        out.append("<h2>VDI/VDE 2634-2 style quantities</h2>")
+        if "flat" in record:
+            out.append("<pre>" + e(json.dumps(record["flat"], indent=1)) + "</pre>")
+        if "spheres" in record:
+            s = record["spheres"]
+            out.append(
+                "<table><tr><th>#</th><th>nominal centre (mm)</th><th>diameter</th>"
+                "<th>error</th><th>form</th><th>n</th></tr>"
+            )
+            for i, row in enumerate(s["spheres"]):
+                if "error" in row:
+                    out.append(
+                        f"<tr><td>{i}</td><td class='l' colspan=5>{e(row['error'])}</td></tr>"
+                    )
+                    continue
+                c = ", ".join(f"{v:.1f}" for v in row["nominal_centre_mm"])
+                out.append(
+                    f"<tr><td>{i}</td><td>{c}</td>"
+                    + _cell(row["diameter_mm"])
+                    + _cell(row["diameter_error_mm"])
+                    + _cell(row["form_mm"])
+                    + f"<td>{row['n']}</td></tr>"
+                )
+            out.append("</table>")
+    out.append(
+        "<h2>Inputs and outputs (SHA-256)</h2><table><tr><th class='l'>scan</th>"
+        "<th class='l'>file</th><th class='l'>SHA-256</th></tr>"
+    )
+    for s in record.get("scans", []):
+        files = {
+            f"input {k}": v.get("sha256")
+            for k, v in s.get("inputs", {}).items()
+            if isinstance(v, dict)
+        }
+        files |= {
+            f"output {k}": v
+            for k, v in s.get("reconstruction", {}).get("files", {}).items()
+            if k in ("heightmap.tif", "metadata.json", "heightmap.x3p")
+        }
+        if s.get("simulator_sha256"):
+            files["simulator code (at rendering)"] = s["simulator_sha256"]
+        for k, v in files.items():
+            out.append(
+                f"<tr><td class='l'>{e(s['title'])}</td><td class='l'>{e(k)}</td>"
+                f"<td class='l'><code>{e(str(v))}</code></td></tr>"
+            )
+    out.append("</table>")
+    if record.get("spec"):
+        out.append(
+            f"<p>Spec file {e(record['spec']['path'])}, SHA-256 "
+            f"<code>{e(record['spec']['sha256'])}</code></p>"
+        )
+    if figures:
+        out.append("<h2>Where the readings were taken</h2>")
+        for s in record.get("scans", []):
+            rs = [r for r in record.get("readings", []) if r["group"] == s["title"]]
+            path = s.get("reconstruction", {}).get("path")
+            img = scan_figure(Path(path), rs) if rs and path else None
+            if img is not None:
+                out.append(
+                    f"<figure style='display:inline-block'><img alt='{e(s['title'])}' "
+                    f"src='{_png_data_uri(img)}'><figcaption>{e(s['title'])}"
+                    "</figcaption></figure>"
+                )
+    out.append(
+        "<h2>Every reading</h2><table><tr><th class='l'>reading</th><th>axis</th>"
+        "<th>nominal</th><th>measured</th><th>error</th><th class='l'>note</th></tr>"
+    )
+    for r in record.get("readings", []):
+        out.append(
+            f"<tr><td class='l'>{e(r['id'])}</td><td>{r['axis']}</td>"
+            + _cell(r["nominal_mm"])
+            + _cell(r["measured_mm"])
+            + _cell(r["error_mm"])
+            + f"<td class='l'>{e(r['note'])}</td></tr>"
+        )
+    out.append("</table>")
+    for s in record.get("scans", []):
+        if s.get("parameters"):
+            out.append(
+                f"<h3>Processing parameters: {e(s['title'])}</h3><pre>"
+                + e(json.dumps(s["parameters"]))
+                + "</pre>"
+            )
+            break
+    out.append("</body></html>\n")
+    return "\n".join(out)
+
+
+def write_report(record: dict, out_dir: str | Path, figures: bool = True) -> dict[str, Path]:
+    """Write the table (text) and the HTML report into ``out_dir`` atomically."""
+    out = Path(out_dir)
+    paths = {"table": out / TABLE_FILE, "report": out / REPORT_FILE}
+    atomic_write_bytes(paths["table"], format_table(record).encode("utf-8"))
+    atomic_write_bytes(paths["report"], report_html(record, figures).encode("utf-8"))
+    return paths
