@@ -16,7 +16,7 @@ import pytest
 
 from impress_gui.cli import main
 from impress_gui.core.base.errors import ImpressError, InputError
-from impress_gui.core.measure.readings import cast as C
+from impress_gui.core.measure import cast as C
 from impress_gui.core.reconstruction.grid import GridSpec
 
 o3d = pytest.importorskip("open3d")
