@@ -154,7 +154,9 @@ def simulator_sha256() -> str:
     import impress_gui.sim as sim_pkg
 
     h = hashlib.sha256()
-    core = Path(__file__).parent
+    import impress_gui.core.calibration as calibration_pkg
+
+    core = Path(calibration_pkg.__file__).parent
     files = sorted(Path(sim_pkg.__file__).parent.glob("*.py"))
     files += [core / n for n in ("target.py", "geometry.py", "picks.py")]
     for f in files:

@@ -134,7 +134,7 @@ def _inside_convex(poly_xy: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndar
 def resources_dir() -> Path:
     """The product's ``resources/`` folder (source tree or installed bundle)."""
     here = Path(__file__).resolve()
-    for cand in (here.parents[2] / "resources", here.parents[1] / "resources"):
+    for cand in (here.parents[3] / "resources", here.parents[2] / "resources"):
         if cand.is_dir():
             return cand
     raise FileNotFoundError("the resources folder of impress_gui is missing")
