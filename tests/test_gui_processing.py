@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import time
 
 import numpy as np
 import pytest
+from event_loop import EventLoopMonitor
 from measure_scans import block_a_frames, blocks_scan, guard_pyside_none
-from PySide6.QtCore import Qt, QTimer
+from PySide6.QtCore import Qt
 from PySide6.QtTest import QTest
 
 from impress_gui.core.calibration.scene import SceneCalibration
@@ -119,24 +119,19 @@ def test_run_from_the_window_records_outputs_and_opens_the_viewer(qtbot, scan, t
         start, stop = block_a_frames(scan)
         proc.params.frame_start.setValue(start)
         proc.params.frame_stop.setValue(stop)
-        gaps, last = [], [time.perf_counter()]
-
-        def tick():
-            now = time.perf_counter()
-            gaps.append(now - last[0])
-            last[0] = now
-
-        timer = QTimer()
-        timer.timeout.connect(tick)
+        monitor = EventLoopMonitor()
         loaded = qtbot.waitSignal(viewer.loaded, timeout=90000)  # connected from here on
         with qtbot.waitSignal(proc.reconstructed, timeout=90000):
             QTest.mouseClick(proc.run_panel.run_button, Qt.MouseButton.LeftButton)
             assert proc.is_running() and not proc.run_panel.run_button.isEnabled()
-            last[0] = time.perf_counter()
-            timer.start(10)
-        timer.stop()
-        # while the reconstruction ran (the viewer's first paint afterwards is not part of it)
-        assert max(gaps) < 0.1, f"the event loop was blocked for {max(gaps) * 1000:.0f} ms"
+            monitor.start()
+        monitor.stop()
+        # while the reconstruction ran (the viewer's first paint afterwards is not part of it),
+        # the worker never held the GUI thread back for 100 ms (time the machine was busy with
+        # other processes does not count: tests/event_loop.py)
+        assert len(monitor.blocked) > 10
+        assert monitor.worst_blocked_s < 0.1, (
+            f"the event loop was held back for {monitor.worst_blocked_s * 1000:.0f} ms")
         loaded.wait()
         out = proc.last_output
         assert out.parent == project.root / "reconstructions" and (out / "heightmap.tif").exists()
