@@ -2,7 +2,6 @@
 
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,16 +56,19 @@ def test_help_is_fast_and_loads_no_heavy_modules():
         "        main(['--help'])\n"
         "    except SystemExit:\n"
         "        pass\n"
-        "heavy = [m for m in ('PySide6', 'open3d', 'cv2', 'av', 'pyqtgraph') if m in sys.modules]\n"
-        "print(heavy)\n"
+        "heavy = [m for m in ('PySide6', 'open3d', 'cv2', 'av', 'pyqtgraph', 'numpy', 'numba',\n"
+        "                     'scipy', 'cryptography', 'psygnal') if m in sys.modules]\n"
+        "ours = sorted(m for m in sys.modules if m.startswith('impress_gui'))\n"
+        "print(heavy, ours, len(sys.modules))\n"
         "assert 'simulate' in buf.getvalue()\n"
     )
-    t0 = time.perf_counter()
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    elapsed = time.perf_counter() - t0
     assert res.returncode == 0, res.stderr
-    assert res.stdout.strip() == "[]"
-    assert elapsed < 1.0, f"impress --help took {elapsed:.2f} s"
+    loaded, n = res.stdout.strip().rsplit(" ", 1)[0], int(res.stdout.split()[-1])
+    # what --help loads (not how long that takes on a busy machine): the command table only,
+    # no library of the work itself and about the standard library's argparse
+    assert loaded == "[] ['impress_gui', 'impress_gui.cli']", res.stdout
+    assert n < 150, f"--help loads {n} modules"
 
 
 def test_python_dash_m_entry_point():

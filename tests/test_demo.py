@@ -7,7 +7,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -37,16 +36,13 @@ def check_sample_project(project_dir: Path) -> None:
 def test_make_sample_builds_a_complete_project_and_reuses_the_cache(tmp_path, monkeypatch):
     cache = tmp_path / "sample"
     steps: list[str] = []
-    t0 = time.perf_counter()
     project_dir = sample.make_sample(cache, workers=1, small=True,
                                      progress=lambda f, msg: steps.append(msg))
-    built_s = time.perf_counter() - t0
     assert project_dir == cache / "project"
     check_sample_project(project_dir)
     assert steps[-1] == "sample ready" and "calibrating" in steps and "processing" in steps
     stamp = json.loads((cache / "sample.json").read_text())
     assert stamp["sample_version"] == sample.SAMPLE_VERSION and stamp["small"] is True
-    assert built_s < 60
 
     # the second call reuses the cache: nothing is simulated again, nothing rewritten
     import impress_gui.sim.simulate as simulate_mod
@@ -56,9 +52,7 @@ def test_make_sample_builds_a_complete_project_and_reuses_the_cache(tmp_path, mo
 
     monkeypatch.setattr(simulate_mod, "simulate", no_rebuild)
     mtime = (project_dir / PROJECT_FILE).stat().st_mtime_ns
-    t0 = time.perf_counter()
     assert sample.make_sample(cache, small=True) == project_dir
-    assert time.perf_counter() - t0 < 1.0
     assert (project_dir / PROJECT_FILE).stat().st_mtime_ns == mtime
     monkeypatch.setenv(sample.SMALL_ENV, "1")
     assert sample.make_sample(cache) == project_dir  # the variable chooses the small one too
