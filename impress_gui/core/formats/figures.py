@@ -10,7 +10,7 @@
 from __future__ import annotations
 
 import base64
-import html
+import functools
 import math
 from collections.abc import Mapping, Sequence
 
@@ -263,16 +263,87 @@ def png_bytes(rgb: np.ndarray, provenance: Mapping | None = None) -> bytes:
 
 
 # ----- the report ----------------------------------------------------------------------------
-def _row(key: str, value) -> str:
-    return f"<tr><th>{html.escape(str(key))}</th><td>{html.escape(_v(value))}</td></tr>"
+# One self-contained HTML document; every value is escaped by Jinja2 (autoescape on).
+REPORT_TEMPLATE = """\
+{% macro row(key, value) %}<tr><th>{{ key }}</th><td>{{ value|v }}</td></tr>{% endmacro %}
+{% macro rows(items) %}
+{% for key, value in items %}
+{{ row(key, value) }}
+{% endfor %}
+{% endmacro %}
+<!DOCTYPE html>
+<html><head><meta charset='utf-8'>
+<title>IMPREsS report {{ case.get('case_id', '') }}</title>
+<style>body{font-family:sans-serif;margin:2em;color:#111}table{border-collapse:collapse;\
+margin:0.5em 0 1.5em}th,td{border:1px solid #bbb;padding:3px 8px;text-align:left;\
+font-size:90%}th{background:#eee}img{max-width:100%;border:1px solid #ccc}\
+h2{border-bottom:2px solid #333;margin-top:1.6em}</style></head><body>
+<h1>IMPREsS impression scan report</h1>
+<p>Generated {{ created_utc }} by IMPREsS workstation {{ version }}.</p>
+<h2>Case</h2><table>
+{% for key in ('case_id', 'evidence_id', 'examiner', 'notes', 'project') %}
+{{ row(key|replace('_', ' '), case.get(key, '')) }}
+{% endfor %}
+{% if signature %}
+</table><h2>Case record signature (Ed25519)</h2><table>
+{% for key in ('key_fingerprint', 'public_key', 'user', 'head_signature', 'log_head') %}
+{{ row(key|replace('_', ' '), 'not signed' if signature.get(key) is none \
+else signature.get(key)) }}
+{% endfor %}
+{% endif %}
+</table><h2>Inputs (SHA-256)</h2><table>
+{% for name, info in inputs.items() %}
+{{ row(name, info.get('path', '') ~ '  sha256 ' ~ info.get('sha256', '-')) }}
+{% endfor %}
+</table><h2>Reconstruction</h2><table>
+{{ rows(reconstruction.items()) }}</table>
+{% if calibration %}
+<h2>Calibration quality</h2><table>
+{{ rows(calibration.items()) }}</table>
+{% endif %}
+{% if levelling %}
+<h2>Levelling</h2><table>
+{{ rows(levelling.items()) }}</table>
+{% endif %}
+<h2>Measurements</h2>
+{% if measurements %}
+<table><tr>{% for h in head %}<th>{{ h }}</th>{% endfor %}</tr>
+{% for cells in measurements %}
+<tr>{% for c in cells %}<td>{{ c }}</td>{% endfor %}</tr>
+{% endfor %}
+</table>
+{% else %}
+<p>No measurements.</p>
+{% endif %}
+<h2>Figures</h2>
+{% for caption, data in images %}
+<figure><img alt='{{ caption }}' src='data:image/png;base64,{{ data }}'>\
+<figcaption>{{ caption }}</figcaption></figure>
+{% endfor %}
+</body></html>"""
 
 
 def _v(value) -> str:
+    """A value as the report shows it: '-' for none, floats to 4 decimals."""
     if value is None:
         return "-"
     if isinstance(value, float):
         return f"{value:.4f}" if math.isfinite(value) else "-"
     return str(value)
+
+
+@functools.lru_cache(maxsize=1)
+def _report_template():
+    import jinja2
+
+    env = jinja2.Environment(
+        autoescape=True,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        undefined=jinja2.StrictUndefined,
+    )
+    env.filters["v"] = _v
+    return env.from_string(REPORT_TEMPLATE)
 
 
 def report_html(
@@ -286,69 +357,27 @@ def report_html(
     created_utc: str,
     levelling: Mapping | None = None,
 ) -> str:
-    """The case report as one HTML document (PNG images embedded as data URLs)."""
-    css = (
-        "body{font-family:sans-serif;margin:2em;color:#111}table{border-collapse:collapse;"
-        "margin:0.5em 0 1.5em}th,td{border:1px solid #bbb;padding:3px 8px;text-align:left;"
-        "font-size:90%}th{background:#eee}img{max-width:100%;border:1px solid #ccc}"
-        "h2{border-bottom:2px solid #333;margin-top:1.6em}"
+    """The case report as one HTML document (PNG images embedded as data URLs), rendered from
+    :data:`REPORT_TEMPLATE` with every value escaped."""
+    keys: list[str] = []
+    for m in measurements:
+        keys += [k for k in m.get("values", {}) if k not in keys]
+    rows = []
+    for n, m in enumerate(measurements, 1):
+        pts = "; ".join(f"({p[0]:.2f}, {p[1]:.2f})" for p in m.get("points_mm", []))
+        cells = [str(n), m.get("kind", ""), m.get("label", ""), m.get("note", ""), pts]
+        cells += [_v(m.get("values", {}).get(k)) for k in keys]
+        rows.append([str(c) for c in cells])
+    return _report_template().render(
+        case=case,
+        signature=case.get("signature"),
+        inputs=inputs,
+        reconstruction=reconstruction,
+        calibration=calibration,
+        levelling=levelling,
+        head=["#", "kind", "label", "note", "points (mm)", *keys],
+        measurements=rows,
+        images=[(caption, base64.b64encode(png).decode("ascii")) for caption, png in images],
+        created_utc=created_utc,
+        version=__version__,
     )
-    out = [
-        "<!DOCTYPE html>",
-        "<html><head><meta charset='utf-8'>",
-        f"<title>IMPREsS report {html.escape(str(case.get('case_id', '')))}</title>",
-        f"<style>{css}</style></head><body>",
-        "<h1>IMPREsS impression scan report</h1>",
-        f"<p>Generated {html.escape(created_utc)} by IMPREsS workstation "
-        f"{html.escape(__version__)}.</p>",
-        "<h2>Case</h2><table>",
-    ]
-    for key in ("case_id", "evidence_id", "examiner", "notes", "project"):
-        out.append(_row(key.replace("_", " "), case.get(key, "")))
-    sig = case.get("signature")
-    if sig:
-        out.append("</table><h2>Case record signature (Ed25519)</h2><table>")
-        for key in ("key_fingerprint", "public_key", "user", "head_signature", "log_head"):
-            out.append(_row(key.replace("_", " "), sig.get(key) if sig.get(key) is not None
-                            else "not signed"))
-    out.append("</table><h2>Inputs (SHA-256)</h2><table>")
-    for name, info in inputs.items():
-        out.append(_row(name, f"{info.get('path', '')}  sha256 {info.get('sha256', '-')}"))
-    out.append("</table><h2>Reconstruction</h2><table>")
-    for key, value in reconstruction.items():
-        out.append(_row(key, value))
-    out.append("</table>")
-    if calibration:
-        out.append("<h2>Calibration quality</h2><table>")
-        for key, value in calibration.items():
-            out.append(_row(key, value))
-        out.append("</table>")
-    if levelling:
-        out.append("<h2>Levelling</h2><table>")
-        for key, value in levelling.items():
-            out.append(_row(key, value))
-        out.append("</table>")
-    out.append("<h2>Measurements</h2>")
-    if measurements:
-        keys: list[str] = []
-        for m in measurements:
-            keys += [k for k in m.get("values", {}) if k not in keys]
-        head = ["#", "kind", "label", "note", "points (mm)", *keys]
-        out.append("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>")
-        for n, m in enumerate(measurements, 1):
-            pts = "; ".join(f"({p[0]:.2f}, {p[1]:.2f})" for p in m.get("points_mm", []))
-            cells = [str(n), m.get("kind", ""), m.get("label", ""), m.get("note", ""), pts]
-            cells += [_v(m.get("values", {}).get(k)) for k in keys]
-            out.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
-        out.append("</table>")
-    else:
-        out.append("<p>No measurements.</p>")
-    out.append("<h2>Figures</h2>")
-    for caption, png in images:
-        data = base64.b64encode(png).decode("ascii")
-        out.append(
-            f"<figure><img alt='{html.escape(caption)}' src='data:image/png;base64,"
-            f"{data}'><figcaption>{html.escape(caption)}</figcaption></figure>"
-        )
-    out.append("</body></html>")
-    return "\n".join(out)

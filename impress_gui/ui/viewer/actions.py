@@ -1,6 +1,6 @@
 """The viewer's exports: heightmap TIFF, X3P, PLY, figure PNG, profile CSV/PNG, the HTML
 report and the 3D view. Files are written atomically in the background and recorded in the
-project's outputs (with their SHA-256) and log."""
+session's project (outputs, with their SHA-256, and log)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import hashlib
 import platform
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QBuffer, QByteArray, QIODevice
+from PySide6.QtCore import QBuffer, QByteArray, QIODevice, QObject, Signal
+from PySide6.QtWidgets import QWidget
 
 from impress_gui.core.base.fileio import atomic_write_bytes
 from impress_gui.core.formats import provenance as P
@@ -20,11 +20,13 @@ from impress_gui.core.formats.figures import colourise, figure, png_bytes, repor
 from impress_gui.core.formats.writers import ply_bytes, x3p_bytes
 from impress_gui.core.measure import readings as M
 from impress_gui.core.reconstruction.grid import GridSpec
+from impress_gui.session.session import Session
+from impress_gui.ui.messages import Dialogs, Messenger
+from impress_gui.ui.task_bar import TaskBar
 from impress_gui.ui.viewer.image import auto_levels
+from impress_gui.ui.viewer.layers import SCALAR_LAYERS, LayerDisplay
+from impress_gui.ui.viewer.ruler import RulerProfile
 from impress_gui.ui.viewer.view3d import Surface3DWindow
-
-if TYPE_CHECKING:  # pragma: no cover
-    from impress_gui.ui.viewer.tab import ViewerTab
 
 MAX_PLY_POINTS = 10_000_000
 FILTERS = {
@@ -78,40 +80,55 @@ def _tiff_bytes(arr: np.ndarray, prov: dict | None = None, spec: GridSpec | None
     return buf.getvalue()
 
 
-class ViewerActions:
-    def __init__(self, tab: ViewerTab) -> None:
-        self.tab = tab
+class ViewerExports(QObject):
+    """The exports of what ``layers`` shows (with ``ruler``'s profile, the plot
+    ``profile_view``), written on ``tasks`` and recorded in ``session``'s project; ``written``
+    fires after each is recorded, ``status`` says where it went."""
+
+    written = Signal()
+    status = Signal(str)
+
+    def __init__(
+        self,
+        session: Session,
+        layers: LayerDisplay,
+        ruler: RulerProfile,
+        profile_view: QWidget,
+        tasks: TaskBar,
+        messenger: Messenger,
+        dialogs: Dialogs,
+        parent: QObject | None = None,
+    ) -> None:
+        super().__init__(parent)
+        self.session = session
+        self.layers = layers
+        self.recon = layers.recon
+        self.ruler = ruler
+        self.profile_view = profile_view
+        self.tasks = tasks
+        self.messenger = messenger
+        self.dialogs = dialogs
         self.windows: list[Surface3DWindow] = []
-        b = tab.exports.buttons
-        b["tiff"].clicked.connect(lambda: self.export_tiff())
-        b["x3p"].clicked.connect(lambda: self.export_x3p())
-        b["ply"].clicked.connect(lambda: self.export_ply())
-        b["png"].clicked.connect(lambda: self.export_png())
-        b["profile_csv"].clicked.connect(lambda: self.export_profile_csv())
-        b["profile_png"].clicked.connect(lambda: self.export_profile_png())
-        b["report"].clicked.connect(lambda: self.export_report())
-        b["view3d"].clicked.connect(lambda: self.open_3d())
-        tab.table.export_button.clicked.connect(lambda: self.export_measurements_csv())
 
     # ----- helpers -----------------------------------------------------------------------------
     def _path(self, path, title: str, filt: str, suffix: str) -> Path | None:
         if path is None:
-            start = str(self.tab.project.root or "")
-            path = self.tab.dialogs.save_file(title, FILTERS[filt], start)
+            start = str(self.session.project.root or "")
+            path = self.dialogs.save_file(title, FILTERS[filt], start)
         if not path:
             return None
         p = Path(path)
         return p if p.suffix else p.with_suffix(suffix)
 
     def _need_data(self) -> bool:
-        if self.tab.data is None:
-            self.tab.messenger.info("Export", "Open a reconstruction first.")
+        if self.recon.data is None:
+            self.messenger.info("Export", "Open a reconstruction first.")
             return False
         return True
 
     def _inputs(self) -> list:
         """The evidence and the reconstruction's files: an export may not replace them."""
-        proj = self.tab.project
+        proj = self.session.project
         out = []
         try:
             if proj.video_path() is not None:
@@ -135,23 +152,24 @@ class ViewerActions:
             return hashlib.sha256(data).hexdigest()
 
         def done(sha: str) -> None:
-            self.tab.project.add_output(path, kind, sha256=sha)
-            self.tab.changed.emit()
-            self.tab.status.emit(f"{what} written to {path}")
+            self.session.project.add_output(path, kind, sha256=sha)
+            self.written.emit()
+            self.status.emit(f"{what} written to {path}")
 
-        return self.tab.tasks.run(f"Writing {what}", task, done, f"Cannot write the {what}")
+        return self.tasks.run(f"Writing {what}", task, done, f"Cannot write the {what}")
 
     def _height_for_export(self) -> tuple[np.ndarray, str]:
-        tab = self.tab
-        note = f"layer {tab.measure_key()}" + ("; levelled" if tab.plane is not None else "")
-        return tab.measure_height(), note
+        note = f"layer {self.layers.measure_key()}" + (
+            "; levelled" if self.recon.plane is not None else ""
+        )
+        return self.layers.height(), note
 
     def provenance(self, export: str, parameters: dict | None = None, grid: bool = True) -> dict:
         """The provenance dictionary of an export of the open reconstruction (built here, on
         the GUI thread): version, source hashes, grid, levelling plane and ``parameters``."""
-        tab, data = self.tab, self.tab.data
+        data, plane_ = self.recon.data, self.recon.plane
         source = None if data is None else P.reconstruction_source(data.metadata, data.folder)
-        plane = None if tab.plane is None else tab.plane.to_json()
+        plane = None if plane_ is None else plane_.to_json()
         prov = P.export_provenance(
             export,
             source,
@@ -160,7 +178,7 @@ class ViewerActions:
             parameters=parameters,
         )
         # the case record's signer and head signature tie the export to the signed case
-        prov["case_record"] = _case_signature(tab.project)
+        prov["case_record"] = _case_signature(self.session.project)
         return prov
 
     # ----- map exports ---------------------------------------------------------------------------
@@ -170,9 +188,9 @@ class ViewerActions:
         ):
             return False
         h, _note = self._height_for_export()
-        spec = self.tab.data.spec
+        spec = self.recon.data.spec
         prov = self.provenance(
-            "heightmap-tiff", {"layer": self.tab.measure_key(), "dtype": "float32, mm"}
+            "heightmap-tiff", {"layer": self.layers.measure_key(), "dtype": "float32, mm"}
         )
         return self._write(
             "heightmap TIFF",
@@ -185,12 +203,12 @@ class ViewerActions:
         if not self._need_data() or not (p := self._path(path, "Export X3P", "x3p", ".x3p")):
             return False
         h, note = self._height_for_export()
-        spec = self.tab.data.spec
-        prov = self.provenance("x3p", {"layer": self.tab.measure_key()})
+        spec = self.recon.data.spec
+        prov = self.provenance("x3p", {"layer": self.layers.measure_key()})
         comment = f"IMPREsS viewer export; {note}; provenance {P.to_json(prov)}"
         # the dates of the scan and its calibration (recorded with the reconstruction), so that
         # the same data exported twice gives the same file; the export's time for older data
-        dates = dict(self.tab.data.metadata.get("dates") or {})
+        dates = dict(self.recon.data.metadata.get("dates") or {})
         measured = str(dates.get("measured") or _now())
         calibrated = str(dates.get("calibrated") or measured)
         return self._write("X3P", p, "x3p",
@@ -200,12 +218,12 @@ class ViewerActions:
         if not self._need_data() or not (p := self._path(path, "Export PLY", "ply", ".ply")):
             return False
         h, _note = self._height_for_export()
-        data = self.tab.data
+        data = self.recon.data
         step = max(1, int(np.ceil(np.sqrt(h.size / MAX_PLY_POINTS))))
         prov = self.provenance(
             "ply",
             {
-                "layer": self.tab.measure_key(),
+                "layer": self.layers.measure_key(),
                 "step_cells": step,
                 "colours": "texture" if data.texture_rgb is not None else "grey",
             },
@@ -224,24 +242,25 @@ class ViewerActions:
     def _figure(self):
         """``(figure_maker, parameters)``: the maker and what shaped the figure (layer, colour
         map, range, levelling) for its provenance."""
-        tab = self.tab
-        key = tab.display.layer_key()
-        proj = tab.project
+        layers, recon = self.layers, self.recon
+        data, levelled = recon.data, recon.plane is not None
+        key = layers.shown_key()
+        proj = self.session.project
         title = (
             f"Case {proj.case_id or '-'}, evidence {proj.evidence_id or '-'}: "
-            f"{tab.display.layer.currentText()}" + (" (levelled)" if tab.plane is not None else "")
+            f"{layers.layer_title()}" + (" (levelled)" if levelled else "")
         )
-        spec, ms = tab.data.spec, [dict(m) for m in proj.measurements]
-        if key in ("fused", "green", "red", "difference") and key in tab.data.layers:
-            arr = tab.measure_height(key) if key != "difference" else tab.data.layers[key]
-            lut = pg.colormap.get(tab.display.cmap.currentText()).getLookupTable(nPts=256)
-            vrange = tab.map.levels()
+        spec, ms = data.spec, [dict(m) for m in proj.measurements]
+        if key in SCALAR_LAYERS and key in data.layers:
+            arr = layers.height(key) if key != "difference" else data.layers[key]
+            lut = pg.colormap.get(layers.colour_map()).getLookupTable(nPts=256)
+            vrange = layers.levels()
             unit = "green-red (mm)" if key == "difference" else "height (mm)"
             params = {
                 "layer": key,
-                "colour_map": tab.display.cmap.currentText(),
+                "colour_map": layers.colour_map(),
                 "range_mm": [float(v) for v in vrange],
-                "levelled": tab.plane is not None and key != "difference",
+                "levelled": levelled and key != "difference",
             }
             return lambda max_px=6000: figure(
                 spec,
@@ -253,18 +272,18 @@ class ViewerActions:
                 max_px=max_px,
                 unit_label=unit,
             ), params
-        rgb = {"texture": tab.data.texture_rgb, "contribution": tab._contribution_rgb}.get(key)
-        if key == "hillshade" and tab._hillshade is not None:
-            rgb = tab._hillshade[1]
+        rgb = {"texture": data.texture_rgb, "contribution": recon.contribution_rgb}.get(key)
+        if key == "hillshade" and recon.hillshade is not None:
+            rgb = recon.hillshade[1]
         if rgb is None:  # fall back to the fused heights
-            arr = tab.measure_height("fused")
+            arr = layers.height("fused")
             lut = pg.colormap.get("turbo").getLookupTable(nPts=256)
-            vrange = auto_levels(arr, tab.data.spec, tab._target_mm)
+            vrange = auto_levels(arr, data.spec, recon.target_mm)
             params = {
                 "layer": "fused",
                 "colour_map": "turbo",
                 "range_mm": [float(v) for v in vrange],
-                "levelled": tab.plane is not None,
+                "levelled": levelled,
             }
             return lambda max_px=6000: figure(
                 spec,
@@ -285,24 +304,24 @@ class ViewerActions:
         fig, params = self._figure()
         prov = self.provenance(
             "figure-png",
-            params | {"measurements": len(self.tab.project.measurements), "max_px": 6000},
+            params | {"measurements": len(self.session.project.measurements), "max_px": 6000},
         )
         return self._write("figure", p, "figure-png", lambda: png_bytes(fig(), prov))
 
     # ----- profile -------------------------------------------------------------------------------
     def export_profile_csv(self, path=None) -> bool:
-        tab = self.tab
-        if tab.profile is None:
-            tab.messenger.info("Profile", "Place the ruler first: its profile is exported.")
+        ruler = self.ruler
+        if ruler.profile is None:
+            self.messenger.info("Profile", "Place the ruler first: its profile is exported.")
             return False
         if not (p := self._path(path, "Export the profile", "csv", ".csv")):
             return False
-        text = M.profile_csv(tab.profile, tab.step, self._profile_provenance("profile-csv"))
+        text = M.profile_csv(ruler.profile, ruler.step, self._profile_provenance("profile-csv"))
         return self._write("profile CSV", p, "profile-csv", lambda: text.encode("utf-8"))
 
     def _profile_provenance(self, export: str) -> dict:
-        pr = self.tab.profile
-        params: dict = {"layer": self.tab.measure_key()}
+        pr = self.ruler.profile
+        params: dict = {"layer": self.layers.measure_key()}
         if pr is not None:
             params |= {
                 "start_mm": [float(v) for v in pr.start],
@@ -312,7 +331,7 @@ class ViewerActions:
         return self.provenance(export, params)
 
     def profile_png_bytes(self) -> bytes:
-        pix = self.tab.profile_plot.grab()
+        pix = self.profile_view.grab()
         arr = QByteArray()
         buf = QBuffer(arr)
         buf.open(QIODevice.OpenModeFlag.WriteOnly)
@@ -321,8 +340,8 @@ class ViewerActions:
         return bytes(arr.data())
 
     def export_profile_png(self, path=None) -> bool:
-        if self.tab.profile is None:
-            self.tab.messenger.info("Profile", "Place the ruler first: its profile is exported.")
+        if self.ruler.profile is None:
+            self.messenger.info("Profile", "Place the ruler first: its profile is exported.")
             return False
         if not (p := self._path(path, "Export the profile plot", "png", ".png")):
             return False
@@ -336,17 +355,16 @@ class ViewerActions:
         if not (p := self._path(path, "Export the measurements", "csv", ".csv")):
             return False
         prov = self.provenance("measurements-csv", grid=False)
-        text = M.measurements_csv(self.tab.project.measurements, prov)
+        text = M.measurements_csv(self.session.project.measurements, prov)
         return self._write("measurements CSV", p, "measurements-csv", lambda: text.encode("utf-8"))
 
     # ----- report --------------------------------------------------------------------------------
     def export_report(self, path=None) -> bool:
-        tab = self.tab
         if not self._need_data() or not (
             p := self._path(path, "Write the report", "html", ".html")
         ):
             return False
-        proj, data = tab.project, tab.data
+        proj, data, plane = self.session.project, self.recon.data, self.recon.plane
         meta = dict(data.metadata)
         cal = proj.calibration
         cal_info = None
@@ -391,12 +409,12 @@ class ViewerActions:
         }
         level = (
             None
-            if tab.plane is None
+            if plane is None
             else {
-                "plane": f"z = {tab.plane.a:.6f} x + {tab.plane.b:.6f} y + {tab.plane.c:.4f} mm",
-                "tilt (deg)": tab.plane.tilt_deg,
-                "fit RMS (mm)": tab.plane.rms_mm,
-                "cells": tab.plane.n,
+                "plane": f"z = {plane.a:.6f} x + {plane.b:.6f} y + {plane.c:.4f} mm",
+                "tilt (deg)": plane.tilt_deg,
+                "fit RMS (mm)": plane.rms_mm,
+                "cells": plane.n,
             }
         )
         case = {
@@ -407,7 +425,7 @@ class ViewerActions:
             "project": str(proj.root or "not saved"),
             "signature": _case_signature(proj),
         }
-        profile_png = self.profile_png_bytes() if tab.profile is not None else None
+        profile_png = self.profile_png_bytes() if self.ruler.profile is not None else None
         measurements = [dict(m) for m in proj.measurements]
         fig = self.figure_maker()
 
@@ -435,18 +453,18 @@ class ViewerActions:
 
     # ----- 3D ------------------------------------------------------------------------------------
     def open_3d(self) -> Surface3DWindow | None:
-        tab = self.tab
         if not self._need_data():
             return None
-        h, spec = tab.measure_height(), tab.data.spec
+        data = self.recon.data
+        h, spec = self.layers.height(), data.spec
         step = max(1, int(np.ceil(np.sqrt(h.size / 300_000))))
         small = np.ascontiguousarray(h[::step, ::step])
         small_spec = GridSpec(spec.x0_mm, spec.y0_mm, spec.pixel_mm * step, small.shape)
-        if tab.display.layer_key() == "texture" and tab.data.texture_rgb is not None:
-            colours = np.ascontiguousarray(tab.data.texture_rgb[::step, ::step])
+        if self.layers.shown_key() == "texture" and data.texture_rgb is not None:
+            colours = np.ascontiguousarray(data.texture_rgb[::step, ::step])
         else:
-            lut = pg.colormap.get(tab.display.cmap.currentText()).getLookupTable(nPts=256)
-            colours = colourise(small, lut, tab.map.levels())
+            lut = pg.colormap.get(self.layers.colour_map()).getLookupTable(nPts=256)
+            colours = colourise(small, lut, self.layers.levels())
         win = Surface3DWindow(small, small_spec, colours, "3D view - IMPREsS")
         self.windows.append(win)
         win.show()

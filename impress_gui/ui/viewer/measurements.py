@@ -1,20 +1,81 @@
-"""The viewer tab's levelling and measurement list, as mixins of
-:class:`~impress_gui.ui.viewer.tab.ViewerTab` (they use its map, panels, task bar and
-project). Numbers come from :mod:`impress_gui.core.measure.readings`."""
+"""The viewer's levelling and its list of measurements.
+
+:class:`Levelling` fits a reference plane (three clicked points or a region) and levels the
+shown reconstruction by it; :class:`MeasurementList` keeps the rulers and annotations in the
+session's project (each change logged there) and shows them in the list and on the map.
+Numbers come from :mod:`impress_gui.core.measure.readings`."""
 
 from __future__ import annotations
 
-from PySide6.QtCore import QRectF
+from PySide6.QtCore import QObject, QRectF, Signal
 
 from impress_gui.core.base.errors import ImpressError
 from impress_gui.core.measure import readings as M
+from impress_gui.core.project.project import Project
+from impress_gui.session.session import Session
+from impress_gui.ui.messages import Messenger
+from impress_gui.ui.task_bar import TaskBar
 from impress_gui.ui.viewer.image import auto_levels
+from impress_gui.ui.viewer.layers import LayerDisplay
+from impress_gui.ui.viewer.map import MapView
+from impress_gui.ui.viewer.panels import MeasurementTable, ToolPanel
+from impress_gui.ui.viewer.ruler import RulerProfile
 
 
-class LevellingMixin:
-    # ----- levelling ------------------------------------------------------------------------------
+class Levelling(QObject):
+    """Heights relative to a plane fitted to the reference surface (in the background, on
+    ``tasks``). ``levelled`` fires once the plane is set or cleared (the heights changed)."""
+
+    levelled = Signal()
+    status = Signal(str)
+
+    def __init__(
+        self,
+        layers: LayerDisplay,
+        map_view: MapView,
+        tools: ToolPanel,
+        tasks: TaskBar,
+        messenger: Messenger,
+        parent: QObject | None = None,
+    ) -> None:
+        super().__init__(parent)
+        self.layers = layers
+        self.map = map_view
+        self.tools = tools
+        self.tasks = tasks
+        self.messenger = messenger
+        self.points: list[tuple[float, float]] = []  # clicked in 'three points' mode
+        tools.fit_region_button.clicked.connect(lambda: self.level_region())
+        tools.clear_level_button.clicked.connect(self.clear)
+
+    # ----- the reference surface as the user marks it -----------------------------------------
+    def restart_points(self) -> None:
+        self.points.clear()
+        self.map.set_level_points([])
+
+    def reset(self) -> None:
+        """A new reconstruction: no points, no region, the text for its (absent) plane."""
+        self.restart_points()
+        self.map.show_region(None)
+        self.show_text()
+
+    def add_point(self, x: float, y: float) -> None:
+        """A click in 'three points' mode; the third levels the map."""
+        self.points.append((x, y))
+        self.map.set_level_points(self.points)
+        if len(self.points) == 3:
+            self.level_three_points(self.points)
+
+    def place_region(self, x: float, y: float) -> None:
+        """A click in 'region' mode: a rectangle a fifth of the view, centred there."""
+        r = self.map.vb.viewRect()
+        w, h = r.width() / 5, r.height() / 5
+        self.map.show_region(QRectF(x - w / 2, y - h / 2, w, h))
+
+    # ----- fitting ----------------------------------------------------------------------------
     def level_three_points(self, pts) -> bool:
-        spec, h = self.data.spec, self.data.layers[self.measure_key()]
+        data = self.layers.recon.data
+        spec, h = data.spec, data.layers[self.layers.measure_key()]
         radius = self.tools.radius.value()
         xyz = [(x, y, M.readout(h, spec, x, y, radius).height_mm) for x, y in pts]
         return self._apply_plane(lambda: M.plane_from_points(xyz), "three points")
@@ -33,11 +94,13 @@ class LevellingMixin:
         self.map.show_region(
             QRectF(x_range[0], y_range[0], x_range[1] - x_range[0], y_range[1] - y_range[0])
         )
-        h, spec = self.data.layers[self.measure_key()], self.data.spec
+        data = self.layers.recon.data
+        h, spec = data.layers[self.layers.measure_key()], data.spec
         return self._apply_plane(lambda: M.plane_from_region(h, spec, x_range, y_range), "region")
 
     def _apply_plane(self, fit, how: str) -> bool:
-        data, key, target = self.data, self.measure_key(), self._target_mm
+        recon = self.layers.recon
+        data, key, target = recon.data, self.layers.measure_key(), recon.target_mm
 
         def task(progress, cancel):
             plane = fit()
@@ -47,19 +110,13 @@ class LevellingMixin:
 
         def done(result) -> None:
             plane, lev, auto = result
-            self.plane = plane
-            self._levelled = {key: lev}
-            # new automatic ranges for the new heights; a range the user typed stays
-            for k in [k for k in self._auto if k.endswith("/levelled")]:
-                del self._auto[k]
-            self._auto[f"{key}/levelled"] = auto
-            self._update_level_text(how)
-            self.refresh_layer()
-            self.update_profile()
+            recon.set_plane(plane, key, lev, auto)
+            self.show_text(how)
+            self.layers.refresh()
             self.status.emit(
                 f"Levelled ({how}): tilt {plane.tilt_deg:.3f}°, fit RMS {plane.rms_mm:.3f} mm"
             )
-            self.levelled_changed.emit()
+            self.levelled.emit()
 
         try:
             return self.tasks.run("Levelling", task, done, "Cannot level the map")
@@ -67,19 +124,16 @@ class LevellingMixin:
             self.messenger.exception("Cannot level the map", exc)
             return False
 
-    def clear_levelling(self) -> None:
-        self.plane = None
-        self._levelled.clear()
-        self.level_points.clear()
-        self.map.set_level_points([])
+    def clear(self) -> None:
+        self.layers.recon.clear_plane()
+        self.restart_points()
         self.map.show_region(None)
-        self._update_level_text()
-        self.refresh_layer()
-        self.update_profile()
-        self.levelled_changed.emit()
+        self.show_text()
+        self.layers.refresh()
+        self.levelled.emit()
 
-    def _update_level_text(self, how: str = "") -> None:
-        p = self.plane
+    def show_text(self, how: str = "") -> None:
+        p = self.layers.recon.plane
         if p is None:
             self.tools.level_text.setText(
                 "Levelling: off (heights relative to the calibration's ground)"
@@ -92,64 +146,107 @@ class LevellingMixin:
             )
 
 
-class MeasurementsMixin:
-    # ----- measurements ------------------------------------------------------------------------------
-    def _params(self) -> dict:
-        d = self.data
+class MeasurementList(QObject):
+    """The project's measurements (rulers and annotations): made from the ruler and clicks,
+    shown in ``table`` and on the map, edited and deleted there. Each change is in the
+    session's project at once (and in its log); ``changed`` fires after it."""
+
+    changed = Signal()
+    status = Signal(str)
+
+    def __init__(
+        self,
+        session: Session,
+        table: MeasurementTable,
+        map_view: MapView,
+        tools: ToolPanel,
+        layers: LayerDisplay,
+        ruler: RulerProfile,
+        messenger: Messenger,
+        parent: QObject | None = None,
+    ) -> None:
+        super().__init__(parent)
+        self.session = session
+        self.table = table
+        self.map = map_view
+        self.tools = tools
+        self.layers = layers
+        self.ruler = ruler
+        self.messenger = messenger
+        tools.add_ruler_button.clicked.connect(lambda: self.add_ruler_measurement())
+        table.edited.connect(self._on_table_edited)
+        table.show_button.clicked.connect(self.show_selected)
+        table.update_button.clicked.connect(self.update_selected_from_ruler)
+        table.delete_button.clicked.connect(self.delete_selected)
+
+    @property
+    def project(self) -> Project:
+        return self.session.project
+
+    # ----- new measurements -------------------------------------------------------------------
+    def params(self) -> dict:
+        """How a measurement is made: layer, averaging radius, levelling plane, source."""
+        recon = self.layers.recon
+        d = recon.data
         return {
-            "layer": self.measure_key(),
+            "layer": self.layers.measure_key(),
             "radius_mm": self.tools.radius.value(),
-            "plane": None if self.plane is None else self.plane.to_json(),
+            "plane": None if recon.plane is None else recon.plane.to_json(),
             "reconstruction": None if d is None or d.folder is None else str(d.folder),
             "heightmap_sha256": (d.metadata.get("files", {}) or {}).get("heightmap.tif")
             if d is not None
             else None,
         }
 
-    def _ruler_record(self, label: str = "") -> dict | None:
-        r = self.ruler_result()
+    def ruler_record(self, label: str = "") -> dict | None:
+        """A ruler measurement of the ruler as it is (with the step, when both bands are
+        placed); None without a ruler."""
+        r = self.ruler.result()
         if r is None:
             return None
         values = M.ruler_values(r)
-        params = self._params() | {"width_mm": self.tools.width.value()}
-        if self.step is not None and self.profile is not None:
-            values |= M.step_values(self.step)
-            params["bands_mm"] = self.profile_plot.bands()
-        return M.new_measurement("ruler", self.ruler_points(), values, label=label, params=params)
+        params = self.params() | {"width_mm": self.tools.width.value()}
+        if self.ruler.step is not None and self.ruler.profile is not None:
+            values |= M.step_values(self.ruler.step)
+            params["bands_mm"] = self.ruler.bands()
+        return M.new_measurement(
+            "ruler", self.ruler.points(), values, label=label, params=params
+        )
 
     def add_ruler_measurement(self, label: str = "") -> dict | None:
-        m = self._ruler_record(label)
+        m = self.ruler_record(label)
         if m is None:
             self.messenger.info("Ruler", "Place the ruler first (Ruler, then two clicks).")
             return None
-        self._add(m)
+        self.add(m)
         return m
 
     def add_marker(self, x: float, y: float, label: str = "") -> dict:
-        r = self.readout_at(x, y)
+        r = self.layers.readout(x, y, self.tools.radius.value())
         n = sum(1 for m in self.project.measurements if m.get("kind") == "annotation") + 1
         m = M.new_measurement(
             "annotation",
             [(x, y)],
             {"height_mm": r.height_mm},
             label=label or f"mark {n}",
-            params=self._params(),
+            params=self.params(),
         )
-        self._add(m)
+        self.add(m)
         return m
 
-    def _add(self, m: dict) -> None:
+    def add(self, m: dict) -> None:
         self.project.add_measurement(m)
-        self.refresh_measurements()
+        self.refresh()
         self.changed.emit()
         self.status.emit(f"Measurement {len(self.project.measurements)} added")
 
-    def refresh_measurements(self, selected: int | None = None) -> None:
+    # ----- the list -----------------------------------------------------------------------------
+    def refresh(self, selected: int | None = None) -> None:
         ms = self.project.measurements
         self.table.fill(ms)
-        self.map.show_measurements(ms if self.data is not None else [], selected)
+        self.map.show_measurements(ms if self.layers.recon.data is not None else [], selected)
 
-    def edit_measurement(self, row: int, **changes) -> None:
+    def edit(self, row: int, **changes) -> None:
         """Change a measurement's fields (label, note, points_mm, values, params)."""
         p = self.project
         if hasattr(p, "update_measurement"):
@@ -161,10 +258,10 @@ class MeasurementsMixin:
                 "measurement edited",
                 {"number": row + 1, "id": p.measurements[row].get("id"), **changes},
             )
-        self.refresh_measurements(row)
+        self.refresh(row)
         self.changed.emit()
 
-    def delete_measurement(self, row: int) -> None:
+    def delete(self, row: int) -> None:
         p = self.project
         if hasattr(p, "remove_measurement"):
             p.remove_measurement(row)
@@ -172,14 +269,16 @@ class MeasurementsMixin:
             gone = p.measurements.pop(row)
             p.dirty = True
             p.log("measurement deleted", {"number": row + 1, "id": gone.get("id")})
-        self.refresh_measurements()
+        self.refresh()
         self.changed.emit()
 
     def _on_table_edited(self, row: int, field: str, text: str) -> None:
         if self.project.measurements[row].get(field, "") != text:
-            self.edit_measurement(row, **{field: text})
+            self.edit(row, **{field: text})
 
     def show_selected(self) -> None:
+        """Put the ruler on the selected ruler measurement (with its width and bands), or
+        centre the view on the selected annotation."""
         row = self.table.selected_row()
         if row is None:
             return
@@ -187,10 +286,10 @@ class MeasurementsMixin:
         pts = m.get("points_mm") or []
         if m.get("kind") == "ruler" and len(pts) == 2:
             self.tools.width.setValue(float(m.get("params", {}).get("width_mm", 0.0)))
-            self.set_ruler(pts[0], pts[1])
+            self.ruler.set(pts[0], pts[1])
             bands = m.get("params", {}).get("bands_mm")
             if bands:
-                self.profile_plot.set_bands(tuple(bands["A"]), tuple(bands["B"]), emit=False)
+                self.ruler.set_bands(tuple(bands["A"]), tuple(bands["B"]), emit=False)
         elif pts:
             r = self.map.vb.viewRect()
             self.map.vb.setRange(
@@ -199,20 +298,18 @@ class MeasurementsMixin:
                 ),
                 padding=0,
             )
-        self.refresh_measurements(row)
+        self.refresh(row)
 
     def update_selected_from_ruler(self) -> None:
         row = self.table.selected_row()
         if row is None or self.project.measurements[row].get("kind") != "ruler":
             self.messenger.info("Update", "Select a ruler measurement in the list first.")
             return
-        new = self._ruler_record()
+        new = self.ruler_record()
         if new is not None:
-            self.edit_measurement(
-                row, points_mm=new["points_mm"], values=new["values"], params=new["params"]
-            )
+            self.edit(row, points_mm=new["points_mm"], values=new["values"], params=new["params"])
 
     def delete_selected(self) -> None:
         row = self.table.selected_row()
         if row is not None:
-            self.delete_measurement(row)
+            self.delete(row)

@@ -4,35 +4,48 @@ Layers (fused, per-laser, difference, contribution, texture, hillshade) with col
 colour bar in mm and the texture blended over; a cursor readout averaged over a radius; a
 draggable ruler whose depth profile (averaging width, two reference bands -> step height as
 mean +- SD) is computed by the core on the full-resolution map; levelling by three points or
-a region; measurements and annotations kept in the project; exports (see viewer_actions).
+a region; measurements and annotations kept in the project; exports.
+
+The tab is a view over the working :class:`~impress_gui.session.session.Session`: it shows
+the session's project (its measurements, its newest reconstruction) and opens each
+reconstruction the session announces. It lays out the widgets and composes the objects that
+do the work, each given what it uses: :class:`~impress_gui.ui.viewer.layers.LayerDisplay`
+(layer, colour range, hill shading), :class:`~impress_gui.ui.viewer.ruler.RulerProfile`
+(ruler, profile, step), :class:`~impress_gui.ui.viewer.measurements.Levelling`,
+:class:`~impress_gui.ui.viewer.measurements.MeasurementList` and
+:class:`~impress_gui.ui.viewer.actions.ViewerExports`.
 
 Every number shown comes from :mod:`impress_gui.core.measure.readings`; the widgets only draw.
 """
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
-from PySide6.QtCore import QRectF, Qt, Signal
+from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import QHBoxLayout, QScrollArea, QSplitter, QVBoxLayout, QWidget
 
 from impress_gui.core.formats.writers import contribution_png
 from impress_gui.core.measure import readings as M
 from impress_gui.core.project.project import Project
+from impress_gui.session.session import Session
 from impress_gui.ui.messages import Dialogs, Messenger
 from impress_gui.ui.task_bar import TaskBar
-from impress_gui.ui.viewer.actions import ViewerActions
+from impress_gui.ui.viewer.actions import ViewerExports
 from impress_gui.ui.viewer.image import auto_levels, target_footprint_mm
+from impress_gui.ui.viewer.layers import (
+    SCALAR_LAYERS,
+    LayerDisplay,
+    ShownReconstruction,
+    core_azimuth,
+)
 from impress_gui.ui.viewer.map import MapView
-from impress_gui.ui.viewer.measurements import LevellingMixin, MeasurementsMixin
+from impress_gui.ui.viewer.measurements import Levelling, MeasurementList
 from impress_gui.ui.viewer.panels import DisplayPanel, ExportPanel, MeasurementTable, ToolPanel
 from impress_gui.ui.viewer.profile import ProfilePlot
-from impress_gui.ui.worker import LatestOnly
+from impress_gui.ui.viewer.ruler import RulerProfile
 
-HEIGHT_LAYERS = ("fused", "green", "red")
-SCALAR_LAYERS = HEIGHT_LAYERS + ("difference",)
 HINTS = {
     "pan": "Drag to pan, wheel to zoom, right click to show everything.",
     "ruler": "Click the ruler's start, then its end; drag its ends or its line to adjust.",
@@ -41,14 +54,6 @@ HINTS = {
     "region": "Click to place a rectangle on the reference surface, adjust it, then press "
     "'Fit plane to region'.",
 }
-
-
-def core_azimuth(screen_azimuth_deg: float) -> float:
-    """The light's azimuth for :func:`impress_gui.core.measure.readings.hillshade` (clockwise from +y
-    in the grid) from the one the user sets: clockwise from the top of the screen. The map
-    shows +y downwards, so the top of the screen is -y: 315 (upper left, the usual light of
-    a relief map, under which a hollow looks hollow) is 225 in the grid."""
-    return (180.0 - screen_azimuth_deg) % 360.0
 
 
 def latest_reconstruction(project: Project) -> Path | None:
@@ -66,10 +71,10 @@ def latest_reconstruction(project: Project) -> Path | None:
     return None
 
 
-class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
-    changed = Signal()
-    status = Signal(str)
-    loaded = Signal()
+class ViewerTab(QWidget):
+    changed = Signal()  # something the project keeps changed (a measurement, an output)
+    status = Signal(str)  # a line for the status bar
+    loaded = Signal()  # a reconstruction is shown
     profile_changed = Signal()
     levelled_changed = Signal()
     layer_shown = Signal(str)
@@ -79,34 +84,50 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         messenger: Messenger | None = None,
         dialogs: Dialogs | None = None,
         parent: QWidget | None = None,
+        session: Session | None = None,
     ) -> None:
         super().__init__(parent)
         self.messenger = messenger or Messenger(self)
         self.dialogs = dialogs or Dialogs(self)
-        self.project = Project()
-        self.data: M.ReconData | None = None
-        self.plane: M.Plane | None = None
-        self._levelled: dict[str, np.ndarray] = {}
-        # colour ranges: typed or dragged by the user, per layer (kept through zoom, layer
-        # changes and levelling until Auto); automatic, per layer and levelling
-        self._ranges: dict[str, tuple[float, float]] = {}
-        self._auto: dict[str, tuple[float, float]] = {}
-        self._target_mm: tuple[float, float, float, float] | None = None
-        self._hillshade: tuple[tuple, np.ndarray] | None = None
-        self._contribution_rgb: np.ndarray | None = None
-        self.profile: M.Profile | None = None
-        self.step: M.StepHeight | None = None
+        self._own_session = session is None
+        self.session = session if session is not None else Session()
         self.mode = "pan"
-        self._pending: list[tuple[float, float]] = []
-        self.level_points: list[tuple[float, float]] = []
+        self._pending: list[tuple[float, float]] = []  # the ruler's first click
         self.tasks = TaskBar(self.messenger, self, name="viewer-task")
         self.tasks.status.connect(self.status)
-        self.profiler = LatestOnly(self, "profile")
-        self.profiler.finished.connect(self._on_profile)
-        self.shader = LatestOnly(self, "hillshade")
-        self.shader.finished.connect(self._on_hillshade)
         self._build_ui()
-        self.actions = ViewerActions(self)
+        self.recon = ShownReconstruction()
+        self.layers = LayerDisplay(self.recon, self.display, self.map, self)
+        self.ruler = RulerProfile(self.layers, self.map, self.profile_plot, self.tools, self)
+        self.levelling = Levelling(
+            self.layers, self.map, self.tools, self.tasks, self.messenger, self
+        )
+        self.measurements = MeasurementList(
+            self.session,
+            self.table,
+            self.map,
+            self.tools,
+            self.layers,
+            self.ruler,
+            self.messenger,
+            self,
+        )
+        self.actions = ViewerExports(
+            self.session,
+            self.layers,
+            self.ruler,
+            self.profile_plot,
+            self.tasks,
+            self.messenger,
+            self.dialogs,
+            self,
+        )
+        self._connect()
+        self.set_mode("pan")
+        s = self.session
+        s.project_changed.connect(self._on_project_changed)
+        s.reconstruction_added.connect(self._on_reconstruction_added)
+        self.refresh_measurements()
 
     # ----- layout -----------------------------------------------------------------------------
     def _build_ui(self) -> None:
@@ -142,43 +163,58 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         split.addWidget(scroll)
         split.setStretchFactor(0, 3)
         split.setStretchFactor(1, 1)
-        d, t = self.display, self.tools
-        d.layer_changed.connect(lambda _k: self.refresh_layer())
-        d.cmap_changed.connect(lambda _c: self.refresh_layer())
-        d.range_changed.connect(self._on_range_entered)
-        d.auto_range.connect(self.auto_range)
-        d.blend_changed.connect(self.map.set_texture_opacity)
-        d.light_changed.connect(
-            lambda _a, _e: self.refresh_layer() if d.layer_key() == "hillshade" else None
-        )
-        self.map.colour_bar.sigLevelsChangeFinished.connect(self._on_bar_dragged)
-        t.mode_changed.connect(self.set_mode)
-        t.settings_changed.connect(self.update_profile)
-        t.add_ruler_button.clicked.connect(lambda: self.add_ruler_measurement())
-        t.clear_ruler_button.clicked.connect(self.clear_ruler)
-        t.fit_region_button.clicked.connect(lambda: self.level_region())
-        t.clear_level_button.clicked.connect(self.clear_levelling)
+
+    def _connect(self) -> None:
+        """What the tab itself follows: modes, clicks and the cursor; the parts' signals."""
+        self.tools.mode_changed.connect(self.set_mode)
         self.map.hovered.connect(self.show_readout)
         self.map.left_map.connect(lambda: self.tools.readout.setText("Cursor: outside the map"))
         self.map.clicked.connect(self._on_map_clicked)
-        self.map.ruler_moved.connect(self._on_ruler_moved)
-        self.map.ruler_finished.connect(self.update_profile)
-        self.profile_plot.bands_changed.connect(self._update_step)
-        self.table.edited.connect(self._on_table_edited)
-        self.table.show_button.clicked.connect(self.show_selected)
-        self.table.update_button.clicked.connect(self.update_selected_from_ruler)
-        self.table.delete_button.clicked.connect(self.delete_selected)
-        self.set_mode("pan")
+        self.layers.shown.connect(self.layer_shown)
+        self.layers.status.connect(self.status)
+        self.ruler.profile_changed.connect(self.profile_changed)
+        self.levelling.levelled.connect(self._on_levelled)
+        self.levelling.status.connect(self.status)
+        self.measurements.changed.connect(self._on_project_edited)
+        self.measurements.status.connect(self.status)
+        self.actions.written.connect(self._on_project_edited)
+        self.actions.status.connect(self.status)
+        a, b = self.actions, self.exports.buttons
+        b["tiff"].clicked.connect(lambda: a.export_tiff())
+        b["x3p"].clicked.connect(lambda: a.export_x3p())
+        b["ply"].clicked.connect(lambda: a.export_ply())
+        b["png"].clicked.connect(lambda: a.export_png())
+        b["profile_csv"].clicked.connect(lambda: a.export_profile_csv())
+        b["profile_png"].clicked.connect(lambda: a.export_profile_png())
+        b["report"].clicked.connect(lambda: a.export_report())
+        b["view3d"].clicked.connect(lambda: a.open_3d())
+        self.table.export_button.clicked.connect(lambda: a.export_measurements_csv())
 
-    # ----- project and data ---------------------------------------------------------------------
+    # ----- the session ----------------------------------------------------------------------------
+    @property
+    def project(self) -> Project:
+        return self.session.project
+
     def set_project(self, project: Project) -> None:
-        self.project = project
+        """Open ``project`` in the session (the tab follows, as every view over it does)."""
+        self.session.open_project(project)
+
+    def _on_project_changed(self, project: Project) -> None:
+        """The session opened ``project``: its measurements, and its newest reconstruction."""
         self.refresh_measurements()
         folder = latest_reconstruction(project)
         if folder is not None:
             self.open_reconstruction(folder)
         else:
             self.set_data(None)
+
+    def _on_reconstruction_added(self, folder: Path) -> None:
+        """A reconstruction made or opened in the session: show it."""
+        self.open_reconstruction(folder)
+
+    def _on_project_edited(self) -> None:
+        self.changed.emit()
+        self.session.mark_changed()
 
     def project_updated(self) -> None:
         self.refresh_measurements()
@@ -192,17 +228,38 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
     def is_busy(self) -> bool:
         return (
             self.tasks.is_busy()
-            or self.profiler.is_running()
-            or self.shader.is_running()
+            or self.ruler.is_busy()
+            or self.layers.is_busy()
             or self.map.is_busy()
         )
 
     def shutdown(self) -> None:
+        """Stop the tab's work and stop following the session (a session the tab made is
+        closed; one it was given is its owner's to close). Safe twice."""
         self.tasks.shutdown()
-        self.profiler.shutdown()
-        self.shader.shutdown()
+        self.ruler.shutdown()
+        self.layers.shutdown()
         self.map.shutdown()
         self.actions.shutdown()
+        s = self.session
+        s.project_changed.disconnect(self._on_project_changed)
+        s.reconstruction_added.disconnect(self._on_reconstruction_added)
+        if self._own_session:
+            s.close()
+
+    # ----- the reconstruction -----------------------------------------------------------------
+    @property
+    def data(self) -> M.ReconData | None:
+        return self.recon.data
+
+    @property
+    def plane(self) -> M.Plane | None:
+        return self.recon.plane
+
+    @property
+    def _hillshade(self) -> tuple[tuple, np.ndarray] | None:
+        """The last hill shading: ``((layer, plane, azimuth, elevation), rgb)``."""
+        return self.recon.hillshade
 
     def open_reconstruction(self, folder: str | Path) -> bool:
         """Load a reconstruction folder in the background; ``loaded`` fires when it is shown."""
@@ -239,29 +296,12 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
     ) -> None:
         """Show a reconstruction (``contribution_rgb`` and the ``auto`` colour ranges per
         layer are computed here when not given)."""
-        self.data = data
-        self.plane = None
-        self._levelled.clear()
-        self._ranges.clear()
-        self._auto = dict(auto or {})
-        self._hillshade = None
-        self._contribution_rgb = contribution_rgb
-        self._target_mm = None if data is None else target_footprint_mm(data.metadata, data.folder)
-        if data is not None and contribution_rgb is None and "contribution" in data.layers:
-            self._contribution_rgb = contribution_png(data.layers["contribution"])
-        self.level_points.clear()
-        self.map.set_level_points([])
-        self.map.show_region(None)
-        self.clear_ruler()
-        self.map.set_spec(None if data is None else data.spec)
-        self._update_level_text()
+        self.recon.reset(data, contribution_rgb, auto)
+        self.levelling.reset()
+        self.ruler.clear()
+        self.layers.show_data()
         if data is None:
-            self.map.scalar.set_data(None, None)
-            self.map.rgb.set_data(None, None)
-            self.map.set_texture(None, 0)
             return
-        self.map.set_texture(data.texture_rgb, self.display.blend.value() / 100)
-        self.refresh_layer()
         self.refresh_measurements()
         n = data.spec.shape
         self.status.emit(
@@ -270,110 +310,29 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         )
         self.loaded.emit()
 
-    # ----- heights ------------------------------------------------------------------------------
+    # ----- heights and display (LayerDisplay) -----------------------------------------------------
     def measure_key(self) -> str:
-        key = self.display.layer_key()
-        return key if key in HEIGHT_LAYERS and self.data and key in self.data.layers else "fused"
+        return self.layers.measure_key()
 
     def measure_height(self, key: str | None = None) -> np.ndarray:
         """The full-resolution heights measured on: the shown height layer (the fused map for
         other layers), relative to the levelling plane when there is one."""
-        key = key or self.measure_key()
-        if self.plane is None:
-            return self.data.layers[key]
-        if key not in self._levelled:
-            self._levelled[key] = M.levelled(self.data.layers[key], self.data.spec, self.plane)
-        return self._levelled[key]
+        return self.layers.height(key)
 
-    # ----- display ------------------------------------------------------------------------------
     def refresh_layer(self) -> None:
-        if self.data is None:
-            return
-        key = self.display.layer_key()
-        cmap = self.display.cmap.currentText()
-        if key in HEIGHT_LAYERS + ("difference",) and key in self.data.layers:
-            arr = self.measure_height(key) if key != "difference" else self.data.layers[key]
-            levels = self._ranges.get(key) or self._auto_levels(key, arr)
-            label = "green - red (mm)" if key == "difference" else "height (mm)"
-            self.map.show_scalar(arr, levels, cmap, label)
-            self.display.show_range(*levels)
-        elif key == "contribution" and self._contribution_rgb is not None:
-            self.map.show_rgb(self._contribution_rgb, nearest=True)
-        elif key == "texture" and self.data.texture_rgb is not None:
-            self.map.show_rgb(self.data.texture_rgb)
-        elif key == "hillshade":
-            self._show_hillshade()
-            return
-        else:
-            self.status.emit(f"This reconstruction has no {key} layer")
-            return
-        self.layer_shown.emit(key)
-
-    def _range_key(self, key: str) -> str:
-        return f"{key}/levelled" if self.plane is not None and key != "difference" else key
-
-    def _auto_levels(self, key: str, arr: np.ndarray) -> tuple[float, float]:
-        """The automatic range of a layer (robust percentiles of the evidence area, the
-        calibration target left out when its place is known), computed once per layer and
-        levelling."""
-        rk = self._range_key(key)
-        if rk not in self._auto:
-            self._auto[rk] = auto_levels(arr, self.data.spec, self._target_mm)
-        return self._auto[rk]
+        self.layers.refresh()
 
     def typed_range(self, key: str | None = None) -> tuple[float, float] | None:
         """The colour range the user typed or dragged for a layer (None: automatic)."""
-        return self._ranges.get(key or self.display.layer_key())
+        return self.layers.typed_range(key)
 
     def auto_range(self) -> None:
         """Back to the automatic range (recomputed) for the shown layer."""
-        key = self.display.layer_key()
-        if self.data is None or key not in HEIGHT_LAYERS + ("difference",):
-            return
-        self._ranges.pop(key, None)
-        self._auto.pop(self._range_key(key), None)
-        self.refresh_layer()
-
-    def _on_range_entered(self, lo: float, hi: float) -> None:
-        key = self.display.layer_key()
-        if hi <= lo or key not in HEIGHT_LAYERS + ("difference",):
-            return
-        self._ranges[key] = (lo, hi)
-        self.map.set_levels((lo, hi))
-
-    def _on_bar_dragged(self, *_args) -> None:
-        key = self.display.layer_key()
-        lo, hi = self.map.levels()
-        self._ranges[key] = (lo, hi)
-        self.display.show_range(lo, hi)
-
-    def _show_hillshade(self) -> None:
-        az, el = self.display.azimuth.value(), self.display.elevation.value()
-        params = (self.measure_key(), self.plane, az, el)
-        if self._hillshade is not None and self._hillshade[0] == params:
-            self.map.show_rgb(self._hillshade[1])
-            self.layer_shown.emit("hillshade")
-            return
-        h, p = self.measure_height(), self.data.spec.pixel_mm
-
-        def task(_progress, _cancel):
-            hs = M.hillshade(h, p, core_azimuth(az), el)
-            grey = np.nan_to_num(hs * 255.0, nan=0.0).astype(np.uint8)
-            return params, np.repeat(grey[..., None], 3, axis=2)
-
-        self.shader.submit(task)
-
-    def _on_hillshade(self, result) -> None:
-        self._hillshade = result
-        if self.display.layer_key() == "hillshade" and result[0][1] is self.plane:
-            self.map.show_rgb(result[1])
-            self.layer_shown.emit("hillshade")
+        self.layers.auto_range()
 
     # ----- cursor readout -------------------------------------------------------------------------
     def readout_at(self, x_mm: float, y_mm: float) -> M.Readout:
-        return M.readout(
-            self.measure_height(), self.data.spec, x_mm, y_mm, self.tools.radius.value()
-        )
+        return self.layers.readout(x_mm, y_mm, self.tools.radius.value())
 
     def show_readout(self, x_mm: float, y_mm: float) -> None:
         if self.data is None:
@@ -401,8 +360,7 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         self.tools.hint.setText(HINTS[mode])
         self.map.set_placing(mode != "pan")
         if mode == "level3":
-            self.level_points.clear()
-            self.map.set_level_points([])
+            self.levelling.restart_points()
 
     def _on_map_clicked(self, x: float, y: float) -> None:
         if self.data is None:
@@ -415,104 +373,83 @@ class ViewerTab(LevellingMixin, MeasurementsMixin, QWidget):
         elif self.mode == "marker":
             self.add_marker(x, y)
         elif self.mode == "level3":
-            self.level_points.append((x, y))
-            self.map.set_level_points(self.level_points)
-            if len(self.level_points) == 3:
-                self.level_three_points(self.level_points)
+            self.levelling.add_point(x, y)
         elif self.mode == "region":
-            r = self.map.vb.viewRect()
-            w, h = r.width() / 5, r.height() / 5
-            self.map.show_region(QRectF(x - w / 2, y - h / 2, w, h))
+            self.levelling.place_region(x, y)
 
-    # ----- ruler and profile ------------------------------------------------------------------------
+    # ----- ruler and profile (RulerProfile) -------------------------------------------------------
+    @property
+    def profile(self) -> M.Profile | None:
+        return self.ruler.profile
+
+    @property
+    def step(self) -> M.StepHeight | None:
+        return self.ruler.step
+
     def set_ruler(self, p0, p1) -> None:
-        self.map.set_ruler(tuple(map(float, p0)), tuple(map(float, p1)))
+        self.ruler.set(p0, p1)
 
     def ruler_points(self):
-        return self.map.ruler_points()
+        return self.ruler.points()
 
     def clear_ruler(self) -> None:
-        self.map.clear_ruler()
-        self.profile = self.step = None
-        self.profile_plot.set_profile(None)
-        self.profile_plot.show_step(None)
-        self.tools.ruler_text.setText("Ruler: choose Ruler and click two points")
-        self.tools.step_text.setText("Step (B - A): -")
-        self.tools.step_text.setStyleSheet("")
+        self.ruler.clear()
 
     def ruler_result(self) -> M.RulerResult | None:
-        pts = self.ruler_points()
-        if pts is None or self.data is None:
-            return None
-        return M.ruler(
-            self.measure_height(), self.data.spec, pts[0], pts[1], self.tools.radius.value()
-        )
-
-    def _on_ruler_moved(self) -> None:
-        r = self.ruler_result()
-        if r is None:
-            return
-        dz = "no data" if math.isnan(r.dz_mm) else f"{r.dz_mm:+.3f} mm"
-        d3 = "-" if math.isnan(r.d3_mm) else f"{r.d3_mm:.3f} mm"
-        text = f"xy {r.xy_mm:.3f} mm | 3D {d3} | dz {dz}"
-        self.tools.ruler_text.setText(f"Ruler: {text}")
-        self.map.decorate_ruler(
-            text,
-            self.tools.width.value(),
-            self.profile_plot.placed_bands() if self.profile else None,
-        )
+        return self.ruler.result()
 
     def update_profile(self) -> None:
         """Recompute the profile along the ruler in the background (a newer request supersedes
         an older one); ``profile_changed`` follows."""
-        pts = self.ruler_points()
-        if pts is None or self.data is None:
-            return
-        self._on_ruler_moved()
-        h, spec, width = self.measure_height(), self.data.spec, self.tools.width.value()
-        self.profiler.submit(lambda _p, _c: M.line_profile(h, spec, pts[0], pts[1], width))
-
-    def _on_profile(self, profile: M.Profile) -> None:
-        keep = self.profile is not None and abs(profile.length_mm - self.profile.length_mm) < 1e-6
-        self.profile = profile
-        self.profile_plot.set_profile(profile, keep_bands=keep)
-        self._update_step(emit=False)
-        self.profile_changed.emit()
+        self.ruler.update_profile()
 
     def set_bands(self, a: tuple[float, float], b: tuple[float, float]) -> None:
         """Reference bands as distances along the ruler (mm)."""
-        self.profile_plot.set_bands(a, b)
+        self.ruler.set_bands(a, b)
 
-    def _update_step(self, emit: bool = True) -> None:
-        """The step between the two reference bands, once the user has placed both; until
-        then nothing is computed or shown (default bands would give a meaningless number)."""
-        if self.profile is None:
-            return
-        if not self.profile_plot.bands_placed():
-            self.step = None
-            self.profile_plot.show_step(None)
-            todo = " and ".join(n for n in ("A", "B") if n not in self.profile_plot.placed)
-            self.tools.step_text.setText(
-                f"Step (B - A): drag band {todo} in the profile onto the surface to compare"
-            )
-            self.tools.step_text.setStyleSheet("")
-            self._on_ruler_moved()
-            if emit:
-                self.profile_changed.emit()
-            return
-        bands = self.profile_plot.bands()
-        self.step = M.step_height(self.profile, bands["A"], bands["B"])
-        s = self.step
-        self.profile_plot.show_step(s)
-        self.tools.step_text.setStyleSheet("font-weight: bold")
-        self.tools.step_text.setText(
-            f"A {s.a.mean_mm:.3f} ± {s.a.sd_mm:.3f} mm (n {s.a.n}), B {s.b.mean_mm:.3f} ± "
-            f"{s.b.sd_mm:.3f} mm (n {s.b.n})\nStep B - A: {s.difference_mm:+.3f} ± "
-            f"{s.sd_mm:.3f} mm"
-        )
-        self._on_ruler_moved()
-        if emit:
-            self.profile_changed.emit()
+    # ----- levelling (Levelling) ------------------------------------------------------------------
+    @property
+    def level_points(self) -> list[tuple[float, float]]:
+        return self.levelling.points
+
+    def level_three_points(self, pts) -> bool:
+        return self.levelling.level_three_points(pts)
+
+    def level_region(self, x_range=None, y_range=None) -> bool:
+        return self.levelling.level_region(x_range, y_range)
+
+    def clear_levelling(self) -> None:
+        self.levelling.clear()
+
+    def _on_levelled(self) -> None:
+        self.ruler.update_profile()
+        self.levelled_changed.emit()
+
+    # ----- measurements (MeasurementList) ---------------------------------------------------------
+    def add_ruler_measurement(self, label: str = "") -> dict | None:
+        return self.measurements.add_ruler_measurement(label)
+
+    def add_marker(self, x: float, y: float, label: str = "") -> dict:
+        return self.measurements.add_marker(x, y, label)
+
+    def refresh_measurements(self, selected: int | None = None) -> None:
+        self.measurements.refresh(selected)
+
+    def edit_measurement(self, row: int, **changes) -> None:
+        """Change a measurement's fields (label, note, points_mm, values, params)."""
+        self.measurements.edit(row, **changes)
+
+    def delete_measurement(self, row: int) -> None:
+        self.measurements.delete(row)
+
+    def show_selected(self) -> None:
+        self.measurements.show_selected()
+
+    def update_selected_from_ruler(self) -> None:
+        self.measurements.update_selected_from_ruler()
+
+    def delete_selected(self) -> None:
+        self.measurements.delete_selected()
 
 
 __all__ = ["ViewerTab", "core_azimuth", "latest_reconstruction"]
