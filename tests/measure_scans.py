@@ -36,15 +36,8 @@ def _source_key() -> str:
     h = hashlib.sha256(" ".join(ARGS).encode())
     files = sorted((ROOT / "impress_gui" / "sim").glob("*.py"))
     files += [
-        ROOT / "impress_gui" / "core" / n
-        for n in (
-            "target.py",
-            "geometry.py",
-            "calibration.py",
-            "calib_solve.py",
-            "calib_planes.py",
-            "picks.py",
-        )
+        ROOT / "impress_gui" / "core" / "calibration" / n
+        for n in ("target.py", "geometry.py", "scene.py", "solve.py", "planes.py", "picks.py")
     ]
     for f in files:
         h.update(f.read_bytes())
