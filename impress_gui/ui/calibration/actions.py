@@ -1,19 +1,36 @@
-"""The calibration tab's actions: import/export of picks and calibrations as files (for the
-command line and for exchange; the project keeps them too) and the Calibrate action (inputs
-checked, then the calibration job in the worker)."""
+"""The calibration tab's actions, each an object given what it uses: import/export of picks and
+calibrations as files (:class:`PickFiles`; for the command line and for exchange, the project
+keeps them too) and the Calibrate action (:class:`SceneCalibrationAction`: inputs checked, then
+the calibration job in the worker). The evidence video, the project and the calibration are the
+session's (:class:`~impress_gui.session.session.Session`)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from impress_gui.core.base.errors import ImpressError
+from impress_gui.core.calibration.pick_editor import PickEditor, PickState
 from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.scene import SceneCalibration, check_picks
 from impress_gui.session.calibration_jobs import calibrate_task
-from impress_gui.ui.calibration.setup import JSON_FILTER
+from impress_gui.session.session import Session
+from impress_gui.ui.calibration.setup import JSON_FILTER, SetupPanel
+from impress_gui.ui.messages import Dialogs, Messenger
+from impress_gui.ui.task_bar import TaskBar
 
 
-class CalibrationFiles:
-    """Needs ``messenger``, ``dialogs``, ``editor``, ``project``, ``video_path``,
-    ``video_sha256`` and ``calibration`` from the tab."""
+class PickFiles:
+    """Import and export the corner picks, export the calibration (each logged in the
+    project). ``dialogs`` may be replaced (the tab's ``dialogs`` setter does)."""
+
+    def __init__(
+        self, messenger: Messenger, dialogs: Dialogs, editor: PickEditor, session: Session
+    ) -> None:
+        self.messenger, self.dialogs, self.editor, self.session = messenger, dialogs, editor, session
+
+    def _video(self) -> tuple[str, str | None]:
+        ev = self.session.evidence
+        return ("", None) if ev is None else (str(ev.path), ev.sha256)
 
     def import_picks(self, path: str | None = None) -> bool:
         path = path or self.dialogs.open_file("Import corner picks", JSON_FILTER)
@@ -24,17 +41,18 @@ class CalibrationFiles:
         except ImpressError as exc:
             self.messenger.exception("Cannot import the picks", exc)
             return False
-        if picks.video_sha256 and self.video_sha256 and picks.video_sha256 != self.video_sha256:
+        _video, sha = self._video()
+        if picks.video_sha256 and sha and picks.video_sha256 != sha:
             self.messenger.warning(
                 "Picks from another video",
                 "These picks were made on a video with a different SHA-256; check every corner.",
             )
         self.editor.import_picks(picks)
-        self.project.log("picks imported", {"path": str(path)})
+        self.session.log("picks imported", {"path": str(path)})
         return True
 
     def export_picks(self, path: str | None = None) -> bool:
-        picks = self.editor.to_picks(str(self.video_path or ""), self.video_sha256)
+        picks = self.editor.to_picks(*self._video())
         if picks is None:
             self.messenger.error("Nothing to export", "Choose t1 and t2 and mark corners first.")
             return False
@@ -42,11 +60,12 @@ class CalibrationFiles:
         return bool(path) and self._write("picks", path, picks.save)
 
     def export_calibration(self, path: str | None = None) -> bool:
-        if self.calibration is None:
+        cal = self.session.calibration
+        if cal is None:
             self.messenger.error("Nothing to export", "Calibrate first.")
             return False
         path = path or self.dialogs.save_file("Export calibration", JSON_FILTER, "calibration.json")
-        return bool(path) and self._write("calibration", path, self.calibration.save)
+        return bool(path) and self._write("calibration", path, cal.save)
 
     def _write(self, what: str, path: str, save) -> bool:
         try:
@@ -54,20 +73,37 @@ class CalibrationFiles:
         except (OSError, ImpressError) as exc:
             self.messenger.error(f"The {what} were not written", f"{path}: {exc}", "E-WRITE")
             return False
-        self.project.log(f"{what} exported", {"path": str(path)})
+        self.session.log(f"{what} exported", {"path": str(path)})
         return True
 
 
-class SceneCalibrationRuns:
-    """The tab's Calibrate action (mixed into the tab). Needs ``setup``, ``editor``, ``video``,
-    ``video_path``, ``video_sha256``, ``project``, ``results``, ``messenger``, ``status``,
-    ``calibrated``, ``_run``, ``_mark_dirty`` and ``_refresh``."""
+CalibratedCallback = Callable[[SceneCalibration, Picks, PickState], None]
+
+
+class SceneCalibrationAction:
+    """The Calibrate action: check the inputs on screen (``setup``, ``editor``) against the
+    session's evidence video, then run the calibration job through ``tasks``. The result goes
+    to ``on_calibrated(cal, picks, state)``: the calibration, the picks it was made from and the
+    editor's state when it started (to tell later whether the picks changed)."""
+
+    def __init__(
+        self,
+        messenger: Messenger,
+        session: Session,
+        setup: SetupPanel,
+        editor: PickEditor,
+        tasks: TaskBar,
+        on_calibrated: CalibratedCallback,
+    ) -> None:
+        self.messenger, self.session, self.setup, self.editor = messenger, session, setup, editor
+        self.tasks, self.on_calibrated = tasks, on_calibrated
 
     def calibrate(self) -> bool:
         intr, target, speed = self.setup.intrinsics, self.setup.target, self.setup.speed_mm_s()
-        picks = self.editor.to_picks(str(self.video_path), self.video_sha256)
+        ev = self.session.evidence
+        picks = self.editor.to_picks(str(ev.path) if ev else "", ev.sha256 if ev else None)
         problem = None
-        if self.video is None:
+        if ev is None:
             problem = "Load the scan video first."
         elif intr is None:
             problem = "Camera intrinsics are missing: load, enter or calibrate them."
@@ -81,36 +117,21 @@ class SceneCalibrationRuns:
             self.messenger.error("Cannot calibrate yet", problem, "E-CALIB-INPUT")
             return False
         try:
-            intr.check_image_size(*self.video.size)
-            check_picks(picks, intr, self.video.frame_count)
+            intr.check_image_size(*ev.reader.size)
+            check_picks(picks, intr, ev.reader.frame_count)
         except ImpressError as exc:
             self.messenger.exception("Cannot calibrate yet", exc)
             return False
-        path, state = self.video_path, self.editor.state
+        path, state = ev.path, self.editor.state
         inputs = {
-            "video": {"path": str(path), "sha256": self.video_sha256},
+            "video": {"path": str(path), "sha256": ev.sha256},
             "intrinsics": {"source": intr.source},
             "target": {"name": target.name},
         }
 
-        return self._run(
+        return self.tasks.run(
             "Calibrating",
             calibrate_task(path, intr, target, picks, speed, inputs),
-            lambda cal: self._on_calibrated(cal, picks, state),
+            lambda cal: self.on_calibrated(cal, picks, state),
             "Calibration failed",
         )
-
-    def _on_calibrated(self, cal: SceneCalibration, picks: Picks, state) -> None:
-        self.calibration, self._cal_state = cal, state
-        self.project.set_picks(picks)
-        self.project.set_calibration(cal)
-        self.results.show_calibration(cal)
-        self._mark_dirty()
-        self._refresh()
-        self.calibrated.emit(cal)
-        self.status.emit(
-            f"Calibrated: roll {cal.roll_deg:+.3f} deg, tilt {cal.tilt_deg:+.3f} "
-            f"deg, reprojection RMS {cal.reprojection_rms_px:.2f} px"
-        )
-        if cal.warnings:
-            self.messenger.warning("Check the calibration", "\n\n".join(cal.warnings))

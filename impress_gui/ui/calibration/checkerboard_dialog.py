@@ -2,11 +2,13 @@
 or a folder of images), the board's inner corners (columns x rows, as OpenCV counts them) and
 the side of one square in mm. The answers are remembered in the settings for next time.
 
-The dialog only gathers and checks the answers; the calibration tab runs
-:func:`~impress_gui.core.calibration.intrinsics.calibrate_camera` with them in its worker."""
+The dialog only gathers and checks the answers; :class:`CheckerboardAction` (the calibration
+tab's) runs :func:`~impress_gui.core.calibration.intrinsics.calibrate_camera` with them in the
+tab's worker."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,7 +30,10 @@ from PySide6.QtWidgets import (
 
 from impress_gui.core.formats.video import VIDEO_SUFFIXES
 from impress_gui.session.calibration_jobs import checkerboard_task as _checkerboard_task
-from impress_gui.ui.messages import Dialogs
+from impress_gui.session.session import Session
+from impress_gui.ui.calibration.setup import SetupPanel
+from impress_gui.ui.messages import Dialogs, Messenger
+from impress_gui.ui.task_bar import TaskBar
 
 VIDEO_FILTER = "Videos (" + " ".join(f"*{s}" for s in VIDEO_SUFFIXES) + ");;All files (*)"
 KEY = "checkerboard/"
@@ -193,27 +198,43 @@ class CheckerboardDialog(QDialog):
         self.squares_label.setText(f"(a board of {c + 1} x {r + 1} squares)")
 
 
-class CheckerboardRuns:
-    """The calibration tab's checkerboard calibration (mixed into the tab). Needs ``messenger``,
-    ``dialogs``, ``settings``, ``setup``, ``project``, ``status``, ``tasks`` and ``_run``."""
+class CheckerboardAction:
+    """The checkerboard calibration of the camera: ask (``calibrate_camera``), run the job
+    through ``tasks``, give the intrinsics to ``setup`` and log them in the session's project.
+    ``settings`` keeps the dialog's answers (None: nothing is remembered); ``parent`` is the
+    widget the dialog is modal to; ``status`` takes a line for the status bar."""
 
-    checkerboard_dialog: CheckerboardDialog | None = None
+    def __init__(
+        self,
+        messenger: Messenger,
+        dialogs: Dialogs,
+        settings: QSettings | None,
+        session: Session,
+        setup: SetupPanel,
+        tasks: TaskBar,
+        status: Callable[[str], object],
+        parent: QWidget | None = None,
+    ) -> None:
+        self.messenger, self.dialogs, self.settings = messenger, dialogs, settings
+        self.session, self.setup, self.tasks, self.status = session, setup, tasks, status
+        self.parent = parent
+        self.dialog: CheckerboardDialog | None = None
 
     def calibrate_camera(self) -> CheckerboardDialog | None:
         """Ask for the checkerboard views, board and square size (a window-modal dialog that
         does not block); on OK, calibrate the camera in the worker."""
-        if self.is_busy():
+        if self.tasks.is_busy():
             self.messenger.info("Busy", f"Wait for '{self.tasks.what}' to finish, or cancel it.")
             return None
-        if self.checkerboard_dialog is not None:
-            self.checkerboard_dialog.deleteLater()
-        self.checkerboard_dialog = dlg = CheckerboardDialog(self.dialogs, self._settings(), self)
+        if self.dialog is not None:
+            self.dialog.deleteLater()
+        self.dialog = dlg = CheckerboardDialog(self.dialogs, self.settings, self.parent)
         dlg.accepted.connect(lambda: self.run_checkerboard(dlg.request()))
         dlg.open()
         return dlg
 
     def run_checkerboard(self, req: CheckerboardRequest) -> bool:
-        return self._run(
+        return self.tasks.run(
             f"Calibrating the camera ({req.describe()})",
             _checkerboard_task(req.source, req.board, req.square_mm),
             lambda intr: self._on_camera_calibrated(intr, req),
@@ -222,7 +243,7 @@ class CheckerboardRuns:
 
     def _on_camera_calibrated(self, intr, req: CheckerboardRequest) -> None:
         self.setup.set_intrinsics(intr)
-        self.project.log(
+        self.session.log(
             "camera calibrated from a checkerboard",
             {
                 "source": str(req.source),
@@ -232,14 +253,7 @@ class CheckerboardRuns:
                 "frames_used": list(intr.frames_used or ()),
             },
         )
-        self.status.emit(
+        self.status(
             f"Camera calibrated from {len(intr.frames_used or ())} board views: "
             f"f = {intr.fx:.1f} px, RMS {intr.rms_px:.3f} px"
         )
-
-    def _settings(self) -> QSettings | None:
-        """The tab's settings, else the window's (None outside a window: nothing remembered)."""
-        if self.settings is not None:
-            return self.settings
-        found = getattr(self.window(), "settings", None)
-        return found if isinstance(found, QSettings) else None

@@ -4,13 +4,17 @@ The tab gathers inputs and shows results; every number comes from the core
 (:func:`~impress_gui.core.calibration.scene.calibrate_scene`,
 :func:`~impress_gui.core.calibration.aids.refine_corner`,
 :func:`~impress_gui.core.calibration.aids.propose_calibration_frames`). Long work runs in one
-:class:`~impress_gui.ui.worker.Worker`, each task on its own open video (the tab's video object
-is used by the GUI thread only).
+:class:`~impress_gui.ui.worker.Worker`, each task on its own open video (the session's evidence
+reader is used by the GUI thread only). The project, the evidence video and the calibration are
+the :class:`~impress_gui.session.session.Session`'s: the tab changes them through it and follows
+its signals; the actions are small objects given what they use
+(:class:`~impress_gui.ui.calibration.actions.PickFiles`,
+:class:`~impress_gui.ui.calibration.actions.SceneCalibrationAction`,
+:class:`~impress_gui.ui.calibration.checkerboard_dialog.CheckerboardAction`).
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -26,13 +30,19 @@ from PySide6.QtWidgets import (
 
 from impress_gui.core.base.errors import ImpressError
 from impress_gui.core.calibration.aids import refine_corner
-from impress_gui.core.calibration.pick_editor import FRAMES, PickEditor
+from impress_gui.core.calibration.pick_editor import FRAMES, PickEditor, PickState
+from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.formats.video import VideoSource
 from impress_gui.core.project.project import Project
 from impress_gui.session.calibration_jobs import open_evidence, propose_task
-from impress_gui.ui.calibration.actions import CalibrationFiles, SceneCalibrationRuns
-from impress_gui.ui.calibration.checkerboard_dialog import VIDEO_FILTER, CheckerboardRuns
+from impress_gui.session.session import Evidence, Session
+from impress_gui.ui.calibration.actions import PickFiles, SceneCalibrationAction
+from impress_gui.ui.calibration.checkerboard_dialog import (
+    VIDEO_FILTER,
+    CheckerboardAction,
+    CheckerboardDialog,
+)
 from impress_gui.ui.calibration.overlays import Overlays
 from impress_gui.ui.calibration.results import CalibrationResults, changed_inputs
 from impress_gui.ui.calibration.setup import SetupPanel, checkerboard_available
@@ -41,10 +51,13 @@ from impress_gui.ui.frame_view import FRAME_COLOURS, FrameView
 from impress_gui.ui.messages import Dialogs, Messenger
 from impress_gui.ui.task_bar import TaskBar
 
-FRAME_CACHE = 12
 
+class CalibrationTab(QWidget):
+    """A view over a :class:`~impress_gui.session.session.Session`: the project, the evidence
+    video (its reader and frame cache) and the calibration are the session's; the tab holds
+    only what is on screen (the picks being edited, the inputs, the frame shown) and follows the
+    session's signals. Without ``session`` it makes its own."""
 
-class CalibrationTab(CalibrationFiles, SceneCalibrationRuns, CheckerboardRuns, QWidget):
     changed = Signal()  # something the project keeps changed
     status = Signal(str)  # a line for the status bar
     video_changed = Signal(str)  # path of the video shown ("" for none)
@@ -57,30 +70,92 @@ class CalibrationTab(CalibrationFiles, SceneCalibrationRuns, CheckerboardRuns, Q
         dialogs: Dialogs | None = None,
         parent: QWidget | None = None,
         settings: QSettings | None = None,
+        session: Session | None = None,
     ) -> None:
         super().__init__(parent)
-        self.messenger, self.dialogs = messenger, dialogs or Dialogs(self)
-        self.settings = settings  # None: the window's settings (see _settings)
-        self.checkerboard_dialog = None
-        self.project = Project()
-        self.video: VideoSource | None = None
-        self.video_path: Path | None = None
-        self.video_sha256: str | None = None
-        self.calibration: SceneCalibration | None = None
+        self.messenger = messenger
+        self._dialogs = dialogs or Dialogs(self)
+        self._own_session = session is None
+        self.session = session if session is not None else Session()
         self.proposal: dict[str, int] | None = None
         self.current_frame = 0
-        self.dirty = False
+        self.dirty = False  # inputs on screen not yet in the project
+        self._loading = False  # showing a project: its values are not edits
         self._rgb: np.ndarray | None = None
-        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
-        self._cal_state = None
+        self._cal_state: PickState | None = None  # the picks the calibration shown was made from
+        self._cal_of: SceneCalibration | None = None  # ... and that calibration
+        self._reset_picks = False  # a new video replaces the project's: its picks go
         self.editor = PickEditor()
         self.tasks = TaskBar(messenger, self, name="calibration-task")
         self.tasks.status.connect(self.status)
         self.tasks.busy_changed.connect(self.busy_changed)
         self.tasks.busy_changed.connect(lambda _b: self._refresh())
         self._build_ui()
+        self.files = PickFiles(messenger, self._dialogs, self.editor, self.session)
+        self.scene = SceneCalibrationAction(
+            messenger, self.session, self.setup, self.editor, self.tasks, self._on_calibrated
+        )
+        self.checkerboard = CheckerboardAction(
+            messenger, self._dialogs, settings, self.session, self.setup, self.tasks,
+            self.status.emit, self,
+        )
         self.editor.on_change = self._on_picks_changed
-        self._refresh()
+        s = self.session
+        s.project_changed.connect(self._on_project_changed)
+        s.evidence_changed.connect(self._on_evidence_changed)
+        s.calibration_changed.connect(self._on_calibration_changed)
+        self._show_project(s.project)
+        if s.evidence is not None:
+            self._on_evidence_changed(s.evidence)
+        else:
+            self._open_project_video(s.project)
+
+    # ----- the session's state, as the tab's (read-only) ------------------------------------------
+    @property
+    def project(self) -> Project:
+        return self.session.project
+
+    @property
+    def calibration(self) -> SceneCalibration | None:
+        return self.session.calibration
+
+    @property
+    def video(self) -> VideoSource | None:
+        ev = self.session.evidence
+        return None if ev is None else ev.reader
+
+    @property
+    def video_path(self) -> Path | None:
+        ev = self.session.evidence
+        return None if ev is None else ev.path
+
+    @property
+    def video_sha256(self) -> str | None:
+        ev = self.session.evidence
+        return None if ev is None else ev.sha256
+
+    @property
+    def checkerboard_dialog(self) -> CheckerboardDialog | None:
+        return self.checkerboard.dialog
+
+    @property
+    def settings(self) -> QSettings | None:
+        """Where the checkerboard dialog's answers are remembered (None: nowhere)."""
+        return self.checkerboard.settings
+
+    @settings.setter
+    def settings(self, settings: QSettings | None) -> None:
+        self.checkerboard.settings = settings
+
+    @property
+    def dialogs(self) -> Dialogs:
+        return self._dialogs
+
+    @dialogs.setter
+    def dialogs(self, dialogs: Dialogs) -> None:
+        """The file choosers of the tab and of its actions and inputs."""
+        self._dialogs = self.files.dialogs = self.checkerboard.dialogs = dialogs
+        self.setup.dialogs = dialogs
 
     # ----- layout -----------------------------------------------------------------------------
     def _build_ui(self) -> None:
@@ -100,7 +175,7 @@ class CalibrationTab(CalibrationFiles, SceneCalibrationRuns, CheckerboardRuns, Q
         lv.addWidget(self.tasks)
         split.addWidget(left)
         self.overlays = Overlays(self.view, self)
-        self.setup = SetupPanel(self.messenger, self.dialogs)
+        self.setup = SetupPanel(self.messenger, self._dialogs)
         self.setup.changed.connect(self._on_setup_changed)
         self.setup.checkerboard_requested.connect(self.calibrate_camera)
         if checkerboard_available():
@@ -141,39 +216,55 @@ class CalibrationTab(CalibrationFiles, SceneCalibrationRuns, CheckerboardRuns, Q
 
     # ----- project ----------------------------------------------------------------------------
     def set_project(self, project: Project) -> None:
-        """Show a project's state (its video is opened and re-hashed in the worker)."""
+        """Open ``project`` in the session; the tab shows its state as the session announces
+        it (and opens and re-hashes its video in the worker)."""
+        self.session.open_project(project)
+
+    def _on_project_changed(self, project: Project) -> None:
         self.shutdown_tasks()
-        self._close_video()
-        self.project = project
-        self.calibration = project.calibration
+        self._show_project(project)
+        self._open_project_video(project)
+
+    def _show_project(self, project: Project) -> None:
+        """Show a project's state: its inputs, picks and calibration, no video yet."""
+        self._show_no_video()
         self.proposal = None
         self.frames.proposal_label.setText("")
-        if project.target is not None:
-            self.setup.add_target(project.target, select=True)
-        self.setup.set_intrinsics(project.intrinsics, announce=False)
-        speed = project.calibration_settings.get("speed_mm_s")
-        if speed is None and project.calibration is not None:
-            speed = project.calibration.speed_mm_s
-        self.setup.set_speed(speed)
-        self.editor.on_change = None
-        if project.picks is not None:
-            self.editor.load_picks(project.picks)
-        else:
-            self.editor.reset()
-        self.editor.on_change = self._on_picks_changed
-        self._cal_state = self.editor.state if self.calibration is not None else None
-        self.results.show_calibration(self.calibration)
+        self._loading = True
+        try:
+            if project.target is not None:
+                self.setup.add_target(project.target, select=True)
+            self.setup.set_intrinsics(project.intrinsics, announce=False)
+            speed = project.calibration_settings.get("speed_mm_s")
+            if speed is None and project.calibration is not None:
+                speed = project.calibration.speed_mm_s
+            self.setup.set_speed(speed)
+            self.editor.on_change = None
+            if project.picks is not None:
+                self.editor.load_picks(project.picks)
+            else:
+                self.editor.reset()
+        finally:
+            self.editor.on_change = self._on_picks_changed
+            self._loading = False
+        cal = project.calibration
+        self._cal_of, self._cal_state = cal, (self.editor.state if cal is not None else None)
+        self.results.show_calibration(cal)
         self.dirty = False
         self._refresh()
-        if project.video is not None:
-            path = project.video_path()
 
-            self._run(
-                "Checking and opening the evidence video",
-                lambda progress, cancel: open_evidence(path, progress, cancel, project),
-                lambda res: self._adopt_video(path, *res, new=False),
-                "The evidence video cannot be used",
-            )
+    def _open_project_video(self, project: Project) -> None:
+        """Re-hash the project's video against its record and open it (in the worker)."""
+        if project.video is None:
+            return
+        path = project.video_path()
+
+        self._run(
+            "Checking and opening the evidence video",
+            lambda progress, cancel: open_evidence(path, progress, cancel, project),
+            lambda res: self._adopt_video(path, *res, new=False),
+            "The evidence video cannot be used",
+        )
 
     def commit_to_project(self) -> None:
         """Copy what the tab holds into the project (before saving)."""
@@ -194,8 +285,14 @@ class CalibrationTab(CalibrationFiles, SceneCalibrationRuns, CheckerboardRuns, Q
         self.dirty = False
 
     def _mark_dirty(self) -> None:
+        if self._loading:
+            return
         self.dirty = True
         self.changed.emit()
+
+    def is_dirty(self) -> bool:
+        """The tab holds inputs not yet in the project (``commit_to_project`` copies them)."""
+        return self.dirty
 
     # ----- long tasks -------------------------------------------------------------------------
     def is_busy(self) -> bool:
@@ -209,8 +306,50 @@ class CalibrationTab(CalibrationFiles, SceneCalibrationRuns, CheckerboardRuns, Q
         self.overlays.shutdown()
 
     def shutdown(self) -> None:
+        """Stop the tab's work and stop following the session (a session the tab made is
+        closed; one it was given is its owner's to close)."""
         self.shutdown_tasks()
-        self._close_video()
+        s = self.session
+        s.project_changed.disconnect(self._on_project_changed)
+        s.evidence_changed.disconnect(self._on_evidence_changed)
+        s.calibration_changed.disconnect(self._on_calibration_changed)
+        if self._own_session:
+            s.close()
+
+    # ----- actions (see actions.py and checkerboard_dialog.py) ----------------------------------
+    def import_picks(self, path: str | None = None) -> bool:
+        return self.files.import_picks(path)
+
+    def export_picks(self, path: str | None = None) -> bool:
+        return self.files.export_picks(path)
+
+    def export_calibration(self, path: str | None = None) -> bool:
+        return self.files.export_calibration(path)
+
+    def calibrate(self) -> bool:
+        return self.scene.calibrate()
+
+    def calibrate_camera(self) -> CheckerboardDialog | None:
+        return self.checkerboard.calibrate_camera()
+
+    def _on_calibrated(self, cal: SceneCalibration, picks: Picks, state: PickState) -> None:
+        self._cal_of, self._cal_state = cal, state
+        self.session.set_calibration(cal, picks)
+        self._mark_dirty()
+        self._refresh()
+        self.calibrated.emit(cal)
+        self.status.emit(
+            f"Calibrated: roll {cal.roll_deg:+.3f} deg, tilt {cal.tilt_deg:+.3f} "
+            f"deg, reprojection RMS {cal.reprojection_rms_px:.2f} px"
+        )
+        if cal.warnings:
+            self.messenger.warning("Check the calibration", "\n\n".join(cal.warnings))
+
+    def _on_calibration_changed(self, cal: SceneCalibration | None) -> None:
+        if cal is not self._cal_of:  # made elsewhere: judged against the picks on screen
+            self._cal_of, self._cal_state = cal, (self.editor.state if cal is not None else None)
+        self.results.show_calibration(cal)
+        self._refresh()
 
     # ----- video ------------------------------------------------------------------------------
     def load_video(self, path: str | Path | None = None) -> bool:
@@ -219,7 +358,7 @@ class CalibrationTab(CalibrationFiles, SceneCalibrationRuns, CheckerboardRuns, Q
             return False
         p = Path(path)
         marked = any(self.editor.count(f) for f in FRAMES) or self.calibration is not None
-        if self.video is not None and marked:
+        if self.video_path is not None and marked:
             answer = self.messenger.ask(
                 "Replace the video?",
                 f"Open {p.name} instead of {self.video_path.name}? If it is a different "
@@ -236,36 +375,43 @@ class CalibrationTab(CalibrationFiles, SceneCalibrationRuns, CheckerboardRuns, Q
         )
 
     def _adopt_video(self, path: Path, video: VideoSource, sha: str, new: bool) -> None:
-        self._close_video()
-        self.video, self.video_path, self.video_sha256 = video, Path(path).resolve(), sha
+        """Make the opened ``video`` the session's evidence reader (``new``: chosen by the user
+        for this project; another video than the project's clears the picks too)."""
+        p = self.project
+        self._reset_picks = new and not (p.video is not None and p.video.sha256 == sha)
+        try:
+            self.session.adopt_evidence(path, video, sha, new)
+        except BaseException:
+            ev = self.session.evidence
+            if ev is None or ev.reader is not video:
+                video.close()
+            raise
+        finally:
+            self._reset_picks = False
         if new:
-            same = self.project.video is not None and self.project.video.sha256 == sha
-            self.project.set_video(path, sha256=sha)
-            if not same:
-                self.editor.reset()
-                self.calibration = None
-                self._cal_state = None
-                self.project.set_picks(None)
-                self.project.set_calibration(None)
-                self.results.show_calibration(None)
             self._mark_dirty()
+
+    def _on_evidence_changed(self, ev: Evidence | None) -> None:
+        if ev is None:
+            self._show_no_video()
+            return
+        if self._reset_picks:  # the session cleared the project's picks for this video
+            self._reset_picks = False
+            self.editor.reset()
+        video = ev.reader
         w, h = video.size
         self.video_label.setText(
-            f"{self.video_path}\n{w}x{h}, {video.fps:.3f} frames/s, "
-            f"{video.frame_count} frames\nSHA-256 {sha[:16]}..."
+            f"{ev.path}\n{w}x{h}, {video.fps:.3f} frames/s, "
+            f"{video.frame_count} frames\nSHA-256 {ev.sha256[:16]}..."
         )
         self.setup.set_video_size(video.size)
         self.nav.set_range(video.frame_count)
         start = self.editor.state.t1 if self.editor.state.t1 is not None else 0
         self.go_to_frame(min(start, video.frame_count - 1))
-        self.video_changed.emit(str(self.video_path))
-        self.status.emit(f"Video {self.video_path.name}: {video.frame_count} frames")
+        self.video_changed.emit(str(ev.path))
+        self.status.emit(f"Video {ev.path.name}: {video.frame_count} frames")
 
-    def _close_video(self) -> None:
-        if self.video is not None:
-            self.video.close()
-        self.video = self.video_path = self.video_sha256 = None
-        self._cache.clear()
+    def _show_no_video(self) -> None:
         self.overlays.clear()
         self._rgb = None
         self.view.set_frame(None)
@@ -273,33 +419,24 @@ class CalibrationTab(CalibrationFiles, SceneCalibrationRuns, CheckerboardRuns, Q
         self.video_label.setText("No video loaded.")
         self.video_changed.emit("")
 
-    def _read(self, k: int) -> np.ndarray:
-        if k in self._cache:
-            self._cache.move_to_end(k)
-            return self._cache[k]
-        rgb = self.video.read(k)
-        self._cache[k] = rgb
-        while len(self._cache) > FRAME_CACHE:
-            self._cache.popitem(last=False)
-        return rgb
-
     def go_to_frame(self, k: int) -> None:
         """Show frame ``k`` now (the slider and the number follow)."""
         self.nav.set_frame(k)
         self.show_frame(k)
 
     def show_frame(self, k: int) -> None:
-        if self.video is None:
+        video = self.video
+        if video is None:
             return
         try:
-            rgb = self._read(int(k))
+            rgb = self.session.frame(int(k))
         except ImpressError as exc:
             self.messenger.exception(f"Cannot show frame {k}", exc)
             return
         self.current_frame, self._rgb = int(k), rgb
         self.view.set_frame(rgb)
         self.loupe.set_image(rgb)
-        t = self.video.times_s
+        t = video.times_s
         self.nav.time_label.setText(f"{t[k]:.2f} s / {t[-1]:.2f} s")
         self._refresh()
 
