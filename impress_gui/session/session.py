@@ -19,13 +19,24 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from psygnal import Signal
+from psygnal import EmitLoopError, Signal
 
 from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.formats.video import VideoSource
 from impress_gui.core.project.project import Project
 
 FRAME_CACHE = 24  # decoded frames kept for browsing (1080p RGB: about 150 MB)
+
+
+def _emit(signal, *args) -> None:
+    """Emit, and let a listener's error through as itself (psygnal wraps it in EmitLoopError):
+    a view refusing a project raises an ImpressError its caller shows with its code."""
+    try:
+        signal.emit(*args)
+    except EmitLoopError as exc:
+        if isinstance(exc.__cause__, Exception):
+            raise exc.__cause__ from None
+        raise
 
 
 @dataclass(frozen=True)
@@ -65,16 +76,16 @@ class Session:
         self.close_evidence()
         self._project = project
         self._reconstructions = []
-        self.project_changed.emit(project)
-        self.calibration_changed.emit(project.calibration)
-        self.changed.emit()
+        _emit(self.project_changed, project)
+        _emit(self.calibration_changed, project.calibration)
+        _emit(self.changed)
 
     def log(self, action: str, details: dict | None = None) -> None:
         self._project.log(action, details or {})
 
     def mark_changed(self) -> None:
         """Something the project keeps changed (the views call this after editing it)."""
-        self.changed.emit()
+        _emit(self.changed)
 
     # ----- the evidence video ---------------------------------------------------------------
     @property
@@ -95,15 +106,16 @@ class Session:
             same = p.video is not None and p.video.sha256 == sha256
             p.set_video(path, sha256=sha256)
             if not same:
+                had = p.calibration is not None
                 p.set_picks(None)
-                if p.calibration is not None:
-                    p.set_calibration(None)
-                    self.calibration_changed.emit(None)
+                p.set_calibration(None)
+                if had:
+                    _emit(self.calibration_changed, None)
                 cleared = True
         self._evidence = Evidence(path, sha256, reader)
-        self.evidence_changed.emit(self._evidence)
+        _emit(self.evidence_changed, self._evidence)
         if new:
-            self.changed.emit()
+            _emit(self.changed)
         return cleared
 
     def close_evidence(self) -> None:
@@ -112,7 +124,7 @@ class Session:
         self._evidence.reader.close()
         self._evidence = None
         self._frames.clear()
-        self.evidence_changed.emit(None)
+        _emit(self.evidence_changed, None)
 
     def frame(self, k: int) -> np.ndarray:
         """Frame ``k`` of the evidence video as RGB (the last few are cached for browsing).
@@ -139,8 +151,8 @@ class Session:
         if picks is not None:
             self._project.set_picks(picks)
         self._project.set_calibration(cal)
-        self.calibration_changed.emit(cal)
-        self.changed.emit()
+        _emit(self.calibration_changed, cal)
+        _emit(self.changed)
 
     # ----- reconstructions ------------------------------------------------------------------
     @property
@@ -159,9 +171,9 @@ class Session:
         if record:
             self._project.add_output(folder / "metadata.json", "reconstruction", sha256=sha256)
         self._reconstructions = [p for p in self._reconstructions if p != folder] + [folder]
-        self.reconstruction_added.emit(folder)
+        _emit(self.reconstruction_added, folder)
         if record:
-            self.changed.emit()
+            _emit(self.changed)
 
     def close(self) -> None:
         self.close_evidence()

@@ -1,24 +1,21 @@
-"""The workstation window: Calibration, Processing and Viewer tabs, the motor panel in a dock,
-the File menu (New, Open, Recent, Save, Save as, Quit), a status bar, and the unsaved-changes
-prompt on close.
+"""The workstation window: Calibration, Processing and Viewer tabs over one working session
+(:class:`~impress_gui.session.session.Session`), the motor panel in a dock, the File menu (New,
+Open, Recent, Save, Save as, Quit), a status bar, and the unsaved-changes prompt on close.
 
-Tabs other than Calibration are looked up by module: ``impress_gui.ui.processing.tab`` must
-define ``ProcessingTab`` and ``impress_gui.ui.viewer.tab`` ``ViewerTab``; until they exist a
-labelled placeholder stands in. A tab class is constructed with whichever of the keyword
-arguments ``messenger``, ``dialogs`` and ``parent`` it accepts, and may provide
-``set_project(project)``, ``commit_to_project()``, ``project_updated()``, ``is_dirty()``,
-``shutdown()`` and the signals ``changed()`` and ``status(str)``.
+The window owns the session and hands it to each tab; the tabs follow the session's signals
+(a project opened, the evidence video, the calibration, a reconstruction made), so the window
+broadcasts nothing and no tab reaches into another. Every tab offers the same small interface
+(:class:`Tab`).
 """
 
 from __future__ import annotations
 
 import contextlib
-import importlib
-import inspect
 import os
 from pathlib import Path
+from typing import Protocol
 
-from PySide6.QtCore import QSettings, Qt
+from PySide6.QtCore import QSettings, Qt, SignalInstance
 from PySide6.QtGui import QAction, QCloseEvent, QKeySequence
 from PySide6.QtWidgets import (
     QDialog,
@@ -27,7 +24,6 @@ from PySide6.QtWidgets import (
     QMainWindow,
     QMessageBox,
     QTabWidget,
-    QVBoxLayout,
     QWidget,
 )
 
@@ -36,58 +32,43 @@ from impress_gui.core.base.errors import ImpressError
 from impress_gui.core.formats.video import VIDEO_SUFFIXES
 from impress_gui.core.project.project import PROJECT_FILE, Project, describe_signatures
 from impress_gui.core.reconstruction.compiled import prepare_in_background
+from impress_gui.session.session import Session
 from impress_gui.ui.calibration.tab import CalibrationTab
 from impress_gui.ui.case_dialog import CaseDialog
 from impress_gui.ui.messages import Dialogs, Messenger
+from impress_gui.ui.motor.panel import MotorPanel
+from impress_gui.ui.processing.tab import ProcessingTab
+from impress_gui.ui.viewer.tab import ViewerTab
 
 MAX_RECENT = 8
-OPTIONAL_TABS = (
-    ("Processing", "impress_gui.ui.processing.tab", "ProcessingTab"),
-    ("Viewer", "impress_gui.ui.viewer.tab", "ViewerTab"),
-)
 Button = QMessageBox.StandardButton
 
 
-class PlaceholderTab(QWidget):
-    def __init__(self, title: str, detail: str = "") -> None:
-        super().__init__()
-        box = QVBoxLayout(self)
-        label = QLabel(
-            f"<h2>{title}</h2><p>Coming soon: this part of the workstation is being "
-            f"built.</p><p>{detail}</p>"
-        )
-        label.setAlignment(Qt.AlignmentFlag.AlignCenter)
-        label.setWordWrap(True)
-        box.addWidget(label)
-        self.is_placeholder = True
+class Tab(Protocol):
+    """What the window asks of each tab (besides being a QWidget built over the session)."""
 
+    changed: SignalInstance  # something the project keeps changed
+    status: SignalInstance  # a line for the status bar
 
-def make_tab(title: str, module: str, cls_name: str, **kwargs) -> QWidget:
-    """The tab class from ``module`` if it is there, else a labelled placeholder."""
-    try:
-        cls = getattr(importlib.import_module(module), cls_name)
-    except ModuleNotFoundError as exc:
-        if exc.name != module:
-            return PlaceholderTab(title, f"(it cannot start: {exc})")
-        return PlaceholderTab(title)
-    except (ImportError, AttributeError) as exc:
-        return PlaceholderTab(title, f"(it cannot start: {exc})")
-    params = inspect.signature(cls).parameters
-    accepted = {k: v for k, v in kwargs.items() if k in params}
-    return cls(**accepted)
+    def commit_to_project(self) -> None: ...  # copy what the tab holds into the project
+    def is_dirty(self) -> bool: ...  # holds changes not yet in the project
+    def shutdown(self) -> None: ...  # stop its background work (safe twice)
 
 
 class MainWindow(QMainWindow):
     def __init__(
         self,
         settings: QSettings,
-        motor_panel: QWidget | None = None,
+        motor_panel: MotorPanel | None = None,
         dialogs: Dialogs | None = None,
         parent: QWidget | None = None,
     ) -> None:
         super().__init__(parent)
         self.motor_panel = motor_panel
+        self.validation_dialog = None
         self._closing_done = False
+        self._tabs: list = []
+        self.session = Session()
         try:
             self._build(settings, motor_panel, dialogs)
         except BaseException:
@@ -97,54 +78,62 @@ class MainWindow(QMainWindow):
             raise
 
     def _build(
-        self, settings: QSettings, motor_panel: QWidget | None, dialogs: Dialogs | None
+        self, settings: QSettings, motor_panel: MotorPanel | None, dialogs: Dialogs | None
     ) -> None:
         # compile the reconstruction kernels in a child process while the user works (the
         # first import would otherwise hold the GIL for seconds in a worker thread)
         prepare_in_background()
         self.settings = settings
-        self.project = Project()
         self.dialogs = dialogs or Dialogs(self)
         self.messenger = Messenger(self, log=self._log)
         self.tabs = QTabWidget()
         self.setCentralWidget(self.tabs)
-        self.calibration_tab = CalibrationTab(self.messenger, self.dialogs)
-        self.tabs.addTab(self.calibration_tab, "Calibration")
-        self.extra_tabs: dict[str, QWidget] = {}
-        for title, module, cls_name in OPTIONAL_TABS:
-            tab = make_tab(title, module, cls_name, messenger=self.messenger, dialogs=self.dialogs)
-            self.extra_tabs[title] = tab
+        s = self.session
+        self.calibration_tab = CalibrationTab(self.messenger, self.dialogs, settings=settings,
+                                              session=s)
+        self._tabs.append(self.calibration_tab)
+        self.processing_tab = ProcessingTab(messenger=self.messenger, dialogs=self.dialogs,
+                                            session=s)
+        self._tabs.append(self.processing_tab)
+        self.viewer_tab = ViewerTab(messenger=self.messenger, dialogs=self.dialogs, session=s)
+        self._tabs.append(self.viewer_tab)
+        # the tabs after the first, by title
+        self.extra_tabs: dict[str, QWidget] = {"Processing": self.processing_tab,
+                                               "Viewer": self.viewer_tab}
+        for title, tab in (("Calibration", self.calibration_tab), *self.extra_tabs.items()):
             self.tabs.addTab(tab, title)
-        for tab in self.all_tabs():
-            if hasattr(tab, "changed"):
-                tab.changed.connect(self._update_title)
-            if hasattr(tab, "status"):
-                tab.status.connect(self.show_status)
-        self.calibration_tab.calibrated.connect(self._on_calibrated)
-        self.calibration_tab.video_changed.connect(lambda _p: self._update_title())
+            tab.changed.connect(self._update_title)
+            tab.status.connect(self.show_status)
+        s.changed.connect(self._update_title)
+        s.status.connect(self.show_status)
+        s.evidence_changed.connect(lambda _e: self._update_title())
+        self._front_on_load = False
+        s.reconstruction_added.connect(self._on_reconstruction_added)
+        self.viewer_tab.loaded.connect(self._on_viewer_loaded)
         self.motor_dock: QDockWidget | None = None
         if motor_panel is not None:
             self.motor_dock = QDockWidget("Motor", self)
             self.motor_dock.setObjectName("motor-dock")
             self.motor_dock.setWidget(motor_panel)
             self.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self.motor_dock)
-            if hasattr(motor_panel, "error"):
-                motor_panel.error.connect(
-                    lambda code, msg: self._log("motor error", {"code": code, "message": msg})
-                )
+            motor_panel.error.connect(
+                lambda code, msg: self._log("motor error", {"code": code, "message": msg})
+            )
         self.project_label = QLabel()
         self.statusBar().addPermanentWidget(self.project_label)
         self._build_menus()
         self.set_project(Project())
 
+    @property
+    def project(self) -> Project:
+        return self.session.project
+
     def _stop_started_work(self) -> None:
         """After a failure while the window was being built: stop what already runs."""
-        tabs = [getattr(self, "calibration_tab", None), *getattr(self, "extra_tabs", {}).values()]
-        for tab in tabs:
-            if tab is not None and hasattr(tab, "shutdown"):
-                with contextlib.suppress(Exception):
-                    tab.shutdown()
-        if self.motor_panel is not None and hasattr(self.motor_panel, "shutdown"):
+        for tab in self._tabs:
+            with contextlib.suppress(Exception):
+                tab.shutdown()
+        if self.motor_panel is not None:
             self.motor_panel.shutdown()
         self._closing_done = True
 
@@ -225,22 +214,18 @@ class MainWindow(QMainWindow):
         """Show the method-validation dialog (created on first use)."""
         from impress_gui.ui.validation_dialog import ValidationDialog
 
-        if getattr(self, "validation_dialog", None) is None:
+        if self.validation_dialog is None:
             self.validation_dialog = ValidationDialog(self.messenger, self.dialogs, self)
         self.validation_dialog.show()
         self.validation_dialog.raise_()
         return self.validation_dialog
 
-    def all_tabs(self) -> list[QWidget]:
-        return [self.calibration_tab, *self.extra_tabs.values()]
+    def all_tabs(self) -> list[Tab]:
+        return list(self._tabs)
 
     # ----- state ----------------------------------------------------------------------------------
     def is_dirty(self) -> bool:
-        return (
-            self.project.dirty
-            or self.calibration_tab.dirty
-            or any(getattr(t, "is_dirty", lambda: False)() for t in self.extra_tabs.values())
-        )
+        return self.project.dirty or any(tab.is_dirty() for tab in self._tabs)
 
     def _update_title(self) -> None:
         self.setWindowTitle(f"IMPREsS - {self.project.title}[*]")
@@ -258,17 +243,18 @@ class MainWindow(QMainWindow):
         self.project.log(action, details)
 
     def set_project(self, project: Project) -> None:
-        self.project = project
-        for tab in self.all_tabs():
-            if hasattr(tab, "set_project"):
-                tab.set_project(project)
+        """Open ``project`` in the session (the tabs follow)."""
+        self.session.open_project(project)
         self._update_title()
 
-    def _on_calibrated(self, _cal) -> None:
-        for tab in self.extra_tabs.values():
-            if hasattr(tab, "project_updated"):
-                tab.project_updated()
-        self._update_title()
+    def _on_reconstruction_added(self, _folder) -> None:
+        """A reconstruction was made or opened: bring the viewer to the front once it shows it."""
+        self._front_on_load = True
+
+    def _on_viewer_loaded(self) -> None:
+        if self._front_on_load:
+            self._front_on_load = False
+            self.tabs.setCurrentWidget(self.viewer_tab)
 
     # ----- File menu --------------------------------------------------------------------------
     def maybe_save(self) -> bool:
@@ -370,9 +356,8 @@ class MainWindow(QMainWindow):
 
     def _save(self, folder: Path | None) -> bool:
         try:
-            for tab in self.all_tabs():
-                if hasattr(tab, "commit_to_project"):
-                    tab.commit_to_project()
+            for tab in self._tabs:
+                tab.commit_to_project()
             path = self.project.save(folder)
         except (ImpressError, OSError) as exc:
             self.messenger.exception("The project was not saved", exc)
@@ -446,16 +431,16 @@ class MainWindow(QMainWindow):
         if self._closing_done:
             return
         self._closing_done = True
-        for tab in self.all_tabs():
-            if hasattr(tab, "shutdown"):
-                tab.shutdown()
-        if self.motor_panel is not None and hasattr(self.motor_panel, "current_settings"):
+        for tab in self._tabs:
+            tab.shutdown()
+        if self.motor_panel is not None:
             from impress_gui.ui.motor.choices import save_motor_choices
 
             save_motor_choices(self.settings, self.motor_panel.current_settings())
-        if self.motor_panel is not None and hasattr(self.motor_panel, "shutdown"):
+        if self.motor_panel is not None:
             self.motor_panel.shutdown()
-        if getattr(self, "validation_dialog", None) is not None:
+        if self.validation_dialog is not None:
             self.validation_dialog.shutdown()
+        self.session.close()
         self.messenger.close_all()
         self.settings.sync()
