@@ -219,16 +219,6 @@ class Plane:
         object.__setattr__(self, "normal", n / norm)
         object.__setattr__(self, "offset_mm", float(self.offset_mm) / norm)
 
-    def intersect_rays(self, dirs: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
-        """Intersect rays ``origin + t dirs`` (``(N, 3)``) with the plane; NaN when parallel."""
-        dirs = np.asarray(dirs, dtype=float)
-        o = np.zeros(3) if origin is None else np.asarray(origin, dtype=float)
-        denom = dirs @ self.normal
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (self.offset_mm - o @ self.normal) / denom
-        t = np.where(np.abs(denom) > 1e-12, t, np.nan)
-        return o + t[..., None] * dirs
-
     def distance(self, pts: np.ndarray) -> np.ndarray:
         return np.asarray(pts, dtype=float) @ self.normal - self.offset_mm
 

@@ -20,7 +20,7 @@ from typing import Any, cast
 import numpy as np
 
 from impress_gui import __version__
-from impress_gui.core.base.fileio import atomic_write_bytes, dumps_json, sha256_file
+from impress_gui.core.base.fileio import dumps_json, sha256_file
 
 RECON_FORMAT = "impress.reconstruction"
 HEIGHT_CONVENTION = (
@@ -418,9 +418,3 @@ def build_metadata(rec, cal, params, inputs: dict) -> dict:
         "warnings": list(rec.warnings),
     }
 
-
-def file_sha256(path) -> str:
-    return sha256_file(path)
-
-
-__all__ = ["write_reconstruction", "build_metadata", "atomic_write_bytes"]

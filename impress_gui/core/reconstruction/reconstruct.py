@@ -107,7 +107,6 @@ def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) ->
     w, h = size
     rot = cal.rotation
     out = {}
-    us = np.linspace(0, w - 1, 33)
     for name in LASERS:
         plane = cal.planes[name].plane
         rows = []
@@ -128,7 +127,6 @@ def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) ->
         a = int(np.floor(min(rows))) - 8
         b = int(np.ceil(max(rows))) + 9
         out[name] = (max(0, a - a % 2), min(h, b + b % 2))
-    del us
     g, r = out["green"], out["red"]
     if g[0] < r[1] and r[0] < g[1]:  # overlapping bands: split between the two stripes
         lo, hi = sorted(LASERS, key=lambda n: sum(out[n]))
@@ -235,7 +233,7 @@ def learn_background(video, start: int, stop: int, rois: dict, n_frames: int,
     return lut
 
 
-def _default_range(video, cal: SceneCalibration, params: ProcessParams) -> tuple[int, int]:
+def _default_range(video, params: ProcessParams) -> tuple[int, int]:
     n = video.frame_count
     start = params.frame_start if params.frame_start is not None else min(n - 1, int(round(0.5 * video.fps)))
     stop = params.frame_stop if params.frame_stop is not None else max(start + 1, n - int(round(0.5 * video.fps)))
@@ -298,7 +296,7 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
     t_start = time.perf_counter()
     w, h = video.size
     cal.intrinsics.check_image_size(w, h)
-    start, stop = _default_range(video, cal, params)
+    start, stop = _default_range(video, params)
     rois = dict(params.rois) or laser_rois(cal, (w, h), params.height_range_mm)
     sp = StripeParams(method=params.method, rois=rois, min_peak=params.min_peak)
     sp.validate(h)

@@ -62,12 +62,6 @@ class StripeParams:
             raise InputError("half_window_px must be 1..30 and min_peak positive", code="E-PARAM")
 
 
-def luma(rgb: np.ndarray) -> np.ndarray:
-    """BT.601 luma of an RGB band as float32 (what H.264 stores at full resolution)."""
-    rgb = rgb.astype(np.float32, copy=False)
-    return 0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]
-
-
 class BackgroundLUT:
     """The seed's RGB lookup tables, one per laser, learned from pixels outside both ROIs."""
 
@@ -96,28 +90,6 @@ class BackgroundLUT:
         return rgb[..., c].astype(np.int16) > lim + margin
 
 
-def hue_mask(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
-    import cv2
-
-    hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV)
-    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
-    m = np.zeros(h.shape, bool)
-    for lo, hi in params.hue_ranges[name]:
-        m |= (h >= lo) & (h <= hi)
-    m &= (s >= params.min_saturation) & (v >= params.min_value)
-    return m
-
-
-def tint_mask(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
-    """Bright pixels tinted towards the laser's colour: the halo of a stripe that saturates
-    to white on a bright surface, where hue and saturation tests fail."""
-    c = _CH[name]
-    o1, o2 = _OTHERS[name]
-    ch = rgb[..., c].astype(np.int16)
-    excess = ch - np.maximum(rgb[..., o1], rgb[..., o2]).astype(np.int16)
-    return (excess >= params.min_tint) & (ch >= params.min_value)
-
-
 @dataclass
 class StripeResult:
     """Per column: sub-pixel row (NaN where no stripe) and a confidence (peak above
@@ -132,13 +104,6 @@ class StripeResult:
 
     def copy(self) -> StripeResult:
         return StripeResult(self.rows.copy(), self.strength.copy())
-
-
-def _dilate_rows(mask: np.ndarray, k: int) -> np.ndarray:
-    import cv2
-
-    kernel = np.ones((2 * k + 1, 1), np.uint8)
-    return cv2.dilate(mask.view(np.uint8), kernel).astype(bool)
 
 
 @dataclass
