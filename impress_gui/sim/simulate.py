@@ -11,17 +11,13 @@ import numpy as np
 
 from impress_gui import __version__
 from impress_gui.core.base.errors import InputError
-from impress_gui.core.base.fileio import (
-    atomic_write_png,
-    atomic_write_tiff,
-    sha256_path,
-    write_json,
-)
+from impress_gui.core.base.fileio import atomic_write_bytes, sha256_path, write_json
 from impress_gui.core.base.outdir import OutputFolder
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.calibration.geometry import Plane
 from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel, default_target
+from impress_gui.core.formats.images import png_bytes, tiff_bytes
 from impress_gui.sim.rig import Motion, Rig, default_rig
 from impress_gui.sim.scenes import DEFAULT_LENGTH_MM, PRESETS, build_scene
 
@@ -404,9 +400,9 @@ def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
                   corners_t2={c: tuple(v) for c, v in picks_doc["t2"][1].items()},
                   note=f"simulator picks (click noise {cfg.click_noise_px} px)")
     picks.save(out_dir / "picks.json")
-    atomic_write_tiff(out_dir / "truth_height.tif", scene.height_mm.astype(np.float32),
-                      compression="zlib")
-    atomic_write_png(out_dir / "truth_texture.png", scene.albedo)
+    atomic_write_bytes(out_dir / "truth_height.tif",
+                       tiff_bytes(scene.height_mm.astype(np.float32), shape_metadata=True))
+    atomic_write_bytes(out_dir / "truth_texture.png", png_bytes(scene.albedo))
     truth = {
         "format": TRUTH_FORMAT,
         "version": 1,

@@ -69,9 +69,9 @@ class FrameFolderSink:
         self.count = 0
 
     def write(self, rgb: np.ndarray) -> None:
-        import cv2
+        from impress_gui.core.formats.images import png_bytes
 
-        cv2.imwrite(str(self.tmp / f"frame_{self.count:06d}.png"), rgb[..., ::-1])
+        (self.tmp / f"frame_{self.count:06d}.png").write_bytes(png_bytes(rgb))
         self.count += 1
 
     def close(self) -> None:

@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from impress_gui.core.base.fileio import atomic_write_bytes
+from impress_gui.core.formats.images import png_bytes
+from impress_gui.core.formats.recon_files import HEIGHTMAP_FILE, METADATA_FILE, X3P_FILE
 from impress_gui.validation import protocol as V
 
 REPORT_FILE = "validation_report.html"
@@ -90,12 +92,7 @@ def format_table(record: dict) -> str:
 
 # ----- figures -------------------------------------------------------------------------------
 def _png_data_uri(rgb: np.ndarray) -> str:
-    import cv2
-
-    ok, enc = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
-    if not ok:
-        raise OSError("PNG encoding failed")
-    return "data:image/png;base64," + base64.b64encode(enc.tobytes()).decode("ascii")
+    return "data:image/png;base64," + base64.b64encode(png_bytes(rgb)).decode("ascii")
 
 
 def _text(img, s, org, scale=0.45, colour=(0, 0, 0), thick=1):
@@ -339,7 +336,7 @@ def report_html(record: dict, figures: bool = True) -> str:
         files |= {
             f"output {k}": v
             for k, v in s.get("reconstruction", {}).get("files", {}).items()
-            if k in ("heightmap.tif", "metadata.json", "heightmap.x3p")
+            if k in (HEIGHTMAP_FILE, METADATA_FILE, X3P_FILE)
         }
         if s.get("simulator_sha256"):
             files["simulator code (at rendering)"] = s["simulator_sha256"]

@@ -18,18 +18,40 @@ from pathlib import Path
 from typing import Any
 
 from impress_gui.core.base.errors import FormatError
+from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 
 MAX_JSON_BYTES = 50 * 1024 * 1024
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
 
-def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
-    """SHA-256 hex digest of a file, read (never written) in chunks."""
-    h = hashlib.sha256()
+def sha256_file(path: str | os.PathLike | int, chunk: int = 1 << 20, *,
+                progress: ProgressCallback | None = None, cancel: CancelToken | None = None,
+                message: str = "hashing") -> str:
+    """SHA-256 hex digest of a file, read (never written) in chunks: ``path``, or an open
+    descriptor (read from its start with ``os.pread``: its position is left alone).
+    ``cancel`` is checked and ``progress`` told the share read (with ``message``) after each
+    chunk."""
+    if isinstance(path, int):
+        fd = path
+        return _sha256_chunks(lambda done: os.pread(fd, chunk, done), os.fstat(fd).st_size,
+                              progress, cancel, message)
     with open(path, "rb") as fh:
-        while block := fh.read(chunk):
-            h.update(block)
+        return _sha256_chunks(lambda _done: fh.read(chunk), os.fstat(fh.fileno()).st_size,
+                              progress, cancel, message)
+
+
+def _sha256_chunks(read, size: int, progress: ProgressCallback | None,
+                   cancel: CancelToken | None, message: str) -> str:
+    h = hashlib.sha256()
+    done = 0
+    while block := read(done):
+        if cancel is not None:
+            cancel.check()
+        h.update(block)
+        done += len(block)
+        if progress is not None:
+            report(progress, done / max(1, size), message)
     return h.hexdigest()
 
 
@@ -246,25 +268,3 @@ def float_array(value: Any, shape: tuple[int, ...], name: str) -> Any:
     if np.any(np.abs(arr) > 1e9):
         raise FormatError(f"{name} contains absurdly large values")
     return arr
-
-
-def atomic_write_tiff(path: str | os.PathLike, array, **kwargs) -> None:
-    """Write a TIFF atomically (rendered in memory, then renamed into place)."""
-    import io
-
-    import tifffile
-
-    buf = io.BytesIO()
-    tifffile.imwrite(buf, array, **kwargs)
-    atomic_write_bytes(path, buf.getvalue())
-
-
-def atomic_write_png(path: str | os.PathLike, rgb_or_gray) -> None:
-    """Write an 8/16-bit PNG atomically; colour input is RGB (converted for OpenCV)."""
-    import cv2
-
-    img = rgb_or_gray[..., ::-1] if getattr(rgb_or_gray, "ndim", 2) == 3 else rgb_or_gray
-    ok, data = cv2.imencode(".png", img)
-    if not ok:
-        raise OSError(f"cannot encode {path} as PNG")
-    atomic_write_bytes(path, data.tobytes())

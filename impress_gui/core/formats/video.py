@@ -180,14 +180,9 @@ class AVVideo(VideoSource):
             self._fd = -1
 
     def sha256(self) -> str:
-        import hashlib
+        from impress_gui.core.base.fileio import sha256_file
 
-        h = hashlib.sha256()
-        off, chunk = 0, 4 << 20
-        while block := os.pread(self._fd, chunk, off):
-            h.update(block)
-            off += len(block)
-        return h.hexdigest()
+        return sha256_file(self._fd, 4 << 20)
 
     def check_unchanged(self) -> None:
         now = _stat_key(os.fstat(self._fd))

@@ -21,8 +21,22 @@ import numpy as np
 
 from impress_gui import __version__
 from impress_gui.core.base.fileio import dumps_json, sha256_file
+from impress_gui.core.formats.images import png_bytes, tiff_bytes
+from impress_gui.core.formats.recon_files import (
+    COLOUR_PNG,
+    CONTRIBUTION_PNG,
+    GREY8_PNG,
+    LAYER_FILES,
+    METADATA_FILE,
+    PLY_FILE,
+    RECON_FILES,
+    RECON_FORMAT,
+    RECON_VERSION,
+    RUN_FILE,
+    TEXTURE_FILE,
+    X3P_FILE,
+)
 
-RECON_FORMAT = "impress.reconstruction"
 HEIGHT_CONVENTION = (
     "height in mm, up = towards the camera, relative to the calibration target's base plane "
     "(the ground the target stands on); NaN = no data"
@@ -30,33 +44,6 @@ HEIGHT_CONVENTION = (
 GREY_OFFSET = 128  # thesis 8-bit convention: one grey level = 0.1 mm, 128 = reference height
 CONTRIB_CODES = {0: "no data", 1: "green only", 2: "red only", 3: "both (mean)",
                  4: "both disagree (nearer the local consensus)"}
-
-
-def _tiff_bytes(arr: np.ndarray, spec=None, description: str | None = None) -> bytes:
-    """zlib TIFF; with ``spec`` the resolution tags give the cell size (pixels per cm), with
-    ``description`` the ImageDescription (ASCII) carries it (provenance, units)."""
-    import tifffile
-
-    extra: dict = {}
-    if spec is not None:
-        ppcm = 10.0 / spec.pixel_mm
-        extra = {"resolution": (ppcm, ppcm), "resolutionunit": "CENTIMETER"}
-    if description:
-        extra["description"] = description.encode("ascii", "backslashreplace").decode("ascii")
-    buf = io.BytesIO()
-    tifffile.imwrite(buf, arr, compression="zlib", compressionargs={"level": ZLIB_LEVEL},
-                     metadata=None, software=None, **extra)
-    return buf.getvalue()
-
-
-def _png_bytes(img: np.ndarray) -> bytes:
-    import cv2
-
-    data = img[..., ::-1] if img.ndim == 3 else img
-    ok, enc = cv2.imencode(".png", np.ascontiguousarray(data))
-    if not ok:
-        raise OSError("PNG encoding failed")
-    return enc.tobytes()
 
 
 def grey8(height: np.ndarray, step_mm: float = 0.1) -> np.ndarray:
@@ -281,16 +268,10 @@ def contribution_png(contrib: np.ndarray) -> np.ndarray:
     return lut[np.clip(contrib, 0, 4)]
 
 
-RECON_FILES = ("heightmap.tif", "height_green.tif", "height_red.tif", "difference.tif",
-               "contribution.tif", "contribution.png", "heightmap_8bit.png",
-               "heightmap_color.png", "pointcloud.ply", "heightmap.x3p", "texture.png",
-               "metadata.json", "run.json")
-
-
 #: threads encoding and writing the outputs side by side
 WRITE_THREADS = 4
 #: the slowest files first, so that they overlap the rest
-WRITE_ORDER = {"heightmap.x3p": 0, "heightmap.tif": 1, "pointcloud.ply": 2, "texture.png": 3}
+WRITE_ORDER = {X3P_FILE: 0, LAYER_FILES["fused"]: 1, PLY_FILE: 2, TEXTURE_FILE: 3}
 #: zlib level of the TIFFs and the X3P: level 1 is 2x faster than the default 6 for files
 #: 0.5 % (TIFF) and 9 % (X3P) larger (measured on a shoe scan's heightmap)
 ZLIB_LEVEL = 1
@@ -324,35 +305,35 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
     h32 = rec.height_mm.astype(np.float32)
     # each file is made, written and hashed by a task of its own: the encoders (zlib, PNG)
     # release the GIL, so the files are made side by side
+    def tiff(arr: np.ndarray, what: str) -> bytes:
+        return tiff_bytes(arr, pixel_mm=rec.spec.pixel_mm, description=desc(what),
+                          level=ZLIB_LEVEL)
+
     makers: dict[str, Callable[[], bytes]] = {
-        "heightmap.tif": lambda: _tiff_bytes(h32, rec.spec,
-                                             desc("fused height, mm, NaN = no data")),
-        "height_green.tif": lambda: _tiff_bytes(
-            rec.per_laser_mm["green"].astype(np.float32), rec.spec,
-            desc("green laser height, mm")),
-        "height_red.tif": lambda: _tiff_bytes(
-            rec.per_laser_mm["red"].astype(np.float32), rec.spec, desc("red laser height, mm")),
-        "difference.tif": lambda: _tiff_bytes(
-            rec.difference_mm.astype(np.float32), rec.spec, desc("green - red height, mm")),
-        "contribution.tif": lambda: _tiff_bytes(
-            rec.contribution.astype(np.uint8), rec.spec,
-            desc("contribution codes (metadata.json)")),
-        "contribution.png": lambda: _png_bytes(contribution_png(rec.contribution)),
-        "heightmap_8bit.png": lambda: _png_bytes(grey8(rec.height_mm)),
-        "heightmap_color.png": lambda: _png_bytes(pseudo_colour(rec.height_mm)),
-        "pointcloud.ply": lambda: ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step,
-                                            source),
+        LAYER_FILES["fused"]: lambda: tiff(h32, "fused height, mm, NaN = no data"),
+        LAYER_FILES["green"]: lambda: tiff(rec.per_laser_mm["green"].astype(np.float32),
+                                           "green laser height, mm"),
+        LAYER_FILES["red"]: lambda: tiff(rec.per_laser_mm["red"].astype(np.float32),
+                                         "red laser height, mm"),
+        LAYER_FILES["difference"]: lambda: tiff(rec.difference_mm.astype(np.float32),
+                                                "green - red height, mm"),
+        LAYER_FILES["contribution"]: lambda: tiff(rec.contribution.astype(np.uint8),
+                                                  "contribution codes (metadata.json)"),
+        CONTRIBUTION_PNG: lambda: png_bytes(contribution_png(rec.contribution)),
+        GREY8_PNG: lambda: png_bytes(grey8(rec.height_mm)),
+        COLOUR_PNG: lambda: png_bytes(pseudo_colour(rec.height_mm)),
+        PLY_FILE: lambda: ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step, source),
     }
     # written straight into their files (no copy of the whole file in memory)
     streamed: dict[str, Callable[[Path], None]] = {
-        "heightmap.x3p": lambda path: _write_file(path, lambda fh: write_x3p(
+        X3P_FILE: lambda path: _write_file(path, lambda fh: write_x3p(
             fh, rec.spec, rec.height_mm, dates["measured"],
             "IMPREsS reconstruction; " + "; ".join(source)
             + "; parameters, grid and height convention: metadata.json",
             calibrated=dates["calibrated"])),
     }
     if rec.texture_rgb is not None:
-        makers["texture.png"] = lambda: _png_bytes(rec.texture_rgb)
+        makers[TEXTURE_FILE] = lambda: png_bytes(rec.texture_rgb)
     from concurrent.futures import ThreadPoolExecutor, as_completed
 
     from impress_gui.core.base.outdir import MARK_FILE, mark_bytes
@@ -382,8 +363,8 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
             digests.update((n, made[n]) for n in RECON_FILES if n in made)
             meta = dict(metadata)
             meta["files"] = digests
-            folder.path("metadata.json").write_text(dumps_json(meta))
-            folder.path("run.json").write_text(dumps_json(run_info))
+            folder.path(METADATA_FILE).write_text(dumps_json(meta))
+            folder.path(RUN_FILE).write_text(dumps_json(run_info))
         report(progress, 1.0, "outputs written")
         folder.commit()
     except BaseException:
@@ -395,7 +376,7 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
 def build_metadata(rec, cal, params, inputs: dict) -> dict:
     return {
         "format": RECON_FORMAT,
-        "version": 1,
+        "version": RECON_VERSION,
         "software": f"impress {__version__}",
         "inputs": inputs,
         "parameters": params.to_json(),
@@ -405,10 +386,10 @@ def build_metadata(rec, cal, params, inputs: dict) -> dict:
             "convention": "cell [i, j] centred at rail (x0 + j*pixel, y0 + i*pixel) mm; rail "
                           "frame origin = optical centre at calibration frame t1; +Y = motion; "
                           "row 0 is the first row of every image file (as the camera sees it)"},
-        "export_frame": {"files": ["pointcloud.ply", "heightmap.x3p"], "frame": EXPORT_FRAME,
+        "export_frame": {"files": [PLY_FILE, X3P_FILE], "frame": EXPORT_FRAME,
                          "x_mm": "x0 + j*pixel", "y_mm": "-(y0 + i*pixel)", "z_mm": "height"},
         "height": HEIGHT_CONVENTION,
-        "grey8": {"file": "heightmap_8bit.png", "mm_per_level": 0.1, "reference_level":
+        "grey8": {"file": GREY8_PNG, "mm_per_level": 0.1, "reference_level":
                   GREY_OFFSET, "no_data_level": 0},
         "contribution_codes": {str(k): v for k, v in CONTRIB_CODES.items()},
         "calibration": {"roll_deg": cal.roll_deg, "tilt_deg": cal.tilt_deg,

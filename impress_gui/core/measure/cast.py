@@ -455,6 +455,7 @@ def write_cast(recon: str | Path, output: str | Path, params: CastParams,
     from impress_gui.core.base.outdir import check_output_file
     from impress_gui.core.base.progress import sub_progress
     from impress_gui.core.formats.provenance import reconstruction_source
+    from impress_gui.core.formats.recon_files import HEIGHTMAP_FILE
     from impress_gui.core.measure.readings import load_reconstruction
 
     folder = Path(recon)
@@ -474,10 +475,10 @@ def write_cast(recon: str | Path, output: str | Path, params: CastParams,
     report(progress, 0.0, f"reading {folder}")
     data = load_reconstruction(folder, layers=("fused",))
     source = reconstruction_source(data.metadata, data.folder)
-    tif_sha = sha256_file(folder / "heightmap.tif")
-    recorded = (data.metadata.get("files") or {}).get("heightmap.tif")
+    tif_sha = sha256_file(folder / HEIGHTMAP_FILE)
+    recorded = (data.metadata.get("files") or {}).get(HEIGHTMAP_FILE)
     if recorded is not None and recorded != tif_sha:
-        raise FormatError(f"{folder / 'heightmap.tif'} is not the heightmap metadata.json "
+        raise FormatError(f"{folder / HEIGHTMAP_FILE} is not the heightmap metadata.json "
                           "records (its SHA-256 differs): it changed after processing; process "
                           "the scan again", code="E-CAST-HASH")
     mesh = make_cast(data.height_mm, data.spec, params, sub_progress(progress, 0.1, 0.8),

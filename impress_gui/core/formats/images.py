@@ -1,0 +1,48 @@
+"""Image files as bytes: the one PNG encoder and the one TIFF writer of every image the
+product writes (the reconstruction's files, figures, reports, the simulator's truth). Callers
+write the bytes where they belong (atomically, into a checked output folder, inline)."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+
+def png_bytes(img: np.ndarray) -> bytes:
+    """PNG of an RGB ``(H, W, 3)`` or grey ``(H, W)`` image, 8 or 16 bits per sample
+    (OpenCV's encoder with its default settings)."""
+    import cv2
+
+    data = img[..., ::-1] if img.ndim == 3 else img
+    ok, enc = cv2.imencode(".png", np.ascontiguousarray(data))
+    if not ok:
+        raise OSError("PNG encoding failed")
+    return enc.tobytes()
+
+
+def tiff_bytes(arr: np.ndarray, *, pixel_mm: float | None = None,
+               description: str | None = None, software: str | None = None,
+               level: int | None = None, shape_metadata: bool = False) -> bytes:
+    """zlib-compressed TIFF of ``arr``.
+
+    ``pixel_mm``: the resolution tags give the cell size (pixels per cm); ``description``: the
+    ImageDescription (ASCII; other characters become backslash escapes); ``software``: the
+    Software tag (tifffile's own name when None); ``level``: the zlib level (zlib's default
+    when None); ``shape_metadata``: tifffile's JSON description of the array's shape instead
+    of no description (as the simulator's truth heightmap has always been written)."""
+    import tifffile
+
+    extra: dict = {}
+    if pixel_mm is not None:
+        ppcm = 10.0 / pixel_mm
+        extra = {"resolution": (ppcm, ppcm), "resolutionunit": "CENTIMETER"}
+    if description:
+        extra["description"] = description.encode("ascii", "backslashreplace").decode("ascii")
+    if level is not None:
+        extra["compressionargs"] = {"level": level}
+    if not shape_metadata:
+        extra["metadata"] = None
+    buf = io.BytesIO()
+    tifffile.imwrite(buf, arr, compression="zlib", software=software, **extra)
+    return buf.getvalue()
