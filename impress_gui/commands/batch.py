@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 
@@ -23,6 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from impress_gui.commands._progress import progress_printer
     from impress_gui.core.base.errors import InputError
     from impress_gui.session.batch import load_manifest, run_batch
 
@@ -30,11 +30,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--jobs must be 1 to 256", code="E-BATCH")
     items = load_manifest(args.manifest)
 
-    def progress(frac: float, msg: str) -> None:
-        print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
-
     rows = run_batch(items, args.output, jobs=args.jobs, scheduler=args.scheduler,
-                     progress=progress, manifest=args.manifest)
+                     progress=progress_printer(0), manifest=args.manifest)
     width = max(len(r["name"]) for r in rows)
     print(f"batch of {len(rows)} scans in {args.output} (summary.csv, summary.json)")
     for r in rows:

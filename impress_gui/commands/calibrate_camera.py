@@ -8,7 +8,6 @@ Example::
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -35,6 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from impress_gui.commands._progress import progress_printer
     from impress_gui.core.base.errors import InputError
     from impress_gui.core.calibration.intrinsics import parse_board, run_camera_calibration
     from impress_gui.core.formats.video import open_video
@@ -48,13 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from impress_gui.core.base.outdir import check_output_file
 
     check_output_file(args.output, inputs=(args.input,), formats=("impress.intrinsics",))
-    last = [0.0]
-
-    def progress(frac: float, msg: str) -> None:
-        now = time.monotonic()
-        if not args.quiet and (now - last[0] > 2.0 or frac >= 1.0):
-            last[0] = now
-            print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
+    progress = progress_printer(2, quiet=args.quiet)
 
     t0 = time.perf_counter()
     with open_video(args.input, args.fps) as video:

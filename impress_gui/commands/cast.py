@@ -4,8 +4,6 @@ printer, as recorded (a negative) or turned into the outsole's positive, with a 
 from __future__ import annotations
 
 import argparse
-import sys
-import time
 from pathlib import Path
 
 
@@ -42,17 +40,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from impress_gui.commands._progress import progress_printer
     from impress_gui.core.measure.cast import CastParams, write_cast
 
     params = CastParams(positive=args.positive, base_mm=args.base_mm, crop_mm=args.crop,
                         max_triangles=args.max_triangles)
-    last = [0.0]
-
-    def progress(frac: float, msg: str) -> None:
-        now = time.monotonic()
-        if now - last[0] > 2.0 or frac >= 1.0:
-            last[0] = now
-            print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
+    progress = progress_printer()
 
     doc = write_cast(args.reconstruction, args.output, params, progress)
     m, holes = doc["mesh"], doc["holes"]

@@ -22,15 +22,10 @@ def _has_display() -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
+    from impress_gui.commands._progress import progress_printer
     from impress_gui.sim.sample import make_sample
 
-    last = [0.0]
-
-    def progress(frac: float, msg: str) -> None:
-        now = time.monotonic()
-        if now - last[0] > 3.0 or frac >= 1.0:
-            last[0] = now
-            print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
+    progress = progress_printer(3)
 
     t0 = time.perf_counter()
     project = make_sample(args.cache / "sample", progress=progress)

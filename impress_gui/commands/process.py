@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
-import time
 from pathlib import Path
 
 
@@ -44,19 +42,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from impress_gui.commands._progress import progress_printer
     from impress_gui.core.reconstruction.reconstruct import ProcessParams
 
     rois = {name: (a, b) for name, a, b in args.roi}
     params = ProcessParams(method=args.method, frame_start=args.frames[0],
                            frame_stop=args.frames[1], grid_mm=args.grid_mm, rois=rois,
                            min_peak=args.min_peak, texture=not args.no_texture)
-    last = [0.0]
-
-    def progress(frac: float, msg: str) -> None:
-        now = time.monotonic()
-        if now - last[0] > 2.0 or frac >= 1.0:
-            last[0] = now
-            print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
+    progress = progress_printer()
 
     from impress_gui.core.reconstruction.pipeline import process_files
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -134,6 +133,7 @@ def _preset_config(args: argparse.Namespace, blocks: dict):
 
 
 def _run(args: argparse.Namespace, cfg) -> int:
+    from impress_gui.commands._progress import progress_printer
     from impress_gui.core.base.errors import InputError
     from impress_gui.sim.simulate import make_motion, simulate
 
@@ -142,13 +142,7 @@ def _run(args: argparse.Namespace, cfg) -> int:
     workers = args.workers or (1 if n < 300 else min(2, os.cpu_count() or 1))
     if workers < 1:
         raise InputError("--workers must be at least 1", code="E-SIM-OPTION")
-    last = [0.0]
-
-    def progress(frac: float, msg: str) -> None:
-        now = time.monotonic()
-        if now - last[0] > 2.0 or frac >= 1.0:
-            last[0] = now
-            print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr)
+    progress = progress_printer()
 
     t0 = time.perf_counter()
     res = simulate(cfg, args.out, workers=workers, progress=progress)

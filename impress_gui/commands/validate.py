@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 
@@ -79,16 +78,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from impress_gui.commands._progress import progress_printer
     from impress_gui.validation.report import format_table, write_report
     from impress_gui.validation.run import RunConfig, run_real, run_simulated
 
-    last = [0.0]
-
-    def progress(frac: float, msg: str) -> None:
-        now = time.monotonic()
-        if now - last[0] > 5.0 or frac >= 1.0:
-            last[0] = now
-            print(f"  {100 * frac:5.1f} %  {msg}", file=sys.stderr, flush=True)
+    progress = progress_printer(5)
 
     if args.spec is not None:
         record = run_real(args.spec, args.out, progress)
