@@ -4,14 +4,13 @@ import numpy as np
 import pytest
 
 from impress_gui.core.calibration.scene import SceneCalibration
-from impress_gui.core.formats.video import open_video
+from impress_gui.core.formats.video import Planes, open_video
 from impress_gui.core.reconstruction.grid import fuse
 from impress_gui.core.reconstruction.reconstruct import column_bands, laser_rois
 from impress_gui.core.reconstruction.stripes import (
     LASERS,
     METHODS,
     BackgroundLUT,
-    Planes,
     StripeParams,
     detect_planes,
     detect_planes_numpy,
@@ -29,7 +28,7 @@ def frames(flat_scan, flat_calibration):
         for k in v.quick_frames(0, v.frame_count, 6):
             lut.learn(v.read(k), list(rois.values()))
         n = v.frame_count
-        raw = [(k, Planes.from_av(f)) for k, f in v.iter_frames(n // 3, n // 3 + 4, raw=True)]
+        raw = list(v.iter_planes(n // 3, n // 3 + 4))
         # and frames converted from RGB (full-resolution chroma), as a frame folder gives
         rgb = [Planes.from_rgb(v.read(k)) for k in (n // 2, 2 * n // 3)]
     return rois, bands, lut, [p for _, p in raw] + rgb

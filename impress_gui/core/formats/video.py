@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from contextlib import closing
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +37,52 @@ IMAGE_SUFFIXES = FRAME_SUFFIXES
 KEY_SEEK_PACKETS = 300
 
 
+@dataclass
+class Planes:
+    """A frame as BT.601 limited-range YCbCr planes, the way H.264 stores it: luma ``y`` at
+    full resolution, chroma ``cb``/``cr`` at ``chroma_step`` (2 for 4:2:0 video, 1 for frames
+    converted from RGB). What :meth:`VideoSource.iter_planes` yields."""
+
+    y: np.ndarray  # (H, W) uint8
+    cb: np.ndarray
+    cr: np.ndarray
+    chroma_step: int = 2
+
+    @classmethod
+    def from_rgb(cls, rgb: np.ndarray) -> Planes:
+        f = rgb.astype(np.float32)
+        r, g, b = f[..., 0], f[..., 1], f[..., 2]
+        y = 16 + (65.481 * r + 128.553 * g + 24.966 * b) / 255
+        cb = 128 + (-37.797 * r - 74.203 * g + 112.0 * b) / 255
+        cr = 128 + (112.0 * r - 93.786 * g - 18.214 * b) / 255
+        q = [np.clip(np.rint(a), 0, 255).astype(np.uint8) for a in (y, cb, cr)]
+        return cls(q[0], q[1], q[2], 1)
+
+    @classmethod
+    def from_av(cls, frame) -> Planes:
+        """Zero-copy views of a decoded PyAV frame's planes (converted to yuv420p first if it
+        is in another format); the views keep the frame's buffers alive."""
+        if frame.format.name not in ("yuv420p", "yuvj420p"):
+            frame = frame.reformat(format="yuv420p")
+        w, h = frame.width, frame.height
+        views = []
+        for i, (pw, ph) in enumerate(((w, h), ((w + 1) // 2, (h + 1) // 2),
+                                      ((w + 1) // 2, (h + 1) // 2))):
+            pl = frame.planes[i]
+            arr = np.frombuffer(pl, np.uint8).reshape(-1, pl.line_size)
+            views.append(arr[:ph, :pw])
+        return cls(views[0], views[1], views[2], 2)
+
+    def rgb(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """RGB (float32, 0..255) of the pixels at ``rows``/``cols`` (broadcast arrays)."""
+        s = self.chroma_step
+        y = (self.y[rows, cols].astype(np.float32) - 16) * 1.164
+        cb = self.cb[rows // s, cols // s].astype(np.float32) - 128
+        cr = self.cr[rows // s, cols // s].astype(np.float32) - 128
+        rgb = np.stack([y + 1.596 * cr, y - 0.392 * cb - 0.813 * cr, y + 2.017 * cb], axis=-1)
+        return np.clip(rgb, 0, 255)
+
+
 class VideoSource:
     """Common interface. ``size`` is the displayed ``(width, height)`` (1088-line codings are
     cropped to 1080); frames are RGB ``uint8`` arrays ``(H, W, 3)``."""
@@ -52,7 +100,14 @@ class VideoSource:
         raise NotImplementedError
 
     def iter_frames(self, start: int = 0, stop: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield ``(index, RGB frame)`` for ``start <= index < stop``, in order."""
         raise NotImplementedError
+
+    def iter_planes(self, start: int = 0, stop: int | None = None) -> Iterator[tuple[int, Planes]]:
+        """Yield ``(index, frame as YCbCr planes)`` for ``start <= index < stop``, in order:
+        what the reconstruction reads (a frame folder's RGB frames converted)."""
+        for k, rgb in self.iter_frames(start, stop):
+            yield k, Planes.from_rgb(rgb)
 
     def quick_frames(self, start: int, stop: int, n: int) -> list[int]:
         """About ``n`` frame indices spread over ``start..stop-1`` that are cheap to read
@@ -549,9 +604,20 @@ class AVVideo(VideoSource):
             gen.close()
         return self._to_rgb(frame)
 
-    def iter_frames(self, start: int = 0, stop: int | None = None, raw: bool = False):
-        """Yield ``(index, frame)`` for ``start <= index < stop``; ``raw=True`` yields the
-        PyAV frame (for consumers that take the YUV planes themselves)."""
+    def iter_frames(self, start: int = 0, stop: int | None = None):
+        with closing(self._decoded(start, stop)) as frames:
+            for idx, frame in frames:
+                yield idx, self._to_rgb(frame)
+
+    def iter_planes(self, start: int = 0, stop: int | None = None):
+        """As :meth:`VideoSource.iter_planes`: the decoder's own 4:2:0 planes, not converted
+        (the luma at its coded height: 1088 rows for a 1080-line coding)."""
+        with closing(self._decoded(start, stop)) as frames:
+            for idx, frame in frames:
+                yield idx, Planes.from_av(frame)
+
+    def _decoded(self, start: int, stop: int | None):
+        """``(index, PyAV frame)`` for ``start <= index < stop``."""
         stop = self.frame_count if stop is None else min(stop, self.frame_count)
         if start >= stop:
             return
@@ -561,7 +627,7 @@ class AVVideo(VideoSource):
             for idx, frame in gen:
                 if idx >= stop:
                     break
-                yield idx, (frame if raw else self._to_rgb(frame))
+                yield idx, frame
         finally:
             gen.close()
 
@@ -630,7 +696,7 @@ class FrameFolder(VideoSource):
                              code="E-VIDEO-TRUNCATED")
         return np.ascontiguousarray(img[..., ::-1])
 
-    def iter_frames(self, start: int = 0, stop: int | None = None, raw: bool = False):
+    def iter_frames(self, start: int = 0, stop: int | None = None):
         stop = self.frame_count if stop is None else min(stop, self.frame_count)
         for k in range(start, stop):
             yield k, self.read(k)

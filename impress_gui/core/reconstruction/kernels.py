@@ -33,7 +33,7 @@ def hsv_tables() -> tuple[np.ndarray, np.ndarray]:
 
 @_jit
 def _rgb(yv, cbv, crv):
-    """BT.601 limited-range YCbCr -> RGB, clipped to 0..255 (as ``stripes.Planes.rgb``)."""
+    """BT.601 limited-range YCbCr -> RGB, clipped to 0..255 (as ``video.Planes.rgb``)."""
     yy = (yv - 16.0) * 1.164
     cbf = cbv - 128.0
     crf = crv - 128.0

@@ -28,7 +28,6 @@ from impress_gui.core.reconstruction.stripes import (
     LASERS,
     METHODS,
     BackgroundLUT,
-    Planes,
     StripeDetector,
     StripeParams,
 )
@@ -171,7 +170,8 @@ def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
 
 
 class _Frames:
-    """Decoded frames as ``(index, frame)`` from a background thread, through a bounded queue."""
+    """Decoded frames as ``(index, Planes)`` from a background thread, through a bounded
+    queue."""
 
     def __init__(self, video, start: int, stop: int, cancel: CancelToken, depth: int = 6):
         """Start decoding ``video`` (owned from now on: closed by :meth:`close`)."""
@@ -184,7 +184,7 @@ class _Frames:
 
     def _run(self) -> None:
         try:
-            for k, frame in self.video.iter_frames(self.start, self.stop, raw=True):
+            for k, frame in self.video.iter_planes(self.start, self.stop):
                 if self.cancel.cancelled or self._stop:
                     break
                 self.q.put((k, frame))
@@ -397,11 +397,9 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
     damage = getattr(frames.video, "damage", {})
     skipped = [0]
     try:
-        for k, frame in frames:
+        for k, planes in frames:
             cancel.check()
             frames_seen[0] += 1
-            planes = Planes.from_av(frame) if not isinstance(frame, np.ndarray) else \
-                Planes.from_rgb(frame)
             s_k = float(travel[k])
             bad = k in damage
             skipped[0] += bad

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from impress_gui.core.base.errors import InputError
+from impress_gui.core.formats.video import Planes
 
 LASERS = ("green", "red")
 METHODS = ("combined", "hue", "lut")
@@ -104,51 +105,6 @@ class StripeResult:
 
     def copy(self) -> StripeResult:
         return StripeResult(self.rows.copy(), self.strength.copy())
-
-
-@dataclass
-class Planes:
-    """A frame (or band) as BT.601 limited-range YCbCr planes, the way H.264 stores it: luma
-    ``y`` at full resolution, chroma ``cb``/``cr`` at ``chroma_step`` (2 for 4:2:0 video, 1 for
-    frames converted from RGB)."""
-
-    y: np.ndarray  # (H, W) uint8
-    cb: np.ndarray
-    cr: np.ndarray
-    chroma_step: int = 2
-
-    @classmethod
-    def from_rgb(cls, rgb: np.ndarray) -> Planes:
-        f = rgb.astype(np.float32)
-        r, g, b = f[..., 0], f[..., 1], f[..., 2]
-        y = 16 + (65.481 * r + 128.553 * g + 24.966 * b) / 255
-        cb = 128 + (-37.797 * r - 74.203 * g + 112.0 * b) / 255
-        cr = 128 + (112.0 * r - 93.786 * g - 18.214 * b) / 255
-        q = [np.clip(np.rint(a), 0, 255).astype(np.uint8) for a in (y, cb, cr)]
-        return cls(q[0], q[1], q[2], 1)
-
-    @classmethod
-    def from_av(cls, frame) -> Planes:
-        """Zero-copy views of a decoded yuv420p PyAV frame's planes."""
-        if frame.format.name not in ("yuv420p", "yuvj420p"):
-            frame = frame.reformat(format="yuv420p")
-        w, h = frame.width, frame.height
-        views = []
-        for i, (pw, ph) in enumerate(((w, h), ((w + 1) // 2, (h + 1) // 2),
-                                      ((w + 1) // 2, (h + 1) // 2))):
-            pl = frame.planes[i]
-            arr = np.frombuffer(pl, np.uint8).reshape(-1, pl.line_size)
-            views.append(arr[:ph, :pw])
-        return cls(views[0], views[1], views[2], 2)
-
-    def rgb(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """RGB (float32, 0..255) of the pixels at ``rows``/``cols`` (broadcast arrays)."""
-        s = self.chroma_step
-        y = (self.y[rows, cols].astype(np.float32) - 16) * 1.164
-        cb = self.cb[rows // s, cols // s].astype(np.float32) - 128
-        cr = self.cr[rows // s, cols // s].astype(np.float32) - 128
-        rgb = np.stack([y + 1.596 * cr, y - 0.392 * cb - 0.813 * cr, y + 2.017 * cb], axis=-1)
-        return np.clip(rgb, 0, 255)
 
 
 def _hue_ok(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
