@@ -91,13 +91,34 @@ def _window(y, c, centre, k, rr, sig):
 
 
 @_kernel(
-    "void(uint8[:, :], uint8[:, :], uint8[:, :], int64, int64[:], int64, int64, int64, int64, int64, float64, int64, int64, float64, boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64, int64[:], int64[:], float64[:], float32[:])"
+    "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), Tuple((int64[:], int64)), "
+    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64)), "
+    "Tuple((boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64)), "
+    "UniTuple(int64[:], 2), Tuple((float64[:], float32[:])))"
 )
-def detect_stripe(y, cb, cr, s, band_start, band_height, sign, ch, o1, o2, min_peak, k,
-                  max_width, max_wrong_lean, use_hue, hue_lo, hue_hi, min_sat, min_value,
-                  use_tint, min_tint, lut, lut_margin, sdiv, hdiv, rows_out, strength_out):
+def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     """One laser's stripe in every column: the compiled form of ``stripes.detect_planes_numpy``
-    (same steps, same thresholds). ``lut`` is a (64, 64) table or an empty (0, 0) array."""
+    (same steps, same thresholds). The arguments, grouped (tuples cost nothing inside a
+    kernel, and as little as separate arguments to call with):
+
+    * ``frame = (y, cb, cr, chroma_step)``: the frame's planes (:class:`video.Planes`);
+    * ``band = (band_start, band_height)``: rows searched in each column;
+    * ``laser = (sign, ch, o1, o2)``: +1 red / -1 green (the chroma lean), the laser's RGB
+      channel and the other two;
+    * ``peak = (min_peak, k, max_width, max_wrong_lean)``: the peak tests (``k``: the half
+      window);
+    * ``colour = (use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut,
+      lut_margin)``: the method's colour tests; ``lut`` is a (64, 64) table or an empty
+      (0, 0) array;
+    * ``hsv = (sdiv, hdiv)``: :func:`hsv_tables`;
+    * ``out = (rows, strength)``: the result per column (NaN / 0 where no stripe)."""
+    y, cb, cr, s = frame
+    band_start, band_height = band
+    sign, ch, o1, o2 = laser
+    min_peak, k, max_width, max_wrong_lean = peak
+    use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut, lut_margin = colour
+    sdiv, hdiv = hsv
+    rows_out, strength_out = out
     h, w = y.shape
     sh = 1 if s == 2 else 0  # chroma subsampling as a shift (4:2:0 or full resolution)
     r0 = band_start.min()

@@ -13,7 +13,8 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -21,6 +22,7 @@ import numpy as np
 from impress_gui.core.base.errors import InputError, ReconstructionError, VideoError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.formats.video import VideoSource
 from impress_gui.core.reconstruction.compiled import kernels as _kernels
 from impress_gui.core.reconstruction.finish import RowFinisher, TextureInputs, stripe_footprint
 from impress_gui.core.reconstruction.grid import ColorAccumulator, GridSpec, HeightAccumulator
@@ -308,8 +310,11 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
                           cancel, 2) if params.method in ("lut", "combined") else None
         frames = _Frames(video.clone(DECODE_THREADS), start, stop, cancel, SETUP_QUEUE_FRAMES)
         try:
-            return _process(video, cal, params, progress, cancel, spool, preview,
-                            preview_every_s, frames, (start, stop), rois, sp, t_start, lut)
+            return _process(_Run(
+                video=video, cal=cal, params=params, frames=frames, start=start, stop=stop,
+                rois=rois, stripe_params=sp, lut_job=lut, progress=progress, cancel=cancel,
+                spool=spool, preview=preview, preview_every_s=preview_every_s,
+                t_start=t_start))
         finally:
             frames.close()
 
@@ -323,22 +328,69 @@ SETUP_QUEUE_FRAMES = 24
 LOOP_QUEUE_FRAMES = 8
 
 
-def _process(video, cal, params, progress, cancel, spool, preview, preview_every_s, frames,
-             frame_range, rois, sp, t_start, lut_job) -> Reconstruction:
-    """The run after the decoder has started: tables, the frame loop, the finish."""
-    start, stop = frame_range
-    w, h = video.size
-    kern = _kernels()  # loaded (or waited for) before the tables that use them
-    times = video.times_s
-    travel = cal.travel_mm(times)
-    intr, rot = cal.intrinsics, cal.rotation
+@dataclass(frozen=True)
+class _Run:
+    """What one run works with once its decoder has started (fixed for the run)."""
 
-    # ----- grid extent and sampling ----------------------------------------------------------
+    video: VideoSource
+    cal: SceneCalibration
+    params: ProcessParams
+    frames: _Frames
+    start: int
+    stop: int  # one past the last frame
+    rois: dict[str, tuple[int, int]]
+    stripe_params: StripeParams
+    lut_job: Future | None  # the background tables, being learned
+    progress: ProgressCallback | None
+    cancel: CancelToken
+    spool: RowSpool | None  # the texture rows (None: no texture)
+    preview: Callable | None
+    preview_every_s: float
+    t_start: float
+
+    @property
+    def n_frames(self) -> int:
+        return self.stop - self.start
+
+
+@dataclass(frozen=True)
+class _Tables:
+    """What the frame loop reads, prepared once per run from the calibration."""
+
+    spec: GridSpec  # the output grid
+    travel: np.ndarray  # camera travel (mm) of every frame of the video
+    ref: np.ndarray  # the reference surface's depth coefficients
+    bands: dict[str, tuple[np.ndarray, int]]  # per laser: first row per column, band height
+    rays: dict[str, np.ndarray]  # per laser: rail-frame rays through its band
+    k_up: int  # profile points per pixel step
+    offsets: dict[str, tuple[float, float]]  # per laser: stripe points' y - travel range
+    max_gap_mm: float  # profiles farther apart than this are not joined
+    texture: _TextureRow | None
+
+
+@dataclass(frozen=True)
+class _TextureRow:
+    """The texture's source: the row through the principal point after undistortion, sampled
+    in every frame into the spool."""
+
+    spool: RowSpool  # the rows sampled so far
+    rays: np.ndarray  # rail-frame rays of the samples
+    sample: tuple  # bilinear sampling positions: (u0, v0, fu, fv)
+    colours: np.ndarray  # one frame's samples (reused frame after frame)
+
+
+def _tables(run: _Run) -> _Tables:
+    """The grid's extent and sampling, the lasers' bands and rays, the texture row's
+    sampling."""
+    cal, params, (start, stop) = run.cal, run.params, (run.start, run.stop)
+    w, h = run.video.size
+    travel = cal.travel_mm(run.video.times_s)
+    intr, rot = cal.intrinsics, cal.rotation
     per_frame_travel = float(np.median(np.abs(np.diff(travel[start:stop])))) if stop - start > 1 else 0.1
     z_ref0 = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
     # the deepest surface of the height range: where neighbouring pixels lie farthest apart
     z_deep = z_ref0 - min(params.height_range_mm[0], 0.0)
-    bands = column_bands(cal, (w, h), params.height_range_mm, rois)
+    bands = column_bands(cal, (w, h), params.height_range_mm, run.rois)
     rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
     k_up = max(upsampling(rays[n], z_deep, params.grid_mm) for n in LASERS)
     # grid extent: wherever a stripe point can land (the bands' rays on the laser planes,
@@ -354,14 +406,8 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
         raise InputError("the output grid would exceed 400 million cells; use a coarser grid",
                          code="E-PARAM")
     max_gap = 2.5 * per_frame_travel + 2 * params.grid_mm + 0.1
-    acc = {n: HeightAccumulator(spec, max_gap, params.max_step_mm) for n in LASERS}
-    found_frames = dict.fromkeys(LASERS, 0)
-    found_cols = dict.fromkeys(LASERS, 0)  # stripe columns found, summed over frames
-
-    # texture: the row through the principal point after undistortion
-    tex_acc = ColorAccumulator(spec, max_gap) if params.texture else None
-    tex_rows = spool
-    if params.texture:
+    texture = None
+    if params.texture and run.spool is not None:
         x_px = (np.arange(w) - intr.cx) / intr.fx
         px_rays = np.column_stack([x_px, np.zeros(w), np.ones(w)]) @ rot.T
         k_tex = upsampling(px_rays[:, None, :], z_deep, params.grid_mm)
@@ -372,125 +418,173 @@ def _process(video, cal, params, progress, cancel, spool, preview, preview_every
         tex_rays = (np.column_stack([xn, np.zeros_like(xn), np.ones_like(xn)]) @ rot.T)[tex_ok]
         u0 = np.clip(np.floor(tu).astype(np.int64), 0, w - 2)
         v0 = np.clip(np.floor(tv).astype(np.int64), 0, h - 2)
-        tex_sample = (u0, v0, tu - u0, tv - v0)
-        tex_colours = np.empty((len(tu), 3), np.uint8)
+        texture = _TextureRow(run.spool, tex_rays, (u0, v0, tu - u0, tv - v0),
+                              np.empty((len(tu), 3), np.uint8))
+    return _Tables(spec, travel, reference_coeffs(cal), bands, rays, k_up,
+                   dict(zip(LASERS, (f[1] for f in foot))), max_gap, texture)
 
-    ref = reference_coeffs(cal)
-    profile = {n: _Profile(w, k_up) for n in LASERS}
+
+@dataclass
+class _Tally:
+    """What the frame loop counted."""
+
+    found_frames: dict[str, int]  # frames in which each laser's stripe was found
+    found_cols: dict[str, int]  # stripe columns found, summed over frames
+    seen: int = 0  # frames read
+    skipped: int = 0  # frames the decoder reported as damaged
+    t_loop: float = 0.0  # when the loop started (perf_counter)
+
+
+def _process(run: _Run) -> Reconstruction:
+    """The run after the decoder has started: tables, the frame loop, the finish."""
+    params = run.params
+    kern = _kernels()  # loaded (or waited for) before the tables that use them
+    tab = _tables(run)
+    acc = {n: HeightAccumulator(tab.spec, tab.max_gap_mm, params.max_step_mm) for n in LASERS}
+    tex = tab.texture
+    finisher = RowFinisher(tab.spec, acc, params.fuse_tolerance_mm, tab.offsets,
+                           _direction(tab.travel[run.start:run.stop]),
+                           TextureInputs(tex.spool, tex.rays, tab.travel, tab.ref,
+                                         ColorAccumulator(tab.spec, tab.max_gap_mm))
+                           if tex is not None else None)
+    try:
+        lut = run.lut_job.result() if run.lut_job is not None else None
+        detect = {n: StripeDetector(n, tab.bands[n][0], tab.bands[n][1], run.stripe_params, lut)
+                  for n in LASERS}
+        report(run.progress, 0.03, "background learned")
+        tally = _frame_loop(run, tab, kern, acc, detect, finisher)
+    finally:
+        run.frames.close()
+        finisher.close()
+    run.cancel.check()  # the reader stops early on cancel: never take that as a finished run
+    if tally.seen < run.n_frames:
+        raise VideoError(f"the video ended at frame {run.start + tally.seen} before frame "
+                         f"{run.stop - 1}", code="E-VIDEO-TRUNCATED")
+    loop_s = time.perf_counter() - tally.t_loop
+    warnings = _stripe_warnings(run, tally)
+    t_finish = time.perf_counter()
+    report(run.progress, 0.93, "finishing the maps and the texture")
+    finisher.finish()
+    stats = _stats(run, tab, tally, finisher, loop_s, t_finish)
+    report(run.progress, 1.0, "done")
+    if finisher.broken:
+        stats["finished_after_loop"] = finisher.broken
+    return Reconstruction(tab.spec, finisher.fused, finisher.per, finisher.diff,
+                          finisher.contrib, finisher.tex, (run.start, run.stop), run.rois,
+                          stats, warnings)
+
+
+def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator],
+                detect: dict[str, StripeDetector], finisher: RowFinisher) -> _Tally:
+    """Every frame: each laser's stripe -> its profile -> its heightmap, the texture row
+    spooled, the rows left behind handed to the finisher, progress and previews."""
+    params, frames = run.params, run.frames
+    w = run.video.size[0]
+    profile = {n: _Profile(w, tab.k_up) for n in LASERS}
     min_cols = max(2, int(0.02 * w))
-    offsets = dict(zip(LASERS, (f[1] for f in foot)))
-    finisher = RowFinisher(spec, acc, params.fuse_tolerance_mm, offsets,
-                           _direction(travel[start:stop]),
-                           TextureInputs(tex_rows, tex_rays, travel, ref, tex_acc)
-                           if tex_rows is not None and tex_acc is not None else None)
-    lut = lut_job.result() if lut_job is not None else None
-    detect = {n: StripeDetector(n, bands[n][0], bands[n][1], sp, lut) for n in LASERS}
-    plane = {n: cal.planes[n].plane for n in LASERS}
-    report(progress, 0.03, "background learned")
+    plane = {n: run.cal.planes[n].plane for n in LASERS}
+    tex = tab.texture
+    tally = _Tally(dict.fromkeys(LASERS, 0), dict.fromkeys(LASERS, 0))
     frames.limit(LOOP_QUEUE_FRAMES)
-    frames_seen = [0]
-    last_preview = [time.perf_counter()]
-    n_total = stop - start
-    t_loop = time.perf_counter()
+    last_preview = time.perf_counter()
+    n_total = run.n_frames
+    tally.t_loop = time.perf_counter()
     # frames the decoder reports as damaged (filled in by the decoding thread before a frame
     # is queued) give no stripe points: their rows are left to the neighbouring frames
     damage = getattr(frames.video, "damage", {})
-    skipped = [0]
-    try:
-        for k, planes in frames:
-            cancel.check()
-            frames_seen[0] += 1
-            s_k = float(travel[k])
-            bad = k in damage
-            skipped[0] += bad
-            for name in LASERS:
-                if bad:
-                    profile[name].next()
-                    acc[name].reset_chain()
-                    continue
-                res = detect[name](planes)
-                pr = profile[name]
-                up = pr.next()
-                pl = plane[name]
-                n_ok = kern.stripe_profile(
-                    res.rows, CONNECT_PX, min_cols, bands[name][0], rays[name], pl.normal,
-                    float(pl.offset_mm), s_k, ref, params.max_step_mm, pr.k, pr.valid,
-                    pr.x, pr.y, pr.h, *up, pr.y_range)
-                if n_ok < min_cols:  # a few isolated hits are not a stripe
-                    acc[name].reset_chain()
-                    continue
-                found_frames[name] += 1
-                found_cols[name] += int(n_ok)
-                pr.used()
-                acc[name].add_profile(*up)
-                finisher.check_range(name, s_k, pr.y_range)
-            if params.texture:
-                kern.sample_rgb(planes.y, planes.cb, planes.cr, planes.chroma_step,
-                                *tex_sample, tex_colours)
-                tex_rows.append(k, tex_colours)
-            i = k - start + 1
-            if i % 8 == 0:
-                finisher.post(s_k)
-            if preview is not None and time.perf_counter() - last_preview[0] > preview_every_s:
-                last_preview[0] = time.perf_counter()
-                pm = _preview_map(acc)
-                preview(pm, spec=_preview_spec(spec, pm))
-            if i % 25 == 0 or i == n_total:
-                el = time.perf_counter() - t_loop
-                report(progress, 0.05 + 0.85 * i / n_total,
-                       f"frame {i}/{n_total} ({i / max(el, 1e-9):.1f} frames/s)")
-    finally:
-        frames.close()
-        finisher.close()
-    cancel.check()  # the reader stops early on cancel: never take that as a finished run
-    if frames_seen[0] < n_total:
-        raise VideoError(f"the video ended at frame {start + frames_seen[0]} before frame "
-                         f"{stop - 1}", code="E-VIDEO-TRUNCATED")
-    loop_s = time.perf_counter() - t_loop
+    for k, planes in frames:
+        run.cancel.check()
+        tally.seen += 1
+        s_k = float(tab.travel[k])
+        bad = k in damage
+        tally.skipped += bad
+        for name in LASERS:
+            if bad:
+                profile[name].next()
+                acc[name].reset_chain()
+                continue
+            res = detect[name](planes)
+            pr = profile[name]
+            up = pr.next()
+            pl = plane[name]
+            n_ok = kern.stripe_profile(
+                res.rows, CONNECT_PX, min_cols, tab.bands[name][0], tab.rays[name], pl.normal,
+                float(pl.offset_mm), s_k, tab.ref, params.max_step_mm, pr.k, pr.valid,
+                pr.x, pr.y, pr.h, *up, pr.y_range)
+            if n_ok < min_cols:  # a few isolated hits are not a stripe
+                acc[name].reset_chain()
+                continue
+            tally.found_frames[name] += 1
+            tally.found_cols[name] += int(n_ok)
+            pr.used()
+            acc[name].add_profile(*up)
+            finisher.check_range(name, s_k, pr.y_range)
+        if tex is not None:
+            kern.sample_rgb(planes.y, planes.cb, planes.cr, planes.chroma_step, *tex.sample,
+                            tex.colours)
+            tex.spool.append(k, tex.colours)
+        i = k - run.start + 1
+        if i % 8 == 0:
+            finisher.post(s_k)
+        if run.preview is not None and time.perf_counter() - last_preview > run.preview_every_s:
+            last_preview = time.perf_counter()
+            pm = _preview_map(acc)
+            run.preview(pm, spec=_preview_spec(tab.spec, pm))
+        if i % 25 == 0 or i == n_total:
+            el = time.perf_counter() - tally.t_loop
+            report(run.progress, 0.05 + 0.85 * i / n_total,
+                   f"frame {i}/{n_total} ({i / max(el, 1e-9):.1f} frames/s)")
+    return tally
+
+
+def _stripe_warnings(run: _Run, tally: _Tally) -> list[str]:
+    """Warnings about stripes found in few frames or few columns; a stripe never found is an
+    error (``E-NO-STRIPE``)."""
+    w, n_total = run.video.size[0], run.n_frames
     warnings = []
     for name in LASERS:
-        if found_frames[name] == 0:
+        found = tally.found_frames[name]
+        if found == 0:
             raise ReconstructionError(f"the {name} laser's stripe was never found in frames "
-                                      f"{start}..{stop - 1} (rows {rois[name]})",
+                                      f"{run.start}..{run.stop - 1} (rows {run.rois[name]})",
                                       code="E-NO-STRIPE")
-        if found_frames[name] < 0.5 * n_total:
-            warnings.append(f"the {name} stripe was found in only {found_frames[name]} of "
+        if found < 0.5 * n_total:
+            warnings.append(f"the {name} stripe was found in only {found} of "
                             f"{n_total} frames")
         # a stripe crosses the whole picture: a method that finds it in few columns of the
         # frames where it sees it at all drops most of the data (e.g. hue on compressed video)
-        share = found_cols[name] / max(1, found_frames[name] * w)
-        if found_frames[name] and share < LOW_COLUMN_SHARE:
+        share = tally.found_cols[name] / max(1, found * w)
+        if found and share < LOW_COLUMN_SHARE:
             warnings.append(
                 f"W-LOW-FILL: the {name} stripe was found in only {100 * share:.0f} % of the "
-                f"image columns on average (method {params.method}): most of the surface has "
-                "no data; the combined method usually finds far more")
-    t_finish = time.perf_counter()
-    report(progress, 0.93, "finishing the maps and the texture")
-    finisher.finish()
+                f"image columns on average (method {run.params.method}): most of the surface "
+                "has no data; the combined method usually finds far more")
+    return warnings
+
+
+def _stats(run: _Run, tab: _Tables, tally: _Tally, finisher: RowFinisher, loop_s: float,
+           t_finish: float) -> dict:
+    """The run's statistics: of the result (cells, stripes found) and of the run (timings)."""
     per, fused = finisher.per, finisher.fused
-    total_s = time.perf_counter() - t_start
-    stats = {
+    w, n_total = run.video.size[0], run.n_frames
+    total_s = time.perf_counter() - run.t_start
+    return {
         "frames_processed": n_total,
-        "stripe_frames": found_frames,
+        "stripe_frames": tally.found_frames,
         "cells": int(fused.size),
         "cells_fused": int(np.isfinite(fused).sum()),
         "cells_green": int(np.isfinite(per["green"]).sum()),
         "cells_red": int(np.isfinite(per["red"]).sum()),
         "seconds_total": round(total_s, 3),
-        "seconds_setup": round(t_loop - t_start, 3),
+        "seconds_setup": round(tally.t_loop - run.t_start, 3),
         "seconds_frame_loop": round(loop_s, 3),
         "seconds_finish": round(time.perf_counter() - t_finish, 3),
-        "rows_finished_in_loop": round(finisher.rows_during_loop / spec.shape[0], 3),
+        "rows_finished_in_loop": round(finisher.rows_during_loop / tab.spec.shape[0], 3),
         "frames_per_second": round(n_total / max(loop_s, 1e-9), 2),
-        "frames_damaged_skipped": skipped[0],
-        "stripe_column_share": {n: round(found_cols[n] / max(1, found_frames[n] * w), 3)
-                                for n in LASERS},
+        "frames_damaged_skipped": tally.skipped,
+        "stripe_column_share": {
+            n: round(tally.found_cols[n] / max(1, tally.found_frames[n] * w), 3) for n in LASERS},
     }
-    report(progress, 1.0, "done")
-    if finisher.broken:
-        stats["finished_after_loop"] = finisher.broken
-    return Reconstruction(spec, fused, per, finisher.diff, finisher.contrib, finisher.tex,
-                          (start, stop), rois, stats, warnings)
 
 
 def _direction(travel: np.ndarray) -> int:

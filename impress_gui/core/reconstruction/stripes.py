@@ -148,19 +148,21 @@ class StripeDetector:
         self.result = StripeResult(np.empty(w, np.float64), np.empty(w, np.float32))
         self._kernel = kernels().detect_stripe
         self._args = (
-            np.ascontiguousarray(band_start, dtype=np.int64), int(band_height),
-            1 if name == "red" else -1, _CH[name], o1, o2, float(params.min_peak),
-            int(params.half_window_px), int(params.max_width_px), float(params.max_wrong_lean),
-            method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
-            np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
-            int(params.min_value), method == "combined", float(params.min_tint), table,
-            int(params.lut_margin), sdiv, hdiv, self.result.rows, self.result.strength)
+            (np.ascontiguousarray(band_start, dtype=np.int64), int(band_height)),
+            (1 if name == "red" else -1, _CH[name], o1, o2),
+            (float(params.min_peak), int(params.half_window_px), int(params.max_width_px),
+             float(params.max_wrong_lean)),
+            (method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
+             np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
+             int(params.min_value), method == "combined", float(params.min_tint), table,
+             int(params.lut_margin)),
+            (sdiv, hdiv), (self.result.rows, self.result.strength))
 
     def __call__(self, planes: Planes) -> StripeResult:
         if planes.y.shape[1] != len(self.result.rows):
             raise InputError(f"a frame {planes.y.shape[1]} pixels wide, bands for "
                              f"{len(self.result.rows)}", code="E-SIZE-MISMATCH")
-        self._kernel(planes.y, planes.cb, planes.cr, planes.chroma_step, *self._args)
+        self._kernel((planes.y, planes.cb, planes.cr, planes.chroma_step), *self._args)
         return self.result
 
 
