@@ -4,12 +4,14 @@ figures) from a validation record (:mod:`impress_gui.validation.run`). Qt-free."
 from __future__ import annotations
 
 import base64
+import functools
 import html
 import json
 import math
 from pathlib import Path
 
 import numpy as np
+from markupsafe import Markup
 
 from impress_gui.core.base.fileio import atomic_write_bytes
 from impress_gui.core.formats.images import png_bytes
@@ -212,122 +214,99 @@ def scan_figure(folder: Path, readings: list[dict], max_px: int = 560) -> np.nda
 
 
 # ----- the report ----------------------------------------------------------------------------
-_CSS = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}
+# One self-contained HTML document (figures inline); every value is escaped (autoescape on).
+REPORT_TEMPLATE = """\
+{% macro cell(v, nd=3) %}<td>{{ v|f(nd) }}</td>{% endmacro %}
+{% macro verdict(ok) %}{% if ok %}<span class='pass'>PASS</span>{% else %}<span class='fail'>FAIL</span>{% endif %}{% endmacro %}
+<!DOCTYPE html><html><head><meta charset='utf-8'><title>{{ title }}</title><style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 7px;
 text-align:right;font-size:13px}th{background:#eee}td.l,th.l{text-align:left}
 .pass{color:#080;font-weight:bold}.fail{color:#b00;font-weight:bold}code{font-size:12px}
-img{border:1px solid #ccc;margin:4px}"""
+img{border:1px solid #ccc;margin:4px}</style></head><body><h1>{{ title }}</h1>
+<table>{% for key, value in about %}<tr><th class='l'>{{ key }}</th><td class='l'>{{ value }}</td></tr>{% endfor %}</table>
+{% if record.get("config") %}
+<h2>Parameters</h2><pre>{{ record["config"]|dumps(indent=1) }}</pre>
+{% endif %}
+<h2>Absolute errors in the thesis' layout (table 4.1)</h2><table><tr><th class='l' rowspan=2>Placement</th><th colspan=6>this software</th><th colspan=4>thesis (208 readings)</th></tr><tr><th>xy ME</th><th>xy SD</th><th>z ME</th><th>z SD</th><th>n xy/z</th><th>failed</th><th>xy ME</th><th>xy SD</th><th>z ME</th><th>z SD</th></tr>
+{% for r in rows %}
+{% set xy, z = r["xy"], r["z"] %}
+<tr><td class='l'>{{ r["group"] }}</td>{{ cell(xy["mean_abs_mm"]) }}{{ cell(xy["sd_mm"]) }}{{ cell(z["mean_abs_mm"]) }}{{ cell(z["sd_mm"]) }}<td>{{ xy["n"] }}/{{ z["n"] }}</td><td>{{ xy["failed"] + z["failed"] }}</td>{% if r["thesis"] %}{% for v in r["thesis"] %}{{ cell(v, 2) }}{% endfor %}{% else %}<td colspan=4></td>{% endif %}</tr>
+{% endfor %}
+</table>
+{% if acc %}
+<p>Acceptance (five times better than the thesis' overall means): xy mean {{ acc.get("xy_mean_mm")|f }} mm &le; {{ bar_xy_mm }} mm {{ verdict(acc.get("xy_ok")) }}; z mean {{ acc.get("z_mean_mm")|f }} mm &le; {{ bar_z_mm }} mm {{ verdict(acc.get("z_ok")) }}.{% if not acc.get("all_placements") %} <b>Not all six placements were run.</b>{% endif %}</p>
+{% endif %}
+<p>Protocol: per target four dimensions (widths in xy, heights in z) measured with the product's profile tools (a 2 mm wide profile across the target at three stations, after levelling on the plate around it) and compared with the known dimensions. Slotted target A: widths and depths of its two widest slots; stepped target B: widths of treads 2 and 3, rise of the first step and of the whole stair. The thesis' own four measurements are in its missing figure 4.6b/c.</p>
+{% if chart %}
+<img alt='errors per placement' src='{{ chart }}'>
+{% endif %}
+<pre>{{ table }}</pre>
+{% if "flat" in record or "spheres" in record %}
+<h2>VDI/VDE 2634-2 style quantities</h2>
+{% if "flat" in record %}
+<pre>{{ record["flat"]|dumps(indent=1) }}</pre>
+{% endif %}
+{% if "spheres" in record %}
+<table><tr><th>#</th><th>nominal centre (mm)</th><th>diameter</th><th>error</th><th>form</th><th>n</th></tr>
+{% for row in record["spheres"]["spheres"] %}
+{% if "error" in row %}
+<tr><td>{{ loop.index0 }}</td><td class='l' colspan=5>{{ row["error"] }}</td></tr>
+{% else %}
+<tr><td>{{ loop.index0 }}</td><td>{{ row["nominal_centre_mm"]|join_fixed(1) }}</td>{{ cell(row["diameter_mm"]) }}{{ cell(row["diameter_error_mm"]) }}{{ cell(row["form_mm"]) }}<td>{{ row["n"] }}</td></tr>
+{% endif %}
+{% endfor %}
+</table>
+{% endif %}
+{% endif %}
+<h2>Inputs and outputs (SHA-256)</h2><table><tr><th class='l'>scan</th><th class='l'>file</th><th class='l'>SHA-256</th></tr>
+{% for scan, name, sha in files %}
+<tr><td class='l'>{{ scan }}</td><td class='l'>{{ name }}</td><td class='l'><code>{{ sha }}</code></td></tr>
+{% endfor %}
+</table>
+{% if record.get("spec") %}
+<p>Spec file {{ record["spec"]["path"] }}, SHA-256 <code>{{ record["spec"]["sha256"] }}</code></p>
+{% endif %}
+{% if scan_figures is not none %}
+<h2>Where the readings were taken</h2>
+{% for scan, uri in scan_figures %}
+<figure style='display:inline-block'><img alt='{{ scan }}' src='{{ uri }}'><figcaption>{{ scan }}</figcaption></figure>
+{% endfor %}
+{% endif %}
+<h2>Every reading</h2><table><tr><th class='l'>reading</th><th>axis</th><th>nominal</th><th>measured</th><th>error</th><th class='l'>note</th></tr>
+{% for r in record.get("readings", []) %}
+<tr><td class='l'>{{ r["id"] }}</td><td>{{ r["axis"] }}</td>{{ cell(r["nominal_mm"]) }}{{ cell(r["measured_mm"]) }}{{ cell(r["error_mm"]) }}<td class='l'>{{ r["note"] }}</td></tr>
+{% endfor %}
+</table>
+{% if parameters %}
+<h3>Processing parameters: {{ parameters[0] }}</h3><pre>{{ parameters[1]|dumps }}</pre>
+{% endif %}
+</body></html>
+"""
 
 
-def _cell(v, nd=3) -> str:
-    return f"<td>{_f(v, nd)}</td>"
+def _escaped(value) -> Markup:
+    """A value as the standard library's :func:`html.escape` writes it (``&quot;``,
+    ``&#x27;``: the entities of the reports written before the template)."""
+    return value if isinstance(value, Markup) else Markup(html.escape(str(value)))
 
 
-def report_html(record: dict, figures: bool = True) -> str:
-    e = html.escape
-    acc = record.get("acceptance", {})
-    title = (
-        "IMPREsS method validation - simulator"
-        if record.get("kind") == "simulator"
-        else f"IMPREsS method validation - {record.get('name', 'real scans')}"
-    )
-    out = [
-        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{e(title)}</title>"
-        f"<style>{_CSS}</style></head><body><h1>{e(title)}</h1>"
-    ]
-    out.append(
-        "<table>"
-        + "".join(
-            f"<tr><th class='l'>{e(k)}</th><td class='l'>{e(str(v))}</td></tr>"
-            for k, v in (
-                ("Software", record.get("software")),
-                ("Date (UTC)", record.get("date_utc")),
-                ("Host", record.get("host")),
-                ("Python", record.get("python")),
-                ("Kind", record.get("kind")),
-            )
-        )
-        + "</table>"
-    )
-    if record.get("config"):
-        out.append(
-            "<h2>Parameters</h2><pre>" + e(json.dumps(record["config"], indent=1)) + "</pre>"
-        )
-    out.append(
-        "<h2>Absolute errors in the thesis' layout (table 4.1)</h2><table><tr>"
-        "<th class='l' rowspan=2>Placement</th><th colspan=6>this software</th>"
-        "<th colspan=4>thesis (208 readings)</th></tr><tr>"
-        "<th>xy ME</th><th>xy SD</th><th>z ME</th><th>z SD</th><th>n xy/z</th>"
-        "<th>failed</th><th>xy ME</th><th>xy SD</th><th>z ME</th><th>z SD</th></tr>"
-    )
-    for r in table_rows(record):
-        xy, z, th = r["xy"], r["z"], r["thesis"]
-        out.append(
-            f"<tr><td class='l'>{e(r['group'])}</td>"
-            + _cell(xy["mean_abs_mm"])
-            + _cell(xy["sd_mm"])
-            + _cell(z["mean_abs_mm"])
-            + _cell(z["sd_mm"])
-            + f"<td>{xy['n']}/{z['n']}</td><td>{xy['failed'] + z['failed']}</td>"
-            + ("".join(_cell(v, 2) for v in th) if th else "<td colspan=4></td>")
-            + "</tr>"
-        )
-    out.append("</table>")
-    if acc:
+@functools.cache
+def _template():
+    import jinja2
 
-        def verdict(ok):
-            return "<span class='pass'>PASS</span>" if ok else "<span class='fail'>FAIL</span>"
+    env = jinja2.Environment(autoescape=True, finalize=_escaped, trim_blocks=True,
+                             lstrip_blocks=True, keep_trailing_newline=True,
+                             undefined=jinja2.StrictUndefined)
+    env.filters["f"] = _f
+    env.filters["dumps"] = json.dumps
+    env.filters["join_fixed"] = lambda values, nd: ", ".join(f"{v:.{nd}f}" for v in values)
+    return env.from_string(REPORT_TEMPLATE)
 
-        out.append(
-            f"<p>Acceptance (five times better than the thesis' overall means): xy "
-            f"mean {_f(acc.get('xy_mean_mm'))} mm &le; {V.BAR_XY_MM} mm "
-            f"{verdict(acc.get('xy_ok'))}; z mean {_f(acc.get('z_mean_mm'))} mm &le; "
-            f"{V.BAR_Z_MM} mm {verdict(acc.get('z_ok'))}."
-            + ("" if acc.get("all_placements") else " <b>Not all six placements were run.</b>")
-            + "</p>"
-        )
-    out.append(
-        "<p>Protocol: per target four dimensions (widths in xy, heights in z) measured "
-        "with the product's profile tools (a 2 mm wide profile across the target at "
-        "three stations, after levelling on the plate around it) and compared with the "
-        "known dimensions. Slotted target A: widths and depths of its two widest slots; "
-        "stepped target B: widths of treads 2 and 3, rise of the first step and of the "
-        "whole stair. The thesis' own four measurements are in its missing figure 4.6b/c."
-        "</p>"
-    )
-    if figures and record.get("summary"):
-        out.append(f"<img alt='errors per placement' src='{_png_data_uri(bar_chart(record))}'>")
-    out.append("<pre>" + e(format_table(record)) + "</pre>")
-    if "flat" in record or "spheres" in record:
-        out.append("<h2>VDI/VDE 2634-2 style quantities</h2>")
-        if "flat" in record:
-            out.append("<pre>" + e(json.dumps(record["flat"], indent=1)) + "</pre>")
-        if "spheres" in record:
-            s = record["spheres"]
-            out.append(
-                "<table><tr><th>#</th><th>nominal centre (mm)</th><th>diameter</th>"
-                "<th>error</th><th>form</th><th>n</th></tr>"
-            )
-            for i, row in enumerate(s["spheres"]):
-                if "error" in row:
-                    out.append(
-                        f"<tr><td>{i}</td><td class='l' colspan=5>{e(row['error'])}</td></tr>"
-                    )
-                    continue
-                c = ", ".join(f"{v:.1f}" for v in row["nominal_centre_mm"])
-                out.append(
-                    f"<tr><td>{i}</td><td>{c}</td>"
-                    + _cell(row["diameter_mm"])
-                    + _cell(row["diameter_error_mm"])
-                    + _cell(row["form_mm"])
-                    + f"<td>{row['n']}</td></tr>"
-                )
-            out.append("</table>")
-    out.append(
-        "<h2>Inputs and outputs (SHA-256)</h2><table><tr><th class='l'>scan</th>"
-        "<th class='l'>file</th><th class='l'>SHA-256</th></tr>"
-    )
-    for s in record.get("scans", []):
+
+def _file_rows(scans: list[dict]) -> list[tuple[str, str, object]]:
+    """(scan, file, SHA-256) of every scan's inputs, main outputs and simulator code."""
+    out = []
+    for s in scans:
         files = {
             f"input {k}": v.get("sha256")
             for k, v in s.get("inputs", {}).items()
@@ -340,52 +319,39 @@ def report_html(record: dict, figures: bool = True) -> str:
         }
         if s.get("simulator_sha256"):
             files["simulator code (at rendering)"] = s["simulator_sha256"]
-        for k, v in files.items():
-            out.append(
-                f"<tr><td class='l'>{e(s['title'])}</td><td class='l'>{e(k)}</td>"
-                f"<td class='l'><code>{e(str(v))}</code></td></tr>"
-            )
-    out.append("</table>")
-    if record.get("spec"):
-        out.append(
-            f"<p>Spec file {e(record['spec']['path'])}, SHA-256 "
-            f"<code>{e(record['spec']['sha256'])}</code></p>"
-        )
-    if figures:
-        out.append("<h2>Where the readings were taken</h2>")
-        for s in record.get("scans", []):
-            rs = [r for r in record.get("readings", []) if r["group"] == s["title"]]
-            path = s.get("reconstruction", {}).get("path")
-            img = scan_figure(Path(path), rs) if rs and path else None
-            if img is not None:
-                out.append(
-                    f"<figure style='display:inline-block'><img alt='{e(s['title'])}' "
-                    f"src='{_png_data_uri(img)}'><figcaption>{e(s['title'])}"
-                    "</figcaption></figure>"
-                )
-    out.append(
-        "<h2>Every reading</h2><table><tr><th class='l'>reading</th><th>axis</th>"
-        "<th>nominal</th><th>measured</th><th>error</th><th class='l'>note</th></tr>"
-    )
-    for r in record.get("readings", []):
-        out.append(
-            f"<tr><td class='l'>{e(r['id'])}</td><td>{r['axis']}</td>"
-            + _cell(r["nominal_mm"])
-            + _cell(r["measured_mm"])
-            + _cell(r["error_mm"])
-            + f"<td class='l'>{e(r['note'])}</td></tr>"
-        )
-    out.append("</table>")
+        out += [(s["title"], k, v) for k, v in files.items()]
+    return out
+
+
+def _scan_figures(record: dict) -> list[tuple[str, str]]:
+    """(scan, PNG data URI) of where each scan's readings were taken."""
+    out = []
     for s in record.get("scans", []):
-        if s.get("parameters"):
-            out.append(
-                f"<h3>Processing parameters: {e(s['title'])}</h3><pre>"
-                + e(json.dumps(s["parameters"]))
-                + "</pre>"
-            )
-            break
-    out.append("</body></html>\n")
-    return "\n".join(out)
+        rs = [r for r in record.get("readings", []) if r["group"] == s["title"]]
+        path = s.get("reconstruction", {}).get("path")
+        img = scan_figure(Path(path), rs) if rs and path else None
+        if img is not None:
+            out.append((s["title"], _png_data_uri(img)))
+    return out
+
+
+def report_html(record: dict, figures: bool = True) -> str:
+    title = (
+        "IMPREsS method validation - simulator"
+        if record.get("kind") == "simulator"
+        else f"IMPREsS method validation - {record.get('name', 'real scans')}"
+    )
+    about = [("Software", record.get("software")), ("Date (UTC)", record.get("date_utc")),
+             ("Host", record.get("host")), ("Python", record.get("python")),
+             ("Kind", record.get("kind"))]
+    chart = _png_data_uri(bar_chart(record)) if figures and record.get("summary") else None
+    parameters = next(((s["title"], s["parameters"]) for s in record.get("scans", [])
+                       if s.get("parameters")), None)
+    return _template().render(
+        record=record, title=title, about=about, rows=table_rows(record),
+        acc=record.get("acceptance", {}), bar_xy_mm=V.BAR_XY_MM, bar_z_mm=V.BAR_Z_MM,
+        chart=chart, table=format_table(record), files=_file_rows(record.get("scans", [])),
+        scan_figures=_scan_figures(record) if figures else None, parameters=parameters)
 
 
 def write_report(record: dict, out_dir: str | Path, figures: bool = True) -> dict[str, Path]:
