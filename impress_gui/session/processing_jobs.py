@@ -8,8 +8,10 @@ import shutil
 from datetime import datetime
 from pathlib import Path
 
-from impress_gui.core.base.errors import Cancelled, ImpressError
+from impress_gui.core.base.fileio import atomic_write_bytes, dumps_json
 from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.formats.provenance import input_record
+from impress_gui.core.formats.recon_files import METADATA_FILE
 from impress_gui.core.formats.video import open_video
 from impress_gui.core.reconstruction.reconstruct import ProcessParams, learn_background
 from impress_gui.core.reconstruction.stripes import BackgroundLUT
@@ -46,17 +48,22 @@ def reconstruct_into(
     expected_video_sha256: str | None = None,
     preview=None,
 ) -> tuple[dict, str]:
-    """Save the calibration used beside the output (the reconstruction's metadata records its
-    path and hash), run :func:`~impress_gui.core.reconstruction.pipeline.process_files` into ``out`` and
-    return ``(metadata, SHA-256 of metadata.json)``. A cancelled run leaves nothing behind."""
-    from impress_gui.core.reconstruction.pipeline import process_files
+    """Reconstruct ``video`` into ``out`` with the calibration in memory
+    (:func:`~impress_gui.core.reconstruction.pipeline.run_reconstruction`) and return
+    ``(metadata, SHA-256 of metadata.json)``. The calibration used is kept beside the output
+    at ``cal_path``: the metadata records that file and its hash, and the viewer reads it.
+    A cancelled or failed run leaves nothing behind."""
+    from impress_gui.core.reconstruction.pipeline import CalibrationInput, run_reconstruction
 
+    raw = dumps_json(cal.to_json()).encode("utf-8")  # the bytes SceneCalibration.save writes
     out.parent.mkdir(parents=True, exist_ok=True)
-    cal.save(cal_path)
+    atomic_write_bytes(cal_path, raw)
+    calibration = CalibrationInput(cal, input_record(cal_path, hashlib.sha256(raw).hexdigest()))
+    written = False
     try:
-        meta = process_files(
+        meta = run_reconstruction(
             video,
-            cal_path,
+            calibration,
             out,
             params,
             fps=fps,
@@ -65,17 +72,15 @@ def reconstruct_into(
             expected_video_sha256=expected_video_sha256,
             preview=preview,
         )
-        # The reconstruction's frame reader stops at a cancel and the frame loop can end
-        # without noticing: a result (or an error) then stems from a truncated run.
-        if cancel.cancelled:
-            shutil.rmtree(out, ignore_errors=True)
-            raise Cancelled("cancelled by the user")
-    except ImpressError:
-        cal_path.unlink(missing_ok=True)
-        if cancel.cancelled:
-            raise Cancelled("cancelled by the user") from None
-        raise
+        written = True
+        sha = hashlib.sha256((out / METADATA_FILE).read_bytes()).hexdigest()
+        # the one check of the cancel here (the reconstruction raises Cancelled itself when it
+        # sees it): a cancel that came while the outputs were written is a cancelled run too,
+        # and a cancelled run leaves nothing
+        cancel.check()
     except BaseException:
         cal_path.unlink(missing_ok=True)
+        if written:
+            shutil.rmtree(out, ignore_errors=True)
         raise
-    return meta, hashlib.sha256((out / "metadata.json").read_bytes()).hexdigest()
+    return meta, sha

@@ -11,6 +11,10 @@ format's own place (TIFF ImageDescription, PNG tEXt chunks, CSV ``# key: value``
      "parameters": {"layer": ..., "levelling": plane or None, ...}}
 
 Nothing time-dependent goes in: the same reconstruction and settings give the same bytes.
+
+The records of a product's inputs (metadata.json's ``inputs``: the video and the calibration a
+reconstruction was made from) are built by :func:`input_record` and
+:func:`reconstruction_inputs` and read back by :func:`recorded_sha256`; nothing else builds them.
 No Qt here.
 """
 
@@ -18,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import struct
 import zlib
 from collections.abc import Mapping, Sequence
@@ -37,19 +42,40 @@ METADATA_CHANGED = (
 )
 
 
+# ----- the records of the inputs ----------------------------------------------------------------
+def input_record(path: str | os.PathLike, sha256: str) -> dict[str, str]:
+    """One input as a product records it: ``{"path": the path as given, "sha256": the hash of
+    the bytes that were used}`` (the path is kept as the user or the project named it)."""
+    return {"path": str(path), "sha256": sha256}
+
+
+def reconstruction_inputs(video: Mapping, calibration: Mapping) -> dict[str, dict]:
+    """metadata.json's ``inputs``: the records (:func:`input_record`) of the scan video and of
+    the scene calibration a reconstruction was made from (the calibration first, as written
+    since version 1)."""
+    return {"calibration": dict(calibration), "video": dict(video)}
+
+
+def recorded_sha256(inputs: Mapping | None, name: str) -> str | None:
+    """The SHA-256 that an ``inputs`` record (of a reconstruction's metadata or of a
+    calibration) gives for the input ``name`` ("video", "calibration", ...); None if none."""
+    record = (inputs or {}).get(name) or {}
+    return record.get("sha256") if isinstance(record, Mapping) else None
+
+
 # ----- the dictionary -------------------------------------------------------------------------
 def reconstruction_source(metadata: Mapping, folder: str | Path | None) -> dict:
     """What an export was made from: the reconstruction folder, the SHA-256 of its
     metadata.json (read now, and recorded only if it still holds what was loaded), and the
     hashes that metadata.json records for the fused heightmap, the video and the calibration."""
     files = metadata.get("files") or {}
-    inputs = metadata.get("inputs") or {}
+    inputs = metadata.get("inputs")
     out: dict[str, Any] = {
         "reconstruction": None if folder is None else str(folder),
         "metadata_json_sha256": None,
         "heightmap_sha256": files.get("heightmap.tif"),
-        "video_sha256": (inputs.get("video") or {}).get("sha256"),
-        "calibration_sha256": (inputs.get("calibration") or {}).get("sha256"),
+        "video_sha256": recorded_sha256(inputs, "video"),
+        "calibration_sha256": recorded_sha256(inputs, "calibration"),
         "reconstruction_software": metadata.get("software"),
     }
     if folder is not None:
@@ -229,10 +255,13 @@ __all__ = [
     "csv_header",
     "export_provenance",
     "grid_info",
+    "input_record",
     "parse_comment_lines",
     "png_provenance_text",
     "png_with_text",
     "read_png_text",
+    "reconstruction_inputs",
     "reconstruction_source",
+    "recorded_sha256",
     "to_json",
 ]

@@ -3,9 +3,19 @@
 The analyst sets the parameters (frame range, regions of interest dragged on the frame,
 detection method and threshold, grid), checks the detected stripe points of both lasers on
 any frame (and, for the lookup-table methods, the learned background tables), then runs
-:func:`impress_gui.core.reconstruction.pipeline.process_files` in the background with progress, frames/s,
-time remaining and Cancel. The outputs are written into the project folder
-(``reconstructions/<date-time>``), recorded in the project, and handed to the viewer.
+:func:`impress_gui.core.reconstruction.pipeline.run_reconstruction` in the background on the
+calibration in memory, with progress, frames/s, time remaining and Cancel. The outputs are
+written into the project folder (``reconstructions/<date-time>``) and added to the session
+(:meth:`~impress_gui.session.session.Session.add_reconstruction`: recorded in the project; the
+viewer follows the session and shows them).
+
+The tab is a view over a :class:`~impress_gui.session.session.Session`: the project, the
+calibration and the evidence video (frames through :meth:`Session.frame`, on the GUI thread
+only) are the session's, and the tab follows its signals. While the session has no evidence
+video (the tab on its own, or before the calibration tab has checked the project's video) the
+tab opens the project's video itself, for the preview only. Background work never touches a
+reader of the GUI thread: the stripe preview gets the frame as an RGB array, and the lookup
+tables and the reconstruction open readers of their own.
 """
 
 from __future__ import annotations
@@ -34,6 +44,7 @@ from impress_gui.core.project.project import Project
 from impress_gui.core.reconstruction.reconstruct import laser_rois
 from impress_gui.core.reconstruction.stripes import LASERS, BackgroundLUT, StripeParams, detect
 from impress_gui.session.processing_jobs import learn_lut, new_output_folder, reconstruct_into
+from impress_gui.session.session import Evidence, Session
 from impress_gui.ui.calibration.widgets import FrameNavigator
 from impress_gui.ui.frame_view import STRIPE_COLOURS, FrameView
 from impress_gui.ui.messages import Dialogs, Messenger
@@ -57,14 +68,18 @@ class ProcessingTab(QWidget):
         messenger: Messenger | None = None,
         dialogs: Dialogs | None = None,
         parent: QWidget | None = None,
+        session: Session | None = None,
     ) -> None:
         super().__init__(parent)
         self.messenger = messenger or Messenger(self)
         self.dialogs = dialogs or Dialogs(self)
-        self.project = Project()
-        self.video: VideoSource | None = None
-        self.video_path: Path | None = None
-        self.calibration: SceneCalibration | None = None
+        self._own_session = session is None
+        self.session = session if session is not None else Session()
+        # a reader of the tab's own on the project's video, for the preview only while the
+        # session has no evidence video (closed as soon as it has one)
+        self._reader: VideoSource | None = None
+        self._reader_path: Path | None = None
+        self._shown_cal: SceneCalibration | None = None  # the calibration the regions are of
         self.current_frame = 0
         self.lut: BackgroundLUT | None = None
         self._lut_key: tuple | None = None
@@ -85,7 +100,31 @@ class ProcessingTab(QWidget):
             lambda code, msg: self.stripe_label.setText(f"Preview failed [{code}]: {msg}")
         )
         self._build_ui()
-        self._refresh()
+        s = self.session
+        s.project_changed.connect(self._on_project_changed)
+        s.evidence_changed.connect(self._on_evidence_changed)
+        s.calibration_changed.connect(self._on_calibration_changed)
+        self._show_project(s.project)
+
+    # ----- the session's state, as the tab's (read-only) --------------------------------------
+    @property
+    def project(self) -> Project:
+        return self.session.project
+
+    @property
+    def calibration(self) -> SceneCalibration | None:
+        return self.session.calibration
+
+    @property
+    def video(self) -> VideoSource | None:
+        """The reader frames are shown from: the session's evidence reader, else the tab's own."""
+        ev = self.session.evidence
+        return ev.reader if ev is not None else self._reader
+
+    @property
+    def video_path(self) -> Path | None:
+        ev = self.session.evidence
+        return ev.path if ev is not None else self._reader_path
 
     # ----- layout -----------------------------------------------------------------------------
     def _build_ui(self) -> None:
@@ -166,27 +205,71 @@ class ProcessingTab(QWidget):
 
     # ----- project ----------------------------------------------------------------------------
     def set_project(self, project: Project) -> None:
-        self.shutdown_tasks()
-        self._close_video()
-        self.project = project
-        self.calibration = project.calibration
-        if project.processing:
-            self.params.set_params(project.processing)
-        path = project.video_path()
-        if path is not None and path.exists():
-            self.open_video(path)
-        self._refresh()
+        """Open ``project`` in the session (the tab follows the session's signals)."""
+        self.session.open_project(project)
 
     def project_updated(self) -> None:
-        """The calibration tab calibrated: take the new calibration (and video)."""
-        self.calibration = self.project.calibration
+        """The project was changed without the session's signals: show its video (when none
+        is shown) and its calibration again."""
         path = self.project.video_path()
         if (
-            path is not None
+            self.session.evidence is None
+            and path is not None
             and path.exists()
             and (self.video is None or path.resolve() != self.video_path)
         ):
             self.open_video(path)
+        self._show_calibration()
+
+    def _on_project_changed(self, project: Project) -> None:
+        self.shutdown_tasks()
+        self._close_reader()
+        self._show_no_video()
+        self._show_project(project)
+
+    def _show_project(self, project: Project) -> None:
+        """The project's parameters and video (the session's evidence, else a reader of the
+        tab's own on the project's video)."""
+        self._shown_cal = project.calibration
+        if project.processing:
+            self.params.set_params(project.processing)
+        if self.session.evidence is not None:
+            self._show_video()
+        else:
+            path = project.video_path()
+            if path is not None and path.exists():
+                self.open_video(path)
+        self._refresh()
+
+    def _on_evidence_changed(self, ev: Evidence | None) -> None:
+        if ev is None:  # the session's video was closed (the tab's own reader stays)
+            if self._reader is None:
+                self._show_no_video()
+            self._refresh()
+            return
+        own = self._reader
+        same = (
+            own is not None
+            and self._reader_path == ev.path
+            and (own.frame_count == ev.reader.frame_count and own.size == ev.reader.size)
+        )
+        self._close_reader()
+        if same:
+            # the session now holds the video the tab had opened for itself: the frame shown,
+            # the parameters and the lookup tables stay
+            self._refresh()
+            return
+        self._show_no_video()
+        self._show_video()
+        self._refresh()
+
+    def _on_calibration_changed(self, cal: SceneCalibration | None) -> None:
+        if cal is not self._shown_cal:  # (a project just opened is shown with its own)
+            self._show_calibration()
+
+    def _show_calibration(self) -> None:
+        """The session's calibration: its regions of interest, the stripes found with them."""
+        self._shown_cal = self.calibration
         self._update_rois()
         self._refresh()
         self.request_preview()
@@ -210,36 +293,54 @@ class ProcessingTab(QWidget):
         self.previewer.shutdown()
 
     def shutdown(self) -> None:
+        """Stop the tab's work and stop following the session (a session the tab made is
+        closed; one it was given is its owner's to close). Safe twice."""
         self.shutdown_tasks()
-        self._close_video()
+        s = self.session
+        s.project_changed.disconnect(self._on_project_changed)
+        s.evidence_changed.disconnect(self._on_evidence_changed)
+        s.calibration_changed.disconnect(self._on_calibration_changed)
+        self._close_reader()
+        if self._own_session:
+            s.close()
 
     # ----- inputs ------------------------------------------------------------------------------
     def open_video(self, path: str | Path) -> None:
-        """Open the video for the preview (read-only; the evidence hash is the calibration
-        tab's and the project's business)."""
-        self._close_video()
+        """Open a reader of the tab's own on ``path`` for the preview, while the session has
+        no evidence video (read-only; the evidence hash is the calibration tab's and the
+        project's business, and the run checks it again)."""
+        self._close_reader()
+        self._show_no_video()
         try:
-            self.video = open_video(path)
+            reader = open_video(path)
         except ImpressError as exc:
             self.messenger.exception("Cannot open the video", exc)
             return
-        self.video_path = Path(path).resolve()
-        n, (w, h) = self.video.frame_count, self.video.size
+        self._reader, self._reader_path = reader, Path(path).resolve()
+        self._show_video()
+
+    def _show_video(self) -> None:
+        """A video to show (the session's or the tab's own): its range, frame and regions."""
+        video, path = self.video, self.video_path
+        if video is None:
+            return
+        n, (w, h) = video.frame_count, video.size
         self.params.set_frame_count(n)
         self.params.set_image_height(h)
         self.nav.set_range(n)
         self.default_frames()
-        self.video_label.setText(
-            f"Video: {self.video_path}\n{w}x{h}, {self.video.fps:.3f} frames/s, {n} frames"
-        )
+        self.video_label.setText(f"Video: {path}\n{w}x{h}, {video.fps:.3f} frames/s, {n} frames")
         self._update_rois()
         self.go_to_frame(self.params.frame_start.value())
 
-    def _close_video(self) -> None:
-        if self.video is not None:
-            self.video.close()
-        self.video = self.video_path = None
+    def _close_reader(self) -> None:
+        if self._reader is not None:
+            self._reader.close()
+        self._reader = self._reader_path = None
+
+    def _show_no_video(self) -> None:
         self.lut, self._lut_key = None, None
+        self._rgb = None
         self.view.set_frame(None)
         self.view.set_stripes(None)
         self.video_label.setText("Video: none (add it in the Calibration tab)")
@@ -253,12 +354,8 @@ class ProcessingTab(QWidget):
         except ImpressError as exc:
             self.messenger.exception("Cannot use this calibration", exc)
             return False
-        self.project.set_calibration(cal)
-        self.calibration = cal
+        self.session.set_calibration(cal)  # the tab follows: regions, preview
         self.changed.emit()
-        self._update_rois()
-        self._refresh()
-        self.request_preview()
         return True
 
     def default_frames(self) -> None:
@@ -275,16 +372,22 @@ class ProcessingTab(QWidget):
         self.show_frame(k)
 
     def show_frame(self, k: int) -> None:
-        if self.video is None:
+        video = self.video
+        if video is None:
             return
         try:
-            rgb = self.video.read(int(k))
+            # GUI thread: the session's frame cache over its one reader, else the tab's reader
+            rgb = (
+                self.session.frame(int(k))
+                if self.session.evidence is not None
+                else video.read(int(k))
+            )
         except ImpressError as exc:
             self.messenger.exception(f"Cannot show frame {k}", exc)
             return
         self.current_frame, self._rgb = int(k), rgb
         self.view.set_frame(rgb)
-        self.nav.time_label.setText(f"{self.video.times_s[k]:.2f} s")
+        self.nav.time_label.setText(f"{video.times_s[k]:.2f} s")
         self.request_preview()
 
     def current_rois(self) -> dict[str, tuple[int, int]] | None:
@@ -351,6 +454,8 @@ class ProcessingTab(QWidget):
         need_lut = p.method in ("lut", "combined") or self.lut_button.isChecked()
         path = self.video_path
 
+        # off the GUI thread: the frame as an RGB array and the video's path (the tables are
+        # learned through a reader of their own), never a reader of the GUI thread
         def task(_progress, cancel):
             table = cached
             if table is None and need_lut:
@@ -399,7 +504,8 @@ class ProcessingTab(QWidget):
 
     def run(self, out_dir: str | Path | None = None) -> bool:
         """Start the reconstruction; False (with a message) when inputs are missing."""
-        if self.video_path is None or self.calibration is None:
+        video, cal = self.video_path, self.calibration
+        if video is None or cal is None:
             self.messenger.warning(
                 "Cannot run",
                 "The project needs its video and a "
@@ -417,7 +523,6 @@ class ProcessingTab(QWidget):
         if out is None:
             return False
         cal_path = out.parent / f"{out.name}.calibration.json"
-        video, cal = self.video_path, self.calibration
         fps = self.video.fps if self.video is not None else None
         ref, ref_path = self.project.video, self.project.video_path()
         # the evidence registered in the project: refuse to process it once it has changed
@@ -464,12 +569,14 @@ class ProcessingTab(QWidget):
         out = self._out
         # the frame loop's own rate (the bar's estimate needs two progress messages, and a
         # short run may send only one)
-        self.run_panel.stop("finished", meta.get("run", {}).get("timings", {})
-                            .get("frames_per_second"))
+        self.run_panel.stop(
+            "finished", meta.get("run", {}).get("timings", {}).get("frames_per_second")
+        )
         self._refresh()
         self.project.set_processing(self.params.params().to_json() | {"output": str(out)})
-        self.project.add_output(out / "metadata.json", "reconstruction", sha256=sha)
         self.last_output = out
+        # recorded in the project; the viewer follows the session and shows it
+        self.session.add_reconstruction(out, sha)
         self.changed.emit()
         warnings = meta.get("warnings") or []
         stats = meta.get("stats", {})
@@ -480,7 +587,6 @@ class ProcessingTab(QWidget):
         if warnings:
             self.messenger.warning("Reconstruction warnings", "\n".join(warnings))
         self.reconstructed.emit(str(out))
-        self._hand_to_viewer(out)
 
     def _on_failed(self, code: str, message: str) -> None:
         self.run_panel.stop("failed")
@@ -492,23 +598,6 @@ class ProcessingTab(QWidget):
         self.run_panel.stop("cancelled")
         self._refresh()
         self.status.emit("Reconstruction cancelled; nothing was written")
-
-    def _hand_to_viewer(self, out: Path) -> None:
-        """Open the result in the window's viewer tab (when this tab lives in the main
-        window next to one) and bring that tab to the front once the maps are shown."""
-        win = self.window()
-        viewer = getattr(win, "extra_tabs", {}).get("Viewer")
-        tabs = getattr(win, "tabs", None)
-        if viewer is None or not hasattr(viewer, "open_reconstruction"):
-            return
-        if tabs is not None and hasattr(viewer, "loaded"):
-
-            def show() -> None:
-                viewer.loaded.disconnect(show)
-                tabs.setCurrentWidget(viewer)
-
-            viewer.loaded.connect(show)
-        viewer.open_reconstruction(out)
 
     def _refresh(self) -> None:
         cal = self.calibration
