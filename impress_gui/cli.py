@@ -13,6 +13,7 @@ import importlib
 import sys
 
 from impress_gui import __version__
+from impress_gui.core.base import codes
 
 #: name -> (module implementing it, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -37,10 +38,10 @@ def _load(name: str):
     return importlib.import_module(module_name)
 
 
-USAGE = "E-USAGE"  # a wrong command line (argparse's exit status 2)
-IO = "E-IO"  # an unforeseen failure to read or write a file
-MEMORY = "E-MEMORY"
-INTERNAL = "E-INTERNAL"
+USAGE = codes.E_USAGE  # a wrong command line (argparse's exit status 2)
+IO = codes.E_IO  # an unforeseen failure to read or write a file
+MEMORY = codes.E_MEMORY
+INTERNAL = codes.E_INTERNAL
 
 
 def finite_float(text: str) -> float:

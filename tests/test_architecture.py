@@ -67,7 +67,8 @@ def test_help_is_fast_and_loads_no_heavy_modules():
     loaded, n = res.stdout.strip().rsplit(" ", 1)[0], int(res.stdout.split()[-1])
     # what --help loads (not how long that takes on a busy machine): the command table only,
     # no library of the work itself and about the standard library's argparse
-    assert loaded == "[] ['impress_gui', 'impress_gui.cli']", res.stdout
+    assert loaded == ("[] ['impress_gui', 'impress_gui.cli', 'impress_gui.core', "
+                      "'impress_gui.core.base', 'impress_gui.core.base.codes']"), res.stdout
     assert n < 150, f"--help loads {n} modules"
 
 
@@ -95,3 +96,18 @@ def test_every_module_lives_in_its_layer():
     assert qt_free == [], f"Qt-free modules under ui/: {qt_free}"
     for layer in ("core", "session", "validation", "sim", "hardware", "ui", "commands"):
         assert (pkg / layer / "__init__.py").is_file(), layer
+
+
+def test_error_codes_are_named_once():
+    """Every E-/W- code is a constant in core/base/codes.py; code elsewhere uses the names."""
+    import re
+
+    from impress_gui.core.base import codes
+
+    literal = re.compile(r"""(?<![\w\\])(["'])([EW]-[A-Z0-9]+(?:-[A-Z0-9]+)*)\1""")
+    pkg = ROOT / "impress_gui"
+    found = [f"{p.relative_to(pkg)}: {m.group(2)}" for p in pkg.rglob("*.py")
+             if p.name != "codes.py" for m in literal.finditer(p.read_text())]
+    assert found == []
+    names = {k: v for k, v in vars(codes).items() if k[:2] in ("E_", "W_")}
+    assert len(names) > 50 and all(v == k.replace("_", "-") for k, v in names.items())

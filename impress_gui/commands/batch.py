@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from impress_gui.core.base import codes
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("manifest", type=Path,
@@ -27,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from impress_gui.session.batch import load_manifest, run_batch
 
     if args.jobs is not None and not 1 <= args.jobs <= 256:
-        raise InputError("--jobs must be 1 to 256", code="E-BATCH")
+        raise InputError("--jobs must be 1 to 256", code=codes.E_BATCH)
     items = load_manifest(args.manifest)
 
     rows = run_batch(items, args.output, jobs=args.jobs, scheduler=args.scheduler,

@@ -11,6 +11,8 @@ import argparse
 import time
 from pathlib import Path
 
+from impress_gui.core.base import codes
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", type=Path,
@@ -41,10 +43,10 @@ def run(args: argparse.Namespace) -> int:
 
     board = parse_board(args.board)
     if args.max_frames < 3:
-        raise InputError("--max-frames must be at least 3", code="E-BOARD")
+        raise InputError("--max-frames must be at least 3", code=codes.E_BOARD)
     if args.output.suffix.lower() != ".json":
         raise InputError(f"--output {args.output}: the intrinsics file must end in .json",
-                         code="E-OUTPUT")
+                         code=codes.E_OUTPUT)
     from impress_gui.core.base.outdir import check_output_file
 
     check_output_file(args.output, inputs=(args.input,), formats=("impress.intrinsics",))

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from impress_gui.core.base import codes
+
 
 def _size(text: str) -> tuple[int, int]:
     try:
@@ -82,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     if path is not None and not path.exists():
         from impress_gui.core.base.errors import InputError
 
-        raise InputError(f"{path}: no such project folder or video", code="E-FILE-MISSING")
+        raise InputError(f"{path}: no such project folder or video", code=codes.E_FILE_MISSING)
     extra = {}
     if getattr(args, "check", False):
         extra = {"check": True, "check_timeout_s": args.check_timeout}

@@ -26,6 +26,8 @@ import sys
 from collections.abc import Iterator
 from typing import Any
 
+from impress_gui.core.base import codes
+
 PORT_ENV = "IMPRESS_MOTOR_PORT"
 TRAVEL_ENV = "IMPRESS_RAIL_TRAVEL_MM"
 _NO_PORT_ACTIONS = {"ports", "emulate-pty", "calibrate", "speed-check"}
@@ -304,7 +306,7 @@ def run(args: argparse.Namespace) -> int:
             stopped = "; the motor was sent a stop" if action in _MOVING_ACTIONS else ""
             raise ImpressError(
                 f"internal error during 'motor {action}': {exc}{stopped} (-v shows the details)",
-                code="E-INTERNAL",
+                code=codes.E_INTERNAL,
             ) from exc
         finally:
             # Leave the motor as the command left it: a finished move needs no stop, and

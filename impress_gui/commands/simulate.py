@@ -7,6 +7,8 @@ import os
 import time
 from pathlib import Path
 
+from impress_gui.core.base import codes
+
 
 def _speed(text: str) -> float:
     from impress_gui.sim.simulate import SPEED_NAMES
@@ -105,14 +107,14 @@ def run(args: argparse.Namespace) -> int:
     if args.random_rig is not None:
         if not 0 <= args.random_rig < 2**32:
             raise InputError("--random-rig must be between 0 and 4294967295",
-                             code="E-SIM-OPTION")
+                             code=codes.E_SIM_OPTION)
         if blocks:
             raise InputError("placement options (--rotate90, ...) do not go with --random-rig",
-                             code="E-SIM-OPTION")
+                             code=codes.E_SIM_OPTION)
         w, h = args.resolution
         if not (64 <= w <= 4096 and 36 <= h <= 2304) or w % 2 or h % 2:
             raise InputError("--resolution must be between 64x36 and 4096x2304, even width "
-                             "and height", code="E-SIM-OPTION")
+                             "and height", code=codes.E_SIM_OPTION)
         cfg = SimConfig.random(args.random_rig, w, h, args.video_format, args.grid_mm,
                                args.click_noise_px)
     else:
@@ -141,7 +143,7 @@ def _run(args: argparse.Namespace, cfg) -> int:
     n = make_motion(cfg).frame_count
     workers = args.workers or (1 if n < 300 else min(2, os.cpu_count() or 1))
     if workers < 1:
-        raise InputError("--workers must be at least 1", code="E-SIM-OPTION")
+        raise InputError("--workers must be at least 1", code=codes.E_SIM_OPTION)
     progress = progress_printer()
 
     t0 = time.perf_counter()

@@ -7,25 +7,26 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import ImpressError
 
 
 class MotorError(ImpressError):
     """A problem talking to, or reported by, the rail motor."""
 
-    code = "E-MOTOR"
+    code = codes.E_MOTOR
 
 
 class MotorTimeout(MotorError):
     """The motor did not answer in time, or a move did not finish in the time its speed implies."""
 
-    code = "E-MOTOR-TIMEOUT"
+    code = codes.E_MOTOR_TIMEOUT
 
 
 class MotorAlarm(MotorError):
     """The motor reports an alarm (over-current, position error, over-temperature, e-stop ...)."""
 
-    code = "E-MOTOR-ALARM"
+    code = codes.E_MOTOR_ALARM
 
     def __init__(self, status: MotorStatus, message: str | None = None) -> None:
         super().__init__(message or f"motor alarm: {', '.join(status.alarms)} (Ux={status.bits})")
@@ -35,67 +36,67 @@ class MotorAlarm(MotorError):
 class MotorDisconnected(MotorError):
     """The serial port vanished (cable pulled, adapter unplugged, emulator hung up)."""
 
-    code = "E-MOTOR-DISCONNECTED"
+    code = codes.E_MOTOR_DISCONNECTED
 
 
 class MotorNotConnected(MotorError):
     """An operation was asked for before connecting (or after closing)."""
 
-    code = "E-MOTOR-NOT-CONNECTED"
+    code = codes.E_MOTOR_NOT_CONNECTED
 
 
 class MotorGarbage(MotorError):
     """The motor sent bytes that are not its protocol (wrong baud rate, noise, another device)."""
 
-    code = "E-MOTOR-GARBAGE"
+    code = codes.E_MOTOR_GARBAGE
 
 
 class MotorPortError(MotorError):
     """The port cannot be opened (wrong name, in use, no permission)."""
 
-    code = "E-MOTOR-PORT"
+    code = codes.E_MOTOR_PORT
 
 
 class MotorRangeError(MotorError):
     """A requested position, speed or bank is out of range. The base of the refusals below:
     a refused command sends nothing to the motor."""
 
-    code = "E-MOTOR-RANGE"
+    code = codes.E_MOTOR_RANGE
 
 
 class MotorLimitError(MotorRangeError):
     """A move would take the carriage outside the rail's travel, or past what the motor
     controller's 32-bit position counter can hold."""
 
-    code = "E-MOTOR-LIMIT"
+    code = codes.E_MOTOR_LIMIT
 
 
 class MotorSpeedError(MotorRangeError):
     """A speed outside the rail's speed range: zero or negative, slower than one speed unit,
     or faster than the rail's maximum."""
 
-    code = "E-MOTOR-SPEED"
+    code = codes.E_MOTOR_SPEED
 
 
 class MotorValueError(MotorRangeError):
     """A position, distance, speed or bank that is not a usable number (not a number,
     infinite, or not a whole number where the motor needs one)."""
 
-    code = "E-MOTOR-VALUE"
+    code = codes.E_MOTOR_VALUE
 
 
 class MotorSettingsError(MotorError):
     """A rail or motor setting is unusable (a travel that is not a positive length, a speed
     range that is empty, a travel the controller's position counter cannot hold)."""
 
-    code = "E-MOTOR-SETTINGS"
+    code = codes.E_MOTOR_SETTINGS
 
 
 class MotorInterrupted(MotorError):
     """A command was ended from outside (terminate signal, closed terminal) during its run;
     the motor was sent a stop first."""
 
-    code = "E-MOTOR-INTERRUPTED"
+    code = codes.E_MOTOR_INTERRUPTED
 
 
 #: ``Ux`` bits that are alarms the user must see, with their names.

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, ImpressError, InputError
 from impress_gui.core.base.fileio import dumps_json, read_json
 
@@ -52,7 +53,7 @@ def _safe_name(name: str, where: str) -> str:
     if (not name or name.startswith(".") or "/" in name or "\\" in name or name in SUMMARY_FILES
             or len(name) > 120 or name != name.strip()):
         raise FormatError(f"{where}: the scan name {name!r} cannot be a folder name (no '/', no "
-                          "leading dot, at most 120 characters)", code="E-BATCH")
+                          "leading dot, at most 120 characters)", code=codes.E_BATCH)
     return name
 
 
@@ -62,28 +63,28 @@ def load_manifest(path: str | os.PathLike) -> list[BatchItem]:
     doc = read_json(path, BATCH_FORMAT)
     scans = doc.get("scans")
     if not isinstance(scans, list) or not scans:
-        raise FormatError(f"{path}: 'scans' must be a non-empty list", code="E-BATCH")
+        raise FormatError(f"{path}: 'scans' must be a non-empty list", code=codes.E_BATCH)
     base = path.parent
     items: list[BatchItem] = []
     seen: set[str] = set()
     for i, s in enumerate(scans):
         where = f"{path}: scan {i + 1}"
         if not isinstance(s, dict):
-            raise FormatError(f"{where} must be an object", code="E-BATCH")
+            raise FormatError(f"{where} must be an object", code=codes.E_BATCH)
         try:
             name = _safe_name(str(s.get("name") or Path(str(s["video"])).stem), where)
             video = base / str(s["video"])
             cal = base / str(s["calibration"])
         except KeyError as exc:
             raise FormatError(f"{where}: the field {exc.args[0]!r} is missing",
-                              code="E-BATCH") from None
+                              code=codes.E_BATCH) from None
         if name in seen:
-            raise FormatError(f"{where}: the name {name!r} is used twice", code="E-BATCH")
+            raise FormatError(f"{where}: the name {name!r} is used twice", code=codes.E_BATCH)
         seen.add(name)
         params = s.get("parameters") or {}
         if not isinstance(params, dict) or set(params) - set(PARAM_KEYS):
             raise FormatError(f"{where}: parameters may only set {', '.join(PARAM_KEYS)}",
-                              code="E-BATCH")
+                              code=codes.E_BATCH)
         items.append(BatchItem(name, video, cal, dict(params)))
     return items
 
@@ -96,7 +97,7 @@ def _params(item: BatchItem):
         params = ProcessParams(**p)
         params.validate()
     except TypeError:
-        raise InputError(f"scan {item.name}: unusable parameters", code="E-BATCH") from None
+        raise InputError(f"scan {item.name}: unusable parameters", code=codes.E_BATCH) from None
     return params
 
 
@@ -119,11 +120,11 @@ def process_one(item: BatchItem, out_dir: str) -> dict[str, Any]:
     except ImpressError as exc:
         row |= {"status": "failed", "code": exc.code, "message": str(exc)}
     except MemoryError:
-        row |= {"status": "failed", "code": "E-MEMORY", "message": "not enough memory"}
+        row |= {"status": "failed", "code": codes.E_MEMORY, "message": "not enough memory"}
     except OSError as exc:
         from impress_gui.core.base.outdir import reason
 
-        row |= {"status": "failed", "code": "E-IO", "message": reason(exc)}
+        row |= {"status": "failed", "code": codes.E_IO, "message": reason(exc)}
     row["seconds"] = round(time.perf_counter() - t0, 3)
     return row
 
@@ -198,7 +199,7 @@ def run_batch(items: list[BatchItem], out_dir: str | os.PathLike, jobs: int | No
 
             raise OutputError(f"{out} holds {', '.join(foreign[:5])}, which this batch does not "
                               "write: nothing is changed; name another folder",
-                              code="E-OUTPUT-NOT-EMPTY")
+                              code=codes.E_OUTPUT_NOT_EMPTY)
     with writing(out):
         out.mkdir(parents=True, exist_ok=True)
         if not (out / MARK_FILE).exists():
@@ -241,13 +242,13 @@ def _run_dask(items: list[BatchItem], out: str, scheduler: Any, done) -> None:
         from distributed import Client, as_completed
     except ImportError:
         raise InputError("--scheduler needs the dask distributed package "
-                         "(pip install 'dask[distributed]')", code="E-BATCH") from None
+                         "(pip install 'dask[distributed]')", code=codes.E_BATCH) from None
     own = not isinstance(scheduler, Client)
     try:
         client = Client(scheduler, timeout=30) if own else scheduler
     except (OSError, TimeoutError, ValueError):
         raise InputError(f"no Dask scheduler answers at {scheduler}",
-                         code="E-BATCH-SCHEDULER") from None
+                         code=codes.E_BATCH_SCHEDULER) from None
     try:
         futures = [client.submit(process_one, item, out, pure=False, key=f"impress-{item.name}")
                    for item in items]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, sub_progress
 from impress_gui.core.calibration.aids import propose_calibration_frames
@@ -24,7 +25,7 @@ def open_evidence(
     if path.is_dir():
         raise InputError(
             f"{path} is a folder; open the scan's video file (its SHA-256 is recorded as evidence)",
-            code="E-VIDEO-OPEN",
+            code=codes.E_VIDEO_OPEN,
         )
     if project is not None:
         digest = project.check_evidence(sub_progress(progress, 0.0, 0.9), cancel)

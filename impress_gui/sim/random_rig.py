@@ -17,6 +17,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.calibration.geometry import Intrinsics
 from impress_gui.core.calibration.target import TargetModel, make_l_target
@@ -231,7 +232,7 @@ def draw_random_rig(seed: int, width: int = 1920, height: int = 1080) -> RandomR
     """The rig of ``seed`` at ``width x height`` (the geometry is drawn in 1080p units and
     scaled, so a 16:9 size changes nothing but the pixel scale)."""
     if not 0 <= int(seed) < 2**32:
-        raise InputError("--random-rig must be between 0 and 4294967295", code="E-SIM-OPTION")
+        raise InputError("--random-rig must be between 0 and 4294967295", code=codes.E_SIM_OPTION)
     why: list[str] = []
     for attempt in range(MAX_ATTEMPTS):
         rng = np.random.default_rng([int(seed), attempt, 18])
@@ -241,4 +242,4 @@ def draw_random_rig(seed: int, width: int = 1920, height: int = 1080) -> RandomR
         if not why:
             return RandomRig(int(seed), attempt, p, rig, target, pose, motion)
     raise InputError(f"random rig {seed}: no usable rig in {MAX_ATTEMPTS} draws (last: "
-                     f"{'; '.join(why)})", code="E-SIM-RANDOM-RIG")
+                     f"{'; '.join(why)})", code=codes.E_SIM_RANDOM_RIG)

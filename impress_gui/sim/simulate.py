@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from impress_gui import __version__
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.base.fileio import atomic_write_bytes, sha256_path, write_json
 from impress_gui.core.base.outdir import OutputFolder
@@ -77,7 +78,7 @@ class SimConfig:
 
     def validate(self) -> None:
         def bad(msg: str) -> None:
-            raise InputError(msg, code="E-SIM-OPTION")
+            raise InputError(msg, code=codes.E_SIM_OPTION)
 
         if self.preset not in PRESETS:
             bad(f"unknown preset {self.preset!r}; choose one of {', '.join(PRESETS)}")
@@ -227,7 +228,7 @@ def _calibration_frames(rig: Rig, motion: Motion, target: TargetModel, pose, w: 
             ok_red.append(k)
     if not ok_green or not ok_red:
         raise InputError("the calibration target never shows both stripes with all corners in "
-                         "view; use a longer scan or a smaller tilt", code="E-SIM-OPTION")
+                         "view; use a longer scan or a smaller tilt", code=codes.E_SIM_OPTION)
     return ok_green[0], ok_red[-1]
 
 

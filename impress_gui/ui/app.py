@@ -19,6 +19,7 @@ from PySide6.QtGui import QGuiApplication
 from PySide6.QtWidgets import QApplication, QMessageBox, QWidget
 
 from impress_gui import __version__
+from impress_gui.core.base import codes
 
 ORGANISATION = "IMPREsS"
 APPLICATION = "impress-workstation"
@@ -249,7 +250,7 @@ def run_gui(
         # a bug in a slot must reach the user as a message (and the log), not only the console
         previous_hook(kind, value, tb)
         text = "".join(traceback.format_exception(kind, value, tb, limit=8))
-        window.messenger.error("Internal error", f"internal error: {value!r}", "E-INTERNAL", text)
+        window.messenger.error("Internal error", f"internal error: {value!r}", codes.E_INTERNAL, text)
 
     sys.excepthook = report_bug
     result = {"code": 0}

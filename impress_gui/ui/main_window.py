@@ -28,6 +28,7 @@ from PySide6.QtWidgets import (
 )
 
 from impress_gui import __version__
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import ImpressError
 from impress_gui.core.formats.video import VIDEO_SUFFIXES
 from impress_gui.core.project.project import PROJECT_FILE, Project, describe_signatures
@@ -312,7 +313,7 @@ class MainWindow(QMainWindow):
             return False
         except Exception:  # noqa: BLE001 - whatever the file holds, the window stays up
             self.messenger.error(
-                title, f"{path}: the project cannot be read (an internal error)", "E-INTERNAL"
+                title, f"{path}: the project cannot be read (an internal error)", codes.E_INTERNAL
             )
             return False
         previous = self.project
@@ -339,7 +340,7 @@ class MainWindow(QMainWindow):
         if p.suffix.lower() in VIDEO_SUFFIXES or p.is_file():
             return self.calibration_tab.load_video(p)
         self.messenger.error(
-            "Cannot open", f"{p}: no such project folder or video", "E-FILE-MISSING"
+            "Cannot open", f"{p}: no such project folder or video", codes.E_FILE_MISSING
         )
         return False
 

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from PySide6.QtCore import QObject, Qt, Signal
 from PySide6.QtWidgets import QMessageBox, QWidget
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import ImpressError
 
 LogSink = Callable[[str, dict], None]
@@ -54,7 +55,7 @@ class Messenger(QObject):
         return self._show(QMessageBox.Icon.Critical, "error", title, text, details)
 
     def exception(self, title: str, exc: BaseException) -> QMessageBox:
-        code = exc.code if isinstance(exc, ImpressError) else "E-INTERNAL"
+        code = exc.code if isinstance(exc, ImpressError) else codes.E_INTERNAL
         return self.error(title, str(exc) or type(exc).__name__, code)
 
     def warning(self, title: str, message: str) -> QMessageBox:

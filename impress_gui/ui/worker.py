@@ -20,6 +20,7 @@ from typing import Any
 
 from PySide6.QtCore import QObject, QThread, Signal
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import Cancelled, ImpressError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback
 
@@ -50,10 +51,10 @@ class _Runner(QThread):
         except ImpressError as exc:
             self.outcome = ("failed", (exc.code, str(exc)))
         except MemoryError:
-            self.outcome = ("failed", ("E-MEMORY", "not enough memory for this operation"))
+            self.outcome = ("failed", (codes.E_MEMORY, "not enough memory for this operation"))
         except Exception as exc:  # noqa: BLE001 - a bug must reach the user, not kill the thread
             tb = traceback.format_exc(limit=6)
-            self.outcome = ("failed", ("E-INTERNAL", f"internal error: {exc!r}\n\n{tb}"))
+            self.outcome = ("failed", (codes.E_INTERNAL, f"internal error: {exc!r}\n\n{tb}"))
         else:
             self.outcome = ("cancelled", None) if self._token.cancelled else ("finished", result)
 

@@ -32,6 +32,7 @@ from typing import Any, TypedDict, TypeVar
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.measure import readings as M
 from impress_gui.core.reconstruction.grid import GridSpec
@@ -185,7 +186,7 @@ def crop(
     i0 = max(0, math.floor((min(y_range) - spec.y0_mm) / p))
     i1 = min(spec.shape[0], math.ceil((max(y_range) - spec.y0_mm) / p) + 1)
     if i1 <= i0 or j1 <= j0:
-        raise InputError("the measurement lies outside the reconstruction", code="E-VAL-OUTSIDE")
+        raise InputError("the measurement lies outside the reconstruction", code=codes.E_VAL_OUTSIDE)
     sub = GridSpec(spec.x0_mm + j0 * p, spec.y0_mm + i0 * p, p, (i1 - i0, j1 - j0))
     return height[i0:i1, j0:j1], sub
 
@@ -212,7 +213,7 @@ _T = TypeVar("_T")
 def _required(value: _T | None, what: str, r: Reading) -> _T:
     """``value``, or an :class:`InputError` (a failed reading) when the reading lacks it."""
     if value is None:
-        raise InputError(f"a {r.kind} reading needs {what}", code="E-VAL-SPEC")
+        raise InputError(f"a {r.kind} reading needs {what}", code=codes.E_VAL_SPEC)
     return value
 
 
@@ -267,7 +268,7 @@ def measure_reading(
             e0, e1 = (_edge(prof, e) for e in r.edges)
             value, note = abs(e1 - e0), ""
         else:
-            raise InputError(f"unknown measurement kind {r.kind!r}", code="E-VAL-SPEC")
+            raise InputError(f"unknown measurement kind {r.kind!r}", code=codes.E_VAL_SPEC)
     except InputError as exc:
         return Result(r, math.nan, math.nan, f"failed: {exc}")
     if not math.isfinite(value):
@@ -341,12 +342,12 @@ def blocks_readings(
         s1 = float(truth["travel_mm"][truth["calibration_frames"]["t1"]])
         feats = list(truth.get("features", []))
     except (KeyError, IndexError, TypeError, ValueError) as exc:
-        raise InputError(f"not a simulator truth ({exc})", code="E-VAL-TRUTH") from None
+        raise InputError(f"not a simulator truth ({exc})", code=codes.E_VAL_TRUTH) from None
     slots = sorted((f for f in feats if f.get("kind") == "slot"), key=lambda f: f["centre_a_mm"])
     steps = [f for f in feats if f.get("kind") == "steps"]
     if not slots or not steps:
         raise InputError(
-            "the truth has no slotted and stepped targets (not a blocks scan)", code="E-VAL-TRUTH"
+            "the truth has no slotted and stepped targets (not a blocks scan)", code=codes.E_VAL_TRUTH
         )
     m = BAND_MARGIN_MM
     out: list[Reading] = []

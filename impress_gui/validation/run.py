@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict
 
 from impress_gui import __version__
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.base.fileio import sha256_file, write_json
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report, sub_progress
@@ -103,14 +104,14 @@ class RunConfig:
             raise InputError(
                 f"unknown placements {sorted(unknown)}; choose from "
                 f"{', '.join(V.PLACEMENT_BY_KEY)}",
-                code="E-VAL-OPTION",
+                code=codes.E_VAL_OPTION,
             )
         if set(self.extras) - set(EXTRAS):
             raise InputError(
-                f"unknown extras {sorted(set(self.extras) - set(EXTRAS))}", code="E-VAL-OPTION"
+                f"unknown extras {sorted(set(self.extras) - set(EXTRAS))}", code=codes.E_VAL_OPTION
             )
         if not self.placements and not self.extras:
-            raise InputError("nothing to validate", code="E-VAL-OPTION")
+            raise InputError("nothing to validate", code=codes.E_VAL_OPTION)
         for sc in self.sim_configs().values():
             sc.validate()
 
@@ -286,7 +287,7 @@ def _flat_region(
     rows = np.flatnonzero(np.isfinite(sub).mean(1) >= 0.95)
     if rows.size < 50:
         raise InputError(
-            "the flat scan covers too little ground beyond the target", code="E-VAL-COVERAGE"
+            "the flat scan covers too little ground beyond the target", code=codes.E_VAL_COVERAGE
         )
     ys = sspec.ys()
     return xr, (float(ys[rows[0]]), float(ys[rows[-1]]))
@@ -309,7 +310,7 @@ def _measure_item(item: str, rec: ReconData, truth: dict[str, Any], group: str) 
         if len(pts) >= 0.5 * math.pi * (0.85 * r / rec.spec.pixel_mm) ** 2:  # covered
             spheres.append((x, y, f["z_mm"], r))
     if len(spheres) < 2:
-        raise InputError("fewer than two spheres were scanned", code="E-VAL-COVERAGE")
+        raise InputError("fewer than two spheres were scanned", code=codes.E_VAL_COVERAGE)
     return {"spheres": VDI.sphere_errors(rec.height_mm, rec.spec, spheres)}
 
 

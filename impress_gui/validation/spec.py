@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError
 from impress_gui.validation.protocol import (
     KINDS,
@@ -32,7 +33,7 @@ def _pair(v: object, name: str, where: str) -> tuple[float, float]:
         or not all(abs(x) < 1e6 and math.isfinite(x) for x in v)
     ):
         raise FormatError(
-            f"{where}{name} must be two finite numbers [a, b] in mm", code="E-VAL-SPEC"
+            f"{where}{name} must be two finite numbers [a, b] in mm", code=codes.E_VAL_SPEC
         )
     return (float(v[0]), float(v[1]))
 
@@ -52,25 +53,25 @@ def _number(
         or not lo <= v <= hi  # False for NaN; no float conversion of a huge integer
     ):
         raise FormatError(
-            f"{where}{key} must be a number between {lo:g} and {hi:g}", code="E-VAL-SPEC"
+            f"{where}{key} must be a number between {lo:g} and {hi:g}", code=codes.E_VAL_SPEC
         )
     return float(v)
 
 
 def _reading_from_json(doc: object, group: str, default_width: float, where: str) -> Reading:
     if not isinstance(doc, dict):
-        raise FormatError(f"{where}a measurement must be an object", code="E-VAL-SPEC")
+        raise FormatError(f"{where}a measurement must be an object", code=codes.E_VAL_SPEC)
     kind = doc.get("kind")
     if kind not in KINDS:
-        raise FormatError(f"{where}kind must be one of {', '.join(KINDS)}", code="E-VAL-SPEC")
+        raise FormatError(f"{where}kind must be one of {', '.join(KINDS)}", code=codes.E_VAL_SPEC)
     rid = doc.get("id")
     if not isinstance(rid, str) or not rid or len(rid) > 200:
-        raise FormatError(f"{where}id must be a short text", code="E-VAL-SPEC")
+        raise FormatError(f"{where}id must be a short text", code=codes.E_VAL_SPEC)
     lvl: LevelRegion | None = None
     if doc.get("level_region") is not None:
         lr = doc["level_region"]
         if not isinstance(lr, dict) or not isinstance(lr.get("exclude", []), list):
-            raise FormatError(f"{where}level_region must be an object", code="E-VAL-SPEC")
+            raise FormatError(f"{where}level_region must be an object", code=codes.E_VAL_SPEC)
         ex = tuple(
             (
                 _pair(e.get("x_mm") if isinstance(e, dict) else None, "exclude x_mm", where),
@@ -102,7 +103,7 @@ def _reading_from_json(doc: object, group: str, default_width: float, where: str
             or len(docs) != 2
             or not all(isinstance(e, dict) for e in docs)
         ):
-            raise FormatError(f"{where}edges must be a list of two edge objects", code="E-VAL-SPEC")
+            raise FormatError(f"{where}edges must be a list of two edge objects", code=codes.E_VAL_SPEC)
         edges = tuple(
             Edge(
                 _pair(e.get("band_low_mm"), "band_low_mm", where),
@@ -150,7 +151,7 @@ def load_spec(path: str | os.PathLike[str]) -> tuple[str, tuple[ScanSpec, ...]]:
     where = f"{path}: "
     scans = doc.get("scans")
     if not isinstance(scans, list) or not scans or len(scans) > 1000:
-        raise FormatError(f"{where}scans must be a non-empty list", code="E-VAL-SPEC")
+        raise FormatError(f"{where}scans must be a non-empty list", code=codes.E_VAL_SPEC)
     width = _number(doc, "profile_width_mm", where, 0.0, 100.0, PROFILE_WIDTH_MM)
     out: list[ScanSpec] = []
     for i, s in enumerate(scans):
@@ -162,17 +163,17 @@ def load_spec(path: str | os.PathLike[str]) -> tuple[str, tuple[ScanSpec, ...]]:
             or not isinstance(s.get("measurements"), list)
         ):
             raise FormatError(
-                f"{w}needs name, reconstruction (a folder) and measurements", code="E-VAL-SPEC"
+                f"{w}needs name, reconstruction (a folder) and measurements", code=codes.E_VAL_SPEC
             )
         if len(s["measurements"]) > 10000:
-            raise FormatError(f"{w}too many measurements", code="E-VAL-SPEC")
+            raise FormatError(f"{w}too many measurements", code=codes.E_VAL_SPEC)
         readings = tuple(
             _reading_from_json(m, s["name"], width, f"{w}measurements[{j}]: ")
             for j, m in enumerate(s["measurements"])
         )
         ids = [r.id for r in readings]
         if len(set(ids)) != len(ids):
-            raise FormatError(f"{w}measurement ids must be unique", code="E-VAL-SPEC")
+            raise FormatError(f"{w}measurement ids must be unique", code=codes.E_VAL_SPEC)
         out.append(ScanSpec(s["name"], (path.parent / s["reconstruction"]), readings))
     return str(doc.get("name", path.stem)), tuple(out)
 

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.measure import readings as M
 from impress_gui.core.reconstruction.grid import GridSpec
@@ -78,7 +79,7 @@ def fit_sphere(points: np.ndarray, trim: float = 0.003) -> SphereFit:
 
     p = np.asarray(points, np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 10:
-        raise InputError("a sphere fit needs at least 10 points", code="E-VAL-SPHERE")
+        raise InputError("a sphere fit needs at least 10 points", code=codes.E_VAL_SPHERE)
     c0 = p.mean(0)
     q = p - c0
     a = np.column_stack([2 * q, np.ones(len(q))])

@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 
@@ -70,24 +71,24 @@ def open_regular(path: str | os.PathLike, what: str, max_bytes: int, *,
     try:
         fd = os.open(p, flags)
     except FileNotFoundError:
-        raise FormatError(f"{p}: no such {what} file", code="E-FILE-MISSING") from None
+        raise FormatError(f"{p}: no such {what} file", code=codes.E_FILE_MISSING) from None
     except IsADirectoryError:
-        raise FormatError(f"{p} is a folder, not a {what} file", code="E-NOT-A-FILE") from None
+        raise FormatError(f"{p} is a folder, not a {what} file", code=codes.E_NOT_A_FILE) from None
     except OSError as exc:
         raise FormatError(f"{p}: the {what} file cannot be read ({_os_reason(exc)})",
-                          code="E-FILE-READ") from None
+                          code=codes.E_FILE_READ) from None
     try:
         st = os.fstat(fd)
         if stat.S_ISDIR(st.st_mode):
-            raise FormatError(f"{p} is a folder, not a {what} file", code="E-NOT-A-FILE")
+            raise FormatError(f"{p} is a folder, not a {what} file", code=codes.E_NOT_A_FILE)
         if not stat.S_ISREG(st.st_mode):
             raise FormatError(f"{p} is not a regular file (a device, pipe or socket): give a "
-                              f"{what} file", code="E-NOT-A-FILE")
+                              f"{what} file", code=codes.E_NOT_A_FILE)
         if st.st_size == 0 and not allow_empty:
-            raise FormatError(f"{p}: the {what} file is empty", code="E-FILE-EMPTY")
+            raise FormatError(f"{p}: the {what} file is empty", code=codes.E_FILE_EMPTY)
         if st.st_size > max_bytes:
             raise FormatError(f"{p}: {st.st_size} bytes is too large for a {what} file",
-                              code="E-TOO-LARGE")
+                              code=codes.E_TOO_LARGE)
         if hasattr(os, "set_blocking"):
             os.set_blocking(fd, True)
     except BaseException:
@@ -108,7 +109,7 @@ def read_regular(path: str | os.PathLike, what: str, max_bytes: int) -> bytes:
     with os.fdopen(fd, "rb") as fh:
         data = fh.read(max_bytes + 1)
     if len(data) > max_bytes:
-        raise FormatError(f"{path}: too large for a {what} file", code="E-TOO-LARGE")
+        raise FormatError(f"{path}: too large for a {what} file", code=codes.E_TOO_LARGE)
     return data
 
 
@@ -202,29 +203,29 @@ def parse_json(raw: bytes, path: str | os.PathLike, fmt: str,
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise FormatError(f"{path}: not a text file (byte {exc.start} is not UTF-8)",
-                          code="E-JSON") from None
+                          code=codes.E_JSON) from None
     try:
         doc = json.loads(text, parse_constant=_reject_constant)
     except json.JSONDecodeError as exc:
         raise FormatError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}, column "
-                          f"{exc.colno})", code="E-JSON") from None
+                          f"{exc.colno})", code=codes.E_JSON) from None
     except (ValueError, RecursionError):
         raise FormatError(f"{path}: not valid JSON (too deeply nested, or a number or "
-                          "constant that is not allowed)", code="E-JSON") from None
+                          "constant that is not allowed)", code=codes.E_JSON) from None
     if not isinstance(doc, dict):
         raise FormatError(f"{path}: expected a JSON object for a {fmt} file")
     got = doc.get("format")
     if got != fmt:
         raise FormatError(
             f"{path}: this is not a {fmt} file (its format field is {got!r})",
-            code="E-WRONG-FORMAT",
+            code=codes.E_WRONG_FORMAT,
         )
     version = doc.get("version")
     if version not in versions:
         raise FormatError(
             f"{path}: {fmt} version {version!r} is not supported (this software reads "
             f"{', '.join(map(str, versions))})",
-            code="E-VERSION",
+            code=codes.E_VERSION,
         )
     try:
         _check_finite(doc)

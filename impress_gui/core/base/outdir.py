@@ -24,6 +24,7 @@ import shutil
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import ImpressError
 
 MARK_FILE = ".impress-output.json"
@@ -33,13 +34,13 @@ MARK_FORMAT = "impress.output-folder"
 class OutputError(ImpressError):
     """The output the user named cannot be used (it holds evidence, is a link, ...)."""
 
-    code = "E-OUTPUT"
+    code = codes.E_OUTPUT
 
 
 class WriteError(ImpressError):
     """Writing an output failed (disk full, read-only, no permission)."""
 
-    code = "E-WRITE"
+    code = codes.E_WRITE
 
 
 _REASONS = {
@@ -94,23 +95,23 @@ def _is_within(child: Path, parent: Path) -> bool:
 def _check_not_special(out: Path, inputs: Iterable[str | os.PathLike]) -> Path:
     """Refusals common to files and folders; returns the resolved output path."""
     if str(out).strip() == "":
-        raise OutputError("no output was named", code="E-OUTPUT-UNSAFE")
+        raise OutputError("no output was named", code=codes.E_OUTPUT_UNSAFE)
     if out.is_symlink():
         raise OutputError(f"{out} is a symbolic link: name the real place to write to",
-                          code="E-OUTPUT-LINK")
+                          code=codes.E_OUTPUT_LINK)
     real = _resolved(out)
     cwd = _resolved(os.getcwd())
     home = _resolved(Path.home())
     if real == Path(real.anchor) or _is_within(cwd, real) or real == home:
         raise OutputError(f"{out} is the current folder, one of its parents, the home folder "
-                          "or the root: name a new folder for the output", code="E-OUTPUT-UNSAFE")
+                          "or the root: name a new folder for the output", code=codes.E_OUTPUT_UNSAFE)
     for item in inputs:
         if item is None:
             continue
         src = _resolved(item)
         if _is_within(src, real) or _is_within(real, src):
             raise OutputError(f"{out} holds or is one of this run's inputs ({item}): the "
-                              "output must be a separate folder", code="E-OUTPUT-HOLDS-INPUT")
+                              "output must be a separate folder", code=codes.E_OUTPUT_HOLDS_INPUT)
     return real
 
 
@@ -121,7 +122,7 @@ def _check_parent_writable(real: Path) -> None:
         probe = probe.parent
     if not probe.is_dir():
         raise OutputError(f"cannot create {real}: {probe} is a file, not a folder",
-                          code="E-OUTPUT-NOT-FOLDER")
+                          code=codes.E_OUTPUT_NOT_FOLDER)
     if not os.access(probe, os.W_OK | os.X_OK):
         raise WriteError(f"cannot write into {probe}: permission denied or read-only")
 
@@ -157,18 +158,18 @@ def check_output_dir(out_dir: str | os.PathLike, kind: str, inputs: Iterable = (
     if out.exists() or real.exists():
         if not real.is_dir():
             raise OutputError(f"{out} exists and is not a folder: name a folder for the output",
-                              code="E-OUTPUT-NOT-FOLDER")
+                              code=codes.E_OUTPUT_NOT_FOLDER)
         try:
             entries = [p for p in real.iterdir()]
         except OSError as exc:
             raise OutputError(f"cannot look into {out}: {reason(exc)}",
-                              code="E-OUTPUT-NOT-FOLDER") from None
+                              code=codes.E_OUTPUT_NOT_FOLDER) from None
         if entries:
             mark = read_mark(real)
             if mark is None or mark.get("kind") != kind:
                 raise OutputError(
                     f"{out} is not empty and was not made by a previous {kind} run: nothing "
-                    "is replaced; name a new or empty folder", code="E-OUTPUT-NOT-EMPTY")
+                    "is replaced; name a new or empty folder", code=codes.E_OUTPUT_NOT_EMPTY)
             if allowed is not None:
                 names = set(allowed) | {MARK_FILE}
                 foreign = sorted(p.name for p in entries if p.name not in names
@@ -177,7 +178,7 @@ def check_output_dir(out_dir: str | os.PathLike, kind: str, inputs: Iterable = (
                     raise OutputError(
                         f"{out} holds files a {kind} run did not write ({', '.join(foreign[:5])}"
                         f"{' ...' if len(foreign) > 5 else ''}): nothing is replaced; move them "
-                        "or name another folder", code="E-OUTPUT-NOT-EMPTY")
+                        "or name another folder", code=codes.E_OUTPUT_NOT_EMPTY)
     _check_parent_writable(real)
     return real
 
@@ -193,9 +194,9 @@ def check_output_file(path: str | os.PathLike, inputs: Iterable = (),
     if real.exists():
         if real.is_dir():
             raise OutputError(f"{out} is a folder: name the file to write",
-                              code="E-OUTPUT-NOT-FILE")
+                              code=codes.E_OUTPUT_NOT_FILE)
         if not real.is_file():
-            raise OutputError(f"{out} is not a regular file", code="E-OUTPUT-NOT-FILE")
+            raise OutputError(f"{out} is not a regular file", code=codes.E_OUTPUT_NOT_FILE)
         if formats is None:
             _check_parent_writable(real)
             return real
@@ -208,7 +209,7 @@ def check_output_file(path: str | os.PathLike, inputs: Iterable = (),
             fmt = None
         if fmt not in set(formats):
             raise OutputError(f"{out} exists and is not a file this command writes: it is not "
-                              "replaced; name a new file", code="E-OUTPUT-EXISTS")
+                              "replaced; name a new file", code=codes.E_OUTPUT_EXISTS)
     _check_parent_writable(real)
     return real
 

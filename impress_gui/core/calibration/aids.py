@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import CalibrationError, InputError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.calibration.geometry import Intrinsics, Plane
@@ -130,7 +131,7 @@ def refine_corner(rgb: np.ndarray, uv_px, radius_px: int | None = None) -> Corne
     u, v = float(uv_px[0]), float(uv_px[1])
     if not (0 <= u < w and 0 <= v < h):
         raise InputError(f"the click ({u:.1f}, {v:.1f}) is outside the {w}x{h} image",
-                         code="E-PICKS")
+                         code=codes.E_PICKS)
     r = radius_px or max(6, w // 120)
     length = max(10, 2 * r)  # edge length used, px
     pad = r + length + 8
@@ -231,7 +232,7 @@ def propose_calibration_frames(video, sample_step: int | None = None,
         score = np.array(disp[name])
         if score.max() <= 2.0:
             raise CalibrationError(f"no frame shows the {name} stripe displaced by the target",
-                                   code="E-NO-TARGET")
+                                   code=codes.E_NO_TARGET)
         strong = np.flatnonzero(score >= 0.6 * score.max())
         runs = np.split(strong, np.flatnonzero(np.diff(strong) > 2) + 1)
         run = max(runs, key=lambda r: score[r].sum())
@@ -258,7 +259,7 @@ def _rays_meet_edges(intr: Intrinsics, rotation: np.ndarray, travel_mm: float,
             t, s = np.linalg.solve(A, rhs)
         except np.linalg.LinAlgError:
             raise CalibrationError("a pick ray is parallel to its target edge",
-                                   code="E-PICKS") from None
+                                   code=codes.E_PICKS) from None
         pts.append(a + s * e)
         miss.append(float(np.linalg.norm(t * ray - (a + s * e))))
         along.append(float(s))
@@ -271,7 +272,7 @@ def _plane_through(p: np.ndarray) -> Plane:
     spread = max(float(np.linalg.norm(p[1] - p[0])), float(np.linalg.norm(p[2] - p[0])), 1e-9)
     if np.linalg.norm(n) < 1e-6 * spread**2 or spread < 1e-6:
         raise CalibrationError("the three stripe points are collinear: the plane is "
-                               "undetermined", code="E-PLANE-UNDETERMINED")
+                               "undetermined", code=codes.E_PLANE_UNDETERMINED)
     n /= np.linalg.norm(n)
     if n[2] < 0:
         n = -n
@@ -298,17 +299,17 @@ def check_stripe_points(picks: Picks, intrinsics: Intrinsics, frame_count: int) 
             f"the picks have no stripe points (L, M, N) for the {' and '.join(missing)} "
             f"laser{'s' if len(missing) > 1 else ''}; the three-point planes need three "
             "points on target edges per laser (picks field 'stripe_points')",
-            code="E-PICKS-STRIPE")
+            code=codes.E_PICKS_STRIPE)
     for name in LASER_NAMES:
         sp = picks.stripe_points[name]
         if not 0 <= sp.frame < frame_count:
             raise CalibrationError(f"the {name} stripe points' frame {sp.frame} is outside the "
-                                   f"video (0..{frame_count - 1})", code="E-FRAME-RANGE")
+                                   f"video (0..{frame_count - 1})", code=codes.E_FRAME_RANGE)
         for lbl, p in zip("LMN", sp.points):
             u, v = p.uv_px
             if not (-0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5):
                 raise CalibrationError(f"the {name} stripe point {lbl} ({u:.1f}, {v:.1f}) is "
-                                       f"outside the {w}x{h} image", code="E-PICKS")
+                                       f"outside the {w}x{h} image", code=codes.E_PICKS)
 
 
 #: largest distance (px) of a three-point stripe pick from its target edge's image
@@ -341,13 +342,13 @@ def three_point_planes(intr: Intrinsics, rotation: np.ndarray, target: TargetMod
             if not -0.1 <= s <= 1.1:
                 raise CalibrationError(
                     f"the {name} stripe point {lbl} is beyond the ends of target edge {edge}: "
-                    "check the edge named for it", code="E-PICKS")
+                    "check the edge named for it", code=codes.E_PICKS)
             off_px = m * intr.fx / max(z, 1e-9)
             if z <= 0 or off_px > MAX_EDGE_OFFSET_PX:
                 raise CalibrationError(
                     f"the {name} stripe point {lbl} is {off_px:.1f} px off target edge {edge} "
                     "(where the corner picks place it): check the edge named for it and that "
-                    "the point is where the stripe crosses that edge", code="E-PICKS")
+                    "the point is where the stripe crosses that edge", code=codes.E_PICKS)
         heights = obj[ia, 2] + along * (obj[ib, 2] - obj[ia, 2])
         levels = sorted({round(float(z), 3) for z in heights})
         if max(levels) - min(levels) < 1.0:
@@ -355,7 +356,7 @@ def three_point_planes(intr: Intrinsics, rotation: np.ndarray, target: TargetMod
                 f"the three {name} stripe points lie at one height of the target "
                 f"({levels[0]:g} mm); its plane is undetermined - pick them on edges at two "
                 "heights (the low face's outer edge and the high face's edges)",
-                code="E-PLANE-UNDETERMINED")
+                code=codes.E_PLANE_UNDETERMINED)
         plane = _plane_through(pts)
         out[name] = LaserPlaneFit(name, plane, float(np.sqrt(np.mean(miss**2))), 3,
                                   (sp.frame,), tuple(levels), method="three-point")

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, InputError
 from impress_gui.core.base.fileio import float_array, read_json, require, write_json
 
@@ -162,7 +163,7 @@ class Intrinsics:
             return
         raise InputError(
             f"the intrinsics are for {w}x{h} images but {what} is {width}x{height}",
-            code="E-SIZE-MISMATCH",
+            code=codes.E_SIZE_MISMATCH,
         )
 
     # ----- file format ---------------------------------------------------------------

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import CalibrationError, InputError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.calibration.geometry import Intrinsics
@@ -53,7 +54,7 @@ def parse_board(text: str) -> tuple[int, int]:
         cols, rows = (int(v) for v in text.lower().replace(" ", "").split("x"))
     except ValueError:
         raise InputError(f"board {text!r} is not COLSxROWS inner corners, e.g. 9x6",
-                         code="E-BOARD") from None
+                         code=codes.E_BOARD) from None
     check_board((cols, rows))
     return cols, rows
 
@@ -62,7 +63,7 @@ def check_board(board: tuple[int, int]) -> None:
     cols, rows = board
     if not (3 <= cols <= 60 and 3 <= rows <= 60):
         raise InputError(f"board {cols}x{rows}: give the inner corners, 3 to 60 each way "
-                         "(a board of 10 x 7 squares is 9x6)", code="E-BOARD")
+                         "(a board of 10 x 7 squares is 9x6)", code=codes.E_BOARD)
 
 
 def find_board(gray: np.ndarray, board: tuple[int, int]) -> np.ndarray | None:
@@ -164,7 +165,7 @@ def calibrate_views(views: list[BoardView], board: tuple[int, int], square_mm: f
             or k[1, 1] <= 0 or not (0 < k[0, 2] < w and 0 < k[1, 2] < h)):
         raise CalibrationError("the fit did not converge to a usable camera (focal length or "
                                "principal point out of range); use views with the board "
-                               "tilted and in all parts of the image", code="E-CALIB-DEGENERATE")
+                               "tilted and in all parts of the image", code=codes.E_CALIB_DEGENERATE)
     intr = Intrinsics(k, dist[:5], image_size, rms_px=rms,
                       frames_used=tuple(v.frame for v in views))
     return intr, views, errs, rejected
@@ -181,9 +182,9 @@ def run_camera_calibration(source, board: tuple[int, int] = (9, 6), square_mm: f
 
     check_board(board)
     if not (np.isfinite(square_mm) and 0.1 <= square_mm <= 1000.0):
-        raise InputError("the square size must be between 0.1 and 1000 mm", code="E-BOARD")
+        raise InputError("the square size must be between 0.1 and 1000 mm", code=codes.E_BOARD)
     if min_boards < 3:
-        raise InputError("at least 3 board views are needed for a calibration", code="E-BOARD")
+        raise InputError("at least 3 board views are needed for a calibration", code=codes.E_BOARD)
     own = isinstance(source, (str, Path))
     video = open_video(source) if own else source
     try:
@@ -200,7 +201,7 @@ def run_camera_calibration(source, board: tuple[int, int] = (9, 6), square_mm: f
             f"view(s) of the {examined} frames examined; at least {min_boards} are needed. Check "
             "the board size (count inner corners, e.g. 9x6 for 10 x 7 squares), that the whole "
             "board is in view, lit evenly and sharp, and move it between views",
-            code="E-TOO-FEW-BOARDS")
+            code=codes.E_TOO_FEW_BOARDS)
     report(progress, 0.92, f"fitting the camera model to {len(views)} views")
     intr, used, errs, rejected = calibrate_views(views, board, square_mm, size, fix_k3,
                                                  min_boards)

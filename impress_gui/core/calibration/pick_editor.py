@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.target import CORNER_NAMES
@@ -116,13 +117,13 @@ class PickEditor:
     def place(self, which: str, uv: Point) -> str:
         """Mark the next corner of ``which`` at ``uv``; return its name."""
         if self.state.frame(which) is None:
-            raise InputError(f"choose the frame {which} first", code="E-PICKS")
+            raise InputError(f"choose the frame {which} first", code=codes.E_PICKS)
         name = self.next_corner(which)
         if name is None:
             raise InputError(
                 f"all six corners are already marked in {which}; drag a corner to "
                 "move it, or clear the frame to start again",
-                code="E-PICKS",
+                code=codes.E_PICKS,
             )
         corners = dict(self.state.corners(which))
         corners[name] = (float(uv[0]), float(uv[1]))

@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import CalibrationError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.calibration.geometry import Intrinsics, Plane, fit_plane, ideal_rotation
@@ -116,7 +117,7 @@ def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames) 
             f"the {name} stripe does not cross target faces at two different heights "
             f"(found {', '.join(f'{v:g} mm' for v in levels) or 'none'}); its plane is "
             "undetermined - choose a frame where it crosses both the low and the high face",
-            code="E-PLANE-UNDETERMINED")
+            code=codes.E_PLANE_UNDETERMINED)
     keep = np.ones(len(points), bool)
     for _ in range(4):
         plane, rms, _ = fit_plane(points[keep])
@@ -165,7 +166,7 @@ class StripeObservations:
                 raise CalibrationError(
                     f"the {name} stripe was not found on two target faces around frame {t_c}; "
                     "choose a frame where it crosses both the low and the high face",
-                    code="E-PLANE-UNDETERMINED")
+                    code=codes.E_PLANE_UNDETERMINED)
             # frames whose points disagree with the others (acceleration ramp, a passing
             # shadow) are dropped: their travel does not follow the constant speed
             if len(used) >= 4:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from impress_gui import __version__
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import CalibrationError, FormatError
 from impress_gui.core.base.fileio import float_array, read_json, require, write_json
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
@@ -207,7 +208,7 @@ def check_range(value, bounds: tuple[float, float], what: str, where: str = "") 
     lo, hi = bounds
     if not (lo <= float(value) <= hi):
         raise FormatError(f"{where}{what} is {value:g}, outside the possible range "
-                          f"{lo:g} to {hi:g}", code="E-VALUE")
+                          f"{lo:g} to {hi:g}", code=codes.E_VALUE)
 
 
 def check_picks(picks: Picks, intrinsics: Intrinsics, frame_count: int) -> None:
@@ -216,36 +217,36 @@ def check_picks(picks: Picks, intrinsics: Intrinsics, frame_count: int) -> None:
     for key, t in (("t1", picks.t1), ("t2", picks.t2)):
         if not 0 <= t < frame_count:
             raise CalibrationError(f"frame {key} = {t} is outside the video (0..{frame_count - 1})",
-                                   code="E-FRAME-RANGE")
+                                   code=codes.E_FRAME_RANGE)
     if picks.t1 == picks.t2:
         raise CalibrationError("t1 and t2 are the same frame: the corners need two frames "
-                               "with travel between them", code="E-PICKS")
+                               "with travel between them", code=codes.E_PICKS)
     for key in ("t1", "t2"):
         d = picks.corners_t1 if key == "t1" else picks.corners_t2
         missing = [c for c in CORNER_NAMES if c not in d]
         if missing:
             raise CalibrationError(f"corners {', '.join(missing)} are not marked in frame {key}; "
                                    "all six corners A-F are needed in both frames",
-                                   code="E-PICKS-INCOMPLETE")
+                                   code=codes.E_PICKS_INCOMPLETE)
         arr = picks.array(key)
         for c, (u, v) in zip(CORNER_NAMES, arr):
             if not (-0.5 <= u <= w - 0.5 and -0.5 <= v <= h - 0.5):
                 raise CalibrationError(f"corner {c} in frame {key} ({u:.1f}, {v:.1f}) is outside "
-                                       f"the {w}x{h} image", code="E-PICKS")
+                                       f"the {w}x{h} image", code=codes.E_PICKS)
         dist = np.linalg.norm(arr[:, None] - arr[None], axis=2) + np.eye(6) * 1e9
         i, j = np.unravel_index(np.argmin(dist), dist.shape)
         if dist[i, j] < 2.0:
             raise CalibrationError(f"corners {CORNER_NAMES[i]} and {CORNER_NAMES[j]} in frame "
-                                   f"{key} are at the same place", code="E-PICKS")
+                                   f"{key} are at the same place", code=codes.E_PICKS)
         centred = arr - arr.mean(0)
         s = np.linalg.svd(centred, compute_uv=False)
         if s[1] < 0.02 * s[0] or s[1] < 3.0:
             raise CalibrationError(f"the corners in frame {key} are (nearly) collinear; check "
-                                   "the order A-F against the target diagram", code="E-PICKS")
+                                   "the order A-F against the target diagram", code=codes.E_PICKS)
     shift = np.linalg.norm(picks.array("t2") - picks.array("t1"), axis=1)
     if np.median(shift) < 5.0:
         raise CalibrationError("the corners barely move between t1 and t2; choose frames "
-                               "further apart", code="E-PICKS")
+                               "further apart", code=codes.E_PICKS)
 
 
 def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: Picks,
@@ -264,9 +265,9 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
     cancel = cancel or CancelToken()
     if plane_method not in PLANE_METHODS:
         raise CalibrationError(f"unknown laser plane method {plane_method!r} (known: "
-                               f"{', '.join(PLANE_METHODS)})", code="E-CALIB")
+                               f"{', '.join(PLANE_METHODS)})", code=codes.E_CALIB)
     if not np.isfinite(speed_mm_s) or not 0.01 <= speed_mm_s <= 1000:
-        raise CalibrationError(f"rail speed {speed_mm_s} mm/s is not plausible", code="E-SPEED")
+        raise CalibrationError(f"rail speed {speed_mm_s} mm/s is not plausible", code=codes.E_SPEED)
     w, h = video.size
     intrinsics.check_image_size(w, h)
     check_picks(picks, intrinsics, video.frame_count)
@@ -331,7 +332,7 @@ def _refuse_damaged(video, frames) -> None:
         k, why = bad[0]
         raise CalibrationError(f"frame {k}, used by the calibration, is damaged ({why}); "
                                "choose other frames t1/t2 or a sound copy of the video",
-                               code="E-VIDEO-DAMAGED")
+                               code=codes.E_VIDEO_DAMAGED)
 
 
 def _vp_pixels(intr: Intrinsics, m: np.ndarray) -> np.ndarray:

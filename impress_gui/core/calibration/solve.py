@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import CalibrationError
 from impress_gui.core.calibration.geometry import (
     Intrinsics,
@@ -161,7 +162,7 @@ def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_
         corners = triangulate_parallax(a1, b1, a2, b2, d)
     if np.any(corners[:, 2] <= 0):
         raise CalibrationError("the picks give corners behind the camera; check that t1/t2 and "
-                               "the corner order match the target diagram", code="E-PICKS")
+                               "the corner order match the target diagram", code=codes.E_PICKS)
     obj = target.corner_array()
     _, r_rigid, t_rigid = umeyama(obj, corners, with_scale=False)
     fitted = obj @ r_rigid.T + t_rigid
@@ -171,7 +172,7 @@ def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_
         raise CalibrationError(
             f"the target model does not match the picks (corner residuals up to "
             f"{np.max(residuals):.1f} mm); check the corner order and the target model",
-            code="E-TARGET-MISMATCH")
+            code=codes.E_TARGET_MISMATCH)
     fix_rot = False
     roll_b, tilt_b, r_o, t_o, d_fit, rms_px = refine_bundle(
         intrinsics, target, picks, (roll, tilt, r_s, t_s / scale), d / scale,

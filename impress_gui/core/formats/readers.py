@@ -35,6 +35,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError
 from impress_gui.core.reconstruction.grid import GridSpec
 
@@ -56,13 +57,13 @@ def _check_file(path: Path, limit: int = MAX_FILE_BYTES) -> int:
     try:
         size = path.stat().st_size
     except FileNotFoundError:
-        raise _err(path, "file not found", "E-FILE-MISSING") from None
+        raise _err(path, "file not found", codes.E_FILE_MISSING) from None
     except OSError as exc:
-        raise _err(path, f"cannot read ({exc.strerror})", "E-FORMAT") from None
+        raise _err(path, f"cannot read ({exc.strerror})", codes.E_FORMAT) from None
     if not path.is_file():
-        raise _err(path, "not a file", "E-FORMAT")
+        raise _err(path, "not a file", codes.E_FORMAT)
     if size > limit:
-        raise _err(path, f"{size} bytes is too large", "E-TOO-LARGE")
+        raise _err(path, f"{size} bytes is too large", codes.E_TOO_LARGE)
     return size
 
 
@@ -88,28 +89,28 @@ def check_zip(
     total = 0
     infos = zf.infolist()
     if len(infos) > 1000:
-        raise _err(path, f"{len(infos)} members: not an export of this software", "E-ZIP-BOMB")
+        raise _err(path, f"{len(infos)} members: not an export of this software", codes.E_ZIP_BOMB)
     for info in infos:
         if not safe_member_name(info.filename):
             raise _err(
                 path,
                 f"member name {info.filename!r} would leave the archive's folder",
-                "E-ZIP-TRAVERSAL",
+                codes.E_ZIP_TRAVERSAL,
             )
         if info.file_size > member_limit:
             raise _err(
-                path, f"member {info.filename!r} declares {info.file_size} bytes", "E-ZIP-BOMB"
+                path, f"member {info.filename!r} declares {info.file_size} bytes", codes.E_ZIP_BOMB
             )
         if info.file_size > MAX_RATIO * max(info.compress_size, 1) and info.file_size > 1 << 20:
             raise _err(
                 path,
                 f"member {info.filename!r} declares a compression ratio of "
                 f"{info.file_size / max(info.compress_size, 1):.0f}:1",
-                "E-ZIP-BOMB",
+                codes.E_ZIP_BOMB,
             )
         total += info.file_size
         if total > total_limit:
-            raise _err(path, "the members' declared sizes add up to too much", "E-ZIP-BOMB")
+            raise _err(path, "the members' declared sizes add up to too much", codes.E_ZIP_BOMB)
 
 
 def read_member(zf: zipfile.ZipFile, name: str, path: Path, limit: int) -> bytes:
@@ -117,10 +118,10 @@ def read_member(zf: zipfile.ZipFile, name: str, path: Path, limit: int) -> bytes
     try:
         info = zf.getinfo(name)
     except KeyError:
-        raise _err(path, f"member {name!r} is missing", "E-X3P-DATA") from None
+        raise _err(path, f"member {name!r} is missing", codes.E_X3P_DATA) from None
     if info.file_size > limit:
         raise _err(
-            path, f"member {name!r} declares {info.file_size} bytes (limit {limit})", "E-ZIP-BOMB"
+            path, f"member {name!r} declares {info.file_size} bytes (limit {limit})", codes.E_ZIP_BOMB
         )
     try:
         with zf.open(info) as fh:
@@ -135,14 +136,14 @@ def read_member(zf: zipfile.ZipFile, name: str, path: Path, limit: int) -> bytes
         RuntimeError,
     ) as exc:
         # zlib.error is not an OSError; it arrives wrapped or as itself
-        raise _err(path, f"member {name!r} is damaged ({exc})", "E-X3P-ZIP") from None
+        raise _err(path, f"member {name!r} is damaged ({exc})", codes.E_X3P_ZIP) from None
     except Exception as exc:  # noqa: BLE001 - zlib.error and friends
-        raise _err(path, f"member {name!r} is damaged ({exc})", "E-X3P-ZIP") from None
+        raise _err(path, f"member {name!r} is damaged ({exc})", codes.E_X3P_ZIP) from None
     if len(data) != info.file_size:
         raise _err(
             path,
             f"member {name!r} inflates to {len(data)} bytes, not the {info.file_size} declared",
-            "E-ZIP-BOMB",
+            codes.E_ZIP_BOMB,
         )
     return data
 
@@ -165,7 +166,7 @@ def _xml_text(root, path_: str, ns: dict, path: Path, required: bool = True) -> 
     el = root.find(path_, ns)
     if el is None or el.text is None:
         if required:
-            raise _err(path, f"main.xml lacks {path_.replace('p:', '')}", "E-X3P-XML")
+            raise _err(path, f"main.xml lacks {path_.replace('p:', '')}", codes.E_X3P_XML)
         return None
     return el.text.strip()
 
@@ -174,20 +175,20 @@ def _finite(text: str | None, what: str, path: Path, positive: bool = False) -> 
     try:
         v = float(text)  # type: ignore[arg-type]
     except (TypeError, ValueError):
-        raise _err(path, f"{what} is not a number ({text!r})", "E-X3P-XML") from None
+        raise _err(path, f"{what} is not a number ({text!r})", codes.E_X3P_XML) from None
     if not math.isfinite(v) or abs(v) > MAX_ABS_MM * 1e-3:
-        raise _err(path, f"{what} is not a finite length ({text!r})", "E-VALUE")
+        raise _err(path, f"{what} is not a finite length ({text!r})", codes.E_VALUE)
     if positive and v <= 0:
-        raise _err(path, f"{what} must be positive", "E-VALUE")
+        raise _err(path, f"{what} must be positive", codes.E_VALUE)
     return v
 
 
 def _count(text: str | None, what: str, path: Path) -> int:
     if text is None or not re.fullmatch(r"\d{1,10}", text):
-        raise _err(path, f"{what} must be a positive integer ({text!r})", "E-X3P-XML")
+        raise _err(path, f"{what} must be a positive integer ({text!r})", codes.E_X3P_XML)
     v = int(text)
     if v < 1:
-        raise _err(path, f"{what} must be positive", "E-X3P-XML")
+        raise _err(path, f"{what} must be positive", codes.E_X3P_XML)
     return v
 
 
@@ -201,19 +202,19 @@ def read_x3p(path: str | os.PathLike, max_cells: int = MAX_CELLS) -> X3PData:
     try:
         zf = zipfile.ZipFile(path)
     except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, ValueError) as exc:
-        raise _err(path, f"not a readable X3P (zip) file ({exc})", "E-X3P-ZIP") from None
+        raise _err(path, f"not a readable X3P (zip) file ({exc})", codes.E_X3P_ZIP) from None
     with zf:
         check_zip(zf, path)
         xml_b = read_member(zf, "main.xml", path, MAX_XML_BYTES)
         head = xml_b[:4096].upper()
         if b"<!DOCTYPE" in head or b"<!ENTITY" in xml_b.upper():
-            raise _err(path, "main.xml declares a DTD or entities (refused)", "E-X3P-XML")
+            raise _err(path, "main.xml declares a DTD or entities (refused)", codes.E_X3P_XML)
         try:
             root = ET.fromstring(xml_b)
         except ET.ParseError as exc:
-            raise _err(path, f"main.xml is not valid XML ({exc})", "E-X3P-XML") from None
+            raise _err(path, f"main.xml is not valid XML ({exc})", codes.E_X3P_XML) from None
         if not root.tag.endswith("ISO5436_2"):
-            raise _err(path, f"main.xml is not an ISO5436_2 document ({root.tag!r})", "E-X3P-XML")
+            raise _err(path, f"main.xml is not an ISO5436_2 document ({root.tag!r})", codes.E_X3P_XML)
 
         def t(p_: str, required: bool = True) -> str | None:
             # the records are unqualified children of the namespaced root
@@ -221,51 +222,51 @@ def read_x3p(path: str | os.PathLike, max_cells: int = MAX_CELLS) -> X3PData:
 
         revision = t("Record1/Revision")
         if not revision or not revision.startswith("ISO5436"):
-            raise _err(path, f"unknown X3P revision {revision!r}", "E-VERSION")
+            raise _err(path, f"unknown X3P revision {revision!r}", codes.E_VERSION)
         if t("Record1/FeatureType") != "SUR":
-            raise _err(path, "only areal surfaces (FeatureType SUR) are read", "E-X3P-DATA")
+            raise _err(path, "only areal surfaces (FeatureType SUR) are read", codes.E_X3P_DATA)
         axes = {}
         for ax in ("CX", "CY"):
             if t(f"Record1/Axes/{ax}/AxisType") != "I":
-                raise _err(path, f"axis {ax} must be incremental", "E-X3P-DATA")
+                raise _err(path, f"axis {ax} must be incremental", codes.E_X3P_DATA)
             axes[ax] = (
                 _finite(t(f"Record1/Axes/{ax}/Increment"), f"{ax} increment", path, positive=True),
                 _finite(t(f"Record1/Axes/{ax}/Offset", False) or "0", f"{ax} offset", path),
             )
         if abs(axes["CX"][0] - axes["CY"][0]) > 1e-9 * max(axes["CX"][0], 1e-12):
-            raise _err(path, "x and y increments differ (only square cells are read)", "E-X3P-DATA")
+            raise _err(path, "x and y increments differ (only square cells are read)", codes.E_X3P_DATA)
         ztype = t("Record1/Axes/CZ/DataType")
         if ztype not in _DTYPES:
-            raise _err(path, f"z data type {ztype!r} is not supported (D or F)", "E-X3P-DATA")
+            raise _err(path, f"z data type {ztype!r} is not supported (D or F)", codes.E_X3P_DATA)
         nx = _count(t("Record3/MatrixDimension/SizeX"), "SizeX", path)
         ny = _count(t("Record3/MatrixDimension/SizeY"), "SizeY", path)
         nz = _count(t("Record3/MatrixDimension/SizeZ"), "SizeZ", path)
         if nz != 1:
-            raise _err(path, "only one layer (SizeZ 1) is read", "E-X3P-DATA")
+            raise _err(path, "only one layer (SizeZ 1) is read", codes.E_X3P_DATA)
         if nx * ny > max_cells:
-            raise _err(path, f"{nx} x {ny} points is too large", "E-TOO-LARGE")
+            raise _err(path, f"{nx} x {ny} points is too large", codes.E_TOO_LARGE)
         link = t("Record3/DataLink/PointDataLink")
         if not safe_member_name(link or ""):
-            raise _err(path, f"point data link {link!r} would leave the archive", "E-ZIP-TRAVERSAL")
+            raise _err(path, f"point data link {link!r} would leave the archive", codes.E_ZIP_TRAVERSAL)
         itemsize = np.dtype(_DTYPES[ztype]).itemsize
         data = read_member(zf, link or "", path, nx * ny * itemsize)
         if len(data) != nx * ny * itemsize:
             raise _err(
-                path, f"point data has {len(data)} bytes, not {nx * ny * itemsize}", "E-X3P-DATA"
+                path, f"point data has {len(data)} bytes, not {nx * ny * itemsize}", codes.E_X3P_DATA
             )
         md5 = t("Record3/DataLink/MD5ChecksumPointData", False)
         if md5 and md5.lower() != hashlib.md5(data).hexdigest():
-            raise _err(path, "the point data's MD5 checksum does not match", "E-X3P-CHECKSUM")
+            raise _err(path, "the point data's MD5 checksum does not match", codes.E_X3P_CHECKSUM)
         if "md5checksum.hex" in zf.namelist():
             line = read_member(zf, "md5checksum.hex", path, 4096).decode("ascii", "replace")
             if line.split() and line.split()[0].lower() != hashlib.md5(xml_b).hexdigest():
-                raise _err(path, "main.xml's MD5 checksum does not match", "E-X3P-CHECKSUM")
+                raise _err(path, "main.xml's MD5 checksum does not match", codes.E_X3P_CHECKSUM)
     with np.errstate(invalid="ignore"):  # signalling NaNs become quiet ones (invalid points)
         z = np.frombuffer(data, _DTYPES[ztype]).astype(np.float64).reshape(ny, nx) * 1e3
     if np.isinf(z).any():
-        raise _err(path, "heights contain infinity", "E-VALUE")
+        raise _err(path, "heights contain infinity", codes.E_VALUE)
     if np.nanmax(np.abs(z), initial=0.0) > MAX_ABS_MM:
-        raise _err(path, "heights are absurdly large", "E-VALUE")
+        raise _err(path, "heights are absurdly large", codes.E_VALUE)
     inc = axes["CX"][0] * 1e3
     spec = GridSpec(axes["CX"][1] * 1e3, axes["CY"][1] * 1e3, inc, (ny, nx))
     info = {
@@ -316,13 +317,13 @@ def read_ply(path: str | os.PathLike, max_points: int = MAX_POINTS) -> PlyData:
         head = fh.read(PLY_HEADER_MAX)
         end = head.find(b"end_header\n")
         if not head.startswith(b"ply\n") and not head.startswith(b"ply\r\n"):
-            raise _err(path, "not a PLY file", "E-PLY-HEADER")
+            raise _err(path, "not a PLY file", codes.E_PLY_HEADER)
         if end < 0:
-            raise _err(path, "the PLY header never ends (no end_header)", "E-PLY-HEADER")
+            raise _err(path, "the PLY header never ends (no end_header)", codes.E_PLY_HEADER)
         try:
             lines = head[:end].decode("ascii").splitlines()
         except UnicodeDecodeError:
-            raise _err(path, "the PLY header is not ASCII", "E-PLY-HEADER") from None
+            raise _err(path, "the PLY header is not ASCII", codes.E_PLY_HEADER) from None
         body = end + len(b"end_header\n")
         fmt: str | None = None
         elements: list = []
@@ -333,63 +334,63 @@ def read_ply(path: str | os.PathLike, max_points: int = MAX_POINTS) -> PlyData:
                 continue
             if parts[0] == "format":
                 if len(parts) != 3:
-                    raise _err(path, f"bad format line {ln!r}", "E-PLY-HEADER")
+                    raise _err(path, f"bad format line {ln!r}", codes.E_PLY_HEADER)
                 if parts[2] != "1.0":
-                    raise _err(path, f"PLY version {parts[2]!r} is not supported", "E-VERSION")
+                    raise _err(path, f"PLY version {parts[2]!r} is not supported", codes.E_VERSION)
                 fmt = parts[1]
             elif parts[0] in ("comment", "obj_info"):
                 comments.append(ln[len(parts[0]) + 1 :])
             elif parts[0] == "element":
                 if len(parts) != 3 or not re.fullmatch(r"\d{1,12}", parts[2]):
-                    raise _err(path, f"bad element line {ln!r}", "E-PLY-HEADER")
+                    raise _err(path, f"bad element line {ln!r}", codes.E_PLY_HEADER)
                 elements.append((parts[1], int(parts[2]), []))
             elif parts[0] == "property":
                 if not elements:
-                    raise _err(path, "a property before any element", "E-PLY-HEADER")
+                    raise _err(path, "a property before any element", codes.E_PLY_HEADER)
                 if len(parts) == 3 and parts[1] in _PLY_TYPES:
                     elements[-1][2].append((parts[2], _PLY_TYPES[parts[1]]))
                 elif parts[1] == "list":
                     elements[-1][2].append((parts[-1], "list"))
                 else:
-                    raise _err(path, f"bad property line {ln!r}", "E-PLY-HEADER")
+                    raise _err(path, f"bad property line {ln!r}", codes.E_PLY_HEADER)
             else:
-                raise _err(path, f"unknown header line {ln!r}", "E-PLY-HEADER")
+                raise _err(path, f"unknown header line {ln!r}", codes.E_PLY_HEADER)
         order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(fmt or "")
         if order is None:
-            raise _err(path, f"format {fmt!r} is not supported (binary PLY only)", "E-PLY-HEADER")
+            raise _err(path, f"format {fmt!r} is not supported (binary PLY only)", codes.E_PLY_HEADER)
         if not elements or elements[0][0] != "vertex":
-            raise _err(path, "the first element must be vertex", "E-PLY-HEADER")
+            raise _err(path, "the first element must be vertex", codes.E_PLY_HEADER)
         _, n, props = elements[0]
         names = [p for p, _ in props]
         if any(t == "list" for _, t in props) or len(set(names)) != len(names):
-            raise _err(path, "vertex properties must be distinct scalars", "E-PLY-HEADER")
+            raise _err(path, "vertex properties must be distinct scalars", codes.E_PLY_HEADER)
         if not {"x", "y", "z"} <= set(names):
-            raise _err(path, "vertices need x, y and z", "E-PLY-HEADER")
+            raise _err(path, "vertices need x, y and z", codes.E_PLY_HEADER)
         if n > max_points:
-            raise _err(path, f"{n} vertices is too many", "E-TOO-LARGE")
+            raise _err(path, f"{n} vertices is too many", codes.E_TOO_LARGE)
         if {"red", "green", "blue"} <= set(names) and any(
             dict(props)[c] != "u1" for c in ("red", "green", "blue")
         ):
-            raise _err(path, "colours must be uchar", "E-PLY-HEADER")
+            raise _err(path, "colours must be uchar", codes.E_PLY_HEADER)
         dt = np.dtype([(p, order + t) for p, t in props])
         need = n * dt.itemsize
         if size - body < need:
             raise _err(
                 path,
                 f"{size - body} bytes of vertex data, the header declares {need}",
-                "E-PLY-TRUNCATED",
+                codes.E_PLY_TRUNCATED,
             )
         fh.seek(body)
         raw = fh.read(need)
     if len(raw) != need:
-        raise _err(path, "the file shrank while it was read", "E-PLY-TRUNCATED")
+        raise _err(path, "the file shrank while it was read", codes.E_PLY_TRUNCATED)
     v = np.frombuffer(raw, dt)
     with np.errstate(invalid="ignore"):  # a signalling NaN raises the flag; refused below
         pts = np.column_stack([v[c].astype(np.float64) for c in ("x", "y", "z")])
     if not np.isfinite(pts).all():
-        raise _err(path, "coordinates contain NaN or infinity", "E-VALUE")
+        raise _err(path, "coordinates contain NaN or infinity", codes.E_VALUE)
     if n and np.abs(pts).max() > MAX_ABS_MM:
-        raise _err(path, "coordinates are absurdly large", "E-VALUE")
+        raise _err(path, "coordinates are absurdly large", codes.E_VALUE)
     colours = None
     if {"red", "green", "blue"} <= set(names):
         colours = np.column_stack([v["red"], v["green"], v["blue"]]).astype(np.uint8)
@@ -404,5 +405,5 @@ def read_export(path: str | os.PathLike):
     p = Path(path)
     reader = READERS.get(p.suffix.lower())
     if reader is None:
-        raise _err(p, f"no reader for {p.suffix!r} files ({', '.join(READERS)})", "E-FORMAT")
+        raise _err(p, f"no reader for {p.suffix!r} files ({', '.join(READERS)})", codes.E_FORMAT)
     return reader(p)

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import VideoError
 from impress_gui.core.base.fileio import FRAME_SUFFIXES, open_regular
 
@@ -27,7 +28,7 @@ def _open_regular(path: Path, what: str, max_bytes: int) -> int:
     try:
         return open_regular(path, what, max_bytes)
     except FormatError as exc:
-        code = "E-VIDEO-EMPTY" if exc.code == "E-FILE-EMPTY" else exc.code
+        code = codes.E_VIDEO_EMPTY if exc.code == codes.E_FILE_EMPTY else exc.code
         raise VideoError(str(exc), code=code) from None
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v", ".mts", ".m2ts", ".ts", ".avi", ".mkv")
@@ -170,7 +171,7 @@ class VideoSource:
     def check_index(self, k: int) -> int:
         if not isinstance(k, (int, np.integer)) or not 0 <= k < self.frame_count:
             raise VideoError(f"frame {k} is outside the video (0..{self.frame_count - 1})",
-                             code="E-FRAME-RANGE")
+                             code=codes.E_FRAME_RANGE)
         return int(k)
 
     def close(self) -> None:
@@ -222,7 +223,7 @@ class AVVideo(VideoSource):
         except (av.error.FFmpegError, OSError, ValueError):
             self._close_fd()
             raise VideoError(f"{self.path}: not a readable video (the container is damaged, cut "
-                             "short or of an unknown kind)", code="E-VIDEO-OPEN") from None
+                             "short or of an unknown kind)", code=codes.E_VIDEO_OPEN) from None
         try:
             self._index()
         except BaseException:
@@ -250,7 +251,7 @@ class AVVideo(VideoSource):
             from impress_gui.core.base.errors import IntegrityError
 
             raise IntegrityError(f"{self.path} was written to while it was being read: the "
-                                 "result is not kept", code="E-EVIDENCE-CHANGED")
+                                 "result is not kept", code=codes.E_EVIDENCE_CHANGED)
         if moved:
             self.open_warnings.append(
                 f"W-VIDEO-REPLACED: {self.path} was replaced or removed while it was read; "
@@ -263,11 +264,11 @@ class AVVideo(VideoSource):
         self.recorded_utc = tag if len(tag) >= 10 and tag[:4].isdigit() else None
         streams = self._container.streams.video
         if not streams:
-            raise VideoError(f"{self.path}: the file has no video stream", code="E-VIDEO-OPEN")
+            raise VideoError(f"{self.path}: the file has no video stream", code=codes.E_VIDEO_OPEN)
         st = streams[0]
         if st.codec_context is None:
             raise VideoError(f"{self.path}: the video stream cannot be decoded",
-                             code="E-VIDEO-OPEN")
+                             code=codes.E_VIDEO_OPEN)
         st.codec_context.thread_type = "AUTO"
         st.codec_context.thread_count = self._threads
         self._stream = st
@@ -275,7 +276,7 @@ class AVVideo(VideoSource):
         cc = st.codec_context
         w, h = cc.width, cc.height
         if not w or not h:
-            raise VideoError(f"{self.path}: the video stream has no frame size", code="E-VIDEO-OPEN")
+            raise VideoError(f"{self.path}: the video stream has no frame size", code=codes.E_VIDEO_OPEN)
         self._coded_h = h
         self.size = (w, 1080 if h == 1088 else h)
         pts, keys = [], []
@@ -288,9 +289,9 @@ class AVVideo(VideoSource):
                     keys.append(pkt.pts)
         except av.error.FFmpegError:
             raise VideoError(f"{self.path}: the file is damaged after {len(pts)} frames",
-                             code="E-VIDEO-TRUNCATED") from None
+                             code=codes.E_VIDEO_TRUNCATED) from None
         if not pts:
-            raise VideoError(f"{self.path}: the video has no frames", code="E-VIDEO-EMPTY")
+            raise VideoError(f"{self.path}: the video has no frames", code=codes.E_VIDEO_EMPTY)
         if len(set(pts)) != len(pts):
             self.open_warnings.append(f"W-VIDEO-STAMPS: {self.path.name}: "
                                       f"{len(pts) - len(set(pts))} frames share a time stamp "
@@ -397,7 +398,7 @@ class AVVideo(VideoSource):
             other._container, other._stream = other._open_for_decoding(probe_pictures=False)
         except (av.error.FFmpegError, OSError, ValueError):
             raise VideoError(f"{self.path}: the video cannot be opened again for decoding",
-                             code="E-VIDEO-OPEN") from None
+                             code=codes.E_VIDEO_OPEN) from None
         other._decoder = None
         return other
 
@@ -481,7 +482,7 @@ class AVVideo(VideoSource):
                             late = True
                             break
                         raise VideoError(f"{self.path}: frame {want} cannot be decoded",
-                                         code="E-VIDEO-TRUNCATED")
+                                         code=codes.E_VIDEO_TRUNCATED)
                     yield idx, frame
                     want = idx + 1
                 if late:
@@ -498,11 +499,11 @@ class AVVideo(VideoSource):
                 break
         except av.error.FFmpegError:
             raise VideoError(f"{self.path}: frame {want} cannot be decoded (damaged data)",
-                             code="E-VIDEO-DAMAGED") from None
+                             code=codes.E_VIDEO_DAMAGED) from None
         if want < len(self._pts):
             raise VideoError(f"{self.path}: the video ends at frame {want} although "
                              f"{len(self._pts)} frames were indexed (truncated?)",
-                             code="E-VIDEO-TRUNCATED")
+                             code=codes.E_VIDEO_TRUNCATED)
 
     def _decode_keyframe(self, k: int):
         """Frame ``k`` decoded from its packet alone when it is a keyframe (an intra-coded
@@ -599,7 +600,7 @@ class AVVideo(VideoSource):
             idx, frame = next(gen)
         except StopIteration:
             raise VideoError(f"{self.path}: frame {k} cannot be decoded",
-                             code="E-VIDEO-TRUNCATED") from None
+                             code=codes.E_VIDEO_TRUNCATED) from None
         finally:
             gen.close()
         return self._to_rgb(frame)
@@ -649,14 +650,14 @@ class FrameFolder(VideoSource):
             self._files = sorted(p for p in self.path.iterdir()
                                  if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
         except OSError:
-            raise VideoError(f"{self.path}: the folder cannot be read", code="E-VIDEO-OPEN") from None
+            raise VideoError(f"{self.path}: the folder cannot be read", code=codes.E_VIDEO_OPEN) from None
         if not self._files:
             raise VideoError(f"{self.path}: the folder holds no frames (.png, .jpg, .tif)",
-                             code="E-VIDEO-EMPTY")
+                             code=codes.E_VIDEO_EMPTY)
         self._manifest = self._stats()
         first = cv2.imread(str(self._files[0]), cv2.IMREAD_COLOR)
         if first is None:
-            raise VideoError(f"{self._files[0]}: not a readable image", code="E-VIDEO-OPEN")
+            raise VideoError(f"{self._files[0]}: not a readable image", code=codes.E_VIDEO_OPEN)
         self.size = (first.shape[1], first.shape[0])
         self.fps = float(fps)
         self.times_s = np.arange(len(self._files)) / self.fps
@@ -681,7 +682,7 @@ class FrameFolder(VideoSource):
             from impress_gui.core.base.errors import IntegrityError
 
             raise IntegrityError(f"{self.path}: frames were changed while they were being read: "
-                                 "the result is not kept", code="E-EVIDENCE-CHANGED")
+                                 "the result is not kept", code=codes.E_EVIDENCE_CHANGED)
 
     def read(self, k: int) -> np.ndarray:
         import cv2
@@ -690,10 +691,10 @@ class FrameFolder(VideoSource):
         img = cv2.imread(str(self._files[k]), cv2.IMREAD_COLOR)
         if img is None:
             raise VideoError(f"{self._files[k]}: frame {k} is not a readable image",
-                             code="E-VIDEO-TRUNCATED")
+                             code=codes.E_VIDEO_TRUNCATED)
         if (img.shape[1], img.shape[0]) != self.size:
             raise VideoError(f"{self._files[k]}: frame {k} has a different size",
-                             code="E-VIDEO-TRUNCATED")
+                             code=codes.E_VIDEO_TRUNCATED)
         return np.ascontiguousarray(img[..., ::-1])
 
     def iter_frames(self, start: int = 0, stop: int | None = None):
@@ -706,10 +707,10 @@ def open_video(path: str | Path, fps: float | None = None) -> VideoSource:
     """Open a video file or a frame folder; raise :class:`VideoError` with a clear reason."""
     path = Path(path)
     if not path.exists():
-        raise VideoError(f"{path}: no such file or folder", code="E-FILE-MISSING")
+        raise VideoError(f"{path}: no such file or folder", code=codes.E_FILE_MISSING)
     if fps is not None and not (np.isfinite(fps) and 0.5 <= fps <= 1000):
         raise VideoError(f"a frame rate of {fps} frames/s is not possible (0.5 to 1000)",
-                         code="E-VALUE")
+                         code=codes.E_VALUE)
     if path.is_dir():
         return FrameFolder(path, fps or 30.0)
     src = AVVideo(path)

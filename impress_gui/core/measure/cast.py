@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from impress_gui import __version__
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, InputError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.reconstruction.grid import GridSpec
@@ -76,20 +77,20 @@ class CastParams:
         b = self.base_mm
         if not isinstance(b, (int, float)) or not math.isfinite(b) or not 0 < b <= MAX_BASE_MM:
             raise InputError(f"the base thickness must be a number of mm above 0 and at most "
-                             f"{MAX_BASE_MM:g} (got {b})", code="E-CAST-BASE")
+                             f"{MAX_BASE_MM:g} (got {b})", code=codes.E_CAST_BASE)
         if isinstance(self.max_triangles, bool) or not isinstance(self.max_triangles, int) \
                 or self.max_triangles < MIN_TRIANGLES:
             raise InputError(f"the triangle cap must be a whole number of at least "
                              f"{MIN_TRIANGLES} (got {self.max_triangles})",
-                             code="E-CAST-TRIANGLES")
+                             code=codes.E_CAST_TRIANGLES)
         if self.crop_mm is not None:
             c = self.crop_mm
             if len(c) != 4 or not all(isinstance(v, (int, float)) and math.isfinite(v)
                                       for v in c):
                 raise InputError("the crop must be four finite numbers x0,y0,x1,y1 (mm)",
-                                 code="E-CAST-CROP")
+                                 code=codes.E_CAST_CROP)
             if c[0] == c[2] or c[1] == c[3]:
-                raise InputError("the crop has no area: x0 = x1 or y0 = y1", code="E-CAST-CROP")
+                raise InputError("the crop has no area: x0 = x1 or y0 = y1", code=codes.E_CAST_CROP)
 
     def to_json(self) -> dict:
         return {"mode": "positive" if self.positive else "negative",
@@ -128,7 +129,7 @@ def crop_region(spec: GridSpec, height: np.ndarray,
     ok = np.isfinite(height)
     if not ok.any():
         raise InputError("the heightmap has no data (every cell is NaN): nothing to cast",
-                         code="E-CAST-NO-DATA")
+                         code=codes.E_CAST_NO_DATA)
     if crop_mm is None:
         rows, cols = np.nonzero(ok.any(axis=1))[0], np.nonzero(ok.any(axis=0))[0]
         r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
@@ -146,13 +147,13 @@ def crop_region(spec: GridSpec, height: np.ndarray,
                 f"the crop {x0:g},{y0:g},{x1:g},{y1:g} mm holds fewer than 2 x 2 cells of the "
                 f"grid (x {spec.x0_mm:g} to {spec.x0_mm + (spec.shape[1] - 1) * p:g} mm, y "
                 f"{-(spec.y0_mm + (spec.shape[0] - 1) * p):g} to {-spec.y0_mm:g} mm in the "
-                "export frame)", code="E-CAST-CROP")
+                "export frame)", code=codes.E_CAST_CROP)
         if not ok[r0:r1, c0:c1].any():
             raise InputError("the crop holds no cell with data: nothing to cast",
-                             code="E-CAST-NO-DATA")
+                             code=codes.E_CAST_NO_DATA)
     if r1 - r0 < 2 or c1 - c0 < 2:
         raise InputError("the cells with data span fewer than 2 x 2 cells: too small to cast",
-                         code="E-CAST-NO-DATA")
+                         code=codes.E_CAST_NO_DATA)
     return slice(r0, r1), slice(c0, c1)
 
 
@@ -174,7 +175,7 @@ def fill_holes(height: np.ndarray, iterations: int = 6) -> np.ndarray:
     if known.all():
         return h.copy()
     if not known.any():
-        raise InputError("no cell with data to fill from", code="E-CAST-NO-DATA")
+        raise InputError("no cell with data to fill from", code=codes.E_CAST_NO_DATA)
     rows, cols = h.shape
     if rows == 1 and cols == 1:
         return h.copy()
@@ -392,7 +393,7 @@ def cast_bytes(mesh: CastMesh, fmt: str, provenance: Mapping) -> bytes:
     if fmt == "obj":
         return obj_bytes(mesh, lines)
     raise InputError(f"unknown mesh format {fmt!r}: use .stl, .ply or .obj",
-                     code="E-CAST-SUFFIX")
+                     code=codes.E_CAST_SUFFIX)
 
 
 def cast_document(mesh: CastMesh, spec: GridSpec, source: Mapping, heightmap_sha256: str,
@@ -460,15 +461,15 @@ def write_cast(recon: str | Path, output: str | Path, params: CastParams,
 
     folder = Path(recon)
     if not folder.exists():
-        raise InputError(f"{folder}: no such reconstruction folder", code="E-CAST-NO-RECON")
+        raise InputError(f"{folder}: no such reconstruction folder", code=codes.E_CAST_NO_RECON)
     if not folder.is_dir():
         raise InputError(f"{folder} is a file, not a reconstruction folder (give the folder "
-                         "impress process wrote)", code="E-CAST-NOT-FOLDER")
+                         "impress process wrote)", code=codes.E_CAST_NOT_FOLDER)
     out = check_output_file(output, inputs=(folder,), formats=None)
     fmt = SUFFIXES.get(out.suffix.lower())
     if fmt is None:
         raise InputError(f"{output}: the name must end in .stl, .ply or .obj (the mesh's "
-                         "format)", code="E-CAST-SUFFIX")
+                         "format)", code=codes.E_CAST_SUFFIX)
     sidecar = check_output_file(out.with_name(out.name + ".json"), inputs=(folder,),
                                 formats=(CAST_FORMAT,))
     params.check()
@@ -480,7 +481,7 @@ def write_cast(recon: str | Path, output: str | Path, params: CastParams,
     if recorded is not None and recorded != tif_sha:
         raise FormatError(f"{folder / HEIGHTMAP_FILE} is not the heightmap metadata.json "
                           "records (its SHA-256 differs): it changed after processing; process "
-                          "the scan again", code="E-CAST-HASH")
+                          "the scan again", code=codes.E_CAST_HASH)
     mesh = make_cast(data.height_mm, data.spec, params, sub_progress(progress, 0.1, 0.8),
                      cancel)
     doc = cast_document(mesh, data.spec, source, tif_sha, fmt)

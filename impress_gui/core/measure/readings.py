@@ -30,6 +30,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, InputError
 from impress_gui.core.reconstruction.grid import GridSpec
 
@@ -98,8 +99,8 @@ def load_reconstruction(
 
     meta_path = folder / "metadata.json"
     if not folder.is_dir():
-        raise FormatError(f"{folder}: not a reconstruction folder", code="E-NOT-A-FILE"
-                          if folder.exists() else "E-FILE-MISSING")
+        raise FormatError(f"{folder}: not a reconstruction folder", code=codes.E_NOT_A_FILE
+                          if folder.exists() else codes.E_FILE_MISSING)
     try:
         if not meta_path.exists():
             raise FileNotFoundError
@@ -108,7 +109,7 @@ def load_reconstruction(
                           .decode("utf-8"))
     except FileNotFoundError:
         raise FormatError(
-            f"{folder}: not a reconstruction (no metadata.json)", code="E-FILE-MISSING"
+            f"{folder}: not a reconstruction (no metadata.json)", code=codes.E_FILE_MISSING
         ) from None
     except (ValueError, UnicodeDecodeError, RecursionError):
         raise FormatError(f"{meta_path}: damaged (not valid JSON text)") from None
@@ -136,7 +137,7 @@ def load_reconstruction(
         path = folder / LAYER_FILES[name]
         if not path.exists():
             if name == "fused":
-                raise FormatError(f"{path}: missing", code="E-FILE-MISSING")
+                raise FormatError(f"{path}: missing", code=codes.E_FILE_MISSING)
             continue
         os.close(open_regular(path, "heightmap", 8 << 30))  # a regular file, not a FIFO
         try:

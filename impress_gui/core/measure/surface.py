@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.reconstruction.grid import GridSpec
 
@@ -47,10 +48,10 @@ def plane_from_points(points: Sequence[Sequence[float]]) -> Plane:
     a height is missing."""
     pts = np.asarray(points, np.float64)
     if pts.shape != (3, 3) or not np.isfinite(pts).all():
-        raise InputError("levelling needs three points with data", code="E-LEVEL")
+        raise InputError("levelling needs three points with data", code=codes.E_LEVEL)
     m = np.column_stack([pts[:, 0], pts[:, 1], np.ones(3)])
     if abs(np.linalg.det(m)) < 1e-6:
-        raise InputError("the three levelling points are on one line", code="E-LEVEL")
+        raise InputError("the three levelling points are on one line", code=codes.E_LEVEL)
     a, b, c = np.linalg.solve(m, pts[:, 2])
     return Plane(float(a), float(b), float(c), 0.0, 3)
 
@@ -76,7 +77,7 @@ def plane_from_region(
     ii, jj = np.nonzero(ok)
     if ii.size < 3:
         raise InputError(
-            "the levelling region has fewer than three cells with data", code="E-LEVEL"
+            "the levelling region has fewer than three cells with data", code=codes.E_LEVEL
         )
     # centred coordinates keep the normal equations well conditioned
     x = (jj + j0) * p + spec.x0_mm
@@ -85,7 +86,7 @@ def plane_from_region(
     xm, ym, zm = x.mean(), y.mean(), z.mean()
     m = np.column_stack([x - xm, y - ym])
     if np.linalg.matrix_rank(m.T @ m) < 2:
-        raise InputError("the levelling region is a line; draw an area", code="E-LEVEL")
+        raise InputError("the levelling region is a line; draw an area", code=codes.E_LEVEL)
     (a, b), *_ = np.linalg.lstsq(m, z - zm, rcond=None)
     res = z - zm - m @ np.array([a, b])
     return Plane(

@@ -25,6 +25,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from impress_gui import __version__
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, IntegrityError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.project.signing import ENTRY_CONTEXT, SigningKey, fingerprint, verify
@@ -95,7 +96,7 @@ def read_no_follow(path: Path, what: str, max_bytes: int, missing_ok: bool = Fal
     except FormatError as exc:
         if os.path.islink(path):
             raise _link_error(path) from None
-        if exc.code == "E-FILE-MISSING" and missing_ok:
+        if exc.code == codes.E_FILE_MISSING and missing_ok:
             return None
         raise
     with os.fdopen(fd, "rb") as fh:
@@ -103,10 +104,10 @@ def read_no_follow(path: Path, what: str, max_bytes: int, missing_ok: bool = Fal
             data = fh.read(max_bytes + 1)
         except OSError as exc:
             raise FormatError(
-                f"{path}: the {what} file cannot be read ({reason(exc)})", code="E-FILE-READ"
+                f"{path}: the {what} file cannot be read ({reason(exc)})", code=codes.E_FILE_READ
             ) from None
     if len(data) > max_bytes:
-        raise FormatError(f"{path}: too large for a {what} file", code="E-TOO-LARGE")
+        raise FormatError(f"{path}: too large for a {what} file", code=codes.E_TOO_LARGE)
     return data
 
 
@@ -114,7 +115,7 @@ def _link_error(path: Path) -> IntegrityError:
     return IntegrityError(
         f"{path} is a symbolic link: a project's files must be files of their own inside the "
         "project folder (someone may have pointed it elsewhere)",
-        code="E-PROJECT-LINK",
+        code=codes.E_PROJECT_LINK,
     )
 
 
@@ -134,13 +135,13 @@ def _open_for_append(path: Path) -> int:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             raise FormatError(
-                f"{path} is not a regular file: the log cannot be written", code="E-NOT-A-FILE"
+                f"{path} is not a regular file: the log cannot be written", code=codes.E_NOT_A_FILE
             )
         if st.st_nlink > 1:
             raise IntegrityError(
                 f"{path} is a hard link shared with another file: the log is not written "
                 "(copy the project folder to make its files its own)",
-                code="E-PROJECT-LINK",
+                code=codes.E_PROJECT_LINK,
             )
         if hasattr(os, "set_blocking"):
             os.set_blocking(fd, True)
@@ -181,7 +182,7 @@ class LogState:
 
 
 def _tampered(path: Path, text: str) -> IntegrityError:
-    return IntegrityError(f"{path}: {text}", code="E-LOG-TAMPERED")
+    return IntegrityError(f"{path}: {text}", code=codes.E_LOG_TAMPERED)
 
 
 def _check_entry(path: Path, i: int, entry: object, prev: str) -> dict:
@@ -204,12 +205,12 @@ def _check_signature(path: Path, n: int, entry: dict) -> str | None:
         return None
     if len(present) != len(SIGNATURE_FIELDS):
         raise IntegrityError(f"{path}: log entry {n} has an incomplete signature",
-                             code="E-SIGNATURE")
+                             code=codes.E_SIGNATURE)
     fp = fingerprint(entry["public_key"])
     if fp is None or fp != entry["key_fingerprint"]:
         raise IntegrityError(
             f"{path}: log entry {n} names a key that does not match its fingerprint",
-            code="E-SIGNATURE",
+            code=codes.E_SIGNATURE,
         )
     body = {k: v for k, v in entry.items() if k != "signature"}
     if not verify(entry["public_key"], entry["signature"], ENTRY_CONTEXT, body):
@@ -288,7 +289,7 @@ def check_log(
                 raise IntegrityError(
                     f"{path}: log entry {i + 1} is signed by key {fp}, which this project "
                     "does not list (an unknown key)",
-                    code="E-SIGNATURE",
+                    code=codes.E_SIGNATURE,
                 )
     return state
 
@@ -317,7 +318,7 @@ def append_log(
     state = scan_log(path, signatures=False)
     if key is None and state.signers and state.signers[-1] is not None:
         raise IntegrityError(f"{path}: this log is signed; an entry needs a signing key",
-                             code="E-SIGNATURE")
+                             code=codes.E_SIGNATURE)
     entry: dict = {
         "seq": len(state.entries) + 1,
         "time_utc": time_utc or utc_now(),

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any, TypeGuard
 
 from impress_gui import __version__
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, ImpressError, InputError, IntegrityError
 from impress_gui.core.base.fileio import MAX_JSON_BYTES, dumps_json, parse_json, write_json
 from impress_gui.core.base.progress import CancelToken, ProgressCallback
@@ -87,7 +88,7 @@ SECTIONS = (
     ("picks", Picks),
     ("calibration", SceneCalibration),
 )
-UNSIGNED_CODE = "E-PROJECT-UNSIGNED"  # a warning's code: the project opens
+UNSIGNED_CODE = codes.E_PROJECT_UNSIGNED  # a warning's code: the project opens
 UNSIGNED_WARNING = (
     "{file} was written by an older version of the software and is not signed "
     "[{code}]: its hash-chained log is checked, but an edit of the project file "
@@ -246,7 +247,7 @@ class Project:
         """Register the evidence video by path and SHA-256 (hashed here unless given)."""
         p = Path(path).resolve()
         if not p.is_file():
-            raise InputError(f"{p}: no such file", code="E-FILE-MISSING")
+            raise InputError(f"{p}: no such file", code=codes.E_FILE_MISSING)
         digest = sha256 or hash_file(p, progress, cancel)
         self.video = VideoRef(str(p), digest, p.stat().st_size, utc_now(), self._relative(p))
         self.dirty = True
@@ -260,18 +261,18 @@ class Project:
     ) -> str:
         """Re-hash the video; raise IntegrityError if it changed or is missing."""
         if self.video is None:
-            raise InputError("the project has no video", code="E-NO-VIDEO")
+            raise InputError("the project has no video", code=codes.E_NO_VIDEO)
         p = self.video_path()
         if p is None or not p.is_file():
             raise IntegrityError(
-                f"the evidence video {self.video.path} is missing", code="E-EVIDENCE-MISSING"
+                f"the evidence video {self.video.path} is missing", code=codes.E_EVIDENCE_MISSING
             )
         digest = hash_file(p, progress, cancel)
         if digest != self.video.sha256:
             raise IntegrityError(
                 f"the evidence video {p} has changed since it was added to the project "
                 f"(SHA-256 {digest[:12]}... instead of {self.video.sha256[:12]}...)",
-                code="E-EVIDENCE-CHANGED",
+                code=codes.E_EVIDENCE_CHANGED,
             )
         return digest
 
@@ -374,7 +375,7 @@ class Project:
             raise IntegrityError(
                 f"{self.root}: the project folder is now a symbolic link or was moved; "
                 "nothing was written (open the project again)",
-                code="E-PROJECT-LINK",
+                code=codes.E_PROJECT_LINK,
             )
 
     def _key_map(self) -> dict[str, str]:
@@ -451,7 +452,7 @@ class Project:
         """Check the saved record again as a load does (signatures, log, links, paths);
         :meth:`signature_info` of what is on disk. IntegrityError/FormatError if changed."""
         if self.root is None:
-            raise InputError("the project has not been saved yet", code="E-NO-FOLDER")
+            raise InputError("the project has not been saved yet", code=codes.E_NO_FOLDER)
         fresh = Project.load(self.root)
         self._log_state = fresh._log_state
         return fresh.signature_info() | {"unsaved_changes": self.dirty}
@@ -493,7 +494,7 @@ class Project:
         if folder is not None:
             self._move_to(Path(folder).resolve(), key)
         if self.root is None:
-            raise InputError("choose a folder for the new project", code="E-NO-FOLDER")
+            raise InputError("choose a folder for the new project", code=codes.E_NO_FOLDER)
         root = self.root
         self._check_root()
         if os.path.lexists(root / PROJECT_FILE):
@@ -540,7 +541,7 @@ class Project:
         if new_root == self.root:
             return
         if os.path.lexists(new_root / PROJECT_FILE) or os.path.lexists(new_root / LOG_FILE):
-            raise InputError(f"{new_root} already holds a project", code="E-PROJECT-EXISTS")
+            raise InputError(f"{new_root} already holds a project", code=codes.E_PROJECT_EXISTS)
         try:
             new_root.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -634,7 +635,7 @@ class Project:
             raise IntegrityError(
                 f"{log}: the project's log is missing or empty; a saved project always has "
                 "one (it was deleted)",
-                code="E-LOG-TAMPERED",
+                code=codes.E_LOG_TAMPERED,
             )
         check_video_against_log(self.video.sha256 if self.video else None, state, file)
         check_recorded_paths(
@@ -651,7 +652,7 @@ def _project_file(p: Path) -> Path:
         file = p.resolve() / PROJECT_FILE
         if not os.path.lexists(file):
             raise FormatError(
-                f"{p}: not a project folder (no {PROJECT_FILE})", code="E-FILE-MISSING"
+                f"{p}: not a project folder (no {PROJECT_FILE})", code=codes.E_FILE_MISSING
             )
         return file
     return p.parent.resolve() / p.name

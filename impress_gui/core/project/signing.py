@@ -48,6 +48,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import (
     Ed25519PublicKey,
 )
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, IntegrityError
 
 if TYPE_CHECKING:
@@ -145,7 +146,7 @@ class SigningKey:
 
 
 def _key_error(path: Path, problem: str) -> IntegrityError:
-    return IntegrityError(f"the signing key {path} {problem}", code="E-KEY")
+    return IntegrityError(f"the signing key {path} {problem}", code=codes.E_KEY)
 
 
 def _read_key(path: Path) -> SigningKey | None:
@@ -270,13 +271,13 @@ def read_signing(doc: dict, where: str) -> tuple[list[dict], int, dict]:
     sig = doc.get("signing")
     if not isinstance(sig, dict):
         raise IntegrityError(f"{where}the project's signing section is missing or damaged",
-                             code="E-SIGNATURE")
+                             code=codes.E_SIGNATURE)
     if sig.get("algorithm") != ALGORITHM:
         raise IntegrityError(f"{where}the project is signed by an unknown method",
-                             code="E-SIGNATURE")
+                             code=codes.E_SIGNATURE)
     keys = sig.get("keys")
     if not isinstance(keys, list) or not keys:
-        raise IntegrityError(f"{where}the project lists no signing keys", code="E-SIGNATURE")
+        raise IntegrityError(f"{where}the project lists no signing keys", code=codes.E_SIGNATURE)
     records = []
     for i, k in enumerate(keys):
         fields = ("public_key", "fingerprint", "user", "added_utc")
@@ -284,7 +285,7 @@ def read_signing(doc: dict, where: str) -> tuple[list[dict], int, dict]:
             raise FormatError(f"{where}signing.keys[{i}] is malformed")
         if fingerprint(k["public_key"]) != k["fingerprint"]:
             raise IntegrityError(f"{where}signing key {i + 1} does not match its fingerprint",
-                                 code="E-SIGNATURE")
+                                 code=codes.E_SIGNATURE)
         records.append(dict(k))
     unsigned = sig.get("unsigned_log_entries")
     if type(unsigned) is not int or unsigned < 0:
@@ -293,7 +294,7 @@ def read_signing(doc: dict, where: str) -> tuple[list[dict], int, dict]:
     if not (isinstance(hs, dict) and isinstance(hs.get("key_fingerprint"), str)
             and isinstance(hs.get("signature"), str)):
         raise IntegrityError(f"{where}the project file's signature is missing or damaged",
-                             code="E-SIGNATURE")
+                             code=codes.E_SIGNATURE)
     return records, unsigned, {"key_fingerprint": hs["key_fingerprint"],
                                "signature": hs["signature"]}
 
@@ -304,14 +305,14 @@ def check_head_signature(doc: dict, keys: dict[str, str], head: dict, file: Path
         raise IntegrityError(
             f"{file}: the project file is signed by key {fp}, which the project does not "
             "list (an unknown key)",
-            code="E-SIGNATURE",
+            code=codes.E_SIGNATURE,
         )
     body = {k: v for k, v in doc.items() if k != "head_signature"}
     if not verify(keys[fp], head["signature"], HEAD_CONTEXT, body):
         raise IntegrityError(
             f"{file}: the project file was changed after it was signed at its last save "
             "(an edited field: case details, video, outputs, measurements or the log head)",
-            code="E-PROJECT-TAMPERED",
+            code=codes.E_PROJECT_TAMPERED,
         )
 
 
@@ -329,7 +330,7 @@ def check_not_downgraded(state: LogState, head: dict, file: Path) -> None:
         raise IntegrityError(
             f"{file}: the project file is unsigned, but its log shows it was saved signed: "
             "the signed project file was replaced by an unsigned one",
-            code="E-PROJECT-TAMPERED",
+            code=codes.E_PROJECT_TAMPERED,
         )
 
 
@@ -343,7 +344,7 @@ def check_video_against_log(video_sha256: str | None, state: LogState, file: Pat
         raise IntegrityError(
             f"{file}: the video's SHA-256 differs from the one the log recorded "
             "when the video was added (project.json was edited)",
-            code="E-LOG-TAMPERED",
+            code=codes.E_LOG_TAMPERED,
         )
 
 
@@ -359,7 +360,7 @@ def check_outputs_against_log(outputs: list[dict], state: LogState, file: Path) 
             raise IntegrityError(
                 f"{file}: the output {out['path']} is not one the log recorded as written "
                 "(project.json was edited)",
-                code="E-PROJECT-TAMPERED",
+                code=codes.E_PROJECT_TAMPERED,
             )
 
 
@@ -368,11 +369,11 @@ def _within(path: str, folder: str) -> bool:
 
 
 def _path_error(where: str, text: str) -> IntegrityError:
-    return IntegrityError(f"{where}: {text}", code="E-PROJECT-PATH")
+    return IntegrityError(f"{where}: {text}", code=codes.E_PROJECT_PATH)
 
 
 def _link_error(where: str, text: str) -> IntegrityError:
-    return IntegrityError(f"{where}: {text}", code="E-PROJECT-LINK")
+    return IntegrityError(f"{where}: {text}", code=codes.E_PROJECT_LINK)
 
 
 def check_recorded_paths(

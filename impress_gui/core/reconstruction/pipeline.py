@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from impress_gui.core.base import codes
+
 if TYPE_CHECKING:
     from impress_gui.core.base.outdir import OutputFolder
     from impress_gui.core.calibration.scene import SceneCalibration
@@ -146,7 +148,7 @@ def run_reconstruction(
                     f"the evidence video {video_path} has changed since it was added to the "
                     f"project (SHA-256 {video_sha[:12]}... instead of "
                     f"{expected_video_sha256[:12]}...); processing refused",
-                    code="E-EVIDENCE-CHANGED",
+                    code=codes.E_EVIDENCE_CHANGED,
                 )
             warnings = []
             recorded = recorded_sha256(cal.inputs, "video")

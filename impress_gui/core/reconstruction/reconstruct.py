@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError, ReconstructionError, VideoError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.calibration.scene import SceneCalibration
@@ -55,17 +56,17 @@ class ProcessParams:
     def validate(self) -> None:
         if self.method not in METHODS:
             raise InputError(f"unknown detection method {self.method!r} (use one of "
-                             f"{', '.join(METHODS)})", code="E-PARAM")
+                             f"{', '.join(METHODS)})", code=codes.E_PARAM)
         if not 0.01 <= self.grid_mm <= 5.0:
-            raise InputError("grid resolution must be between 0.01 and 5 mm", code="E-PARAM")
+            raise InputError("grid resolution must be between 0.01 and 5 mm", code=codes.E_PARAM)
         lo, hi = self.height_range_mm
         if not lo < hi:
-            raise InputError("height range must be (low, high) with low < high", code="E-PARAM")
+            raise InputError("height range must be (low, high) with low < high", code=codes.E_PARAM)
         if self.frame_start is not None and self.frame_start < 0:
-            raise InputError("the first frame must not be negative", code="E-PARAM")
+            raise InputError("the first frame must not be negative", code=codes.E_PARAM)
         if (self.frame_start is not None and self.frame_stop is not None
                 and self.frame_stop <= self.frame_start):
-            raise InputError("the frame range is empty", code="E-PARAM")
+            raise InputError("the frame range is empty", code=codes.E_PARAM)
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -124,7 +125,7 @@ def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) ->
             rows.extend(uv[ok, 1].tolist())
         if not rows:
             raise ReconstructionError(f"the {name} laser's stripe falls outside the image",
-                                      code="E-NO-STRIPE")
+                                      code=codes.E_NO_STRIPE)
         a = int(np.floor(min(rows))) - 8
         b = int(np.ceil(max(rows))) + 9
         out[name] = (max(0, a - a % 2), min(h, b + b % 2))
@@ -241,7 +242,7 @@ def _default_range(video, params: ProcessParams) -> tuple[int, int]:
     stop = params.frame_stop if params.frame_stop is not None else max(start + 1, n - int(round(0.5 * video.fps)))
     if start >= n:
         raise InputError(f"the first frame {start} is beyond the video's {n} frames",
-                         code="E-FRAME-RANGE")
+                         code=codes.E_FRAME_RANGE)
     return start, min(stop, n)
 
 
@@ -404,7 +405,7 @@ def _tables(run: _Run) -> _Tables:
     spec = GridSpec.covering(x_rng, y_rng, params.grid_mm)
     if spec.shape[0] * spec.shape[1] > 400e6:
         raise InputError("the output grid would exceed 400 million cells; use a coarser grid",
-                         code="E-PARAM")
+                         code=codes.E_PARAM)
     max_gap = 2.5 * per_frame_travel + 2 * params.grid_mm + 0.1
     texture = None
     if params.texture and run.spool is not None:
@@ -459,7 +460,7 @@ def _process(run: _Run) -> Reconstruction:
     run.cancel.check()  # the reader stops early on cancel: never take that as a finished run
     if tally.seen < run.n_frames:
         raise VideoError(f"the video ended at frame {run.start + tally.seen} before frame "
-                         f"{run.stop - 1}", code="E-VIDEO-TRUNCATED")
+                         f"{run.stop - 1}", code=codes.E_VIDEO_TRUNCATED)
     loop_s = time.perf_counter() - tally.t_loop
     warnings = _stripe_warnings(run, tally)
     t_finish = time.perf_counter()
@@ -547,7 +548,7 @@ def _stripe_warnings(run: _Run, tally: _Tally) -> list[str]:
         if found == 0:
             raise ReconstructionError(f"the {name} laser's stripe was never found in frames "
                                       f"{run.start}..{run.stop - 1} (rows {run.rois[name]})",
-                                      code="E-NO-STRIPE")
+                                      code=codes.E_NO_STRIPE)
         if found < 0.5 * n_total:
             warnings.append(f"the {name} stripe was found in only {found} of "
                             f"{n_total} frames")

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.formats.video import Planes
 
@@ -52,15 +53,15 @@ class StripeParams:
     def validate(self, height: int | None = None) -> None:
         if self.method not in METHODS:
             raise InputError(f"unknown detection method {self.method!r}; use one of "
-                             f"{', '.join(METHODS)}", code="E-PARAM")
+                             f"{', '.join(METHODS)}", code=codes.E_PARAM)
         for name, (a, b) in self.rois.items():
             if name not in LASERS:
-                raise InputError(f"unknown laser {name!r} in regions of interest", code="E-PARAM")
+                raise InputError(f"unknown laser {name!r} in regions of interest", code=codes.E_PARAM)
             if not (0 <= a < b) or (height is not None and b > height):
                 raise InputError(f"region of interest of the {name} laser (rows {a}..{b}) is "
-                                 f"outside the image", code="E-PARAM")
+                                 f"outside the image", code=codes.E_PARAM)
         if not 1 <= self.half_window_px <= 30 or self.min_peak <= 0:
-            raise InputError("half_window_px must be 1..30 and min_peak positive", code="E-PARAM")
+            raise InputError("half_window_px must be 1..30 and min_peak positive", code=codes.E_PARAM)
 
 
 class BackgroundLUT:
@@ -138,7 +139,7 @@ class StripeDetector:
         method = params.method
         if method == "lut" and lut is None:
             raise InputError("the lookup-table method needs a learned background",
-                             code="E-PARAM")
+                             code=codes.E_PARAM)
         w = len(band_start)
         ranges = params.hue_ranges[name]
         table = lut.tables[name] if (lut is not None and method in ("lut", "combined")) else \
@@ -161,7 +162,7 @@ class StripeDetector:
     def __call__(self, planes: Planes) -> StripeResult:
         if planes.y.shape[1] != len(self.result.rows):
             raise InputError(f"a frame {planes.y.shape[1]} pixels wide, bands for "
-                             f"{len(self.result.rows)}", code="E-SIZE-MISMATCH")
+                             f"{len(self.result.rows)}", code=codes.E_SIZE_MISMATCH)
         self._kernel((planes.y, planes.cb, planes.cr, planes.chroma_step), *self._args)
         return self.result
 
@@ -188,7 +189,7 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
        it is a peak (not an edge) leaning to this laser's colour."""
     method = params.method
     if method == "lut" and lut is None:
-        raise InputError("the lookup-table method needs a learned background", code="E-PARAM")
+        raise InputError("the lookup-table method needs a learned background", code=codes.E_PARAM)
     h, w = planes.y.shape
     cols = np.arange(w)
     s = planes.chroma_step
@@ -305,7 +306,7 @@ def auto_rois(frames: list[np.ndarray], margin_px: int | None = None) -> dict[st
             counts += ((excess > 25) & (f16[..., c] > 200)).sum(axis=1)
         if counts.sum() < 0.2 * frames[0].shape[1] * len(frames):
             raise InputError(f"the {name} laser's stripe is not visible in the sampled frames",
-                             code="E-NO-STRIPE")
+                             code=codes.E_NO_STRIPE)
         smooth = np.convolve(counts, np.ones(5) / 5, mode="same")
         pk = int(np.argmax(smooth))
         strong = smooth > 0.1 * smooth[pk]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import ImpressError
 from impress_gui.core.calibration.pick_editor import PickEditor, PickState
 from impress_gui.core.calibration.picks import Picks
@@ -71,7 +72,7 @@ class PickFiles:
         try:
             save(path)
         except (OSError, ImpressError) as exc:
-            self.messenger.error(f"The {what} were not written", f"{path}: {exc}", "E-WRITE")
+            self.messenger.error(f"The {what} were not written", f"{path}: {exc}", codes.E_WRITE)
             return False
         self.session.log(f"{what} exported", {"path": str(path)})
         return True
@@ -114,7 +115,7 @@ class SceneCalibrationAction:
         elif picks is None:
             problem = "Choose the frames t1 and t2 and mark the six corners in each."
         if problem:
-            self.messenger.error("Cannot calibrate yet", problem, "E-CALIB-INPUT")
+            self.messenger.error("Cannot calibrate yet", problem, codes.E_CALIB_INPUT)
             return False
         try:
             intr.check_image_size(*ev.reader.size)

@@ -21,6 +21,7 @@ from typing import Any
 
 from PySide6.QtCore import QObject, QTimer, Signal, Slot
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import ImpressError
 from impress_gui.hardware.cool_muscle import CoolMuscle
 from impress_gui.hardware.motor_link import (
@@ -55,7 +56,7 @@ def _coded(exc: Exception) -> ImpressError:
     if isinstance(exc, ImpressError):
         return exc
     traceback.print_exception(exc, file=sys.stderr)
-    return ImpressError(f"internal error while opening the motor: {exc}", code="E-INTERNAL")
+    return ImpressError(f"internal error while opening the motor: {exc}", code=codes.E_INTERNAL)
 
 
 class MotorWorker(QObject):
@@ -134,7 +135,7 @@ class MotorWorker(QObject):
     @Slot(object)
     def run_plan(self, steps: list[Step]) -> None:
         if self._driver is None:
-            self.failed.emit("E-MOTOR-NOT-CONNECTED", "the motor is not connected: connect first")
+            self.failed.emit(codes.E_MOTOR_NOT_CONNECTED, "the motor is not connected: connect first")
             return
         self._plan = list(steps)
         self._watch = None
@@ -223,7 +224,7 @@ class MotorWorker(QObject):
             except Exception:  # noqa: BLE001 - the report below matters more
                 stopped = "; sending a stop failed too: use the hardware stop button"
         self._fail(
-            ImpressError(f"internal error while driving the motor: {exc}{stopped}", code="E-INTERNAL")
+            ImpressError(f"internal error while driving the motor: {exc}{stopped}", code=codes.E_INTERNAL)
         )
 
     def _fail(self, exc: ImpressError) -> None:
