@@ -13,6 +13,7 @@ from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.formats.provenance import input_record
 from impress_gui.core.formats.recon_files import METADATA_FILE
 from impress_gui.core.formats.video import open_video
+from impress_gui.core.reconstruction.pipeline import CalibrationInput, run_reconstruction
 from impress_gui.core.reconstruction.reconstruct import ProcessParams, learn_background
 from impress_gui.core.reconstruction.stripes import BackgroundLUT
 
@@ -53,7 +54,6 @@ def reconstruct_into(
     ``(metadata, SHA-256 of metadata.json)``. The calibration used is kept beside the output
     at ``cal_path``: the metadata records that file and its hash, and the viewer reads it.
     A cancelled or failed run leaves nothing behind."""
-    from impress_gui.core.reconstruction.pipeline import CalibrationInput, run_reconstruction
 
     raw = dumps_json(cal.to_json()).encode("utf-8")  # the bytes SceneCalibration.save writes
     out.parent.mkdir(parents=True, exist_ok=True)

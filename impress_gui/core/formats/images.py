@@ -1,19 +1,22 @@
 """Image files as bytes: the one PNG encoder and the one TIFF writer of every image the
 product writes (the reconstruction's files, figures, reports, the simulator's truth). Callers
-write the bytes where they belong (atomically, into a checked output folder, inline)."""
+write the bytes where they belong (atomically, into a checked output folder, inline).
+
+The encoders are imported with this module, not on first use: a first import inside a writer
+thread holds the interpreter for about 0.1 s, which froze the window at the end of a run."""
 
 from __future__ import annotations
 
 import io
 
+import cv2
 import numpy as np
+import tifffile
 
 
 def png_bytes(img: np.ndarray) -> bytes:
     """PNG of an RGB ``(H, W, 3)`` or grey ``(H, W)`` image, 8 or 16 bits per sample
     (OpenCV's encoder with its default settings)."""
-    import cv2
-
     data = img[..., ::-1] if img.ndim == 3 else img
     ok, enc = cv2.imencode(".png", np.ascontiguousarray(data))
     if not ok:
@@ -31,8 +34,6 @@ def tiff_bytes(arr: np.ndarray, *, pixel_mm: float | None = None,
     Software tag (tifffile's own name when None); ``level``: the zlib level (zlib's default
     when None); ``shape_metadata``: tifffile's JSON description of the array's shape instead
     of no description (as the simulator's truth heightmap has always been written)."""
-    import tifffile
-
     extra: dict = {}
     if pixel_mm is not None:
         ppcm = 10.0 / pixel_mm

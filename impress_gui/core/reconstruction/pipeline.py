@@ -9,16 +9,28 @@ is a thin reader of files around it.
 
 from __future__ import annotations
 
+import platform
 import time
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from impress_gui.core.base import codes
-
-if TYPE_CHECKING:
-    from impress_gui.core.base.outdir import OutputFolder
-    from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.base.errors import IntegrityError
+from impress_gui.core.base.fileio import read_regular
+from impress_gui.core.base.outdir import OutputFolder
+from impress_gui.core.base.progress import report, sub_progress
+from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.formats.provenance import (
+    input_record,
+    reconstruction_inputs,
+    recorded_sha256,
+)
+from impress_gui.core.formats.recon_files import RECON_FILES
+from impress_gui.core.formats.video import open_video
+from impress_gui.core.formats.writers import build_metadata, input_dates, write_reconstruction
+from impress_gui.core.reconstruction.reconstruct import reconstruct
 
 
 @dataclass(frozen=True)
@@ -41,9 +53,6 @@ def read_calibration(path: str | Path) -> CalibrationInput:
     """A scene calibration file read once: the hash recorded is of the bytes parsed."""
     import hashlib
 
-    from impress_gui.core.base.fileio import read_regular
-    from impress_gui.core.calibration.scene import SceneCalibration
-    from impress_gui.core.formats.provenance import input_record
 
     raw = read_regular(Path(path), "calibration", 50 << 20)
     cal = SceneCalibration.from_bytes(raw, path)
@@ -53,8 +62,6 @@ def read_calibration(path: str | Path) -> CalibrationInput:
 def check_process_output(out_dir: Path, video_path: Path, calibration_path: Path | None):
     """The output folder checked (and its hidden work folder made) before any work: see
     :class:`~impress_gui.core.base.outdir.OutputFolder`."""
-    from impress_gui.core.base.outdir import OutputFolder
-    from impress_gui.core.formats.recon_files import RECON_FILES
 
     return OutputFolder(
         out_dir, "reconstruction", inputs=(video_path, calibration_path), allowed=RECON_FILES
@@ -117,20 +124,7 @@ def run_reconstruction(
     recorded when the evidence was added to a project): processing is refused with
     IntegrityError ``E-EVIDENCE-CHANGED`` when the video's hash differs. ``cancel`` is the
     core's token (the reconstruction raises Cancelled; nothing is written)."""
-    import platform
-    from datetime import datetime, timezone
 
-    from impress_gui.core.base.errors import IntegrityError
-    from impress_gui.core.base.outdir import OutputFolder
-    from impress_gui.core.base.progress import report, sub_progress
-    from impress_gui.core.formats.provenance import (
-        input_record,
-        reconstruction_inputs,
-        recorded_sha256,
-    )
-    from impress_gui.core.formats.video import open_video
-    from impress_gui.core.formats.writers import build_metadata, input_dates, write_reconstruction
-    from impress_gui.core.reconstruction.reconstruct import reconstruct
 
     video_path = Path(video_path)
     cal = calibration.calibration
