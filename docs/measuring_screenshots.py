@@ -155,9 +155,10 @@ def main() -> None:
     v.display.set_layer("fused")
     wait(v.layer_shown, 20000)
     fig = v.actions.figure_maker()(max_px=1400)
-    from impress_gui.core.base.fileio import atomic_write_png
+    from impress_gui.core.base.fileio import atomic_write_bytes
+    from impress_gui.core.formats.images import png_bytes
 
-    atomic_write_png(IMAGES / "viewer-figure.png", fig)
+    atomic_write_bytes(IMAGES / "viewer-figure.png", png_bytes(fig))
     print("wrote docs/images/viewer-figure.png")
     w3 = v.actions.open_3d()
     w3.resize(900, 650)

@@ -17,6 +17,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from impress_gui import __version__
+from impress_gui.core.formats import images
 from impress_gui.core.formats.provenance import png_provenance_text, png_with_text
 from impress_gui.core.reconstruction.grid import GridSpec
 
@@ -250,16 +251,13 @@ def _colour_bar(
 
 
 def png_bytes(rgb: np.ndarray, provenance: Mapping | None = None) -> bytes:
-    """PNG of an RGB image; with ``provenance`` (an export's provenance dictionary) its
-    Software, Source and 'IMPREsS provenance' (JSON) tEXt chunks follow the header."""
-    import cv2
-
-    ok, data = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
-    if not ok:
-        raise OSError("PNG encoding failed")
+    """PNG of an RGB image (:func:`images.png_bytes`); with ``provenance`` (an export's
+    provenance dictionary) its Software, Source and 'IMPREsS provenance' (JSON) tEXt chunks
+    follow the header."""
+    data = images.png_bytes(rgb)
     if provenance is None:
-        return data.tobytes()
-    return png_with_text(data.tobytes(), png_provenance_text(provenance))
+        return data
+    return png_with_text(data, png_provenance_text(provenance))
 
 
 # ----- the report ----------------------------------------------------------------------------

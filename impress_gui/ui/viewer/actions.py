@@ -15,6 +15,7 @@ from PySide6.QtCore import QBuffer, QByteArray, QIODevice, QObject, Signal
 from PySide6.QtWidgets import QWidget
 
 from impress_gui.core.base.fileio import atomic_write_bytes
+from impress_gui.core.formats import images
 from impress_gui.core.formats import provenance as P
 from impress_gui.core.formats.figures import colourise, figure, png_bytes, report_html
 from impress_gui.core.formats.writers import ply_bytes, x3p_bytes
@@ -58,26 +59,13 @@ def _now() -> str:
 def _tiff_bytes(arr: np.ndarray, prov: dict | None = None, spec: GridSpec | None = None) -> bytes:
     """Float32 TIFF; with ``prov`` its ImageDescription is ``... provenance {JSON}``, Software
     names the version; with ``spec`` the resolution tags give the cell size (pixels per cm)."""
-    import io
-
-    import tifffile
-
-    extra: dict = {}
-    if spec is not None:
-        ppcm = 10.0 / spec.pixel_mm
-        extra = {"resolution": (ppcm, ppcm), "resolutionunit": "CENTIMETER"}
-    buf = io.BytesIO()
-    tifffile.imwrite(
-        buf,
+    return images.tiff_bytes(
         arr,
-        compression="zlib",
-        metadata=None,
-        software=P.SOFTWARE if prov is not None else None,
+        pixel_mm=None if spec is None else spec.pixel_mm,
         # a description starting with "{" is taken by tifffile for its own shaped metadata
         description=f"{P.SOFTWARE} heightmap; provenance {P.to_json(prov)}" if prov else None,
-        **extra,
+        software=P.SOFTWARE if prov is not None else None,
     )
-    return buf.getvalue()
 
 
 class ViewerExports(QObject):
