@@ -27,7 +27,8 @@ from pathlib import Path
 from impress_gui import __version__
 from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, IntegrityError
-from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.base.fileio import sha256_file, sha256_path
+from impress_gui.core.base.progress import CancelToken, ProgressCallback
 from impress_gui.core.project.signing import ENTRY_CONTEXT, SigningKey, fingerprint, verify
 
 LOG_FILE = "log.jsonl"
@@ -66,20 +67,8 @@ def hash_file(
     """SHA-256 of a file read (never written) in chunks, with progress and cancel (a folder
     of frames: the hash of its manifest, see :func:`~impress_gui.core.base.fileio.sha256_path`)."""
     if os.path.isdir(path):
-        from impress_gui.core.base.fileio import sha256_path
-
         return sha256_path(path)
-    h = hashlib.sha256()
-    total = max(1, os.path.getsize(path))
-    done = 0
-    with open(path, "rb") as fh:
-        while block := fh.read(chunk):
-            if cancel is not None:
-                cancel.check()
-            h.update(block)
-            done += len(block)
-            report(progress, done / total, "hashing the video")
-    return h.hexdigest()
+    return sha256_file(path, chunk, progress=progress, cancel=cancel, message="hashing the video")
 
 
 # ----- reading and writing project files without following links ------------------------------
