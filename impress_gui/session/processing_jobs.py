@@ -8,7 +8,7 @@ import shutil
 from datetime import datetime
 from pathlib import Path
 
-from impress_gui.core.base.fileio import atomic_write_bytes, dumps_json
+from impress_gui.core.base.fileio import atomic_write_bytes, dumps_json, sha256_file
 from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.formats.provenance import input_record
 from impress_gui.core.formats.recon_files import METADATA_FILE
@@ -73,7 +73,7 @@ def reconstruct_into(
             preview=preview,
         )
         written = True
-        sha = hashlib.sha256((out / METADATA_FILE).read_bytes()).hexdigest()
+        sha = sha256_file(out / METADATA_FILE)
         # the one check of the cancel here (the reconstruction raises Cancelled itself when it
         # sees it): a cancel that came while the outputs were written is a cancelled run too,
         # and a cancelled run leaves nothing
