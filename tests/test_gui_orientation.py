@@ -18,9 +18,9 @@ import pytest
 from PySide6.QtCore import QPoint, QPointF, QRectF, Qt
 from PySide6.QtGui import QImage
 from PySide6.QtTest import QTest
+from recon_data import recon_data_from_arrays
 
 from impress_gui.core.formats.figures import png_bytes
-from impress_gui.core.measure import readings as M
 from impress_gui.core.reconstruction.grid import GridSpec
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.messages import Messenger
@@ -114,7 +114,7 @@ def viewer(qtbot, scene):
     v.show()
     qtbot.waitExposed(v)
     with qtbot.waitSignal(v.loaded, timeout=20000):
-        v.set_data(M.ReconData.from_arrays(SPEC, height, texture_rgb=texture))
+        v.set_data(recon_data_from_arrays(SPEC, height, texture_rgb=texture))
     qtbot.waitUntil(lambda: not v.is_busy(), timeout=20000)
     yield v
     v.shutdown()

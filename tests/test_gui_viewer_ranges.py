@@ -21,6 +21,7 @@ from PySide6.QtCore import QEvent, QPoint, QPointF, Qt
 from PySide6.QtGui import QImage, QMouseEvent, QWheelEvent
 from PySide6.QtTest import QTest
 from PySide6.QtWidgets import QApplication
+from recon_data import recon_data_from_arrays
 
 from impress_gui.core.measure import readings as M
 from impress_gui.core.reconstruction.grid import GridSpec
@@ -91,7 +92,7 @@ def tilted(qtbot):
     x = spec.xs()[None, :].astype(np.float32)
     h = np.repeat(0.02 * x, spec.shape[0], axis=0)
     h[900:1500, 500:1100] -= 3.0
-    v = make_viewer(qtbot, M.ReconData.from_arrays(spec, h))
+    v = make_viewer(qtbot, recon_data_from_arrays(spec, h))
     yield v
     close(v)
 
@@ -167,7 +168,7 @@ def test_the_automatic_range_leaves_out_the_calibration_target(qtbot, tmp_path):
     cal.write_text(json.dumps({"format": "impress.calibration", "corners_parallax_mm": corners}))
     meta = {"inputs": {"calibration": {"path": str(cal),
                                        "sha256": hashlib.sha256(cal.read_bytes()).hexdigest()}}}
-    v = make_viewer(qtbot, M.ReconData.from_arrays(spec, h, metadata=meta))
+    v = make_viewer(qtbot, recon_data_from_arrays(spec, h, metadata=meta))
     try:
         lo, hi = v.map.levels()
         assert lo == pytest.approx(-4.0, abs=0.1) and hi == pytest.approx(0.0, abs=0.1)
@@ -177,7 +178,7 @@ def test_the_automatic_range_leaves_out_the_calibration_target(qtbot, tmp_path):
     # a calibration file that is not the one recorded (another SHA-256) is not trusted: the
     # percentiles alone then see the big target
     cal.write_text(json.dumps({"corners_parallax_mm": {k: [0, 0, 0] for k in corners}}))
-    v = make_viewer(qtbot, M.ReconData.from_arrays(spec, h, metadata=meta))
+    v = make_viewer(qtbot, recon_data_from_arrays(spec, h, metadata=meta))
     try:
         assert v.map.levels()[1] == pytest.approx(TARGET_MM, abs=0.1)
     finally:
@@ -188,7 +189,7 @@ def test_the_automatic_range_is_robust_to_a_small_target(qtbot):
     # the target over 0.8 % of the map and its place unknown: the 1..99 percentiles leave it out
     spec, h = scene_with_target((slice(10, 90), slice(10, 90)))
     assert 0.005 < (h == TARGET_MM).mean() < 0.01
-    v = make_viewer(qtbot, M.ReconData.from_arrays(spec, h))
+    v = make_viewer(qtbot, recon_data_from_arrays(spec, h))
     try:
         lo, hi = v.map.levels()
         assert lo == pytest.approx(-4.0, abs=0.1) and hi < 0.1
@@ -230,7 +231,7 @@ def test_no_step_is_shown_until_both_bands_are_placed(qtbot):
     spec = GridSpec(0.0, 0.0, 0.1, (300, 400))
     h = np.zeros(spec.shape, np.float32)
     h[:, 200:] = 2.0
-    v = make_viewer(qtbot, M.ReconData.from_arrays(spec, h))
+    v = make_viewer(qtbot, recon_data_from_arrays(spec, h))
     try:
         v.set_mode("ruler")
         for x in (5.0, 35.0):

@@ -32,16 +32,15 @@ import numpy as np
 
 from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, InputError
+from impress_gui.core.formats.recon_files import (
+    LAYER_FILES,
+    METADATA_FILE,
+    RECON_FORMAT,
+    RECON_VERSION,
+    TEXTURE_FILE,
+)
 from impress_gui.core.reconstruction.grid import GridSpec
 
-RECON_FORMAT = "impress.reconstruction"
-LAYER_FILES = {
-    "fused": "heightmap.tif",
-    "green": "height_green.tif",
-    "red": "height_red.tif",
-    "difference": "difference.tif",
-    "contribution": "contribution.tif",
-}
 MIN_BILINEAR_WEIGHT = 0.5  # a sample is data when at least half its bilinear support is
 
 
@@ -68,22 +67,6 @@ class ReconData:
     def height_mm(self) -> np.ndarray:
         return self.layers["fused"]
 
-    @classmethod
-    def from_arrays(
-        cls,
-        spec: GridSpec,
-        height_mm: np.ndarray,
-        texture_rgb=None,
-        metadata: Mapping | None = None,
-        **layers: np.ndarray,
-    ) -> ReconData:
-        if tuple(height_mm.shape) != tuple(spec.shape):
-            raise InputError(f"height map {height_mm.shape} does not match grid {spec.shape}")
-        all_layers = {"fused": _frozen(np.asarray(height_mm, np.float32))}
-        all_layers.update({k: _frozen(v) for k, v in layers.items()})
-        tex = None if texture_rgb is None else _frozen(texture_rgb)
-        return cls(spec, MappingProxyType(all_layers), tex, MappingProxyType(dict(metadata or {})))
-
 
 def load_reconstruction(
     folder: str | Path, layers: Sequence[str] = tuple(LAYER_FILES)
@@ -97,7 +80,7 @@ def load_reconstruction(
     folder = Path(folder)
     from impress_gui.core.base.fileio import open_regular, read_regular
 
-    meta_path = folder / "metadata.json"
+    meta_path = folder / METADATA_FILE
     if not folder.is_dir():
         raise FormatError(f"{folder}: not a reconstruction folder", code=codes.E_NOT_A_FILE
                           if folder.exists() else codes.E_FILE_MISSING)
@@ -115,7 +98,7 @@ def load_reconstruction(
         raise FormatError(f"{meta_path}: damaged (not valid JSON text)") from None
     if not isinstance(meta, dict) or meta.get("format") != RECON_FORMAT:
         raise FormatError(f"{meta_path}: not an {RECON_FORMAT} document")
-    if meta.get("version") != 1:
+    if meta.get("version") != RECON_VERSION:
         raise FormatError(f"{meta_path}: unknown version {meta.get('version')!r}")
     try:
         g = meta["grid"]
@@ -148,11 +131,12 @@ def load_reconstruction(
             raise FormatError(f"{path}: shape {arr.shape} is not the grid's {spec.shape}")
         out[name] = _frozen(arr if name == "contribution" else arr.astype(np.float32, copy=False))
     tex = None
-    if (folder / "texture.png").exists():
+    texture = folder / TEXTURE_FILE
+    if texture.exists():
         import cv2
 
-        os.close(open_regular(folder / "texture.png", "texture", 8 << 30))
-        bgr = cv2.imread(str(folder / "texture.png"), cv2.IMREAD_COLOR)
+        os.close(open_regular(texture, "texture", 8 << 30))
+        bgr = cv2.imread(str(texture), cv2.IMREAD_COLOR)
         if bgr is not None and bgr.shape[:2] == spec.shape:
             tex = _frozen(np.ascontiguousarray(bgr[..., ::-1]))
     return ReconData(spec, MappingProxyType(out), tex, MappingProxyType(meta), folder.resolve())
