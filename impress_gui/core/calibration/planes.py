@@ -65,7 +65,7 @@ def stripe_uv_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.n
     c1 = int(min(w, np.ceil(all_uv[:, 0].max()) + 1))
     if r1 - r0 < 10 or c1 - c0 < 10:
         return np.zeros((0, 2))
-    res = detect_band(laser, rgb[r0:r1, c0:c1], None, r0, params or StripeParams(), None)
+    res = detect_band(laser, rgb[r0:r1, c0:c1], r0, params or StripeParams(), None)
     cols = np.flatnonzero(res.found)
     return np.column_stack([cols + c0, res.rows[cols]])
 

@@ -270,8 +270,8 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
     return StripeResult(out_rows, np.where(ok, top, 0).astype(np.float32))
 
 
-def detect_band(name: str, rgb_band: np.ndarray, y_band: np.ndarray | None, row0: int,
-                params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
+def detect_band(name: str, rgb_band: np.ndarray, row0: int, params: StripeParams,
+                lut: BackgroundLUT | None) -> StripeResult:
     """Detect one laser's stripe in an RGB band of rows starting at image row ``row0``."""
     planes = Planes.from_rgb(rgb_band)
     h, w = rgb_band.shape[:2]
@@ -285,7 +285,7 @@ def detect(rgb: np.ndarray, params: StripeParams, lut: BackgroundLUT | None = No
     out = {}
     for name in lasers:
         a, b = params.rois.get(name, (0, rgb.shape[0]))
-        out[name] = detect_band(name, rgb[a:b], None, a, params, lut)
+        out[name] = detect_band(name, rgb[a:b], a, params, lut)
     return out
 
 
