@@ -193,12 +193,6 @@ class CM1Emulator:
             self._advance(self.clock())
             return self._move is not None
 
-    @property
-    def status_bits(self) -> int:
-        with self._cond:
-            self._advance(self.clock())
-            return self._status_bits()
-
     # ----------------------------------------------------------------- byte interface
 
     def feed(self, data: bytes) -> None:

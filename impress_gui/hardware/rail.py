@@ -120,12 +120,3 @@ def check_scan(start_mm: float, end_mm: float, travel_mm: float = RAIL_TRAVEL_MM
         raise MotorRangeError(
             f"the end position equals the start position ({start_mm:.2f} mm): nothing to scan"
         )
-
-
-def scan_problem(start_mm: float, end_mm: float, travel_mm: float = RAIL_TRAVEL_MM) -> str:
-    """Why a scan from ``start_mm`` to ``end_mm`` cannot run, or ``""`` when it can."""
-    try:
-        check_scan(start_mm, end_mm, travel_mm)
-    except MotorRangeError as exc:
-        return str(exc)
-    return ""

@@ -159,10 +159,6 @@ class FrameView(pg.GraphicsView):
             self.raw_points.setData([], [])
             self.snap_lines.setData([], [])
 
-    def marker_position(self, name: str) -> tuple[float, float] | None:
-        m = self.markers.get(name)
-        return None if m is None else (float(m.pos().x()), float(m.pos().y()))
-
     def set_reprojection(self, uv: np.ndarray | None) -> None:
         """The fitted target's corners A-F ``(6, 2)`` reprojected into this frame."""
         if uv is None:

@@ -96,17 +96,6 @@ def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: floa
     return rays[ok] * best_t[ok, None], best_h[ok], ok
 
 
-def stripe_points_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
-                            pose, target: TargetModel, travel_mm: float, params=None):
-    """3D points (camera-fixed ideal frame) of the laser stripe where it falls on the target's
-    top faces in one frame, and the face height of each point."""
-    uv = stripe_uv_on_target(rgb, laser, intr, rot, pose, target, travel_mm, params)
-    if len(uv) == 0:
-        return np.zeros((0, 3)), np.zeros(0)
-    pts, hts, _ = points_on_faces(intr.rays(uv) @ rot.T, pose, target, travel_mm)
-    return pts, hts
-
-
 def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames) -> LaserPlaneFit:
     """SVD plane through the stripe points with outlier rejection; refuse when the stripe did
     not cross faces at two different heights (the plane would be undetermined)."""

@@ -190,10 +190,6 @@ class Project:
 
     # ----- paths ------------------------------------------------------------------------------
     @property
-    def project_file(self) -> Path | None:
-        return None if self.root is None else self.root / PROJECT_FILE
-
-    @property
     def log_file(self) -> Path | None:
         return None if self.root is None else self.root / LOG_FILE
 

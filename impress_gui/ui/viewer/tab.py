@@ -319,9 +319,6 @@ class ViewerTab(QWidget):
         other layers), relative to the levelling plane when there is one."""
         return self.layers.height(key)
 
-    def refresh_layer(self) -> None:
-        self.layers.refresh()
-
     def typed_range(self, key: str | None = None) -> tuple[float, float] | None:
         """The colour range the user typed or dragged for a layer (None: automatic)."""
         return self.layers.typed_range(key)
@@ -418,9 +415,6 @@ class ViewerTab(QWidget):
     def level_region(self, x_range=None, y_range=None) -> bool:
         return self.levelling.level_region(x_range, y_range)
 
-    def clear_levelling(self) -> None:
-        self.levelling.clear()
-
     def _on_levelled(self) -> None:
         self.ruler.update_profile()
         self.levelled_changed.emit()
@@ -434,13 +428,6 @@ class ViewerTab(QWidget):
 
     def refresh_measurements(self, selected: int | None = None) -> None:
         self.measurements.refresh(selected)
-
-    def edit_measurement(self, row: int, **changes) -> None:
-        """Change a measurement's fields (label, note, points_mm, values, params)."""
-        self.measurements.edit(row, **changes)
-
-    def delete_measurement(self, row: int) -> None:
-        self.measurements.delete(row)
 
     def show_selected(self) -> None:
         self.measurements.show_selected()
