@@ -25,6 +25,7 @@ checked before memory is committed to it, and every failure is a
 from __future__ import annotations
 
 import hashlib
+import io
 import math
 import os
 import re
@@ -34,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 import numpy as np
+import plyfile
 
 from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError
@@ -288,29 +290,42 @@ class PlyData:
     comments: tuple[str, ...] = ()
 
 
-_PLY_TYPES = {
-    "char": "i1",
-    "int8": "i1",
-    "uchar": "u1",
-    "uint8": "u1",
-    "short": "i2",
-    "int16": "i2",
-    "ushort": "u2",
-    "uint16": "u2",
-    "int": "i4",
-    "int32": "i4",
-    "uint": "u4",
-    "uint32": "u4",
-    "float": "f4",
-    "float32": "f4",
-    "double": "f8",
-    "float64": "f8",
-}
+def _ply_header(path: Path, lines: list[str]) -> tuple[plyfile.PlyData, list[int]]:
+    """The header's lines (after ``ply``, without ``end_header``) parsed by plyfile, and the
+    elements' counts. The version, the counts and a premature ``end_header`` are checked here
+    first; plyfile parses a copy with every count 0, so that it reads no data (it would read
+    every element, a mesh's faces row by row, into arrays sized by the untrusted header)."""
+    text, counts = ["ply"], []
+    for ln in lines:
+        parts = ln.split()
+        if not parts:  # plyfile takes an empty line for the end of the file
+            ln = " "
+        elif parts[0] == "format":
+            if len(parts) != 3:
+                raise _err(path, f"bad format line {ln!r}", codes.E_PLY_HEADER)
+            if parts[2] != "1.0":
+                raise _err(path, f"PLY version {parts[2]!r} is not supported", codes.E_VERSION)
+        elif parts[0] == "element":
+            if len(parts) != 3 or not re.fullmatch(r"\d{1,12}", parts[2]):
+                raise _err(path, f"bad element line {ln!r}", codes.E_PLY_HEADER)
+            counts.append(int(parts[2]))
+            ln = f"element {parts[1]} 0"
+        elif parts[0] == "end_header":
+            raise _err(path, f"unknown header line {ln!r}", codes.E_PLY_HEADER)
+        text.append(ln)
+    text += ["end_header", ""]
+    try:
+        header = plyfile.PlyData.read(io.BytesIO("\n".join(text).encode("ascii")), mmap=False)
+    except (plyfile.PlyParseError, ValueError) as exc:
+        raise _err(path, f"damaged PLY header ({exc})", codes.E_PLY_HEADER) from None
+    return header, counts
 
 
 def read_ply(path: str | os.PathLike, max_points: int = MAX_POINTS) -> PlyData:
     """Read a binary PLY point cloud: its first element must be ``vertex`` with scalar
-    properties including float x, y, z (optional uchar red, green, blue)."""
+    properties including x, y, z (optional uchar red, green, blue); later elements (a mesh's
+    faces) are ignored. plyfile parses the header; the vertices are read here with its dtype
+    once the size the header declares has been checked against the file."""
     path = Path(path)
     size = _check_file(path)
     with open(path, "rb") as fh:
@@ -325,54 +340,23 @@ def read_ply(path: str | os.PathLike, max_points: int = MAX_POINTS) -> PlyData:
         except UnicodeDecodeError:
             raise _err(path, "the PLY header is not ASCII", codes.E_PLY_HEADER) from None
         body = end + len(b"end_header\n")
-        fmt: str | None = None
-        elements: list = []
-        comments: list[str] = []
-        for ln in lines[1:]:
-            parts = ln.split()
-            if not parts:
-                continue
-            if parts[0] == "format":
-                if len(parts) != 3:
-                    raise _err(path, f"bad format line {ln!r}", codes.E_PLY_HEADER)
-                if parts[2] != "1.0":
-                    raise _err(path, f"PLY version {parts[2]!r} is not supported", codes.E_VERSION)
-                fmt = parts[1]
-            elif parts[0] in ("comment", "obj_info"):
-                comments.append(ln[len(parts[0]) + 1 :])
-            elif parts[0] == "element":
-                if len(parts) != 3 or not re.fullmatch(r"\d{1,12}", parts[2]):
-                    raise _err(path, f"bad element line {ln!r}", codes.E_PLY_HEADER)
-                elements.append((parts[1], int(parts[2]), []))
-            elif parts[0] == "property":
-                if not elements:
-                    raise _err(path, "a property before any element", codes.E_PLY_HEADER)
-                if len(parts) == 3 and parts[1] in _PLY_TYPES:
-                    elements[-1][2].append((parts[2], _PLY_TYPES[parts[1]]))
-                elif parts[1] == "list":
-                    elements[-1][2].append((parts[-1], "list"))
-                else:
-                    raise _err(path, f"bad property line {ln!r}", codes.E_PLY_HEADER)
-            else:
-                raise _err(path, f"unknown header line {ln!r}", codes.E_PLY_HEADER)
-        order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(fmt or "")
-        if order is None:
-            raise _err(path, f"format {fmt!r} is not supported (binary PLY only)", codes.E_PLY_HEADER)
-        if not elements or elements[0][0] != "vertex":
+        header, counts = _ply_header(path, lines[1:])
+        if header.text:
+            raise _err(path, "format 'ascii' is not supported (binary PLY only)", codes.E_PLY_HEADER)
+        if not header.elements or header.elements[0].name != "vertex":
             raise _err(path, "the first element must be vertex", codes.E_PLY_HEADER)
-        _, n, props = elements[0]
-        names = [p for p, _ in props]
-        if any(t == "list" for _, t in props) or len(set(names)) != len(names):
-            raise _err(path, "vertex properties must be distinct scalars", codes.E_PLY_HEADER)
-        if not {"x", "y", "z"} <= set(names):
+        vertex, n = header.elements[0], counts[0]
+        names = {p.name for p in vertex.properties}  # distinct: plyfile refuses repeated names
+        if any(isinstance(p, plyfile.PlyListProperty) for p in vertex.properties):
+            raise _err(path, "vertex properties must be scalars, not lists", codes.E_PLY_HEADER)
+        if not {"x", "y", "z"} <= names:
             raise _err(path, "vertices need x, y and z", codes.E_PLY_HEADER)
         if n > max_points:
             raise _err(path, f"{n} vertices is too many", codes.E_TOO_LARGE)
-        if {"red", "green", "blue"} <= set(names) and any(
-            dict(props)[c] != "u1" for c in ("red", "green", "blue")
-        ):
+        rgb = {"red", "green", "blue"} <= names
+        if rgb and any(vertex.ply_property(c).val_dtype != "u1" for c in ("red", "green", "blue")):
             raise _err(path, "colours must be uchar", codes.E_PLY_HEADER)
-        dt = np.dtype([(p, order + t) for p, t in props])
+        dt = vertex.dtype(header.byte_order)
         need = n * dt.itemsize
         if size - body < need:
             raise _err(
@@ -392,9 +376,11 @@ def read_ply(path: str | os.PathLike, max_points: int = MAX_POINTS) -> PlyData:
     if n and np.abs(pts).max() > MAX_ABS_MM:
         raise _err(path, "coordinates are absurdly large", codes.E_VALUE)
     colours = None
-    if {"red", "green", "blue"} <= set(names):
+    if rgb:
         colours = np.column_stack([v["red"], v["green"], v["blue"]]).astype(np.uint8)
-    return PlyData(pts, colours, tuple(comments))
+    comments = (*header.comments, *header.obj_info,
+                *(c for e in header.elements for c in e.comments))
+    return PlyData(pts, colours, comments)
 
 
 READERS: dict[str, Callable] = {".x3p": read_x3p, ".ply": read_ply}

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
+import plyfile
 
 from impress_gui import __version__
 from impress_gui.core.base.fileio import dumps_json, sha256_file
@@ -108,9 +109,9 @@ def export_xy(spec, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.
 
 def ply_bytes(spec, height: np.ndarray, texture: np.ndarray | None, step: int = 1,
               comments: Sequence[str] = ()) -> bytes:
-    """Binary little-endian PLY: float32 x, y, z (mm, the right-handed :data:`EXPORT_FRAME`)
-    and uchar RGB. Each of ``comments`` (provenance lines) becomes one header ``comment`` line
-    (ASCII, one line)."""
+    """Binary little-endian PLY (written by plyfile): float32 x, y, z (mm, the right-handed
+    :data:`EXPORT_FRAME`) and uchar RGB. Each of ``comments`` (provenance lines) becomes one
+    header ``comment`` line (one line; ASCII, other characters as backslash escapes)."""
     hh = height[::step, ::step]
     ok = np.isfinite(hh)
     ii, jj = np.nonzero(ok)
@@ -124,17 +125,22 @@ def ply_bytes(spec, height: np.ndarray, texture: np.ndarray | None, step: int = 
         pts["red"], pts["green"], pts["blue"] = tex[:, 0], tex[:, 1], tex[:, 2]
     else:
         pts["red"] = pts["green"] = pts["blue"] = 200
-    header = ("ply\nformat binary_little_endian 1.0\n"
-              f"comment IMPREsS workstation {__version__}; units mm\n"
-              f"comment frame: {EXPORT_FRAME}\n"
-              + "".join(f"comment {_one_line(c)}\n" for c in comments) +
-              f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
-              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
-    return header.encode("ascii", "backslashreplace") + pts.tobytes()
+    lines = [f"IMPREsS workstation {__version__}; units mm", f"frame: {EXPORT_FRAME}",
+             *(_one_line(c) for c in comments)]
+    # plyfile refuses non-ASCII and newlines in comments: escape them as before
+    ply = plyfile.PlyData([plyfile.PlyElement.describe(pts, "vertex")], byte_order="<",
+                          comments=[_ascii(c) for c in lines])
+    buf = io.BytesIO()
+    ply.write(buf)
+    return buf.getvalue()
 
 
 def _one_line(text: str) -> str:
     return " ".join(str(text).split())
+
+
+def _ascii(text: str) -> str:
+    return text.encode("ascii", "backslashreplace").decode("ascii")
 
 
 X3P_ROWS_PER_CHUNK = 256
