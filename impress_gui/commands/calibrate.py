@@ -35,6 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from impress_gui.core.calibration.picks import Picks
     from impress_gui.core.calibration.scene import calibrate_scene
     from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel, default_target
+    from impress_gui.core.formats.provenance import calibration_inputs, input_record
     from impress_gui.core.formats.video import open_video
 
     check_output_file(args.output, inputs=(args.video, args.intrinsics, args.picks, args.target),
@@ -42,16 +43,17 @@ def run(args: argparse.Namespace) -> int:
     intr = Intrinsics.load(args.intrinsics)
     picks = Picks.load(args.picks)
     target = TargetModel.load(args.target) if args.target else default_target()
-    inputs = {"intrinsics": {"path": str(args.intrinsics), "sha256": sha256_file(args.intrinsics)},
-              "picks": {"path": str(args.picks), "sha256": sha256_file(args.picks)},
-              "target": ({"name": target.name, "path": str(args.target),
-                          "sha256": sha256_file(args.target)} if args.target else
-                         {"name": target.name, "builtin": True})}
+    intrinsics = input_record(args.intrinsics, sha256_file(args.intrinsics))
+    picks_record = input_record(args.picks, sha256_file(args.picks))
+    target_record = {"name": target.name} | (
+        input_record(args.target, sha256_file(args.target)) if args.target else {"builtin": True})
     notes = []
     with open_video(args.video, fps=args.fps) as video:
         # the hash of the open file that is decoded (a frame folder: of its manifest)
-        inputs["video"] = {"path": str(args.video), "sha256": video.sha256()}
-        if picks.video_sha256 and picks.video_sha256 != inputs["video"]["sha256"]:
+        video_sha256 = video.sha256()
+        inputs = calibration_inputs(input_record(args.video, video_sha256), intrinsics,
+                                    picks=picks_record, target=target_record, video_last=True)
+        if picks.video_sha256 and picks.video_sha256 != video_sha256:
             notes.append("W-PICKS-OTHER-VIDEO: the picks were made on a different video "
                          "(SHA-256 differs)")
         cal = calibrate_scene(video, intr, target, picks, args.speed, args.fps,

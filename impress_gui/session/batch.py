@@ -130,9 +130,11 @@ def process_one(item: BatchItem, out_dir: str) -> dict[str, Any]:
 
 
 def _row_from_metadata(meta: dict) -> dict[str, Any]:
+    from impress_gui.core.formats.provenance import recorded_sha256
+
     st = meta.get("stats") or {}
-    return {"video_sha256": (meta.get("inputs") or {}).get("video", {}).get("sha256"),
-            "calibration_sha256": (meta.get("inputs") or {}).get("calibration", {}).get("sha256"),
+    return {"video_sha256": recorded_sha256(meta.get("inputs"), "video"),
+            "calibration_sha256": recorded_sha256(meta.get("inputs"), "calibration"),
             "frames": f"{meta['frames']['start']}..{meta['frames']['stop'] - 1}",
             "cells_fused": st.get("cells_fused"), "warnings": len(meta.get("warnings") or []),
             "code": "", "message": "; ".join(meta.get("warnings") or [])}
@@ -142,6 +144,7 @@ def _done_earlier(item: BatchItem, out: Path, params) -> dict[str, Any] | None:
     """The row of a complete earlier result of exactly this job in ``out``, else None."""
     from impress_gui.core.base.fileio import sha256_file
     from impress_gui.core.base.outdir import read_mark
+    from impress_gui.core.formats.provenance import recorded_sha256
 
     meta_path = out / "metadata.json"
     if not meta_path.is_file() or read_mark(out) is None:
@@ -150,10 +153,10 @@ def _done_earlier(item: BatchItem, out: Path, params) -> dict[str, Any] | None:
         meta = json.loads(meta_path.read_text(encoding="utf-8"))
         ins = meta["inputs"]
         same = (meta.get("parameters") == params.to_json()
-                and ins["calibration"]["sha256"] == sha256_file(item.calibration)
-                and ins["video"]["sha256"] == _video_sha(item.video))
+                and recorded_sha256(ins, "calibration") == sha256_file(item.calibration)
+                and recorded_sha256(ins, "video") == _video_sha(item.video))
         files_ok = all((out / n).is_file() for n in meta.get("files", {}))
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
     return _row_from_metadata(meta) if same and files_ok else None
 

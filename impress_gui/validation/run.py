@@ -35,6 +35,7 @@ from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.base.fileio import sha256_file, write_json
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report, sub_progress
+from impress_gui.core.formats.provenance import calibration_inputs, input_record
 from impress_gui.validation import protocol as V
 from impress_gui.validation import spec as S
 from impress_gui.validation import vdi as VDI
@@ -221,7 +222,7 @@ def _calibrate_and_process(
     truth = json.loads((scan / "truth.json").read_text())
     video = scan / truth["video"]
     inputs = {
-        n: {"path": str(scan / f), "sha256": sha256_file(scan / f)}
+        n: input_record(scan / f, sha256_file(scan / f))
         for n, f in (
             ("video", truth["video"]),
             ("intrinsics", "intrinsics.json"),
@@ -241,7 +242,7 @@ def _calibrate_and_process(
             truth["speed_mm_s"],
             progress=sub_progress(progress, 0.0, 0.2),
             cancel=cancel,
-            inputs={k: inputs[k] for k in ("video", "intrinsics", "picks")},
+            inputs=calibration_inputs(inputs["video"], inputs["intrinsics"], picks=inputs["picks"]),
         )
     cal_path = run_dir / "calibration.json"
     cal.save(cal_path)
@@ -254,7 +255,7 @@ def _calibrate_and_process(
         progress=sub_progress(progress, 0.2, 1.0),
         cancel=cancel,
     )
-    inputs["calibration"] = {"path": str(cal_path), "sha256": sha256_file(cal_path)}
+    inputs["calibration"] = input_record(cal_path, sha256_file(cal_path))
     return {
         "inputs": inputs,
         "parameters": params.to_json(),
@@ -471,7 +472,7 @@ def run_real(
     record = _header("real") | {
         "name": name,
         "scans": [],
-        "spec": {"path": str(spec_path), "sha256": sha256_file(spec_path)},
+        "spec": input_record(spec_path, sha256_file(spec_path)),
     }
     results: list[V.Result] = []
     groups: list[str] = []

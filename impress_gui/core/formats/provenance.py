@@ -13,8 +13,9 @@ format's own place (TIFF ImageDescription, PNG tEXt chunks, CSV ``# key: value``
 Nothing time-dependent goes in: the same reconstruction and settings give the same bytes.
 
 The records of a product's inputs (metadata.json's ``inputs``: the video and the calibration a
-reconstruction was made from) are built by :func:`input_record` and
-:func:`reconstruction_inputs` and read back by :func:`recorded_sha256`; nothing else builds them.
+reconstruction was made from; a scene calibration's: the video, intrinsics, picks and target)
+are built by :func:`input_record`, :func:`reconstruction_inputs` and
+:func:`calibration_inputs` and read back by :func:`recorded_sha256`; nothing else builds them.
 No Qt here.
 """
 
@@ -54,6 +55,19 @@ def reconstruction_inputs(video: Mapping, calibration: Mapping) -> dict[str, dic
     the scene calibration a reconstruction was made from (the calibration first, as written
     since version 1)."""
     return {"calibration": dict(calibration), "video": dict(video)}
+
+
+def calibration_inputs(video: Mapping, intrinsics: Mapping, *, picks: Mapping | None = None,
+                       target: Mapping | None = None, video_last: bool = False) -> dict[str, dict]:
+    """A scene calibration's ``inputs``: the record of the scan video (:func:`input_record`),
+    of the intrinsics (an :func:`input_record` of their file, or ``{"source": ...}`` when the
+    window had them from elsewhere), of the corner picks file when there is one and of the
+    target model (its ``name``, with the record of its file or ``"builtin": true``) when
+    recorded. In the order video, intrinsics, picks, target - or, with ``video_last``, the
+    video after the others, as ``impress calibrate`` has written them since version 1."""
+    records = {"intrinsics": intrinsics, "picks": picks, "target": target}
+    out = {k: dict(v) for k, v in records.items() if v is not None}
+    return out | {"video": dict(video)} if video_last else {"video": dict(video)} | out
 
 
 def recorded_sha256(inputs: Mapping | None, name: str) -> str | None:
@@ -251,6 +265,7 @@ def read_png_text(png: bytes) -> dict[str, str]:
 
 __all__ = [
     "SOFTWARE",
+    "calibration_inputs",
     "comment_lines",
     "csv_header",
     "export_provenance",

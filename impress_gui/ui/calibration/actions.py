@@ -13,6 +13,7 @@ from impress_gui.core.base.errors import ImpressError
 from impress_gui.core.calibration.pick_editor import PickEditor, PickState
 from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.scene import SceneCalibration, check_picks
+from impress_gui.core.formats.provenance import calibration_inputs, input_record
 from impress_gui.session.calibration_jobs import calibrate_task
 from impress_gui.session.session import Session
 from impress_gui.ui.calibration.setup import JSON_FILTER, SetupPanel
@@ -124,11 +125,8 @@ class SceneCalibrationAction:
             self.messenger.exception("Cannot calibrate yet", exc)
             return False
         path, state = ev.path, self.editor.state
-        inputs = {
-            "video": {"path": str(path), "sha256": ev.sha256},
-            "intrinsics": {"source": intr.source},
-            "target": {"name": target.name},
-        }
+        inputs = calibration_inputs(input_record(path, ev.sha256), {"source": intr.source},
+                                    target={"name": target.name})
 
         return self.tasks.run(
             "Calibrating",
