@@ -307,6 +307,10 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
             planes0 = obs.fit_planes(pose.rotation,
                                      (pose.target_rotation, pose.target_translation_mm))
         planes = {name: fit for name, (fit, _) in planes0.items()}
+        warnings += [f"the {name} stripe blooms (a saturated, nearly white core) on the "
+                     "target: found there by the colour it adds to the surface against the "
+                     "background, its core's colour being lost; check its plane's residual"
+                     for name in obs.blooming]
         _refuse_damaged(video, sorted({k for f in planes.values() for k in f.frames}))
     warnings += list(getattr(video, "open_warnings", []))
     report(progress, 1.0, "calibrated")

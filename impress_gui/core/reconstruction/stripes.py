@@ -279,6 +279,67 @@ def detect_band(name: str, rgb_band: np.ndarray, row0: int, params: StripeParams
     return StripeResult(res.rows + row0, res.strength)
 
 
+BLOOM_LEVEL = 250  # a laser channel at least this high in the stripe's core is at full scale
+BLOOM_LEAN = 0.1  # headroom shares, summed over the window's rows (see blooming_lean)
+
+
+def blooming_lean(name: str, rgb_band: np.ndarray, rows: np.ndarray, half_window: int):
+    """For a stripe found at (band-relative, sub-pixel) ``rows`` in every column of an RGB band:
+    whether its core is saturated in this laser's channel, and how far its light leans to this
+    laser's colour rather than the other laser's.
+
+    A blooming stripe saturates every channel in its core (a green laser with a red crosstalk
+    of a third, five times full scale, is (255, 255, 230) on a light target), so the core's
+    colour says little, and 4:2:0 chroma smears the flanks' colour over it. What survives is
+    the colour the stripe adds to the surface, summed over its rows: the lean is the sum, over
+    the window's inner rows, of the share of each channel's headroom above the background
+    (the window's two end rows) that the stripe used, this laser's channel minus the other
+    laser's. Measured against the headroom, a saturated core counts the same in both channels
+    whatever the surface's own tint; the flanks, where one channel saturates before the
+    other, decide. Returns ``(saturated (W,) bool, lean (W,) float)``; NaN rows give False/NaN.
+    """
+    h, w = rgb_band.shape[:2]
+    found = np.isfinite(rows)
+    sat = np.zeros(w, bool)
+    lean = np.full(w, np.nan)
+    cols = np.flatnonzero(found)
+    if not len(cols):
+        return sat, lean
+    c, o = _CH[name], _CH["red" if name == "green" else "green"]
+    k = int(half_window)
+    rr = np.clip(np.rint(rows[cols]).astype(np.int64)[None, :] + np.arange(-k, k + 1)[:, None],
+                 0, h - 1)
+    win = rgb_band[rr, cols[None, :]].astype(np.float64)  # (2k+1, n, 3)
+    bg = 0.5 * (win[0] + win[-1])
+    share = (win[1:-1] - bg) / np.maximum(255.0 - bg, 8.0)
+    lean[cols] = (share[..., c] - share[..., o]).sum(axis=0)
+    sat[cols] = win[k - 2 : k + 3, :, c].max(axis=0) >= BLOOM_LEVEL
+    return sat, lean
+
+
+def detect_band_blooming(name: str, rgb_band: np.ndarray, row0: int,
+                         params: StripeParams) -> StripeResult:
+    """:func:`detect_band` (no background table) for a blooming stripe, the calibration's
+    fallback when the colour tests miss most of a stripe on its light target: every column the
+    strict tests accept, and the columns where the stripe passes the same peak tests with the
+    tint threshold at 0 (the laser's channel the largest) whose core is saturated in the laser's
+    channel and whose light leans to this laser's colour by at least ``BLOOM_LEAN``
+    (:func:`blooming_lean`): a saturated neutral highlight does not lean, the other laser's
+    blooming stripe leans the other way, and an edge is not a peak. The rows are the strict
+    detector's (the colour tests only accept or refuse a column)."""
+    from dataclasses import replace
+
+    strict = detect_band(name, rgb_band, row0, params, None)
+    relaxed = detect_band(name, rgb_band, row0, replace(params, min_tint=0), None)
+    extra = relaxed.found & ~strict.found
+    sat, lean = blooming_lean(name, rgb_band, np.where(extra, relaxed.rows - row0, np.nan),
+                              params.half_window_px)
+    take = extra & sat & (np.nan_to_num(lean, nan=-np.inf) >= BLOOM_LEAN)
+    rows = np.where(strict.found, strict.rows, np.where(take, relaxed.rows, np.nan))
+    strength = np.where(strict.found, strict.strength, np.where(take, relaxed.strength, 0))
+    return StripeResult(rows, strength.astype(np.float32))
+
+
 def detect(rgb: np.ndarray, params: StripeParams, lut: BackgroundLUT | None = None,
            lasers=LASERS) -> dict[str, StripeResult]:
     """Detect every laser's stripe in a full RGB frame inside its region of interest."""
