@@ -191,6 +191,7 @@ class MainWindow(QMainWindow):
         view = self.menuBar().addMenu("&View")
         if self.motor_dock is not None:
             view.addAction(self.motor_dock.toggleViewAction())
+        self._build_measure_menu(act)
         tools = self.menuBar().addMenu("&Tools")
         self.validation_action = act(
             tools,
@@ -210,6 +211,38 @@ class MainWindow(QMainWindow):
             ),
         )
         self._fill_recent()
+
+    # the viewer's tools, one key each (listed in the Measure menu; a text field being edited
+    # keeps its letters)
+    TOOL_KEYS = (
+        ("pan", "&Pan", "P"),
+        ("ruler", "&Ruler", "R"),
+        ("marker", "&Marker", "M"),
+        ("level3", "&Level: 3 points", "L"),
+        ("region", "Level: re&gion", "G"),
+    )
+
+    def _build_measure_menu(self, act) -> None:
+        menu = self.menuBar().addMenu("&Measure")
+        self.tool_actions: dict[str, QAction] = {}
+        for key, text, shortcut in self.TOOL_KEYS:
+            self.tool_actions[key] = act(
+                menu, text, lambda key=key: self.use_viewer_tool(key), QKeySequence(shortcut),
+                f"Viewer: {text.replace('&', '')} tool",
+            )
+        menu.addSeparator()
+        self.fit_action = act(menu, "Zoom to &fit", self.zoom_viewer_to_fit, QKeySequence("F"),
+                              "Viewer: show the whole map")
+
+    def use_viewer_tool(self, key: str) -> None:
+        """Bring the viewer to the front with its tool ``key`` (pan, ruler, marker, level3,
+        region) chosen."""
+        self.tabs.setCurrentWidget(self.viewer_tab)
+        self.viewer_tab.set_mode(key)
+
+    def zoom_viewer_to_fit(self) -> None:
+        self.tabs.setCurrentWidget(self.viewer_tab)
+        self.viewer_tab.map.fit()
 
     def open_validation(self):
         """Show the method-validation dialog (created on first use)."""
