@@ -372,3 +372,15 @@ def test_cli_move_ended_by_a_signal_stops_the_motor(pty_motor, signame, status, 
     assert 0 > here > -1000 * 78  # stopped part way
     emu.wait_output(0.05)  # let the emulated time pass: the position stays
     assert emu.position_pulses == here
+
+
+def test_cli_reports_the_position_while_a_bank_runs(capsys):
+    """`impress motor run-bank` is not silent for the minutes a scan takes (issue 21, item 13):
+    the position and state go to stderr while it moves, at most once a second."""
+    assert main(["motor", "--port", "sim", "--sim-time-scale", "40", "run-bank", "3"]) == 0
+    out, err = capsys.readouterr()
+    lines = [ln for ln in err.splitlines() if ln.strip().startswith("bank 3:")]
+    assert len(lines) >= 2, err
+    positions = [float(ln.split(":")[1].split("mm")[0]) for ln in lines]
+    assert positions == sorted(positions) and positions[-1] > positions[0]
+    assert "position:" in out

@@ -207,6 +207,25 @@ def _port_url(args: argparse.Namespace) -> str:
     return url
 
 
+class _MoveReport:
+    """While the motor moves: its position and state on stderr, at most once a second (a
+    scan of the whole rail takes minutes and must not look hung)."""
+
+    def __init__(self, what: str, every_s: float = 1.0) -> None:
+        import time
+
+        self._clock = time.monotonic
+        self.what, self.every_s, self._last = what, every_s, None
+
+    def __call__(self, snap: Any) -> None:
+        now = self._clock()
+        if self._last is not None and now - self._last < self.every_s:
+            return
+        self._last = now
+        print(f"  {self.what}: {snap.position_mm:8.2f} mm, {snap.status.state}", file=sys.stderr,
+              flush=True)
+
+
 def _print_snapshot(snap: Any) -> None:
     print(f"position: {snap.position_mm:.2f} mm ({snap.position_pulses} pulses)")
     print(f"state: {snap.status.state} (Ux={snap.status.bits})")
@@ -331,7 +350,7 @@ def _act(args: argparse.Namespace, driver: Any, token: Any) -> None:
         )
     elif action == "home":
         token.check()
-        _print_snapshot(driver.home(cancel=token))
+        _print_snapshot(driver.home(cancel=token, on_update=_MoveReport("homing")))
     elif action == "move":
         speed = args.speed_mm_s
         actual = units.units_to_speed_mm_s(units.speed_to_units(speed))
@@ -339,13 +358,16 @@ def _act(args: argparse.Namespace, driver: Any, token: Any) -> None:
             print(f"speed {speed:g} mm/s rounds to {actual:.3f} mm/s (S units)")
         token.check()
         if args.to_mm is not None:
-            snap = driver.move_to_mm(args.to_mm, speed, cancel=token)
+            snap = driver.move_to_mm(args.to_mm, speed, cancel=token,
+                                     on_update=_MoveReport("moving"))
         else:
-            snap = driver.move_by_mm(args.by_mm, speed, cancel=token)
+            snap = driver.move_by_mm(args.by_mm, speed, cancel=token,
+                                     on_update=_MoveReport("moving"))
         _print_snapshot(snap)
     elif action == "run-bank":
         token.check()
-        _print_snapshot(driver.run_bank(args.bank, cancel=token))
+        _print_snapshot(driver.run_bank(args.bank, cancel=token,
+                                        on_update=_MoveReport(f"bank {args.bank}")))
     elif action == "write-program":
         driver.write_program(scanner_program(args.motor_id), save=not args.no_save)
         print("program written" + ("" if args.no_save else " and saved"))
