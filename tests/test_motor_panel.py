@@ -451,3 +451,17 @@ def test_the_simulator_the_calibration_tab_and_the_rail_share_the_speeds():
 
     assert SPEED_NAMES == SPEED_PRESETS_MM_S == SPEED_PRESETS
     assert sorted(SIM_RIG) == sorted(SPEED_PRESETS_MM_S.values())
+
+
+def test_store_the_button_program_from_the_panel(rig, qtbot):
+    """The four-button program is written from the panel (it was CLI only): the motor holds
+    the thesis' four banks afterwards and saved them (issue 21, item 13)."""
+    panel = rig.connected_panel()
+    motor = rig.motors[-1]
+    motor.banks.clear()
+    assert panel.program_button.isEnabled()
+    with qtbot.waitSignal(panel.program_stored, timeout=15000) as blocker:
+        panel.program_button.click()
+    assert blocker.args == [True]
+    assert sorted(motor.banks) == [1, 2, 3, 4] and motor.saved == 1
+    assert "button program stored and saved" in panel.log_view.toPlainText()

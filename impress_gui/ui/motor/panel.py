@@ -94,12 +94,14 @@ class MotorPanel(QWidget):
     state_changed = Signal(str)
     connection_changed = Signal(bool)
     error = Signal(str, str)  # code, message
+    program_stored = Signal(bool)  # the button program is in the motor (saved)
 
     _open_requested = Signal(str)
     _close_requested = Signal()
     _stop_requested = Signal()
     _plan_requested = Signal(object)
     _reset_requested = Signal()
+    _program_requested = Signal(bool)
     _shutdown_requested = Signal()
 
     def __init__(
@@ -131,6 +133,8 @@ class MotorPanel(QWidget):
         self._stop_requested.connect(self._worker.stop)
         self._plan_requested.connect(self._worker.run_plan)
         self._reset_requested.connect(self._worker.reset_alarm)
+        self._program_requested.connect(self._worker.write_program)
+        self._worker.program_written.connect(self._on_program_written)
         self._shutdown_requested.connect(self._worker.shutdown)
         self._worker.connected.connect(self._on_connected)
         self._worker.disconnected.connect(self._on_disconnected)
@@ -217,11 +221,17 @@ class MotorPanel(QWidget):
         )
         self.jog_minus_button = QPushButton("\u25c0 Jog \u2212")
         self.jog_plus_button = QPushButton("Jog + \u25b6")
+        self.program_button = QPushButton("Store the button program")
+        self.program_button.setToolTip(
+            "Write the scanner's four-button program into the motor (banks 1-4: home, short "
+            "scan, long scan, return), checked against the rail's limits, and save it"
+        )
         grid.addWidget(self.home_button, 0, 0)
         grid.addWidget(self.reset_button, 0, 1)
         grid.addWidget(self.scan_button, 1, 0, 1, 2)
         grid.addWidget(self.jog_minus_button, 2, 0)
         grid.addWidget(self.jog_plus_button, 2, 1)
+        grid.addWidget(self.program_button, 3, 0, 1, 2)
         root.addLayout(grid)
 
         self.log_polls_check = QCheckBox("Log status polls")
@@ -239,6 +249,7 @@ class MotorPanel(QWidget):
         self.jog_minus_button.clicked.connect(lambda: self.jog(-self.jog_spin.value()))
         self.jog_plus_button.clicked.connect(lambda: self.jog(self.jog_spin.value()))
         self.reset_button.clicked.connect(lambda: self._reset_requested.emit())
+        self.program_button.clicked.connect(lambda: self.write_program())
 
     # ----------------------------------------------------------------- actions
 
@@ -332,6 +343,16 @@ class MotorPanel(QWidget):
         speed = self.speed_spin.value() if speed_mm_s is None else speed_mm_s
         self.run_plan([("move", position_mm, speed)])
 
+    def write_program(self, save: bool = True) -> None:
+        """Store the four-button program in the motor (in the worker thread)."""
+        self._log("# storing the button program" + (" (saved)" if save else ""))
+        self._program_requested.emit(save)
+
+    def _on_program_written(self, saved: bool) -> None:
+        self._log("# button program stored" + (" and saved in the motor" if saved else ""))
+        self.error_label.setText("")
+        self.program_stored.emit(saved)
+
     def run_bank(self, bank: int) -> None:
         self.run_plan([("bank", bank)])
 
@@ -410,6 +431,7 @@ class MotorPanel(QWidget):
             self.scan_button,
             self.jog_minus_button,
             self.jog_plus_button,
+            self.program_button,
         ):
             b.setEnabled(can_move)
         self.reset_button.setEnabled(self.is_connected)

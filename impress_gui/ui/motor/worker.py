@@ -31,6 +31,7 @@ from impress_gui.hardware.motor_link import (
     emulator_url,
     resolve_port_url,
 )
+from impress_gui.hardware.motor_program import scanner_program
 from impress_gui.hardware.motor_status import MotorDisconnected, MoveWatch
 
 DriverFactory = Callable[[str, MotorConfig, TrafficCallback], CoolMuscle]
@@ -68,6 +69,7 @@ class MotorWorker(QObject):
     busy_changed = Signal(bool, str)  # busy, what
     failed = Signal(str, str)  # error code, message
     traffic = Signal(str, str)  # direction, line
+    program_written = Signal(bool)  # saved to the motor's memory
 
     def __init__(self, factory: DriverFactory, config: MotorConfig, idle_poll_s: float) -> None:
         super().__init__()
@@ -140,6 +142,24 @@ class MotorWorker(QObject):
         self._plan = list(steps)
         self._watch = None
         self._next_step()
+
+    @Slot(bool)
+    def write_program(self, save: bool) -> None:
+        """Store the scanner's four-button program (home, short scan, long scan, return) in the
+        motor, checked against the rail's limits first; ``save``: into its memory."""
+        if self._driver is None:
+            self.failed.emit(codes.E_MOTOR_NOT_CONNECTED, "the motor is not connected: connect first")
+            return
+        try:
+            self._driver.write_program(scanner_program(self._config.motor_id), save=save)
+        except ImpressError as exc:
+            self._fail(exc)
+            return
+        except Exception as exc:  # noqa: BLE001 - reported, never left to kill the thread
+            self._fail_unexpected(exc)
+            return
+        self.program_written.emit(save)
+        self._tick()
 
     @Slot()
     def reset_alarm(self) -> None:
