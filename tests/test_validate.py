@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -147,6 +148,21 @@ def test_the_command_prints_the_table(run, tmp_path, capsys):
     assert code in (0, 1)  # 1: the quick scans do not meet the xy bar
     assert "Order AB" in out and "thesis table 4.1" in out and "Acceptance" in out
     assert (tmp_path / "validation_report.html").is_file()
+
+
+def test_a_run_keeps_only_what_its_record_and_report_need(run):
+    """A quick run wrote about 2 GB (issue 21, item 13): each reconstruction now keeps the
+    fused heightmap it was measured on and the records naming every file with its SHA-256;
+    the real-scan spec made from the run still measures it (test above)."""
+    from impress_gui.validation.run import KEPT_FILES
+
+    for scan in run["record"]["scans"]:
+        folder = Path(scan["reconstruction"]["path"])
+        left = sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+        assert left == sorted(KEPT_FILES)
+        assert "pointcloud.ply" in scan["reconstruction"]["pruned"]
+        meta = json.loads((folder / "metadata.json").read_text())
+        assert "pointcloud.ply" in meta["files"]  # its hash stays on record
 
 
 def test_cancel_stops_a_run(tmp_path):

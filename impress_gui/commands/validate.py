@@ -75,6 +75,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "impress.validation-spec) with known dimensions and measuring positions",
     )
     p.add_argument("--no-figures", action="store_true", help="leave the figures out of the report")
+    p.add_argument(
+        "--keep-reconstructions",
+        action="store_true",
+        help="keep every file of each reconstruction (point clouds, per-laser maps, pictures: "
+        "about 2 GB in quick mode); by default only the fused heightmap and the records stay",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -91,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
             "workers": max(1, args.workers),
             "reuse_scans": not args.fresh,
             "click_noise_px": args.click_noise_px,
+            "keep_reconstructions": args.keep_reconstructions,
         }
         if args.resolution:
             kw["width"], kw["height"] = args.resolution
@@ -111,6 +118,13 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(record), end="")
     print(f"report: {paths['report']}")
     print(f"record: {Path(args.out) / 'validation.json'}")
+    if args.spec is None:
+        from impress_gui.validation.run import disk_usage_bytes
+
+        scans = Path(args.out) / "scans"
+        total, kept = disk_usage_bytes(Path(args.out)), disk_usage_bytes(scans)
+        print(f"disk: {total / 1e6:.0f} MB in {args.out}, of which {kept / 1e6:.0f} MB are the "
+              f"rendered scans (reused by the next run; delete {scans} to free them)")
     acc = record.get("acceptance", {})
     if not record.get("readings"):
         return 0

@@ -36,6 +36,12 @@ from impress_gui.core.base.errors import InputError
 from impress_gui.core.base.fileio import sha256_file, write_json
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report, sub_progress
 from impress_gui.core.formats.provenance import calibration_inputs, input_record
+from impress_gui.core.formats.recon_files import (
+    HEIGHTMAP_FILE,
+    METADATA_FILE,
+    RECON_FILES,
+    RUN_FILE,
+)
 from impress_gui.validation import protocol as V
 from impress_gui.validation import spec as S
 from impress_gui.validation import vdi as VDI
@@ -76,6 +82,9 @@ class RunConfig:
     seed: int = 1
     workers: int = 2
     reuse_scans: bool = True
+    #: keep every file of each reconstruction; by default only what the record and the report
+    #: need stays (the fused heightmap, metadata.json, run.json): a quick run wrote about 2 GB
+    keep_reconstructions: bool = False
     #: the rail raised for "B lifted by 40 mm": at the default 300 mm the two laser planes cross
     #: 67 mm above the ground and the stair on the lifted plate reaches 77 mm
     lifted_standoff_mm: float = 380.0
@@ -376,6 +385,29 @@ def prepare_output(out_dir: str | os.PathLike[str], inputs=()) -> Path:
     return out
 
 
+#: what a validation keeps of each reconstruction unless asked for everything: the fused
+#: heightmap the readings are measured on (a real-scan spec made from the run measures it
+#: again) and the two records that name every file with its SHA-256
+KEPT_FILES = (HEIGHTMAP_FILE, METADATA_FILE, RUN_FILE)
+
+
+def prune_reconstruction(folder: Path) -> list[str]:
+    """Delete the files of a validation's own reconstruction that its record and report do
+    not need (the point cloud, the per-laser maps, the pictures, the X3P); their SHA-256 stay
+    in metadata.json. Returns the names deleted."""
+    gone = []
+    for name in RECON_FILES:
+        f = folder / name
+        if name not in KEPT_FILES and f.is_file() and not f.is_symlink():
+            f.unlink()
+            gone.append(name)
+    return gone
+
+
+def disk_usage_bytes(folder: Path) -> int:
+    return sum(f.stat().st_size for f in Path(folder).rglob("*") if f.is_file() and not f.is_symlink())
+
+
 def run_simulated(
     cfg: RunConfig,
     out_dir: str | os.PathLike[str],
@@ -428,6 +460,9 @@ def run_simulated(
         truth = json.loads((scan / "truth.json").read_text())
         rec = load_reconstruction(out / "runs" / item / "reconstruction", layers=("fused",))
         measured = _measure_item(item, rec, truth, title)
+        del rec
+        if not cfg.keep_reconstructions:
+            info["reconstruction"]["pruned"] = prune_reconstruction(out / "runs" / item / "reconstruction")
         if "results" in measured:
             results.extend(measured["results"])
             groups.append(title)
