@@ -359,3 +359,37 @@ def test_motor_choices_are_kept_between_sessions(make_window):
     assert box2.speed_preset_combo.currentData() == "fast"
     assert second.motor_panel.speed_spin.value() == pytest.approx(13.138, abs=0.01)
     assert box2.end_spin.value() == pytest.approx(812.5)
+
+
+def test_discard_removes_the_unsaved_reconstruction_and_says_so_in_the_log(window, tmp_path,
+                                                                          monkeypatch):
+    """Closing with Discard (issue 21, item 12): a reconstruction made since the last save
+    (~300 MB at 1080p) does not stay in the project; one saved before stays. The log is
+    append-only: what was done stays recorded, followed by the discard."""
+    assert window.new_project(CASE)
+    folder = tmp_path / "case"
+    assert window.save_project_as(folder)
+    p = window.project
+
+    def fake_reconstruction(name: str) -> Path:
+        out = folder / "reconstructions" / name
+        out.mkdir(parents=True)
+        (out / "metadata.json").write_text("{}")
+        (out / "heightmap.tif").write_bytes(b"x" * 1000)
+        (folder / "reconstructions" / f"{name}.calibration.json").write_text("{}")
+        p.add_output(out / "metadata.json", "reconstruction")
+        return out
+
+    kept = fake_reconstruction("recon-saved")
+    assert window.save_project()
+    unsaved = fake_reconstruction("recon-unsaved")
+    assert window.is_dirty()
+    monkeypatch.setattr(window.messenger, "ask", lambda *a, **k: QMessageBox.StandardButton.Discard)
+    assert window.maybe_save()
+    assert kept.is_dir() and not unsaved.exists()
+    assert not (folder / "reconstructions" / "recon-unsaved.calibration.json").exists()
+    log = read_log(folder / LOG_FILE)
+    assert log[-1]["action"] == "unsaved changes discarded"
+    assert log[-1]["details"]["removed"] == ["reconstructions/recon-unsaved",
+                                             "reconstructions/recon-unsaved.calibration.json"]
+    assert not window.project.dirty

@@ -303,7 +303,16 @@ class MainWindow(QMainWindow):
         )
         if answer == Button.Save:
             return self.save_project()
-        return answer == Button.Discard
+        if answer != Button.Discard:
+            return False
+        try:
+            removed = self.project.discard_unsaved()
+        except (ImpressError, OSError) as exc:
+            self.messenger.exception("The unsaved results were not removed", exc)
+            return False
+        if removed:
+            self.show_status(f"Discarded; removed {', '.join(removed)}")
+        return True
 
     def ask_case_info(self, title: str = "New project") -> dict | None:
         dlg = CaseDialog(None, self, title)

@@ -35,6 +35,7 @@ from __future__ import annotations
 import copy
 import os
 import re
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeGuard
@@ -343,6 +344,33 @@ class Project:
         self.dirty = True
         self.log("output written", entry)
         return entry
+
+    def discard_unsaved(self) -> list[str]:
+        """The user discarded the changes since the last save: the reconstructions made since
+        then (in the project's ``reconstructions/`` folder, not in the saved record) are
+        removed with the calibration kept beside each, and the log says so. The log itself is
+        never rewritten: what was done stays recorded, followed by this entry. Returns the
+        removed paths, relative to the project folder."""
+        if self.root is None:
+            return []
+        saved = {o.get("relative_path") for o in (self._saved_doc or {}).get("outputs", [])}
+        base = (self.root / "reconstructions").resolve()
+        removed: list[str] = []
+        for entry in list(self.outputs):
+            if entry.get("kind") != "reconstruction" or entry.get("relative_path") in saved:
+                continue
+            folder = Path(entry["path"]).parent
+            if folder.parent != base or folder.is_symlink() or not folder.is_dir():
+                continue
+            shutil.rmtree(folder)
+            removed.append(self._relative(folder))
+            cal = folder.with_name(folder.name + ".calibration.json")
+            if cal.is_file() and not cal.is_symlink():
+                cal.unlink()
+                removed.append(self._relative(cal))
+        self.log("unsaved changes discarded", {"removed": removed})
+        self.dirty = False
+        return removed
 
     def add_measurement(self, measurement: dict) -> None:
         dumps_json(measurement)
