@@ -3,6 +3,8 @@
 - :func:`colourise` - heights to RGB through a 256-entry colour table (NaN = no data, black);
 - :func:`figure` - a map as seen from above (as ``texture.png``: row 0 at the top) with title,
   axes in mm, measurement overlay, scale bar, the rail's direction and a colour bar in mm;
+- :func:`profile_figure` - a depth profile (distance along the ruler vs height, in mm) with
+  title, case lines, ticked and labelled axes and the reference bands;
 - :func:`report_html` - one self-contained HTML file (images embedded) with the case data,
   every measurement, the calibration's quality figures, the software version and input hashes.
 """
@@ -77,9 +79,12 @@ def figure(
     measurements: Sequence[Mapping] = (),
     max_px: int = MAX_FIGURE_PX,
     unit_label: str = "height (mm)",
+    legend: Sequence[tuple[Sequence[int], str]] = (),
+    legend_title: str = "",
 ) -> np.ndarray:
     """An RGB figure of the whole map with axes in mm, scale bar, the rail's direction and,
-    for heights, a colour bar.
+    for heights, a colour bar (for an RGB map, ``legend``: ``(colour, meaning)`` pairs under
+    ``legend_title``). The title spans the whole figure, wrapped over lines when long.
 
     The map is drawn as the camera sees the ground from above, as ``texture.png`` is stored
     and as the viewer shows it: grid row 0 at the top, y (the carriage's motion, +Y)
@@ -176,7 +181,7 @@ def figure(
     )
     middle = np.concatenate([left, img], axis=1)
     w_all = middle.shape[1]
-    # bottom strip: scale bar and the rail's direction; top strip: title; right: colour bar
+    # bottom strip: scale bar and the rail's direction; right: colour bar or legend
     strip = int(60 * scale) + 10
     bar_mm = nice_length(0.25 * w * mm_per_px)
     bar_px = max(1, int(round(bar_mm / mm_per_px)))
@@ -210,44 +215,252 @@ def figure(
         scale * 0.8,
         thick=thick,
     )
-    top = np.full((strip, w_all, 3), 255, np.uint8)
-    _text(top, title[:160], (int(10 * scale), int(strip * 0.65)), scale, thick=thick)
-    out = np.concatenate([top, middle, axis_row, bottom], axis=0)
+    body = np.concatenate([middle, axis_row, bottom], axis=0)
+    below = axis_row.shape[0] + bottom.shape[0]
+    # the colour bar's label (or the legend's heading) has a row of its own above the map,
+    # under the title: it never meets the title nor the bar
+    head_h = text_h * 3 + int(24 * scale)
+    body = np.concatenate([np.full((head_h, w_all, 3), 255, np.uint8), body], axis=0)
     if height is not None and lut is not None and vrange is not None:
-        below = axis_row.shape[0] + bottom.shape[0]
-        out = np.concatenate(
-            [out, _colour_bar(out.shape[0], strip, below, lut, vrange, scale, thick, unit_label)],
+        body = np.concatenate(
+            [
+                body,
+                _colour_bar(body.shape[0], head_h, below, lut, vrange, scale, thick, unit_label),
+            ],
             axis=1,
         )
-    return out
+    elif legend:
+        body = np.concatenate(
+            [body, _legend(body.shape[0], head_h, legend, legend_title, scale, thick)], axis=1
+        )
+    return np.concatenate([_title_rows(title, body.shape[1], scale, thick), body], axis=0)
+
+
+def _wrap(text: str, width_px: int, scale: float, thick: int) -> list[str]:
+    """``text`` in lines at most ``width_px`` wide (broken at spaces; a longer word alone)."""
+    import cv2
+
+    lines: list[str] = []
+    for word in text.split():
+        trial = f"{lines[-1]} {word}" if lines else word
+        if (
+            lines
+            and cv2.getTextSize(trial, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)[0][0] <= width_px
+        ):
+            lines[-1] = trial
+        else:
+            lines.append(word)
+    return lines or [""]
+
+
+def _title_rows(title: str, width: int, scale: float, thick: int) -> np.ndarray:
+    """The title over the whole figure's width, wrapped so that it is never cut off."""
+    import cv2
+
+    margin = int(10 * scale) + 2
+    t_scale = scale * 1.1
+    lines = _wrap(title[:400], width - 2 * margin, t_scale, thick)
+    (_tw, th), base = cv2.getTextSize("Ag", cv2.FONT_HERSHEY_SIMPLEX, t_scale, thick)
+    line_h = th + base + int(10 * scale)
+    rows = np.full((line_h * len(lines) + int(16 * scale) + 4, width, 3), 255, np.uint8)
+    for k, line in enumerate(lines):
+        _text(rows, line, (margin, int(12 * scale) + th + k * line_h), t_scale, thick=thick)
+    return rows
 
 
 def _colour_bar(
-    total_h: int, strip: int, below: int, lut, vrange, scale: float, thick: int, unit_label: str
+    total_h: int, top: int, below: int, lut, vrange, scale: float, thick: int, unit_label: str
 ) -> np.ndarray:
-    """The colour bar beside the map: ``strip`` rows above it, ``below`` rows under it."""
+    """The colour bar beside the map: ``top`` rows above it (where its label is written, clear
+    of the bar), ``below`` rows under it."""
+    import cv2
+
+    font = cv2.FONT_HERSHEY_SIMPLEX
     bw = int(30 * scale) + 6
-    panel = np.full((total_h, bw + int(130 * scale), 3), 255, np.uint8)
-    a, b = strip + 5, total_h - below - 5
+    lo, hi = vrange
+    labels = [f"{lo + i / 5 * (hi - lo):.2f}" for i in range(6)]
+    tick_w = max(cv2.getTextSize(t, font, scale * 0.9, thick)[0][0] for t in labels)
+    label_w = cv2.getTextSize(unit_label, font, scale * 0.8, thick)[0][0]
+    width = max(bw + int(12 * scale) + tick_w, label_w + 6) + int(14 * scale)
+    panel = np.full((total_h, width, 3), 255, np.uint8)
+    a, b = top, total_h - below - 5
     n = max(2, b - a)
     idx = np.linspace(255, 0, n).astype(np.uint8)
     panel[a : a + n, 6 : 6 + bw - 6] = np.asarray(lut, np.uint8)[:, :3][idx][:, None, :]
-    lo, hi = vrange
-    for i in range(6):
-        frac = i / 5
-        y = int(round(a + (1 - frac) * (n - 1)))
+    for i, text in enumerate(labels):
+        y = int(round(a + (1 - i / 5) * (n - 1)))
         panel[max(0, y - thick // 2) : y + thick // 2 + 1, bw : bw + int(8 * scale)] = 0
+        _text(panel, text, (bw + int(12 * scale), y + int(6 * scale)), scale * 0.9, thick=thick)
+    # above the top tick's label, with a gap
+    tick_h = cv2.getTextSize("0", font, scale * 0.9, thick)[0][1]
+    _text(panel, unit_label, (4, top - tick_h - int(10 * scale)), scale * 0.8, thick=thick)
+    return panel
+
+
+def _legend(
+    total_h: int,
+    top: int,
+    entries: Sequence[tuple[Sequence[int], str]],
+    heading: str,
+    scale: float,
+    thick: int,
+) -> np.ndarray:
+    """A legend beside the map: one colour swatch and its meaning a line, from the map's top."""
+    import cv2
+
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    sw = int(26 * scale) + 4
+    th = cv2.getTextSize("Ag", font, scale * 0.8, thick)[0][1]
+    widest = max(
+        [cv2.getTextSize(t, font, scale * 0.8, thick)[0][0] for _c, t in entries]
+        + [cv2.getTextSize(heading, font, scale * 0.8, thick)[0][0] - sw]
+    )
+    panel = np.full((total_h, sw + widest + int(30 * scale) + 8, 3), 255, np.uint8)
+    _text(panel, heading, (6, top - int(12 * scale)), scale * 0.8, thick=thick)
+    y = top
+    for colour, text in entries:
+        c = tuple(int(v) for v in colour[:3])
+        cv2.rectangle(panel, (6, y), (6 + sw, y + sw), c, -1)
+        cv2.rectangle(panel, (6, y), (6 + sw, y + sw), (90, 90, 90), 1)
+        _text(panel, text, (6 + sw + int(10 * scale), y + (sw + th) // 2), scale * 0.8, thick=thick)
+        y += sw + int(12 * scale)
+    return panel
+
+
+#: the reference bands' colours (RGB), as the viewer draws them
+BAND_RGB = {"A": (60, 140, 255), "B": (255, 150, 30)}
+
+
+def profile_figure(
+    distance_mm: np.ndarray,
+    height_mm: np.ndarray,
+    *,
+    title: str = "",
+    lines: Sequence[str] = (),
+    bands: Mapping[str, tuple[float, float]] | None = None,
+    band_means: Mapping[str, float] | None = None,
+    size: tuple[int, int] = (2000, 1000),
+) -> np.ndarray:
+    """An RGB figure of a depth profile: height (mm) against the distance along the ruler (mm),
+    with ``title`` and the text ``lines`` (case, evidence, source...) above it, both axes
+    ticked and labelled with their units, a light grid, and the reference ``bands`` (A, B:
+    distances along the ruler) shaded with their means (``band_means``) when placed."""
+    import cv2
+
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    width, height = int(size[0]), int(size[1])
+    scale = max(0.5, width / 2000)
+    thick = max(1, int(round(scale * 1.6)))
+    d = np.asarray(distance_mm, np.float64)
+    z = np.asarray(height_mm, np.float64)
+    ok = np.isfinite(d) & np.isfinite(z)
+    head = [(title, scale * 1.1)] + [(t, scale * 0.75) for t in lines]
+    wrapped = [(ln, sc) for t, sc in head for ln in _wrap(t, width - 40, sc, thick)]
+    heights = [cv2.getTextSize("Ag", font, sc, thick) for _t, sc in wrapped]
+    top = int(20 * scale) + sum(th + base + int(12 * scale) for (_w, th), base in heights)
+    tick_scale = scale * 0.8
+    th_tick = cv2.getTextSize("0", font, tick_scale, thick)[0][1]
+    # the plot's ranges: the data's, padded; the distance from 0 to the ruler's end
+    x_lo, x_hi = 0.0, float(d[ok].max()) if ok.any() else 1.0
+    if ok.any():
+        z_lo, z_hi = float(z[ok].min()), float(z[ok].max())
+    else:
+        z_lo, z_hi = -1.0, 1.0
+    for m in (band_means or {}).values():
+        if math.isfinite(m):
+            z_lo, z_hi = min(z_lo, m), max(z_hi, m)
+    pad = max(0.05 * (z_hi - z_lo), 0.05)
+    z_lo, z_hi = z_lo - pad, z_hi + pad
+    x_hi = x_hi if x_hi > x_lo else x_lo + 1.0
+    y_ticks = _ticks(z_lo, z_hi, 6)
+    x_ticks = _ticks(x_lo, x_hi, 10)
+    y_w = max(
+        [cv2.getTextSize(_tick_text(v), font, tick_scale, thick)[0][0] for v in y_ticks] + [1]
+    )
+    left = int(40 * scale) + th_tick + y_w + int(24 * scale)
+    right = int(40 * scale)
+    bottom = th_tick * 3 + int(50 * scale)
+    plot_top = top + th_tick + int(24 * scale)  # the bands' labels above the frame
+    img = np.full((height, width, 3), 255, np.uint8)
+    pw, ph = width - left - right, height - plot_top - bottom
+    if pw < 20 or ph < 20:
+        raise ValueError("the profile figure is too small")
+
+    def px(x: float, y: float) -> tuple[int, int]:
+        return (
+            int(round(left + (x - x_lo) / (x_hi - x_lo) * pw)),
+            int(round(plot_top + (z_hi - y) / (z_hi - z_lo) * ph)),
+        )
+
+    y = int(16 * scale)
+    for (t, sc), ((_w, th), base) in zip(wrapped, heights):
+        y += th
+        _text(img, t, (20, y), sc, thick=thick)
+        y += base + int(12 * scale)
+    for name, band in (bands or {}).items():
+        colour = BAND_RGB.get(name, (150, 150, 150))
+        lo, hi = sorted(band)
+        (x0, _), (x1, _) = px(max(lo, x_lo), 0), px(min(hi, x_hi), 0)
+        roi = img[plot_top : plot_top + ph, x0 : x1 + 1]
+        roi[:] = (0.8 * roi + 0.2 * np.array(colour)).astype(np.uint8)
+        for xb in (x0, x1):
+            cv2.line(img, (xb, plot_top), (xb, plot_top + ph), colour, thick)
+        m = (band_means or {}).get(name)
+        label = name if m is None or not math.isfinite(m) else f"{name}: {m:.3f} mm"
+        if m is not None and math.isfinite(m):
+            ym = px(0, m)[1]
+            cv2.line(img, (x0, ym), (x1, ym), colour, thick + 1, cv2.LINE_AA)
+        _text(img, label, (x0, plot_top - int(10 * scale)), tick_scale, colour, thick)
+    grid = (225, 225, 225)
+    for v in x_ticks:
+        xp = px(v, 0)[0]
+        cv2.line(img, (xp, plot_top), (xp, plot_top + ph), grid, 1)
+        cv2.line(img, (xp, plot_top + ph), (xp, plot_top + ph + int(8 * scale)), (0, 0, 0), thick)
+        tw = cv2.getTextSize(_tick_text(v), font, tick_scale, thick)[0][0]
         _text(
-            panel,
-            f"{lo + frac * (hi - lo):.2f}",
-            (bw + int(12 * scale), y + int(6 * scale)),
-            scale * 0.9,
+            img,
+            _tick_text(v),
+            (xp - tw // 2, plot_top + ph + int(14 * scale) + th_tick),
+            tick_scale,
             thick=thick,
         )
-    _text(
-        panel, unit_label, (4, max(int(20 * scale), a - int(32 * scale))), scale * 0.8, thick=thick
-    )
-    return panel
+    for v in y_ticks:
+        yp = px(0, v)[1]
+        cv2.line(img, (left, yp), (left + pw, yp), grid, 1)
+        cv2.line(img, (left - int(8 * scale), yp), (left, yp), (0, 0, 0), thick)
+        tw = cv2.getTextSize(_tick_text(v), font, tick_scale, thick)[0][0]
+        _text(
+            img,
+            _tick_text(v),
+            (left - int(14 * scale) - tw, yp + th_tick // 2),
+            tick_scale,
+            thick=thick,
+        )
+    # the curve, broken where there is no data
+    pts = np.array([px(a, b) for a, b in zip(d, np.nan_to_num(z))], np.int32).reshape(-1, 2)
+    run: list[int] = []
+    for k in range(len(d) + 1):
+        if k < len(d) and ok[k]:
+            run.append(k)
+            continue
+        if len(run) >= 2:
+            cv2.polylines(img, [pts[run]], False, (0, 0, 0), thick, cv2.LINE_AA)
+        elif len(run) == 1:
+            cv2.circle(img, tuple(int(v) for v in pts[run[0]]), thick, (0, 0, 0), -1)
+        run = []
+    cv2.rectangle(img, (left, plot_top), (left + pw, plot_top + ph), (0, 0, 0), thick)
+    x_title = "distance along the ruler (mm)"
+    tw = cv2.getTextSize(x_title, font, tick_scale, thick)[0][0]
+    _text(img, x_title, (left + (pw - tw) // 2, height - int(16 * scale)), tick_scale, thick=thick)
+    y_title = "height (mm)"
+    (tw, th), base = cv2.getTextSize(y_title, font, tick_scale, thick)
+    lab = np.full((th + base + 4, tw + 4, 3), 255, np.uint8)
+    _text(lab, y_title, (2, th + 2), tick_scale, thick=thick)
+    lab = np.rot90(lab)
+    r0 = plot_top + max(0, (ph - lab.shape[0]) // 2)
+    if r0 + lab.shape[0] <= height:
+        img[r0 : r0 + lab.shape[0], int(12 * scale) : int(12 * scale) + lab.shape[1]] = lab
+    return img
 
 
 def png_bytes(rgb: np.ndarray, provenance: Mapping | None = None) -> bytes:

@@ -215,13 +215,16 @@ class ParamsPanel(QGroupBox):
 
 class LutView(pg.GraphicsLayoutWidget):
     """The background lookup tables: for each laser, the largest laser-channel value seen in
-    the background for each pair of the other two channels (black: never seen)."""
+    the background for each pair of the other two channels (black: never seen). The axes start
+    at 0 (a channel value / 4 is never negative); the colour bar gives the values' scale."""
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.setMinimumHeight(220)
         self.items: dict[str, pg.ImageItem] = {}
+        self.plots: dict[str, pg.PlotItem] = {}
         axes = {"green": ("red", "blue"), "red": ("green", "blue")}
+        cmap = pg.colormap.get("inferno")
         for name in LASERS:
             p = self.addPlot(
                 title=f"{name}: max {name[0].upper()} over ({axes[name][0][0].upper()}"
@@ -229,16 +232,39 @@ class LutView(pg.GraphicsLayoutWidget):
             )
             p.setLabel("bottom", f"{axes[name][1]} / 4")
             p.setLabel("left", f"{axes[name][0]} / 4")
-            p.setAspectLocked(True)
+            # not aspect-locked: the view is exactly the table, 0 at the axes' origin
+            p.setMenuEnabled(False)
             item = pg.ImageItem(axisOrder="row-major")
-            item.setLookupTable(pg.colormap.get("inferno").getLookupTable(nPts=256))
+            item.setLookupTable(cmap.getLookupTable(nPts=256))
+            item.setLevels((0, 255))
             p.addItem(item)
             self.items[name] = item
+            self.plots[name] = p
+        self.colour_bar = pg.ColorBarItem(
+            values=(0, 255),
+            colorMap=cmap,
+            label="max laser-channel value (0-255)",
+            interactive=False,
+        )
+        self.colour_bar.setImageItem(list(self.items.values()))
+        self.addItem(self.colour_bar)
+        self._fit((64, 64))
+
+    def _fit(self, shape: tuple[int, int]) -> None:
+        """Show the tables from 0 to their size on both axes, no negative range."""
+        h, w = int(shape[0]), int(shape[1])
+        for p in self.plots.values():
+            p.getViewBox().setLimits(xMin=0, yMin=0, xMax=max(1, w), yMax=max(1, h))
+            p.setRange(xRange=(0, max(1, w)), yRange=(0, max(1, h)), padding=0)
 
     def set_tables(self, tables: dict[str, np.ndarray]) -> None:
+        shape = None
         for name, t in tables.items():
             img = np.where(t < 0, 0, t).astype(np.float32)
             self.items[name].setImage(img, autoLevels=False, levels=(0, 255))
+            shape = img.shape[:2]
+        if shape is not None:
+            self._fit(shape)
 
 
 class GrowingMap(pg.PlotWidget):

@@ -11,13 +11,19 @@ from pathlib import Path
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QBuffer, QByteArray, QIODevice, QObject, Signal
+from PySide6.QtCore import QObject, Signal
 from PySide6.QtWidgets import QWidget
 
 from impress_gui.core.base.fileio import atomic_write_bytes
 from impress_gui.core.formats import images
 from impress_gui.core.formats import provenance as P
-from impress_gui.core.formats.figures import colourise, figure, png_bytes, report_html
+from impress_gui.core.formats.figures import (
+    colourise,
+    figure,
+    png_bytes,
+    profile_figure,
+    report_html,
+)
 from impress_gui.core.formats.writers import ply_bytes, x3p_bytes
 from impress_gui.core.measure import readings as M
 from impress_gui.core.reconstruction.grid import GridSpec
@@ -26,6 +32,7 @@ from impress_gui.ui.messages import Dialogs, Messenger
 from impress_gui.ui.task_bar import TaskBar
 from impress_gui.ui.viewer.image import auto_levels
 from impress_gui.ui.viewer.layers import SCALAR_LAYERS, LayerDisplay
+from impress_gui.ui.viewer.map import CONTRIBUTION_LEGEND
 from impress_gui.ui.viewer.ruler import RulerProfile
 from impress_gui.ui.viewer.view3d import Surface3DWindow
 
@@ -282,8 +289,18 @@ class ViewerExports(QObject):
                 measurements=ms,
                 max_px=max_px,
             ), params
+        legend = CONTRIBUTION_LEGEND if key == "contribution" else ()
+        heading = "Which laser measured the cell" if legend else ""
         return (
-            lambda max_px=6000: figure(spec, rgb=rgb, title=title, measurements=ms, max_px=max_px)
+            lambda max_px=6000: figure(
+                spec,
+                rgb=rgb,
+                title=title,
+                measurements=ms,
+                max_px=max_px,
+                legend=legend,
+                legend_title=heading,
+            )
         ), {"layer": key}
 
     def export_png(self, path=None) -> bool:
@@ -318,14 +335,46 @@ class ViewerExports(QObject):
             }
         return self.provenance(export, params)
 
-    def profile_png_bytes(self) -> bytes:
-        pix = self.profile_view.grab()
-        arr = QByteArray()
-        buf = QBuffer(arr)
-        buf.open(QIODevice.OpenModeFlag.WriteOnly)
-        pix.save(buf, "PNG")
-        buf.close()
-        return bytes(arr.data())
+    def profile_maker(self):
+        """A function ``() -> RGB figure`` of the ruler's profile (title, case and evidence,
+        the reconstruction, the ruler's ends and width, axes in mm, the placed bands and their
+        step), everything captured here on the GUI thread; None without a profile."""
+        pr, ruler = self.ruler.profile, self.ruler
+        if pr is None:
+            return None
+        proj, data = self.session.project, self.recon.data
+        levelled = self.recon.plane is not None
+        folder = "-" if data is None or data.folder is None else str(data.folder)
+        layer = self.layers.measure_key()
+        lines = [
+            f"Case {proj.case_id or '-'}, evidence {proj.evidence_id or '-'}"
+            + (f", examiner {proj.examiner}" if getattr(proj, "examiner", "") else ""),
+            f"Reconstruction: {folder}",
+            f"Layer {layer}" + (" (levelled)" if levelled else "")
+            + f"; ruler from ({pr.start[0]:.2f}, {pr.start[1]:.2f}) to ({pr.end[0]:.2f}, "
+            f"{pr.end[1]:.2f}) mm, {pr.length_mm:.2f} mm long, averaged over "
+            f"{pr.width_mm:.2f} mm",
+        ]
+        bands = dict(ruler.plot.placed_bands()) if ruler.plot.bands_placed() else {}
+        means = {}
+        s = ruler.step
+        if bands and s is not None:
+            means = {"A": s.a.mean_mm, "B": s.b.mean_mm}
+            lines.append(
+                f"Band A {s.a.mean_mm:.3f} +- {s.a.sd_mm:.3f} mm (n {s.a.n}), band B "
+                f"{s.b.mean_mm:.3f} +- {s.b.sd_mm:.3f} mm (n {s.b.n}); step B - A "
+                f"{s.difference_mm:+.3f} +- {s.sd_mm:.3f} mm"
+            )
+        d, z = np.array(pr.distance_mm), np.array(pr.height_mm)
+        return lambda: profile_figure(
+            d, z, title="Depth profile along the ruler", lines=lines, bands=bands,
+            band_means=means,
+        )
+
+    def profile_png_bytes(self, provenance: dict | None = None) -> bytes | None:
+        """The profile figure as PNG (with ``provenance``'s text chunks); None without one."""
+        make = self.profile_maker()
+        return None if make is None else png_bytes(make(), provenance)
 
     def export_profile_png(self, path=None) -> bool:
         if self.ruler.profile is None:
@@ -333,11 +382,8 @@ class ViewerExports(QObject):
             return False
         if not (p := self._path(path, "Export the profile plot", "png", ".png")):
             return False
-        data = P.png_with_text(
-            self.profile_png_bytes(),
-            P.png_provenance_text(self._profile_provenance("profile-png")),
-        )
-        return self._write("profile PNG", p, "profile-png", lambda: data)
+        make, prov = self.profile_maker(), self._profile_provenance("profile-png")
+        return self._write("profile PNG", p, "profile-png", lambda: png_bytes(make(), prov))
 
     def export_measurements_csv(self, path=None) -> bool:
         if not (p := self._path(path, "Export the measurements", "csv", ".csv")):
@@ -413,7 +459,7 @@ class ViewerExports(QObject):
             "project": str(proj.root or "not saved"),
             "signature": _case_signature(proj),
         }
-        profile_png = self.profile_png_bytes() if self.ruler.profile is not None else None
+        profile_fig = self.profile_maker()
         measurements = [dict(m) for m in proj.measurements]
         fig = self.figure_maker()
 
@@ -424,8 +470,8 @@ class ViewerExports(QObject):
                     png_bytes(fig(max_px=2400)),
                 )
             ]
-            if profile_png is not None:
-                images.append(("Depth profile along the ruler", profile_png))
+            if profile_fig is not None:
+                images.append(("Depth profile along the ruler", png_bytes(profile_fig())))
             return report_html(
                 case=case,
                 reconstruction=recon,

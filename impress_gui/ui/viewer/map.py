@@ -20,6 +20,7 @@ import pyqtgraph as pg
 from PySide6.QtCore import QPoint, QPointF, QRectF, Qt, Signal
 from PySide6.QtWidgets import QWidget
 
+from impress_gui.core.formats.writers import contribution_png
 from impress_gui.core.reconstruction.grid import GridSpec
 from impress_gui.ui.frame_view import PassiveScatter
 from impress_gui.ui.viewer.image import LodImage
@@ -31,6 +32,29 @@ MARK_COLOUR = (255, 60, 220)
 RAIL_TEXT = "Seen from above as the camera sees it · x → · rail motion (+y) ↓"
 X_LABEL = "x (mm)"
 Y_LABEL = "y (mm), increasing downwards: rail motion"
+#: what the contribution layer's codes mean (the codes of ``grid.fuse``)
+CONTRIBUTION_MEANING = {
+    1: "green laser only",
+    2: "red laser only",
+    3: "both lasers, agreeing (mean)",
+    4: "both, disagreeing (nearer one kept)",
+    0: "no data",
+}
+#: the contribution layer's colours (RGB, as drawn) and their meaning, for its legends
+CONTRIBUTION_LEGEND: tuple[tuple[tuple[int, int, int], str], ...] = tuple(
+    (tuple(int(v) for v in contribution_png(np.array([code]))[0]), text)
+    for code, text in CONTRIBUTION_MEANING.items()
+)
+
+
+def legend_html(entries=CONTRIBUTION_LEGEND, heading: str = "Which laser measured the cell") -> str:
+    """A legend as rich text: a coloured square and its meaning per line."""
+    rows = "".join(
+        f"<tr><td style='background-color: rgb{tuple(c)}; border: 1px solid #777'>"
+        f"&nbsp;&nbsp;&nbsp;&nbsp;</td><td>&nbsp;{text}</td></tr>"
+        for c, text in entries
+    )
+    return f"<b>{heading}</b><table cellspacing='2'>{rows}</table>"
 
 
 class _MapViewBox(pg.ViewBox):

@@ -23,6 +23,8 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from impress_gui.ui.viewer.map import legend_html
+
 LAYERS = (
     ("fused", "Heightmap (fused)"),
     ("green", "Green laser heightmap"),
@@ -115,6 +117,13 @@ class DisplayPanel(QGroupBox):
         g.addWidget(QLabel("Light az/elev"), 4, 0)
         g.addWidget(self.azimuth, 4, 1)
         g.addWidget(self.elevation, 4, 2)
+        # the contribution layer's legend: which laser each colour stands for
+        self.legend = QLabel(legend_html())
+        self.legend.setTextFormat(Qt.TextFormat.RichText)
+        self.legend.setWordWrap(True)
+        self.legend.setVisible(False)
+        g.addWidget(self.legend, 5, 0, 1, 4)
+        self.layer_changed.connect(lambda key: self.legend.setVisible(key == "contribution"))
 
     def layer_key(self) -> str:
         return str(self.layer.currentData())
