@@ -184,3 +184,31 @@ def test_lut_plots_start_at_zero_with_a_colour_bar(qtbot):
         assert x0 >= 0 and y0 >= 0 and x1 >= 63 and y1 >= 63
     assert len(bars) == 1 and bars[0].isVisible()
     assert tuple(bars[0].levels()) == (0, 255)
+
+
+def test_the_viewer_colour_bar_label_stays_beside_the_bar(qtbot):
+    """Difference after contribution (the bar hidden, then shown with a new label): the label
+    beside the bar, not over it."""
+    from test_gui_viewer import make_viewer  # noqa: F401 - guards PySide as that module does
+
+    from impress_gui.ui.viewer.map import MapView
+
+    m = MapView()
+    qtbot.addWidget(m)
+    m.resize(1000, 650)
+    m.show()
+    qtbot.waitExposed(m)
+    m.set_spec(GridSpec(0.0, 0.0, 1.0, (100, 100)))
+    a = np.random.default_rng(1).random((100, 100)).astype(np.float32)
+    try:
+        m.show_scalar(a, (0.0, 1.0), "turbo")
+        m.show_rgb(contribution_png(np.full((100, 100), 3, np.uint8)), nearest=True)
+        m.show_scalar(a, (-0.4, 0.3), "turbo", "green - red (mm)")
+        qtbot.wait(100)
+        axis = m.colour_bar.getAxis("left")
+        assert axis.width() > 5
+        label = axis.label.mapRectToScene(axis.label.boundingRect())
+        bar = m.colour_bar.bar.sceneBoundingRect()
+        assert label.right() <= bar.left() + 1, (label, bar)
+    finally:
+        m.shutdown()

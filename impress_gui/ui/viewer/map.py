@@ -161,8 +161,10 @@ class MapView(pg.GraphicsLayoutWidget):
     ) -> None:
         self.rgb.set_data(None, None)
         self.colour_bar.setColorMap(pg.colormap.get(cmap))
-        self.colour_bar.setLabel("left", label)
+        # shown before it is labelled: an axis labelled while hidden keeps a width of 0 and
+        # its label is drawn over the bar
         self.colour_bar.show()
+        self.colour_bar.setLabel("left", label)
         self.colour_bar.setLevels(levels)
         self.scalar.set_data(arr, self.spec, levels)
 
