@@ -212,3 +212,21 @@ def test_the_viewer_colour_bar_label_stays_beside_the_bar(qtbot):
         assert label.right() <= bar.left() + 1, (label, bar)
     finally:
         m.shutdown()
+
+
+def test_report_shows_parameters_as_tables_not_python_dicts():
+    """The case report printed the processing parameters as raw Python dicts (issue 21, item
+    12): a mapping is a small table, a list its items, a flag yes/no; the text is escaped."""
+    from impress_gui.core.formats.figures import report_html
+
+    html = report_html(
+        case={"case_id": "C-1", "evidence_id": "E-2"},
+        reconstruction={"parameters": {"method": "combined", "grid_mm": 0.1, "texture": True,
+                                       "rois": {"green": [600, 800]}},
+                        "frames": [12, 480], "note": "<b>x</b>"},
+        calibration=None, measurements=[], images=[], inputs={}, created_utc="2026-11-24",
+    )
+    assert "{'" not in html and "[600" not in html
+    assert "<table class='inner'><tr><th>method</th><td>combined</td></tr>" in html
+    assert "<th>texture</th><td>yes</td>" in html and "<th>grid mm</th><td>0.1000</td>" in html
+    assert "<td>12, 480</td>" in html and "&lt;b&gt;x&lt;/b&gt;" in html

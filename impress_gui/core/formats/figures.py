@@ -488,7 +488,7 @@ REPORT_TEMPLATE = """\
 <style>body{font-family:sans-serif;margin:2em;color:#111}table{border-collapse:collapse;\
 margin:0.5em 0 1.5em}th,td{border:1px solid #bbb;padding:3px 8px;text-align:left;\
 font-size:90%}th{background:#eee}img{max-width:100%;border:1px solid #ccc}\
-h2{border-bottom:2px solid #333;margin-top:1.6em}</style></head><body>
+h2{border-bottom:2px solid #333;margin-top:1.6em}table.inner{margin:0}</style></head><body>
 <h1>IMPREsS impression scan report</h1>
 <p>Generated {{ created_utc }} by IMPREsS workstation {{ version }}.</p>
 <h2>Case</h2><table>
@@ -534,12 +534,28 @@ else signature.get(key)) }}
 </body></html>"""
 
 
-def _v(value) -> str:
-    """A value as the report shows it: '-' for none, floats to 4 decimals."""
+def _v(value):
+    """A value as the report shows it: '-' for none, floats to 4 decimals, a list as its items
+    separated by commas, a mapping (the processing parameters, a region) as a small table of
+    its own - never as Python's text of a dict."""
+    from markupsafe import Markup, escape
+
     if value is None:
         return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:.4f}" if math.isfinite(value) else "-"
+    if isinstance(value, Mapping):
+        if not value:
+            return "-"
+        rows = "".join(
+            f"<tr><th>{escape(str(k).replace('_', ' '))}</th><td>{escape(_v(v))}</td></tr>"
+            for k, v in value.items()
+        )
+        return Markup(f"<table class='inner'>{rows}</table>")
+    if isinstance(value, (list, tuple)):
+        return ", ".join(str(_v(x)) for x in value) if value else "-"
     return str(value)
 
 
