@@ -340,3 +340,30 @@ def test_exports_report_and_3d_view(qtbot, viewer, slot, tmp_path):
             win.view, Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier, ev_pos
         )
     assert win.frames > frames and not math.isclose(win.azimuth, 200.0)
+
+
+def test_the_case_report_as_pdf(qtbot, viewer, slot, tmp_path):
+    """The case report as a PDF (issue 21, item 12), read back with pypdf (not ours): real text
+    with the case, the measurement and the heightmap's SHA-256, the figures embedded, the
+    parameters as readable rows (no Python dict), recorded as an output."""
+    import pypdf
+
+    v, y = viewer, slot["y"]
+    v.project.case_id = "C-PDF-7"
+    with qtbot.waitSignal(v.profile_changed, timeout=10000):
+        v.set_ruler((slot["left"] - 5.0, y), (slot["right"] + 5.0, y))
+    v.add_ruler_measurement("slot width")
+    with qtbot.waitSignal(
+        v.tasks.done, timeout=60000, check_params_cb=lambda _w, outcome: outcome == "finished"
+    ):
+        assert v.actions.export_report_pdf(tmp_path / "report")
+    path = tmp_path / "report.pdf"
+    reader = pypdf.PdfReader(path)
+    # the words as laid out (table cells wrap; the extracted text has spaces where lines broke)
+    text = "".join("".join(page.extract_text() for page in reader.pages).split())
+    assert "C-PDF-7" in text and "slotwidth" in text
+    assert v.data.metadata["files"]["heightmap.tif"][:16] in text
+    assert "{'" not in text
+    assert sum(len(page.images) for page in reader.pages) >= 2  # the map and the profile
+    assert reader.metadata.title == "IMPREsS report C-PDF-7"
+    assert v.project.outputs[-1]["kind"] == "report-pdf"

@@ -405,10 +405,10 @@ def profile_figure(
         roi[:] = (0.8 * roi + 0.2 * np.array(colour)).astype(np.uint8)
         for xb in (x0, x1):
             cv2.line(img, (xb, plot_top), (xb, plot_top + ph), colour, thick)
-        m = (band_means or {}).get(name)
-        label = name if m is None or not math.isfinite(m) else f"{name}: {m:.3f} mm"
-        if m is not None and math.isfinite(m):
-            ym = px(0, m)[1]
+        mean = (band_means or {}).get(name)
+        label = name if mean is None or not math.isfinite(mean) else f"{name}: {mean:.3f} mm"
+        if mean is not None and math.isfinite(mean):
+            ym = px(0, mean)[1]
             cv2.line(img, (x0, ym), (x1, ym), colour, thick + 1, cv2.LINE_AA)
         _text(img, label, (x0, plot_top - int(10 * scale)), tick_scale, colour, thick)
     grid = (225, 225, 225)

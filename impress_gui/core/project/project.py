@@ -363,11 +363,11 @@ class Project:
             if folder.parent != base or folder.is_symlink() or not folder.is_dir():
                 continue
             shutil.rmtree(folder)
-            removed.append(self._relative(folder))
+            removed.append(str(self._relative(folder) or folder))
             cal = folder.with_name(folder.name + ".calibration.json")
             if cal.is_file() and not cal.is_symlink():
                 cal.unlink()
-                removed.append(self._relative(cal))
+                removed.append(str(self._relative(cal) or cal))
         self.log("unsaved changes discarded", {"removed": removed})
         self.dirty = False
         return removed

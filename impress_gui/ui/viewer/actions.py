@@ -44,6 +44,7 @@ FILTERS = {
     "png": "PNG image (*.png)",
     "csv": "CSV (*.csv)",
     "html": "HTML report (*.html)",
+    "pdf": "PDF report (*.pdf)",
 }
 
 
@@ -394,10 +395,30 @@ class ViewerExports(QObject):
 
     # ----- report --------------------------------------------------------------------------------
     def export_report(self, path=None) -> bool:
+        """The case report as one self-contained HTML file."""
         if not self._need_data() or not (
             p := self._path(path, "Write the report", "html", ".html")
         ):
             return False
+        make = self._report_maker()
+        return self._write("report", p, "report-html", lambda: make().encode("utf-8"))
+
+    def export_report_pdf(self, path=None) -> bool:
+        """The same case report as an A4 PDF (text and figures; courts and case files)."""
+        if not self._need_data() or not (
+            p := self._path(path, "Write the report as PDF", "pdf", ".pdf")
+        ):
+            return False
+        from impress_gui.ui.pdf import html_to_pdf
+
+        make = self._report_maker()
+        title = f"IMPREsS report {self.session.project.case_id or ''}".strip()
+        return self._write("report", p, "report-pdf",
+                           lambda: html_to_pdf(make(), title, P.SOFTWARE))
+
+    def _report_maker(self):
+        """What the report shows, gathered now (GUI thread); returns the function that renders
+        its HTML (in the worker)."""
         proj, data, plane = self.session.project, self.recon.data, self.recon.plane
         meta = dict(data.metadata)
         cal = proj.calibration
@@ -435,8 +456,8 @@ class ViewerExports(QObject):
             "software": meta.get("software", ""),
             "grid": f"{g.shape[1]} x {g.shape[0]} cells of {g.pixel_mm} mm, origin "
             f"({g.x0_mm:.2f}, {g.y0_mm:.2f}) mm",
-            "frames": str(meta.get("frames", "")),
-            "parameters": str(meta.get("parameters", "")),
+            "frames": meta.get("frames", ""),
+            "parameters": meta.get("parameters", ""),
             "height convention": meta.get("height", ""),
             "warnings": "; ".join(meta.get("warnings", [])) or "none",
             "host": platform.node(),
@@ -463,7 +484,7 @@ class ViewerExports(QObject):
         measurements = [dict(m) for m in proj.measurements]
         fig = self.figure_maker()
 
-        def make() -> bytes:
+        def make() -> str:
             images = [
                 (
                     "Map with the measurements (scale bar and colour bar in mm)",
@@ -481,9 +502,9 @@ class ViewerExports(QObject):
                 inputs=inputs,
                 created_utc=_now(),
                 levelling=level,
-            ).encode("utf-8")
+            )
 
-        return self._write("report", p, "report-html", make)
+        return make
 
     # ----- 3D ------------------------------------------------------------------------------------
     def open_3d(self) -> Surface3DWindow | None:

@@ -300,6 +300,7 @@ class ExportPanel(QGroupBox):
             ("profile_csv", "Profile CSV..."),
             ("profile_png", "Profile PNG..."),
             ("report", "Report (HTML)..."),
+            ("report_pdf", "Report (PDF)..."),
             ("view3d", "3D view..."),
         )
         for k, (key, text) in enumerate(items):

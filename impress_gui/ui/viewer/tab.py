@@ -187,6 +187,7 @@ class ViewerTab(QWidget):
         b["profile_csv"].clicked.connect(lambda: a.export_profile_csv())
         b["profile_png"].clicked.connect(lambda: a.export_profile_png())
         b["report"].clicked.connect(lambda: a.export_report())
+        b["report_pdf"].clicked.connect(lambda: a.export_report_pdf())
         b["view3d"].clicked.connect(lambda: a.open_3d())
         self.table.export_button.clicked.connect(lambda: a.export_measurements_csv())
 
