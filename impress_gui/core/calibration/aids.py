@@ -241,17 +241,7 @@ def _stripe_on_target(rows: np.ndarray, name: str) -> _OnTarget:
     with np.errstate(invalid="ignore"):
         hi_px = (dev > 0.7 * d) & (dev < 1.3 * d)
         hi = median_filter(hi_px.sum(1), 5, mode="nearest")
-        lo_px = (dev > 0.12 * d) & (dev < 0.45 * d)
-    # the low face lies beside the high one: count its columns within 1.5 high-face widths
-    # of the high face's columns (other objects further off do not count)
-    lo = np.zeros(len(rows), int)
-    cols = np.arange(rows.shape[1])
-    for k in np.flatnonzero(hi_px.sum(1) >= 3):
-        c = cols[hi_px[k]]
-        c0, c1 = np.percentile(c, [5, 95])
-        near = (cols >= c0 - 1.5 * (c1 - c0)) & (cols <= c1 + 1.5 * (c1 - c0))
-        lo[k] = int((lo_px[k] & near).sum())
-    lo = median_filter(lo, 5, mode="nearest")
+        lo = median_filter(((dev > 0.12 * d) & (dev < 0.45 * d)).sum(1), 5, mode="nearest")
     on_hi = span[hi[span] >= 0.5 * hi[span].max()]
     both = np.zeros(len(rows), bool)
     both[on_hi] = lo[on_hi] >= 0.5 * max(lo[on_hi].max(), 1)
