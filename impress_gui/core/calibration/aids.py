@@ -194,88 +194,24 @@ def refine_corner(rgb: np.ndarray, uv_px, radius_px: int | None = None) -> Corne
     return CornerRefinement((float(ref[0]), float(ref[1])), moved, True)
 
 
-def _runs(mask: np.ndarray, gap: int) -> list[np.ndarray]:
-    """Runs of True indices in ``mask``, gaps of up to ``gap`` samples bridged."""
-    idx = np.flatnonzero(mask)
-    if not idx.size:
-        return []
-    return np.split(idx, np.flatnonzero(np.diff(idx) > gap) + 1)
-
-
-@dataclass
-class _OnTarget:
-    span: np.ndarray   # sample indices of the first long run of the stripe on the target
-    both: np.ndarray   # bool per sample: the stripe crosses both top faces
-    row: float         # image row of the stripe on the high face at the span's middle
-    mid: float         # the span's middle (sample index)
-
-
-def _stripe_on_target(rows: np.ndarray, name: str) -> _OnTarget:
-    """Where one laser's stripe lies on the L target, from its rows (samples x columns).
-
-    The stripe's usual row per column (median over the scan: the ground) is the baseline;
-    on the target the stripe is displaced by the face's height: by ``D`` on the high face
-    and about a quarter of it on the low one. The target is the first object of a scan:
-    its span is the first run of samples whose 95th-percentile displacement reaches 40 % of
-    the scan's largest (median-filtered against single bad frames), ``D`` the span's 90th
-    percentile. The stripe crosses both faces where the columns displaced by about ``D``
-    (0.7-1.3 D) and those displaced by a low-face amount (0.12-0.45 D) each number at
-    least half their most in the span."""
-    from scipy.ndimage import median_filter
-
-    with np.errstate(all="ignore"):
-        base = np.nanmedian(rows, axis=0)
-        dev = np.abs(rows - base)
-        p95 = np.nan_to_num(np.nanpercentile(dev, 95, axis=1))
-    p95[np.isfinite(rows).mean(1) < 0.1] = 0.0
-    p95 = median_filter(p95, 9, mode="nearest")
-    if p95.max() <= 2.0:
-        raise CalibrationError(f"no frame shows the {name} stripe displaced by the target",
-                               code=codes.E_NO_TARGET)
-    runs = [r for r in _runs(p95 >= 0.4 * p95.max(), 4) if len(r) >= 5]
-    if not runs:
-        raise CalibrationError(f"the {name} stripe is on the target in too few frames",
-                               code=codes.E_NO_TARGET)
-    span = np.arange(runs[0][0], runs[0][-1] + 1)
-    d = float(np.percentile(p95[span], 90))
-    with np.errstate(invalid="ignore"):
-        hi_px = (dev > 0.7 * d) & (dev < 1.3 * d)
-        hi = median_filter(hi_px.sum(1), 5, mode="nearest")
-        lo = median_filter(((dev > 0.12 * d) & (dev < 0.45 * d)).sum(1), 5, mode="nearest")
-    on_hi = span[hi[span] >= 0.5 * hi[span].max()]
-    both = np.zeros(len(rows), bool)
-    both[on_hi] = lo[on_hi] >= 0.5 * max(lo[on_hi].max(), 1)
-    mid = 0.5 * (span[0] + span[-1])
-    k = int(round(mid))
-    sel = hi_px[k]
-    row = float(np.nanmedian(rows[k][sel])) if sel.any() else float(np.nanmedian(rows[k]))
-    return _OnTarget(span, both, row, mid)
-
-
 def propose_calibration_frames(video, sample_step: int | None = None,
                                progress: ProgressCallback | None = None,
                                cancel: CancelToken | None = None) -> dict[str, int]:
-    """Frames t1 (the green stripe on the calibration target) and t2 (the red one), as the
-    picks define them whichever laser reaches the target first.
+    """Frames where each laser's stripe lies on the calibration target.
 
-    Per sampled frame both stripes are detected; for each laser the frames where its stripe
-    crosses both top faces of the L target are found (:func:`_stripe_on_target`). The six
-    corners must be in view too: the target moves through the image at a steady rate, which
-    the two stripes' rows on the high face and the middles of their spans on the target give;
-    its length in the image is that rate times the mean span, and the frames that keep it
-    3 % of the width inside the top and bottom of the image form the view window. Each laser's
-    frame is the middle of its longest run of frames on both faces (less 10 % at each end)
-    inside the window: the frame furthest from losing a face or a corner. Without a usable
-    window the middle of the run on both faces is taken. The user checks that all six corners are visible and
-    adjusts. Returns ``{"t1": ..., "t2": ...}``."""
+    The target is the tallest object of a scan, so its stripe is displaced furthest from the
+    stripe's usual row: per sampled frame the 95th percentile of that displacement is scored,
+    and the frames scoring at least 60 % of the best form the run where the stripe is on the
+    target. The green stripe (leading) is taken a third into its run and the red one two thirds
+    into its run: far apart (parallax) with the whole target still likely in view. The user
+    checks that all six corners are visible and adjusts. Returns ``{"t1": ..., "t2": ...}``."""
     cancel = cancel or CancelToken()
     n = video.frame_count
     step = sample_step or max(1, n // 400)
     probe = [video.read(int(k)) for k in np.linspace(0, n - 1, 6).astype(int)]
-    h, w = probe[0].shape[:2]
-    rois = auto_rois(probe, margin_px=h // 6)
+    rois = auto_rois(probe, margin_px=probe[0].shape[0] // 6)
     params = StripeParams(rois=rois)
-    rows: dict[str, list] = {name: [] for name in LASERS}
+    disp: dict[str, list] = {name: [] for name in LASERS}
     frames = []
     for k, rgb in video.iter_frames(0, n):
         if k % step:
@@ -284,31 +220,23 @@ def propose_calibration_frames(video, sample_step: int | None = None,
         res = detect(rgb, params)
         frames.append(k)
         for name in LASERS:
-            rows[name].append(np.asarray(res[name].rows, np.float32))
+            rows = res[name].rows
+            if np.isfinite(rows).sum() < 0.1 * len(rows):
+                disp[name].append(0.0)
+                continue
+            dev = np.abs(rows - np.nanmedian(rows))
+            disp[name].append(float(np.nanpercentile(dev, 95)))
         report(progress, k / n, f"scanning frame {k}")
-    frames = np.asarray(frames)
-    on = {name: _stripe_on_target(np.array(rows[name]), name) for name in LASERS}
-    g, r = on["green"], on["red"]
-    ks = np.arange(len(frames))
-    view = np.ones(len(frames), bool)
-    if abs(g.mid - r.mid) >= 1:
-        rate = (g.row - r.row) / (g.mid - r.mid)  # image rows per sample
-        length = abs(rate) * 0.5 * (len(g.span) + len(r.span))
-        centre = g.row + rate * (ks - g.mid)
-        margin = 0.03 * w
-        view = (centre - 0.5 * length > margin) & (centre + 0.5 * length < h - margin)
     out = {}
-    for key, name in (("t1", "green"), ("t2", "red")):
-        o = on[name]
-        both = np.zeros(len(frames), bool)
-        for run in _runs(o.both, 2):  # 10 % inside each end: clear of the faces' ends
-            cut = int(round(0.1 * (len(run) - 1)))
-            both[run[cut:len(run) - cut]] = True
-        cand = both & view
-        if not cand.any():
-            cand = both if both.any() else np.isin(ks, o.span)
-        run = max(_runs(cand, 2), key=len)
-        out[key] = int(frames[run[len(run) // 2]])
+    for key, name, where in (("t1", "green", 0.35), ("t2", "red", 0.65)):
+        score = np.array(disp[name])
+        if score.max() <= 2.0:
+            raise CalibrationError(f"no frame shows the {name} stripe displaced by the target",
+                                   code=codes.E_NO_TARGET)
+        strong = np.flatnonzero(score >= 0.6 * score.max())
+        runs = np.split(strong, np.flatnonzero(np.diff(strong) > 2) + 1)
+        run = max(runs, key=lambda r: score[r].sum())
+        out[key] = int(frames[run[int(round(where * (len(run) - 1)))]])
     return out
 
 
