@@ -36,6 +36,41 @@ def _resolution(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _floats(text: str, n: int) -> tuple[float, ...]:
+    import math
+
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {n} numbers separated by commas") \
+            from None
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r} is not {n} finite numbers")
+    return values
+
+
+def _pair(text: str) -> tuple[float, ...]:
+    return _floats(text, 2)
+
+
+def _triple(text: str) -> tuple[float, ...]:
+    return _floats(text, 3)
+
+
+def _shoe_options(args: argparse.Namespace) -> dict:
+    shoe: dict = {}
+    if args.shoe_rotate is not None or args.shoe_shift_mm is not None:
+        sx, sy = args.shoe_shift_mm or (0.0, 0.0)
+        shoe["pose"] = {"rotate_deg": float(args.shoe_rotate or 0.0), "shift_x_mm": sx,
+                        "shift_y_mm": sy}
+    if args.cut_at is not None:
+        x, y, a = args.cut_at
+        shoe["cut"] = {"x_mm": x, "y_mm": y, "angle_deg": a}
+    elif args.cut:
+        shoe["cut"] = {}
+    return shoe
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("out", type=Path, help="output folder (created; existing files are replaced)")
     p.add_argument("--preset", default="shoe",
@@ -81,6 +116,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--rotate90", action="store_true", help="plates rotated 90 degrees")
     g.add_argument("--lift-b-mm", type=float, default=None, help="lift plate B (thesis: 40 mm)")
     g.add_argument("--tilt-plates", type=float, default=None, help="tilt both plates (thesis: 5)")
+    g = p.add_argument_group("shoe preset: the shoe's pose and a cut (comparison tests)")
+    g.add_argument("--shoe-rotate", type=float, default=None, metavar="DEG",
+                   help="turn the shoe about the vertical through its centre, degrees (+ turns "
+                   "rail X towards rail Y)")
+    g.add_argument("--shoe-shift-mm", type=_pair, default=None, metavar="X,Y",
+                   help="shift the shoe by X,Y mm in the rail frame (after the turn)")
+    g.add_argument("--cut", action="store_true",
+                   help="give the sole a cut: a groove 0.5 mm deep, 3 mm long, 0.6 mm wide "
+                   "(soil fills it: a ridge in the impression), in the shoe's own frame")
+    g.add_argument("--cut-at", type=_triple, default=None, metavar="X,Y,ANGLE",
+                   help="the cut's centre (mm, the shoe's own frame) and direction (deg); "
+                   "implies --cut (default 15,230,30)")
     p.add_argument("--random-rig", type=int, default=None, metavar="SEED",
                    help="draw the rig, lens, lasers, L target (written as target.json), "
                    "scene, soil, motion, noise and bitrate from SEED over the documented "
@@ -108,9 +155,9 @@ def run(args: argparse.Namespace) -> int:
         if not 0 <= args.random_rig < 2**32:
             raise InputError("--random-rig must be between 0 and 4294967295",
                              code=codes.E_SIM_OPTION)
-        if blocks:
-            raise InputError("placement options (--rotate90, ...) do not go with --random-rig",
-                             code=codes.E_SIM_OPTION)
+        if blocks or _shoe_options(args):
+            raise InputError("placement options (--rotate90, --shoe-rotate, --cut, ...) do not "
+                             "go with --random-rig", code=codes.E_SIM_OPTION)
         w, h = args.resolution
         if not (64 <= w <= 4096 and 36 <= h <= 2304) or w % 2 or h % 2:
             raise InputError("--resolution must be between 64x36 and 4096x2304, even width "
@@ -131,7 +178,7 @@ def _preset_config(args: argparse.Namespace, blocks: dict):
                     seed=args.seed, video_format=args.video_format,
                     bitrate_mbit=args.bitrate_mbit, speckle=args.speckle, noise_dn=args.noise,
                     grid_mm=args.grid_mm, click_noise_px=args.click_noise_px,
-                    target_yaw_deg=args.target_yaw, blocks=blocks)
+                    target_yaw_deg=args.target_yaw, blocks=blocks, shoe=_shoe_options(args))
 
 
 def _run(args: argparse.Namespace, cfg) -> int:

@@ -155,6 +155,125 @@ def _shoe(X, Y, rng, length_mm, features):
     return np.clip(h, -10.0, 0.0)
 
 
+#: the shoe's own frame: the rail frame of today's (unposed) shoe scene; a pose turns the whole
+#: sole (relief, nicks, cut) by ``rotate_deg`` about the vertical through SHOE_CENTRE_MM
+#: (counter-clockwise seen from the camera in the rail frame X right, Y down the image: i.e.
+#: from +X towards +Y) and then shifts it by ``(shift_x_mm, shift_y_mm)``
+SHOE_CENTRE_MM = (0.0, FEATURES_START_Y_MM + 20.0 + 145.0)
+SHOE_REACH_MM = 200.0  # half the rows' span computed around a posed sole's centre
+
+
+@dataclass(frozen=True)
+class ShoePose:
+    """Where the shoe lies: rail = C + shift + Rz(rotate) (shoe - C), ``C`` = SHOE_CENTRE_MM."""
+
+    rotate_deg: float = 0.0
+    shift_x_mm: float = 0.0
+    shift_y_mm: float = 0.0
+
+    @classmethod
+    def of(cls, doc) -> ShoePose:
+        if doc is None:
+            return cls()
+        if isinstance(doc, ShoePose):
+            return doc
+        return cls(float(doc.get("rotate_deg", 0.0)), float(doc.get("shift_x_mm", 0.0)),
+                   float(doc.get("shift_y_mm", 0.0)))
+
+    def is_identity(self) -> bool:
+        return self.rotate_deg == 0.0 and self.shift_x_mm == 0.0 and self.shift_y_mm == 0.0
+
+    def _cs(self) -> tuple[float, float]:
+        a = np.radians(self.rotate_deg)
+        return float(np.cos(a)), float(np.sin(a))
+
+    def to_shoe(self, X, Y):
+        """Rail-frame (X, Y) -> the shoe's own frame (float64 arrays)."""
+        c, s = self._cs()
+        cx, cy = SHOE_CENTRE_MM
+        dx = np.asarray(X, np.float64) - cx - self.shift_x_mm
+        dy = np.asarray(Y, np.float64) - cy - self.shift_y_mm
+        return cx + c * dx + s * dy, cy - s * dx + c * dy
+
+    def to_rail(self, x, y):
+        """The shoe's own frame -> the rail frame."""
+        c, s = self._cs()
+        cx, cy = SHOE_CENTRE_MM
+        dx, dy = np.asarray(x, np.float64) - cx, np.asarray(y, np.float64) - cy
+        return cx + self.shift_x_mm + c * dx - s * dy, cy + self.shift_y_mm + s * dx + c * dy
+
+    def matrix(self) -> list[list[float]]:
+        """The 3 x 3 homogeneous matrix taking shoe-frame (x, y, 1) to rail (X, Y, 1)."""
+        c, s = self._cs()
+        cx, cy = SHOE_CENTRE_MM
+        return [[c, -s, cx + self.shift_x_mm - c * cx + s * cy],
+                [s, c, cy + self.shift_y_mm - s * cx - c * cy], [0.0, 0.0, 1.0]]
+
+    def to_json(self) -> dict:
+        return {"rotate_deg": self.rotate_deg, "shift_x_mm": self.shift_x_mm,
+                "shift_y_mm": self.shift_y_mm}
+
+
+@dataclass(frozen=True)
+class ShoeCut:
+    """A cut in the outsole (a randomly acquired characteristic): a groove ``depth_mm`` deep,
+    ``length_mm`` long and ``width_mm`` wide centred at ``(x_mm, y_mm)`` of the shoe's own
+    frame, its length along ``angle_deg`` (from +x towards +y). Soil fills the groove: the
+    impression gets a flat-topped ridge ``depth_mm`` high (towards the camera), added after
+    the sole's smoothing so its top is exactly ``depth_mm`` above the sole."""
+
+    x_mm: float = 15.0
+    y_mm: float = 230.0
+    angle_deg: float = 30.0
+    length_mm: float = 3.0
+    width_mm: float = 0.6
+    depth_mm: float = 0.5
+
+    @classmethod
+    def of(cls, doc) -> ShoeCut:
+        if isinstance(doc, ShoeCut):
+            return doc
+        if doc is True:
+            return cls()
+        return cls(**{k: float(v) for k, v in dict(doc).items()})
+
+    def to_json(self) -> dict:
+        return {"x_mm": self.x_mm, "y_mm": self.y_mm, "angle_deg": self.angle_deg,
+                "length_mm": self.length_mm, "width_mm": self.width_mm,
+                "depth_mm": self.depth_mm}
+
+
+def _place_features(features: list[dict], pose: ShoePose) -> None:
+    """The shoe's recorded feature positions moved by the pose (into the rail frame)."""
+    for f in features:
+        if f.get("kind") == "nick":
+            x, y = pose.to_rail(f["x_mm"], f["y_mm"])
+            f["x_mm"], f["y_mm"] = float(x), float(y)
+        elif f.get("kind") == "shoe":
+            f["pose"] = {**pose.to_json(), "centre_mm": list(SHOE_CENTRE_MM),
+                         "matrix_shoe_to_rail": pose.matrix()}
+
+
+def _add_cut(h: np.ndarray, Xs, Ys, cut: ShoeCut, pose: ShoePose, features: list) -> np.ndarray:
+    """``h`` (rows of the scene) with the cut's ridge; ``Xs, Ys`` the cells in the shoe's frame."""
+    a = np.radians(cut.angle_deg)
+    du, dv = np.asarray(Xs, np.float64) - cut.x_mm, np.asarray(Ys, np.float64) - cut.y_mm
+    along = du * np.cos(a) + dv * np.sin(a)
+    across = -du * np.sin(a) + dv * np.cos(a)
+    mark = (np.abs(along) <= cut.length_mm / 2) & (np.abs(across) <= cut.width_mm / 2)
+    ends = [pose.to_rail(cut.x_mm + sgn * cut.length_mm / 2 * np.cos(a),
+                         cut.y_mm + sgn * cut.length_mm / 2 * np.sin(a)) for sgn in (-1, 1)]
+    cx, cy = pose.to_rail(cut.x_mm, cut.y_mm)
+    features.append({"kind": "cut", **cut.to_json(), "frame": "shoe (before the pose)",
+                     "centre_rail_mm": [float(cx), float(cy)],
+                     "ends_rail_mm": [[float(e[0]), float(e[1])] for e in ends],
+                     "angle_rail_deg": cut.angle_deg + pose.rotate_deg,
+                     "cells": int(mark.sum()),
+                     "note": "a groove in the outsole; in the impression a ridge depth_mm "
+                             "high (towards the camera), flat-topped"})
+    return np.where(mark, h + np.float32(cut.depth_mm), h).astype(np.float32)
+
+
 def _tire(X, Y, rng, length_mm, features):
     y_a, y_b = FEATURES_START_Y_MM, length_mm + 60.0
     inside = (np.abs(X) <= 92.5) & (Y >= y_a) & (Y <= y_b)
@@ -269,11 +388,25 @@ def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
     features: list[dict] = []
     kind = "soil"
     if preset == "shoe":
-        # the sole spans about 300 mm from FEATURES_START_Y_MM: compute its relief there only
-        rows = (ys >= FEATURES_START_Y_MM) & (ys <= FEATURES_START_Y_MM + 340.0)
+        pose = ShoePose.of(options.pop("pose", None))
+        cut = options.pop("cut", None)
+        if options:
+            raise ValueError(f"unknown shoe options {sorted(options)}")
+        if pose.is_identity():
+            # the sole spans about 300 mm from FEATURES_START_Y_MM: compute its relief there only
+            rows = (ys >= FEATURES_START_Y_MM) & (ys <= FEATURES_START_Y_MM + 340.0)
+            Xs, Ys = X[rows], Y[rows]
+        else:
+            cy = SHOE_CENTRE_MM[1] + pose.shift_y_mm
+            rows = (ys >= cy - SHOE_REACH_MM) & (ys <= cy + SHOE_REACH_MM)
+            Xs, Ys = (v.astype(np.float32) for v in pose.to_shoe(X[rows], Y[rows]))
         h = np.zeros(X.shape, np.float32)
-        h[rows] = _smooth(_shoe(X[rows], Y[rows], rng, length_mm, features).astype(np.float32),
+        h[rows] = _smooth(_shoe(Xs, Ys, rng, length_mm, features).astype(np.float32),
                           0.25, pixel_mm)
+        if not pose.is_identity():
+            _place_features(features, pose)
+        if cut is not None:
+            h[rows] = _add_cut(h[rows], Xs, Ys, ShoeCut.of(cut), pose, features)
     elif preset == "tire":
         h = _smooth(_tire(X, Y, rng, length_mm, features).astype(np.float32), 0.3, pixel_mm)
         kind = "sand"

@@ -47,6 +47,9 @@ class SimConfig:
     click_noise_px: float = 0.0
     target_yaw_deg: float = 3.0
     blocks: dict = field(default_factory=dict)  # rotate90, lift_b_mm, tilt_deg, order
+    #: shoe preset: ``pose`` (rotate_deg, shift_x_mm, shift_y_mm; sim.scenes.ShoePose) and
+    #: ``cut`` (sim.scenes.ShoeCut fields) - empty: today's shoe, bit for bit
+    shoe: dict = field(default_factory=dict)
     #: a rig drawn from this seed (sim.random_rig); the fields above then come from the draw
     #: (:meth:`random`), the rig, lens, lasers, target and soil from :func:`random_rig`
     random_rig: int | None = None
@@ -74,6 +77,8 @@ class SimConfig:
         d = dataclasses.asdict(self)
         if d["random_rig"] is None:
             del d["random_rig"]
+        if not d["shoe"]:
+            del d["shoe"]
         return d
 
     def validate(self) -> None:
@@ -116,9 +121,40 @@ class SimConfig:
             bad("--click-noise-px must be between 0 and 20")
         if not 0 <= self.seed < 2**32:
             bad("--seed must be between 0 and 4294967295")
+        if self.shoe:
+            self._validate_shoe(bad)
         if self.blocks and self.preset != "blocks":
             bad("placement options (--rotate90, --lift-b-mm, --tilt-plates, --order) need "
                 "--preset blocks")
+
+    def _validate_shoe(self, bad) -> None:
+        import math
+
+        from impress_gui.sim.scenes import ShoeCut, ShoePose
+
+        if self.preset != "shoe" or self.random_rig is not None:
+            bad("shoe options (--shoe-rotate, --shoe-shift-mm, --cut) need --preset shoe "
+                "(and no --random-rig)")
+        if set(self.shoe) - {"pose", "cut"}:
+            bad(f"unknown shoe options {sorted(set(self.shoe) - {'pose', 'cut'})}")
+        try:
+            pose = ShoePose.of(self.shoe.get("pose"))
+            cut = None if self.shoe.get("cut") is None else ShoeCut.of(self.shoe["cut"])
+        except (TypeError, ValueError, AttributeError):
+            bad("the shoe's pose or cut has a missing or wrong field")
+            return
+        values = [pose.rotate_deg, pose.shift_x_mm, pose.shift_y_mm]
+        if cut is not None:
+            values += list(cut.to_json().values())
+        if not all(math.isfinite(v) for v in values):
+            bad("the shoe's pose and cut take finite numbers")
+        if not -180.0 <= pose.rotate_deg <= 180.0:
+            bad("--shoe-rotate must be between -180 and 180 degrees")
+        if abs(pose.shift_x_mm) > 60.0 or abs(pose.shift_y_mm) > 60.0:
+            bad("--shoe-shift-mm must be within 60 mm in x and y")
+        if cut is not None and not (0 < cut.length_mm <= 50 and 0 < cut.width_mm <= 10
+                                    and 0 < cut.depth_mm <= 5):
+            bad("the cut must be 0-50 mm long, 0-10 mm wide and 0-5 mm deep")
 
     @property
     def scan_length_mm(self) -> float:
@@ -243,7 +279,7 @@ def _make_renderer(cfg: SimConfig):
     rr = random_rig(cfg)
     if rr is None:
         scene = build_scene(cfg.preset, cfg.scan_length_mm, cfg.grid_mm, cfg.seed, target,
-                            target_pose(cfg), **cfg.blocks)
+                            target_pose(cfg), **cfg.blocks, **cfg.shoe)
         opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle,
                              seed=cfg.seed, stripe_sigma_px=max(1.2, 1.6 * cfg.width / 1920.0),
                              laser_peak=3.5)
@@ -349,6 +385,22 @@ def _random_truth(rr) -> dict:
     return doc
 
 
+def _shoe_truth(cfg: SimConfig) -> dict:
+    """The ``shoe`` section of truth.json: the pose (and its matrix) and the cut, if any."""
+    from impress_gui.sim.scenes import SHOE_CENTRE_MM, ShoeCut, ShoePose
+
+    pose = ShoePose.of(cfg.shoe.get("pose"))
+    doc: dict = {"pose": {**pose.to_json(), "centre_mm": list(SHOE_CENTRE_MM),
+                          "matrix_shoe_to_rail": pose.matrix(),
+                          "convention": "rail (X, Y) = centre + shift + Rz(rotate_deg) "
+                                        "((x, y) - centre), (x, y) in the shoe's own frame "
+                                        "(the rail frame of the unposed shoe scene); rotate_deg "
+                                        "turns +X towards +Y"}}
+    if cfg.shoe.get("cut") is not None:
+        doc["cut"] = ShoeCut.of(cfg.shoe["cut"]).to_json()
+    return doc
+
+
 def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
                    progress: ProgressCallback | None, cancel: CancelToken) -> dict:
     rig, motion, target = make_rig(cfg), make_motion(cfg), make_target(cfg)
@@ -439,6 +491,8 @@ def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
                                     "origin is the optical centre at frame 0"},
         "features": scene.features,
     }
+    if cfg.shoe:
+        truth["shoe"] = _shoe_truth(cfg)
     rr = random_rig(cfg)
     if rr is not None:
         truth["random_rig"] = _random_truth(rr)
