@@ -163,3 +163,67 @@ def test_every_tiff_carries_its_cell_size_and_sources(letter):
             assert page.tags["ResolutionUnit"].value == 3  # centimetre
             assert 10.0 / (num / den) == pytest.approx(meta["grid"]["pixel_mm"])
             assert meta["inputs"]["video"]["sha256"] in page.description
+
+
+def test_tiffs_read_back_equal_by_pillow_and_tifffile(letter):
+    """Issue 19: the float maps are deflate TIFFs with the floating-point predictor (chosen for
+    size: 16 % smaller at the same speed); Pillow (libtiff, not written here) and tifffile read
+    every one back to the same values, NaN cells included, and the PNG views agree with them."""
+    import tifffile
+    from PIL import Image
+
+    _scan, out = letter
+    fused = None
+    for name in ("heightmap.tif", "height_green.tif", "height_red.tif", "difference.tif",
+                 "contribution.tif"):
+        a = tifffile.imread(out / name)
+        with tifffile.TiffFile(out / name) as tf:
+            assert tf.pages[0].compression == 8  # Adobe deflate
+            assert tf.pages[0].predictor == (3 if a.dtype == np.float32 else 1)
+        with Image.open(out / name) as im:
+            b = np.asarray(im)
+        assert b.dtype == a.dtype and b.shape == a.shape
+        assert np.array_equal(a, b, equal_nan=True), name
+        fused = a if name == "heightmap.tif" else fused
+    assert fused is not None and np.isfinite(fused).mean() > 0.5
+    with Image.open(out / "heightmap_8bit.png") as im:
+        grey = np.asarray(im).astype(int)
+    ok = np.isfinite(fused)
+    expect = np.clip(np.rint(fused[ok] / 0.1) + 128, 0, 255)
+    assert np.abs(grey[ok] - expect).max() <= 1  # float32 file against float64 at writing
+    assert (grey[~ok] == 0).all()
+
+
+def test_writing_reports_progress_within_files(letter, tmp_path):
+    """Issue 19: while the outputs are written the progress moves inside the slowest file (the
+    X3P, by pieces of rows), not only when a file is finished, and never goes back."""
+    from impress_gui.core.formats import writers
+    from impress_gui.core.measure.readings import load_reconstruction
+
+    _scan, out = letter
+    data = load_reconstruction(out)
+    rec = _FakeRec(data)
+    seen: list[tuple[float, str]] = []
+    writers.write_reconstruction(rec, tmp_path / "again", {"inputs": {}}, {},
+                                 progress=lambda f, m: seen.append((f, m)))
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
+    assert all(" of 11 files)" in m for _, m in seen[:-1])
+    # the X3P reports its pieces of rows: its checksum pass, then every piece written
+    done: list[float] = []
+    rows = 3 * writers.X3P_ROWS_PER_CHUNK + 5
+    writers.x3p_bytes(rec.spec, np.zeros((rows, 7)), "2026-01-01T00:00:00Z", done=done.append)
+    assert done == sorted(done) and done[-1] == 1.0 and len(done) == 8
+    assert done[3] == pytest.approx(0.1)
+
+
+class _FakeRec:
+    """A reconstruction's arrays as read back from its folder (what the writer needs)."""
+
+    def __init__(self, data) -> None:
+        self.spec = data.spec
+        self.height_mm = data.layers["fused"].astype(np.float64)
+        self.per_laser_mm = {k: data.layers[k] for k in ("green", "red")}
+        self.difference_mm = data.layers["difference"]
+        self.contribution = data.layers["contribution"]
+        self.texture_rgb = data.texture_rgb

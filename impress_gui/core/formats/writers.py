@@ -22,7 +22,7 @@ import plyfile
 
 from impress_gui import __version__
 from impress_gui.core.base.fileio import dumps_json, sha256_file
-from impress_gui.core.formats.images import png_bytes, tiff_bytes
+from impress_gui.core.formats.images import bgr_png_bytes, png_bytes, tiff_bytes
 from impress_gui.core.formats.recon_files import (
     COLOUR_PNG,
     CONTRIBUTION_PNG,
@@ -49,8 +49,20 @@ CONTRIB_CODES = {0: "no data", 1: "green only", 2: "red only", 3: "both (mean)",
 
 def grey8(height: np.ndarray, step_mm: float = 0.1) -> np.ndarray:
     """The seed's 8-bit heightmap: one grey level per 0.1 mm, 128 = reference, 0 = no data."""
-    g = np.rint(np.nan_to_num(height, nan=-1e9) / step_mm) + GREY_OFFSET
-    return np.clip(g, 0, 255).astype(np.uint8)
+    out = np.empty(height.shape, np.uint8)
+    for rows in _row_blocks(height.shape[0]):
+        g = np.rint(np.nan_to_num(height[rows], nan=-1e9) / step_mm) + GREY_OFFSET
+        out[rows] = np.clip(g, 0, 255)
+    return out
+
+
+#: rows per block of the images made from a grid: a block's temporaries stay in the cache
+ROW_BLOCK = 256
+
+
+def _row_blocks(n: int):
+    for a in range(0, n, ROW_BLOCK):
+        yield slice(a, min(n, a + ROW_BLOCK))
 
 
 def color_range(height: np.ndarray) -> tuple[float, float]:
@@ -65,20 +77,32 @@ def color_range(height: np.ndarray) -> tuple[float, float]:
 
 def pseudo_colour(height: np.ndarray, vrange=None, bar: bool = True) -> np.ndarray:
     """Turbo-coloured heightmap (RGB) with a labelled colour bar in mm on the right."""
+    return pseudo_colour_bgr(height, vrange, bar)[..., ::-1]
+
+
+def pseudo_colour_bgr(height: np.ndarray, vrange=None, bar: bool = True) -> np.ndarray:
+    """:func:`pseudo_colour` in OpenCV's channel order (B, G, R), made a block of rows at a
+    time (no full-size temporaries)."""
     import cv2
 
     lo, hi = vrange or color_range(height)
-    t = np.clip((np.nan_to_num(height, nan=lo) - lo) / (hi - lo), 0, 1)
-    rgb = cv2.applyColorMap((t * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1].copy()
-    rgb[~np.isfinite(height)] = 0
-    if not bar:
-        return rgb
-    h = rgb.shape[0]
+    h, w = height.shape
     bw = max(60, h // 12)
-    panel = np.full((h, bw * 3, 3), 255, np.uint8)
+    out = np.empty((h, w + (bw * 3 if bar else 0), 3), np.uint8)
+    for rows in _row_blocks(h):
+        hh = height[rows]
+        t = np.clip((np.nan_to_num(hh, nan=lo) - lo) / (hi - lo), 0, 1)
+        block = cv2.applyColorMap((t * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
+        block[~np.isfinite(hh)] = 0
+        out[rows, :w] = block
+    if not bar:
+        return out
+    panel = out[:, w:]
+    panel[:] = 255
     ramp = np.linspace(1, 0, h)[:, None]
-    col = cv2.applyColorMap((ramp * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1]
-    panel[:, 4:bw] = np.repeat(col, bw - 4, axis=1)
+    col = cv2.applyColorMap((ramp * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
+    panel[:, 4:bw] = col
+    panel = np.ascontiguousarray(panel)
     scale = max(0.4, h / 1400)
     for i in range(6):
         f = i / 5
@@ -88,7 +112,8 @@ def pseudo_colour(height: np.ndarray, vrange=None, bar: bool = True) -> np.ndarr
                     cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), max(1, int(scale * 2)))
     cv2.putText(panel, "mm", (bw + 12, h // 2), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0),
                 max(1, int(scale * 2)))
-    return np.concatenate([rgb, panel], axis=1)
+    out[:, w:] = panel
+    return out
 
 
 EXPORT_FRAME = (
@@ -156,27 +181,33 @@ def _x3p_chunks(height: np.ndarray):
 
 
 def x3p_bytes(spec, height: np.ndarray, created: str, comment: str = "",
-              calibrated: str | None = None) -> bytes:
+              calibrated: str | None = None,
+              done: Callable[[float], None] | None = None) -> bytes:
     """The X3P of :func:`write_x3p` as bytes."""
     buf = io.BytesIO()
-    write_x3p(buf, spec, height, created, comment, calibrated)
+    write_x3p(buf, spec, height, created, comment, calibrated, done)
     return buf.getvalue()
 
 
 def write_x3p(target, spec, height: np.ndarray, created: str, comment: str = "",
-              calibrated: str | None = None) -> None:
+              calibrated: str | None = None,
+              done: Callable[[float], None] | None = None) -> None:
     """ISO 25178-72 (XML 3D surface profile) container: an areal surface, x/y incremental
     axes in metres, z as float64 metres with NaN for invalid points, in the right-handed
     :data:`EXPORT_FRAME` (the grid's rows are stored last first, so that y increases with the
     point index). ``comment`` (provenance included) goes into Record2/Comment, XML-escaped.
     ``created`` and ``calibrated`` are ISO 8601 dates; for reproducible files pass dates that
-    come from the inputs (the calibration's date), not the time of writing."""
+    come from the inputs (the calibration's date), not the time of writing. ``done`` is
+    called with the share of the work done (0..1) after each piece of rows."""
     from xml.sax.saxutils import escape
 
     ny, nx = height.shape
+    n_chunks = -(-ny // X3P_ROWS_PER_CHUNK)
     md5 = hashlib.md5()
-    for chunk in _x3p_chunks(height):
+    for k, chunk in enumerate(_x3p_chunks(height), 1):
         md5.update(chunk)
+        if done is not None:  # the checksum's pass: a tenth of the work
+            done(0.1 * k / n_chunks)
     md5_data = md5.hexdigest()
     y_offset_mm = -(spec.y0_mm + (ny - 1) * spec.pixel_mm)
     comment = f"frame: {EXPORT_FRAME}; {comment}" if comment else f"frame: {EXPORT_FRAME}"
@@ -228,8 +259,10 @@ def write_x3p(target, spec, height: np.ndarray, created: str, comment: str = "",
                     compresslevel=ZLIB_LEVEL)
         # the point data streamed in pieces of rows
         with zf.open(member("bindata/data.bin"), "w", force_zip64=nbytes > 2**31 - 1) as fh:
-            for chunk in _x3p_chunks(height):
+            for k, chunk in enumerate(_x3p_chunks(height), 1):
                 fh.write(chunk)
+                if done is not None:
+                    done(0.1 + 0.9 * k / n_chunks)
 
 
 def _write_file(path: Path, write) -> None:
@@ -268,10 +301,25 @@ def input_dates(video, calibration_path) -> dict[str, str]:
     return {"measured": measured, "calibrated": calibrated}
 
 
+CONTRIB_RGB = np.array([[0, 0, 0], [40, 200, 40], [220, 40, 40], [230, 230, 230], [240, 160, 0]],
+                       np.uint8)
+
+
 def contribution_png(contrib: np.ndarray) -> np.ndarray:
-    lut = np.array([[0, 0, 0], [40, 200, 40], [220, 40, 40], [230, 230, 230], [240, 160, 0]],
-                   np.uint8)
-    return lut[np.clip(contrib, 0, 4)]
+    """The contribution codes (any shape) as RGB (:data:`CONTRIB_RGB`)."""
+    return CONTRIB_RGB[np.clip(contrib, 0, 4)]
+
+
+def contribution_bgr(contrib: np.ndarray) -> np.ndarray:
+    """:func:`contribution_png` of a 2-D map in OpenCV's channel order (B, G, R): one
+    table lookup per channel, codes above 4 shown as 4."""
+    import cv2
+
+    lut = np.zeros((256, 1, 3), np.uint8)
+    lut[:, 0] = CONTRIB_RGB[4, ::-1]
+    lut[:5, 0] = CONTRIB_RGB[:, ::-1]
+    c = contrib if contrib.dtype == np.uint8 else np.clip(contrib, 0, 4).astype(np.uint8)
+    return cv2.LUT(cv2.merge([c, c, c]), lut)
 
 
 #: threads encoding and writing the outputs side by side
@@ -279,8 +327,32 @@ WRITE_THREADS = 4
 #: the slowest files first, so that they overlap the rest
 WRITE_ORDER = {X3P_FILE: 0, LAYER_FILES["fused"]: 1, PLY_FILE: 2, TEXTURE_FILE: 3}
 #: zlib level of the TIFFs and the X3P: level 1 is 2x faster than the default 6 for files
-#: 0.5 % (TIFF) and 9 % (X3P) larger (measured on a shoe scan's heightmap)
+#: 0.5 % (TIFF) and 9 % (X3P) larger (measured on a shoe scan's heightmap); with the floating
+#: point predictor level 6 is 1 % smaller than level 1 and takes 1.6x its time
 ZLIB_LEVEL = 1
+#: the longest wait between two progress reports while the outputs are written
+PROGRESS_SECONDS = 0.5
+#: each file's cost relative to the others (processor seconds per grid cell, measured on a
+#: shoe scan: the X3P's Python zlib is the slowest), for the writing's progress fraction
+WRITE_COST = {X3P_FILE: 2.6, LAYER_FILES["fused"]: 0.6, LAYER_FILES["green"]: 0.6,
+              LAYER_FILES["red"]: 0.6, LAYER_FILES["difference"]: 0.6,
+              LAYER_FILES["contribution"]: 0.1, CONTRIBUTION_PNG: 0.25, GREY8_PNG: 0.25,
+              COLOUR_PNG: 1.0, PLY_FILE: 0.3, TEXTURE_FILE: 0.6}
+
+
+class _Shares:
+    """How much of each output is done (0..1), set from the writer threads."""
+
+    def __init__(self) -> None:
+        self._done: dict[str, float] = {}
+
+    def set(self, name: str, fraction: float) -> None:
+        self._done[name] = fraction  # one float per name: atomic under the GIL
+
+    def fraction(self, names) -> float:
+        total = sum(WRITE_COST.get(n, 0.5) for n in names)
+        done = sum(WRITE_COST.get(n, 0.5) * self._done.get(n, 0.0) for n in names)
+        return done / total if total else 1.0
 
 
 def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
@@ -309,11 +381,11 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
                 + "; ".join(source) + "; parameters: metadata.json")
 
     h32 = rec.height_mm.astype(np.float32)
-    # each file is made, written and hashed by a task of its own: the encoders (zlib, PNG)
+    # each file is made, written and hashed by a task of its own: the encoders (deflate, PNG)
     # release the GIL, so the files are made side by side
-    def tiff(arr: np.ndarray, what: str) -> bytes:
+    def tiff(arr: np.ndarray, what: str, predictor: bool = True) -> bytes:
         return tiff_bytes(arr, pixel_mm=rec.spec.pixel_mm, description=desc(what),
-                          level=ZLIB_LEVEL)
+                          level=ZLIB_LEVEL, predictor=predictor)
 
     makers: dict[str, Callable[[], bytes]] = {
         LAYER_FILES["fused"]: lambda: tiff(h32, "fused height, mm, NaN = no data"),
@@ -324,23 +396,25 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
         LAYER_FILES["difference"]: lambda: tiff(rec.difference_mm.astype(np.float32),
                                                 "green - red height, mm"),
         LAYER_FILES["contribution"]: lambda: tiff(rec.contribution.astype(np.uint8),
-                                                  "contribution codes (metadata.json)"),
-        CONTRIBUTION_PNG: lambda: png_bytes(contribution_png(rec.contribution)),
+                                                  "contribution codes (metadata.json)",
+                                                  predictor=False),
+        CONTRIBUTION_PNG: lambda: bgr_png_bytes(contribution_bgr(rec.contribution)),
         GREY8_PNG: lambda: png_bytes(grey8(rec.height_mm)),
-        COLOUR_PNG: lambda: png_bytes(pseudo_colour(rec.height_mm)),
+        COLOUR_PNG: lambda: bgr_png_bytes(pseudo_colour_bgr(rec.height_mm)),
         PLY_FILE: lambda: ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step, source),
     }
+    shares = _Shares()
     # written straight into their files (no copy of the whole file in memory)
     streamed: dict[str, Callable[[Path], None]] = {
         X3P_FILE: lambda path: _write_file(path, lambda fh: write_x3p(
             fh, rec.spec, rec.height_mm, dates["measured"],
             "IMPREsS reconstruction; " + "; ".join(source)
             + "; parameters, grid and height convention: metadata.json",
-            calibrated=dates["calibrated"])),
+            calibrated=dates["calibrated"], done=lambda f: shares.set(X3P_FILE, f))),
     }
     if rec.texture_rgb is not None:
         makers[TEXTURE_FILE] = lambda: png_bytes(rec.texture_rgb)
-    from concurrent.futures import ThreadPoolExecutor, as_completed
+    from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
     from impress_gui.core.base.outdir import MARK_FILE, mark_bytes
     from impress_gui.core.base.progress import report
@@ -362,9 +436,20 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
             workers = max(1, min(WRITE_THREADS, os.cpu_count() or 1))
             with ThreadPoolExecutor(workers, thread_name_prefix="impress-write") as pool:
                 futures = {pool.submit(make, n): n for n in order}
-                for i, fut in enumerate(as_completed(futures), 1):
-                    made[futures[fut]] = fut.result()
-                    report(progress, i / (len(names) + 1), f"written {futures[fut]}")
+                pending = set(futures)
+                last = ""
+                while pending:
+                    # progress at least every PROGRESS_SECONDS: the finished files' shares
+                    # and the streamed file's pieces, weighted by their measured costs
+                    finished, pending = wait(pending, timeout=PROGRESS_SECONDS,
+                                             return_when=FIRST_COMPLETED)
+                    for fut in finished:
+                        made[futures[fut]] = fut.result()
+                        shares.set(futures[fut], 1.0)
+                        last = f"written {futures[fut]}"
+                    msg = last or "writing the outputs"
+                    report(progress, shares.fraction(names) * len(names) / (len(names) + 1),
+                           f"{msg} ({len(made)} of {len(names)} files)")
             digests = {MARK_FILE: hashlib.sha256(mark_bytes("reconstruction")).hexdigest()}
             digests.update((n, made[n]) for n in RECON_FILES if n in made)
             meta = dict(metadata)
