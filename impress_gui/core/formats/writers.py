@@ -380,7 +380,7 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
                 f"x0 {rec.spec.x0_mm} mm, y0 {rec.spec.y0_mm} mm (rail frame, row 0 first); "
                 + "; ".join(source) + "; parameters: metadata.json")
 
-    h32 = rec.height_mm.astype(np.float32)
+    h32 = np.asarray(rec.height_mm, np.float32)  # no copy of float32 maps
     # each file is made, written and hashed by a task of its own: the encoders (deflate, PNG)
     # release the GIL, so the files are made side by side
     def tiff(arr: np.ndarray, what: str, predictor: bool = True) -> bytes:
@@ -389,13 +389,13 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
 
     makers: dict[str, Callable[[], bytes]] = {
         LAYER_FILES["fused"]: lambda: tiff(h32, "fused height, mm, NaN = no data"),
-        LAYER_FILES["green"]: lambda: tiff(rec.per_laser_mm["green"].astype(np.float32),
+        LAYER_FILES["green"]: lambda: tiff(np.asarray(rec.per_laser_mm["green"], np.float32),
                                            "green laser height, mm"),
-        LAYER_FILES["red"]: lambda: tiff(rec.per_laser_mm["red"].astype(np.float32),
+        LAYER_FILES["red"]: lambda: tiff(np.asarray(rec.per_laser_mm["red"], np.float32),
                                          "red laser height, mm"),
-        LAYER_FILES["difference"]: lambda: tiff(rec.difference_mm.astype(np.float32),
+        LAYER_FILES["difference"]: lambda: tiff(np.asarray(rec.difference_mm, np.float32),
                                                 "green - red height, mm"),
-        LAYER_FILES["contribution"]: lambda: tiff(rec.contribution.astype(np.uint8),
+        LAYER_FILES["contribution"]: lambda: tiff(np.asarray(rec.contribution, np.uint8),
                                                   "contribution codes (metadata.json)",
                                                   predictor=False),
         CONTRIBUTION_PNG: lambda: bgr_png_bytes(contribution_bgr(rec.contribution)),
