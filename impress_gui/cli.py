@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("impress_gui.commands.demo", "make (or reuse) the cached sample scan and process it"),
     "validate": ("impress_gui.commands.validate", "accuracy validation (thesis table 4.1) and report"),
     "cast": ("impress_gui.commands.cast", "a watertight mesh (STL/PLY/OBJ) of an impression to print"),
+    "compare": ("impress_gui.commands.compare", "register two impressions, their difference map and report"),
 }
 
 

@@ -68,6 +68,8 @@ def _shoe_options(args: argparse.Namespace) -> dict:
         shoe["cut"] = {"x_mm": x, "y_mm": y, "angle_deg": a}
     elif args.cut:
         shoe["cut"] = {}
+    if args.sole_seed is not None:
+        shoe["sole_seed"] = args.sole_seed
     return shoe
 
 
@@ -128,6 +130,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--cut-at", type=_triple, default=None, metavar="X,Y,ANGLE",
                    help="the cut's centre (mm, the shoe's own frame) and direction (deg); "
                    "implies --cut (default 15,230,30)")
+    g.add_argument("--sole-seed", type=int, default=None, metavar="SEED",
+                   help="draw the sole's random nicks from SEED (default: from --seed), so that "
+                   "scans with different --seed show the same shoe")
     p.add_argument("--random-rig", type=int, default=None, metavar="SEED",
                    help="draw the rig, lens, lasers, L target (written as target.json), "
                    "scene, soil, motion, noise and bitrate from SEED over the documented "
@@ -156,7 +161,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--random-rig must be between 0 and 4294967295",
                              code=codes.E_SIM_OPTION)
         if blocks or _shoe_options(args):
-            raise InputError("placement options (--rotate90, --shoe-rotate, --cut, ...) do not "
+            raise InputError("placement options (--rotate90, --shoe-rotate, --cut, --sole-seed, "
+                             "...) do not "
                              "go with --random-rig", code=codes.E_SIM_OPTION)
         w, h = args.resolution
         if not (64 <= w <= 4096 and 36 <= h <= 2304) or w % 2 or h % 2:

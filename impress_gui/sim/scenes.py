@@ -390,6 +390,10 @@ def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
     if preset == "shoe":
         pose = ShoePose.of(options.pop("pose", None))
         cut = options.pop("cut", None)
+        sole_seed = options.pop("sole_seed", None)
+        # the sole's random nicks from their own seed when given (two scans of one shoe with
+        # different render seeds), else from the scene's generator as always
+        sole_rng = rng if sole_seed is None else np.random.default_rng(int(sole_seed))
         if options:
             raise ValueError(f"unknown shoe options {sorted(options)}")
         if pose.is_identity():
@@ -401,7 +405,7 @@ def build_scene(preset: str, length_mm: float, pixel_mm: float, seed: int,
             rows = (ys >= cy - SHOE_REACH_MM) & (ys <= cy + SHOE_REACH_MM)
             Xs, Ys = (v.astype(np.float32) for v in pose.to_shoe(X[rows], Y[rows]))
         h = np.zeros(X.shape, np.float32)
-        h[rows] = _smooth(_shoe(Xs, Ys, rng, length_mm, features).astype(np.float32),
+        h[rows] = _smooth(_shoe(Xs, Ys, sole_rng, length_mm, features).astype(np.float32),
                           0.25, pixel_mm)
         if not pose.is_identity():
             _place_features(features, pose)

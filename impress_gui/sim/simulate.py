@@ -135,8 +135,12 @@ class SimConfig:
         if self.preset != "shoe" or self.random_rig is not None:
             bad("shoe options (--shoe-rotate, --shoe-shift-mm, --cut) need --preset shoe "
                 "(and no --random-rig)")
-        if set(self.shoe) - {"pose", "cut"}:
-            bad(f"unknown shoe options {sorted(set(self.shoe) - {'pose', 'cut'})}")
+        if set(self.shoe) - {"pose", "cut", "sole_seed"}:
+            bad(f"unknown shoe options {sorted(set(self.shoe) - {'pose', 'cut', 'sole_seed'})}")
+        sole_seed = self.shoe.get("sole_seed")
+        if sole_seed is not None and (isinstance(sole_seed, bool) or not isinstance(sole_seed, int)
+                                      or not 0 <= sole_seed < 2**32):
+            bad("--sole-seed must be a whole number between 0 and 4294967295")
         try:
             pose = ShoePose.of(self.shoe.get("pose"))
             cut = None if self.shoe.get("cut") is None else ShoeCut.of(self.shoe["cut"])
@@ -398,6 +402,10 @@ def _shoe_truth(cfg: SimConfig) -> dict:
                                         "turns +X towards +Y"}}
     if cfg.shoe.get("cut") is not None:
         doc["cut"] = ShoeCut.of(cfg.shoe["cut"]).to_json()
+    doc["sole_seed"] = cfg.shoe.get("sole_seed")
+    doc["sole_seed_note"] = ("the sole's random nicks drawn from sole_seed" if
+                             cfg.shoe.get("sole_seed") is not None else
+                             "the sole's random nicks drawn from the scene's seed")
     return doc
 
 

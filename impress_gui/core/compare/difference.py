@@ -1,0 +1,189 @@
+"""The signed difference of two registered surfaces, its histogram and the regions beyond a
+threshold.
+
+B is resampled onto A's grid through the registration ``M`` (B -> A): for a cell of A at
+``(x, y)`` the point of the moved surface of B above it is found by a fixed-point iteration
+(``(x_B, y_B)`` = the xy of ``M^-1 (x, y, z)``, ``z`` = the z of ``M (x_B, y_B, h_B(x_B,
+y_B))``, three rounds from A's own height: exact for a turn about the vertical, converging
+fast for the small tilts between two scans); ``h_B`` is bilinear. The difference is ``A - B``
+in mm (positive where A is higher), NaN where either has no data.
+
+Regions: the 8-connected cells with ``|A - B| > threshold``; for each its area, its deepest
+value (signed, and its magnitude), a robust depth (the 90th percentile of ``|A - B|``), its
+centroid and its length along its principal axis (the extent of its cells' centres along that
+axis plus one cell).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.compare.surfaces import Surface, bilinear
+
+CHUNK_ROWS = 256
+HISTOGRAM_HALF_RANGE_MM = 1.0
+HISTOGRAM_BINS = 200
+MAX_REGIONS = 200
+
+
+def resample(a: Surface, b: Surface, matrix: np.ndarray, rounds: int = 3,
+             progress: ProgressCallback | None = None,
+             cancel: CancelToken | None = None) -> np.ndarray:
+    """B's height (mm, A's frame) under every cell of A with data (float32, NaN elsewhere)."""
+    m = np.asarray(matrix, np.float64)
+    inv = np.linalg.inv(m)
+    rows, cols = a.shape
+    out = np.full(a.shape, np.nan, np.float32)
+    jj = np.arange(cols)
+    for r0 in range(0, rows, CHUNK_ROWS):
+        if cancel is not None:
+            cancel.check()
+        r1 = min(rows, r0 + CHUNK_ROWS)
+        ha = a.height_mm[r0:r1]
+        ok = np.isfinite(ha)
+        if not ok.any():
+            continue
+        ri, ci = np.nonzero(ok)
+        x, y = a.xy(ri + r0, jj[ci])
+        za = ha[ok].astype(np.float64)
+        z = za
+        zb = np.full(z.shape, np.nan)
+        for _ in range(rounds):
+            pb = np.column_stack([x, y, np.where(np.isfinite(z), z, za)]) @ inv[:3, :3].T \
+                + inv[:3, 3]
+            fi, fj = b.cell(pb[:, 0], pb[:, 1])
+            hb = bilinear(b.height_mm, fi, fj)
+            z = m[2, 0] * pb[:, 0] + m[2, 1] * pb[:, 1] + m[2, 2] * hb + m[2, 3]
+            zb = z
+        block = np.full(ha.shape, np.nan, np.float32)
+        block[ri, ci] = zb.astype(np.float32)
+        out[r0:r1] = block
+        report(progress, r1 / rows, f"resampling B onto A ({r1}/{rows} rows)")
+    return out
+
+
+def difference(a: Surface, b_on_a: np.ndarray) -> np.ndarray:
+    """``A - B`` (float32 mm), NaN where either has no data."""
+    with np.errstate(invalid="ignore"):
+        return (a.height_mm.astype(np.float32) - b_on_a).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class DiffStats:
+    cells: int  # cells with both surfaces (the overlap)
+    share_of_a: float  # of A's cells with data
+    mean_mm: float
+    median_mm: float
+    rms_mm: float
+    p95_abs_mm: float
+    p99_abs_mm: float
+    max_abs_mm: float
+    histogram_edges_mm: list
+    histogram_counts: list
+
+    def to_json(self) -> dict:
+        return {"overlap_cells": self.cells, "overlap_share_of_a": round(self.share_of_a, 6),
+                "mean_mm": _r(self.mean_mm), "median_mm": _r(self.median_mm),
+                "rms_mm": _r(self.rms_mm), "p95_abs_mm": _r(self.p95_abs_mm),
+                "p99_abs_mm": _r(self.p99_abs_mm), "max_abs_mm": _r(self.max_abs_mm),
+                "histogram": {"edges_mm": self.histogram_edges_mm,
+                              "counts": self.histogram_counts,
+                              "note": "signed A - B; the first and last bins also count "
+                                      "everything beyond them"}}
+
+
+def _r(v: float) -> float | None:
+    return round(float(v), 6) if math.isfinite(v) else None
+
+
+def statistics(diff: np.ndarray, a: Surface, half_range_mm: float = HISTOGRAM_HALF_RANGE_MM,
+               bins: int = HISTOGRAM_BINS, mask: np.ndarray | None = None) -> DiffStats:
+    """Figures of the difference over the overlap (or over ``mask`` & the overlap)."""
+    ok = np.isfinite(diff) if mask is None else np.isfinite(diff) & mask
+    v = diff[ok].astype(np.float64)
+    n_a = int(np.isfinite(a.height_mm).sum())
+    edges = np.linspace(-half_range_mm, half_range_mm, bins + 1)
+    if v.size == 0:
+        nan = float("nan")
+        return DiffStats(0, 0.0, nan, nan, nan, nan, nan, nan,
+                         [round(float(e), 6) for e in edges], [0] * bins)
+    counts, _ = np.histogram(np.clip(v, -half_range_mm, half_range_mm), edges)
+    av = np.abs(v)
+    return DiffStats(int(v.size), v.size / max(1, n_a), float(v.mean()), float(np.median(v)),
+                     float(np.sqrt(np.mean(v * v))), float(np.percentile(av, 95)),
+                     float(np.percentile(av, 99)), float(av.max()),
+                     [round(float(e), 6) for e in edges], [int(c) for c in counts])
+
+
+@dataclass(frozen=True)
+class Region:
+    area_mm2: float
+    cells: int
+    deepest_mm: float  # signed A - B at the largest |A - B|
+    max_depth_mm: float  # its magnitude
+    depth_p90_mm: float
+    length_mm: float
+    width_mm: float
+    axis_deg: float  # the principal axis, from +x towards +y (export frame)
+    centroid_mm: tuple[float, float]
+
+    def to_json(self) -> dict:
+        return {"area_mm2": round(self.area_mm2, 6), "cells": self.cells,
+                "deepest_mm": round(self.deepest_mm, 6),
+                "max_depth_mm": round(self.max_depth_mm, 6),
+                "depth_p90_mm": round(self.depth_p90_mm, 6),
+                "length_mm": round(self.length_mm, 6), "width_mm": round(self.width_mm, 6),
+                "axis_deg": round(self.axis_deg, 4),
+                "centroid_mm": [round(v, 6) for v in self.centroid_mm]}
+
+
+def outline(diff: np.ndarray, a: Surface, threshold_mm: float, min_area_mm2: float = 0.1,
+            max_regions: int = MAX_REGIONS) -> tuple[list[Region], np.ndarray]:
+    """The regions where ``|A - B| > threshold_mm`` (8-connected, at least ``min_area_mm2``),
+    largest first, and their outline mask (the regions' border cells)."""
+    from scipy import ndimage
+
+    with np.errstate(invalid="ignore"):
+        mask = np.abs(diff) > threshold_mm
+    labels, n = ndimage.label(mask, np.ones((3, 3), int))
+    edge = np.zeros(diff.shape, bool)
+    if n == 0:
+        return [], edge
+    cell_area = a.pixel_mm * a.pixel_mm
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)
+    keep = np.nonzero(sizes[1:] * cell_area >= min_area_mm2)[0] + 1
+    order = sorted(keep.tolist(), key=lambda k: (-int(sizes[k]), k))[:max_regions]
+    objects = ndimage.find_objects(labels)
+    regions = []
+    kept = np.zeros(n + 1, bool)
+    for k in order:
+        kept[k] = True
+        sl = objects[k - 1]
+        sub = labels[sl] == k
+        ri, ci = np.nonzero(sub)
+        ri = ri + sl[0].start
+        ci = ci + sl[1].start
+        vals = diff[ri, ci].astype(np.float64)
+        x, y = a.xy(ri, ci)
+        cx, cy = float(x.mean()), float(y.mean())
+        if len(x) >= 2:
+            w, v = np.linalg.eigh(np.cov(np.vstack([x - cx, y - cy])))
+            major = v[:, 1]
+        else:
+            major = np.array([1.0, 0.0])
+        along = (x - cx) * major[0] + (y - cy) * major[1]
+        across = -(x - cx) * major[1] + (y - cy) * major[0]
+        deepest = int(np.argmax(np.abs(vals)))
+        regions.append(Region(
+            float(len(x) * cell_area), int(len(x)), float(vals[deepest]),
+            float(abs(vals[deepest])), float(np.percentile(np.abs(vals), 90)),
+            float(along.max() - along.min() + a.pixel_mm),
+            float(across.max() - across.min() + a.pixel_mm),
+            float(math.degrees(math.atan2(major[1], major[0])) % 180.0), (cx, cy)))
+    sel = kept[labels]
+    edge = sel & ~ndimage.binary_erosion(sel, np.ones((3, 3), bool))
+    return regions, edge
