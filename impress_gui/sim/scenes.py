@@ -274,6 +274,36 @@ def _add_cut(h: np.ndarray, Xs, Ys, cut: ShoeCut, pose: ShoePose, features: list
     return np.where(mark, h + np.float32(cut.depth_mm), h).astype(np.float32)
 
 
+def shoe_relief(pixel_mm: float, sole_seed: int = 1, pose=None, cut=None,
+                half_width_mm: float = 125.0) -> Scene:
+    """The shoe preset's relief alone (no target, a flat albedo) on the cells around the sole:
+    rail X within ``half_width_mm`` of the posed centre, Y within SHOE_REACH_MM of it; the
+    same heights as :func:`build_scene` gives there with ``sole_seed`` (for tests and
+    benchmarks that need the truth of several poses quickly)."""
+    pose = ShoePose.of(pose)
+    cx = SHOE_CENTRE_MM[0] + pose.shift_x_mm
+    cy = SHOE_CENTRE_MM[1] + pose.shift_y_mm
+    # on the scene's own grid (cells at -SCENE_HALF_WIDTH_MM + j p, -90 + i p)
+    j0 = int(np.floor((cx - half_width_mm + SCENE_HALF_WIDTH_MM) / pixel_mm))
+    j1 = int(np.ceil((cx + half_width_mm + SCENE_HALF_WIDTH_MM) / pixel_mm)) + 1
+    i0 = int(np.floor((cy - SHOE_REACH_MM + 90.0) / pixel_mm))
+    i1 = int(np.ceil((cy + SHOE_REACH_MM + 90.0) / pixel_mm)) + 1
+    xs = (-SCENE_HALF_WIDTH_MM + pixel_mm * np.arange(j0, j1)).astype(np.float32)
+    ys = (-90.0 + pixel_mm * np.arange(i0, i1)).astype(np.float32)
+    X, Y = np.meshgrid(xs, ys)
+    features: list[dict] = []
+    rng = np.random.default_rng(int(sole_seed))
+    Xs, Ys = (X, Y) if pose.is_identity() else (
+        v.astype(np.float32) for v in pose.to_shoe(X, Y))
+    h = _smooth(_shoe(Xs, Ys, rng, 0.0, features).astype(np.float32), 0.25, pixel_mm)
+    if not pose.is_identity():
+        _place_features(features, pose)
+    if cut is not None:
+        h = _add_cut(h, Xs, Ys, ShoeCut.of(cut), pose, features)
+    albedo = np.full((*h.shape, 3), 128, np.uint8)
+    return Scene(float(xs[0]), float(ys[0]), pixel_mm, h.astype(np.float32), albedo, features)
+
+
 def _tire(X, Y, rng, length_mm, features):
     y_a, y_b = FEATURES_START_Y_MM, length_mm + 60.0
     inside = (np.abs(X) <= 92.5) & (Y >= y_a) & (Y <= y_b)

@@ -5,7 +5,8 @@ B is resampled onto A's grid through the registration ``M`` (B -> A): for a cell
 ``(x, y)`` the point of the moved surface of B above it is found by a fixed-point iteration
 (``(x_B, y_B)`` = the xy of ``M^-1 (x, y, z)``, ``z`` = the z of ``M (x_B, y_B, h_B(x_B,
 y_B))``, three rounds from A's own height: exact for a turn about the vertical, converging
-fast for the small tilts between two scans); ``h_B`` is bilinear. The difference is ``A - B``
+fast for the small tilts between two scans); ``h_B`` is bilinear (NaN next to cells without
+data). The difference is ``A - B``
 in mm (positive where A is higher), NaN where either has no data.
 
 Regions: the 8-connected cells with ``|A - B| > threshold``; for each its area, its deepest
@@ -50,15 +51,23 @@ def resample(a: Surface, b: Surface, matrix: np.ndarray, rounds: int = 3,
         ri, ci = np.nonzero(ok)
         x, y = a.xy(ri + r0, jj[ci])
         za = ha[ok].astype(np.float64)
+        # the parts of M^-1 (x, y, z) that do not change from round to round
+        bx = inv[0, 0] * x + inv[0, 1] * y + inv[0, 3]
+        by = inv[1, 0] * x + inv[1, 1] * y + inv[1, 3]
         z = za
-        zb = np.full(z.shape, np.nan)
         for _ in range(rounds):
-            pb = np.column_stack([x, y, np.where(np.isfinite(z), z, za)]) @ inv[:3, :3].T \
-                + inv[:3, 3]
-            fi, fj = b.cell(pb[:, 0], pb[:, 1])
+            zz = np.where(np.isfinite(z), z, za)
+            xb = bx + inv[0, 2] * zz
+            yb = by + inv[1, 2] * zz
+            fi, fj = b.cell(xb, yb)
             hb = bilinear(b.height_mm, fi, fj)
-            z = m[2, 0] * pb[:, 0] + m[2, 1] * pb[:, 1] + m[2, 2] * hb + m[2, 3]
-            zb = z
+            new = m[2, 0] * xb + m[2, 1] * yb + m[2, 2] * hb + m[2, 3]
+            # a turn about the vertical needs one round; a tilt a few
+            done = abs(inv[0, 2]) < 1e-12 and abs(inv[1, 2]) < 1e-12
+            z = new
+            if done:
+                break
+        zb = z
         block = np.full(ha.shape, np.nan, np.float32)
         block[ri, ci] = zb.astype(np.float32)
         out[r0:r1] = block

@@ -253,7 +253,7 @@ def _icp(src_pts: np.ndarray, dst_pts: np.ndarray, init: np.ndarray,
     for dist, iters in stages:
         est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=dist))
         res = reg.registration_icp(src, dst, dist, m, est,
-                                   reg.ICPConvergenceCriteria(1e-9, 1e-9, iters))
+                                   reg.ICPConvergenceCriteria(1e-7, 1e-7, iters))
         m = np.asarray(res.transformation, np.float64).copy()
         log.append({"max_distance_mm": dist, "fitness": round(float(res.fitness), 6),
                     "inlier_rmse_mm": round(float(res.inlier_rmse), 6)})
@@ -401,7 +401,7 @@ def register(a: Surface, b: Surface, params: RegistrationParams = RegistrationPa
     dst = _window_points(a, ra.window, s)
     src = _window_points(b, rb.window, 2 * s, pre)
     d = params.max_distance_mm
-    stages = [(max(4 * d, 2.0), 40), (max(2 * d, 1.0), 40), (d, 60)]
+    stages = [(max(4 * d, 2.0), 10), (max(2 * d, 1.0), 10), (d, 30)]
     m, log = _icp(src, dst, init, stages, s)
     m = _round(m)
     report(progress, 0.9, "residuals")
