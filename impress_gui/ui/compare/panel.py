@@ -1,0 +1,280 @@
+"""A minimal Compare panel: choose A and B (reconstruction folders, X3P or PLY), register B onto
+A (automatically, with mirror and height inversion available), see the residual RMS and the
+overlap, the signed difference map (mm, diverging colours) with the regions beyond a threshold
+outlined, the maps A and B (moved onto A) and an overlay of B over A with adjustable opacity,
+and write the whole comparison folder (``impress compare``'s files).
+
+The work runs in the core (:mod:`impress_gui.core.compare`) on worker threads
+(:class:`~impress_gui.ui.worker.Worker`); a threshold change re-outlines through
+:class:`~impress_gui.ui.worker.LatestOnly`, so dragging it never queues stale work.
+The map is drawn as seen from above (row 0 of A's grid at the top, as the viewer shows it).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtWidgets import (
+    QCheckBox,
+    QComboBox,
+    QDoubleSpinBox,
+    QFileDialog,
+    QFormLayout,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QPushButton,
+    QSlider,
+    QVBoxLayout,
+    QWidget,
+)
+
+from impress_gui.core.compare.difference import outline
+from impress_gui.core.compare.record import (
+    DEFAULT_THRESHOLD_MM,
+    CompareParams,
+    Comparison,
+    colour_range,
+    compare,
+    diverging_lut,
+    write_comparison,
+)
+from impress_gui.core.compare.register import RegistrationParams
+from impress_gui.core.compare.surfaces import load_surface
+from impress_gui.ui.worker import LatestOnly, Worker
+
+VIEWS = ("difference A - B", "A", "B moved onto A", "B over A")
+
+
+class ComparePanel(QWidget):
+    """See the module's docstring. ``compared(Comparison)`` follows a finished comparison,
+    ``outlined(int)`` a finished outlining (the number of regions), ``written(dict)`` a
+    written folder (its record), ``failed(code, message)`` any error."""
+
+    compared = Signal(object)
+    outlined = Signal(int)
+    written = Signal(object)
+    failed = Signal(str, str)
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.comparison: Comparison | None = None
+        self._edges: np.ndarray | None = None
+        self._worker = Worker(parent=self, name="compare")
+        self._worker.finished.connect(self._on_compared)
+        self._worker.failed.connect(self._on_failed)
+        self._worker.progress.connect(lambda f, m: self.status_label.setText(f"{m} ({f:.0%})"))
+        self._writer = Worker(parent=self, name="compare-write")
+        self._writer.finished.connect(self._on_written)
+        self._writer.failed.connect(self._on_failed)
+        self._outliner = LatestOnly(self, "compare-outline")
+        self._outliner.finished.connect(self._on_outlined)
+        self._outliner.failed.connect(self._on_failed)
+
+        self.a_edit, self.b_edit = QLineEdit(), QLineEdit()
+        self.a_edit.setPlaceholderText("A: reconstruction folder, .x3p or .ply")
+        self.b_edit.setPlaceholderText("B: reconstruction folder, .x3p or .ply")
+        self.mirror_check = QCheckBox("mirror B (x → -x)")
+        self.invert_check = QCheckBox("invert B's heights (z → -z)")
+        self.threshold_spin = QDoubleSpinBox()
+        self.threshold_spin.setRange(0.01, 20.0)
+        self.threshold_spin.setDecimals(2)
+        self.threshold_spin.setSingleStep(0.05)
+        self.threshold_spin.setSuffix(" mm")
+        self.threshold_spin.setValue(DEFAULT_THRESHOLD_MM)
+        self.compare_button = QPushButton("Compare")
+        self.write_button = QPushButton("Write comparison folder…")
+        self.write_button.setEnabled(False)
+        self.view_combo = QComboBox()
+        self.view_combo.addItems(VIEWS)
+        self.opacity_slider = QSlider(Qt.Orientation.Horizontal)
+        self.opacity_slider.setRange(0, 100)
+        self.opacity_slider.setValue(50)
+        self.status_label = QLabel("Choose A and B, then Compare.")
+        self.status_label.setWordWrap(True)
+        self.result_label = QLabel("")
+        self.result_label.setWordWrap(True)
+        self.result_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+
+        form = QFormLayout()
+        for label, edit in (("A", self.a_edit), ("B", self.b_edit)):
+            row = QHBoxLayout()
+            row.addWidget(edit)
+            browse = QPushButton("Folder…")
+            browse.clicked.connect(lambda _=False, e=edit: self._browse(e))
+            row.addWidget(browse)
+            form.addRow(label, row)
+        flags = QHBoxLayout()
+        flags.addWidget(self.mirror_check)
+        flags.addWidget(self.invert_check)
+        form.addRow("", flags)
+        form.addRow("outline |A - B| above", self.threshold_spin)
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.compare_button)
+        buttons.addWidget(self.write_button)
+        shown = QHBoxLayout()
+        shown.addWidget(QLabel("show"))
+        shown.addWidget(self.view_combo)
+        shown.addWidget(QLabel("B opacity"))
+        shown.addWidget(self.opacity_slider)
+
+        self.plot = pg.GraphicsLayoutWidget()
+        self.view_box = self.plot.addViewBox(lockAspect=True, invertY=True, enableMenu=False)
+        self.image = pg.ImageItem(axisOrder="row-major")
+        self.overlay = pg.ImageItem(axisOrder="row-major")
+        self.edges = pg.ImageItem(axisOrder="row-major")
+        for item in (self.image, self.overlay, self.edges):
+            self.view_box.addItem(item)
+
+        layout = QVBoxLayout(self)
+        layout.addLayout(form)
+        layout.addLayout(buttons)
+        layout.addWidget(self.status_label)
+        layout.addWidget(self.result_label)
+        layout.addLayout(shown)
+        layout.addWidget(self.plot, 1)
+
+        self.compare_button.clicked.connect(self.start_compare)
+        self.write_button.clicked.connect(self._ask_write)
+        self.threshold_spin.valueChanged.connect(self._reoutline)
+        self.view_combo.currentIndexChanged.connect(self._show)
+        self.opacity_slider.valueChanged.connect(self._show)
+
+    # ----- actions ---------------------------------------------------------------------------
+    def params(self) -> CompareParams:
+        reg = RegistrationParams(mirror=self.mirror_check.isChecked(),
+                                 invert=self.invert_check.isChecked())
+        return CompareParams(registration=reg, threshold_mm=float(self.threshold_spin.value()))
+
+    def start_compare(self) -> None:
+        if self._worker.is_running():
+            return
+        a, b, params = self.a_edit.text().strip(), self.b_edit.text().strip(), self.params()
+
+        def task(progress, cancel):
+            sa = load_surface(a, params.ply_pixel_mm)
+            sb = load_surface(b, params.ply_pixel_mm)
+            return compare(sa, sb, params, progress, cancel)
+
+        self.compare_button.setEnabled(False)
+        self.status_label.setText("comparing…")
+        self._worker.start(task)
+
+    def write_to(self, folder: str | Path) -> None:
+        """Write ``impress compare``'s folder for the current inputs and settings."""
+        if self._writer.is_running():
+            return
+        inputs = [self.a_edit.text().strip(), self.b_edit.text().strip()]
+        params = self.params()
+        self.status_label.setText(f"writing {folder}…")
+        self._writer.start(lambda progress, cancel: write_comparison(
+            inputs, folder, params, progress, cancel))
+
+    def shutdown(self) -> None:
+        self._worker.shutdown()
+        self._writer.shutdown()
+        self._outliner.shutdown()
+
+    def closeEvent(self, event) -> None:  # noqa: N802 - Qt override
+        self.shutdown()
+        super().closeEvent(event)
+
+    def _browse(self, edit: QLineEdit) -> None:
+        path = QFileDialog.getExistingDirectory(self, "Reconstruction folder", edit.text())
+        if path:
+            edit.setText(path)
+
+    def _ask_write(self) -> None:
+        path = QFileDialog.getExistingDirectory(self, "Comparison folder (new or empty)")
+        if path:
+            self.write_to(path)
+
+    # ----- results ---------------------------------------------------------------------------
+    def _on_compared(self, cmp: Comparison) -> None:
+        self.comparison = cmp
+        self.compare_button.setEnabled(True)
+        self.write_button.setEnabled(True)
+        reg, st = cmp.registration, cmp.stats
+        self.status_label.setText("compared")
+        self.result_label.setText(
+            f"turn {reg.rotation_deg():.3f}°, residual RMS {reg.rms_mm:.4f} mm, overlap "
+            f"{reg.overlap:.3f}; A - B over {st.cells} cells: median {st.median_mm:+.4f} mm, "
+            f"95th percentile of |A - B| {st.p95_abs_mm:.4f} mm; {len(cmp.regions)} region(s) "
+            f"above {self.threshold_spin.value():g} mm")
+        self._edges = cmp.outline
+        self._show()
+        self.view_box.autoRange(padding=0.02)
+        self.compared.emit(cmp)
+
+    def _reoutline(self) -> None:
+        cmp = self.comparison
+        if cmp is None:
+            return
+        t = float(self.threshold_spin.value())
+        self._outliner.submit(lambda progress, cancel: (t, *outline(cmp.diff, cmp.a, t)))
+
+    def _on_outlined(self, result) -> None:
+        t, regions, edges = result
+        self._edges = edges
+        text = self.result_label.text()
+        head = text.rsplit(";", 1)[0]
+        self.result_label.setText(f"{head}; {len(regions)} region(s) above {t:g} mm")
+        self._show()
+        self.outlined.emit(len(regions))
+
+    def _on_written(self, doc: dict) -> None:
+        self.status_label.setText("comparison folder written")
+        self.written.emit(doc)
+
+    def _on_failed(self, code: str, message: str) -> None:
+        self.compare_button.setEnabled(True)
+        self.status_label.setText(f"[{code}] {message}")
+        self.failed.emit(code, message)
+
+    def shown_image(self) -> np.ndarray | None:
+        """The array the map shows now (the difference, A or B on A)."""
+        cmp = self.comparison
+        if cmp is None:
+            return None
+        view = self.view_combo.currentText()
+        if view == VIEWS[0]:
+            return cmp.diff
+        if view == VIEWS[1]:
+            return cmp.a.height_mm
+        return cmp.b_on_a
+
+    def _show(self) -> None:
+        cmp = self.comparison
+        if cmp is None:
+            return
+        flip = cmp.a.y_step_mm > 0  # row 0 at the top is the largest y
+
+        def rows(a: np.ndarray) -> np.ndarray:
+            return a[::-1] if flip else a
+
+        view = self.view_combo.currentText()
+        data = self.shown_image()
+        assert data is not None
+        if view == VIEWS[0]:
+            r = colour_range(cmp.stats, float(self.threshold_spin.value()))
+            self.image.setLookupTable(diverging_lut())
+            self.image.setImage(rows(data), levels=(-r, r), autoLevels=False)
+        else:
+            finite = cmp.a.height_mm[np.isfinite(cmp.a.height_mm)]
+            lo, hi = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
+            self.image.setLookupTable(None)
+            self.image.setImage(rows(cmp.a.height_mm if view == VIEWS[3] else data),
+                                levels=(float(lo), float(hi)), autoLevels=False)
+        if view == VIEWS[3]:
+            self.overlay.setImage(rows(cmp.b_on_a), levels=self.image.levels, autoLevels=False)
+            self.overlay.setOpacity(self.opacity_slider.value() / 100.0)
+            self.overlay.setVisible(True)
+        else:
+            self.overlay.setVisible(False)
+        rgba = np.zeros((*cmp.outline.shape, 4), np.uint8)
+        rgba[rows(self._edges if self._edges is not None else cmp.outline)] = (0, 200, 0, 255)
+        self.edges.setImage(rgba, autoLevels=False)
+        self.edges.setVisible(view == VIEWS[0])
