@@ -267,19 +267,10 @@ def _window_points(surface: Surface, window, spacing: float, pre: np.ndarray | N
 
 
 # ----- residuals -----------------------------------------------------------------------------
-def grid_normals(surface: Surface) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unit normals (nx, ny, nz) of A's grid (central differences, export frame)."""
-    h = surface.height_mm.astype(np.float64)
-    dzdi, dzdj = np.gradient(h)
-    gx = dzdj / surface.pixel_mm
-    gy = dzdi / surface.y_step_mm
-    norm = np.sqrt(gx * gx + gy * gy + 1.0)
-    return -gx / norm, -gy / norm, 1.0 / norm
-
-
-def residuals(a: Surface, b_pts_in_a: np.ndarray, normals=None) -> np.ndarray:
-    """Point-to-plane distance (mm) of points (A's frame) to A at the cell beneath each (A's
-    plane through that cell's centre); NaN off A's data."""
+def residuals(a: Surface, b_pts_in_a: np.ndarray) -> np.ndarray:
+    """Point-to-plane distance (mm) of points (A's frame) to A at the cell beneath each: A's
+    plane through that cell's centre, its normal from the central differences of the cell's
+    four neighbours (one-sided at the grid's edges); NaN off A's data."""
     fi, fj = a.cell(b_pts_in_a[:, 0], b_pts_in_a[:, 1])
     i = np.rint(fi).astype(np.int64)
     j = np.rint(fj).astype(np.int64)
@@ -288,12 +279,18 @@ def residuals(a: Surface, b_pts_in_a: np.ndarray, normals=None) -> np.ndarray:
     out = np.full(len(b_pts_in_a), np.nan)
     if not ok.any():
         return out
-    nx, ny, nz = normals if normals is not None else grid_normals(a)
     i, j = i[ok], j[ok]
+    h = a.height_mm
+    ip, im = np.minimum(i + 1, rows - 1), np.maximum(i - 1, 0)
+    jp, jm = np.minimum(j + 1, cols - 1), np.maximum(j - 1, 0)
+    dzdj = (h[i, jp].astype(np.float64) - h[i, jm]) / np.maximum(jp - jm, 1)
+    dzdi = (h[ip, j].astype(np.float64) - h[im, j]) / np.maximum(ip - im, 1)
+    gx, gy = dzdj / a.pixel_mm, dzdi / a.y_step_mm
+    norm = np.sqrt(gx * gx + gy * gy + 1.0)
     qx, qy = a.xy(i, j)
-    qz = a.height_mm[i, j].astype(np.float64)
+    qz = h[i, j].astype(np.float64)
     p = b_pts_in_a[ok]
-    out[ok] = nx[i, j] * (p[:, 0] - qx) + ny[i, j] * (p[:, 1] - qy) + nz[i, j] * (p[:, 2] - qz)
+    out[ok] = (-gx * (p[:, 0] - qx) - gy * (p[:, 1] - qy) + (p[:, 2] - qz)) / norm
     return out
 
 
