@@ -42,9 +42,10 @@ def test_compare_panel_compares_outlines_and_writes(panel, folders, qtbot, tmp_p
     a, b = folders
     qtbot.keyClicks(panel.a_edit, str(a))
     qtbot.keyClicks(panel.b_edit, str(b))
-    with qtbot.waitSignal(panel.compared, timeout=120_000) as blocker:
+    with qtbot.waitSignals([panel.compared, panel.status], timeout=120_000) as blocker:
         qtbot.mouseClick(panel.compare_button, Qt.MouseButton.LeftButton)
-    cmp = blocker.args[0]
+    cmp = panel.comparison
+    assert cmp is not None and not panel.is_dirty()
     # B was turned by -12 deg in the rail frame (X towards Y), i.e. +12 deg seen from above in
     # the export frame (y = -rail Y); B -> A turns it back: -12 deg
     assert abs(cmp.registration.rotation_deg() - (-12.0)) < 0.05

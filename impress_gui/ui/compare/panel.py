@@ -54,6 +54,8 @@ class ComparePanel(QWidget):
     ``outlined(int)`` a finished outlining (the number of regions), ``written(dict)`` a
     written folder (its record), ``failed(code, message)`` any error."""
 
+    changed = Signal()  # the window's Tab protocol: nothing here goes into the project yet
+    status = Signal(str)  # a line for the status bar
     compared = Signal(object)
     outlined = Signal(int)
     written = Signal(object)
@@ -173,6 +175,12 @@ class ComparePanel(QWidget):
         self._writer.start(lambda progress, cancel: write_comparison(
             inputs, folder, params, progress, cancel))
 
+    def commit_to_project(self) -> None:
+        """The window's Tab protocol: a comparison is not kept in the project yet."""
+
+    def is_dirty(self) -> bool:
+        return False
+
     def shutdown(self) -> None:
         self._worker.shutdown()
         self._writer.shutdown()
@@ -199,6 +207,7 @@ class ComparePanel(QWidget):
         self.write_button.setEnabled(True)
         reg, st = cmp.registration, cmp.stats
         self.status_label.setText("compared")
+        self.status.emit(f"compared: residual RMS {reg.rms_mm:.4f} mm, overlap {reg.overlap:.3f}")
         self.result_label.setText(
             f"turn {reg.rotation_deg():.3f}°, residual RMS {reg.rms_mm:.4f} mm, overlap "
             f"{reg.overlap:.3f}; A - B over {st.cells} cells: median {st.median_mm:+.4f} mm, "
@@ -227,6 +236,7 @@ class ComparePanel(QWidget):
 
     def _on_written(self, doc: dict) -> None:
         self.status_label.setText("comparison folder written")
+        self.status.emit("comparison folder written")
         self.written.emit(doc)
 
     def _on_failed(self, code: str, message: str) -> None:
