@@ -132,6 +132,20 @@ def main() -> None:
               f"area {c['area_mm2']:.2f} mm2")
     else:
         print(f"\ncut: no region beyond the threshold within 2 mm of ({cx:.2f}, {cy:.2f})")
+    # the difference itself around the cut, whatever the threshold
+    import tifffile
+
+    out = work / "A-C"
+    g = docs["A-C (cut)"]["grid"]
+    diff = tifffile.imread(out / "difference.tif")
+    ii, jj = np.nonzero(np.isfinite(diff))
+    x = g["x0_mm"] + jj * g["pixel_mm"]
+    y = g["y0_mm"] + ii * g["y_step_mm"]
+    near_cut = np.hypot(x - cx, y - cy) <= CUT["length_mm"] / 2 + 0.5
+    if near_cut.any():
+        v = diff[ii[near_cut], jj[near_cut]]
+        print(f"cut: the most negative A - B within {CUT['length_mm'] / 2 + 0.5:g} mm of its "
+              f"centre {v.min():+.3f} mm (truth {-CUT['depth_mm']:+.3f}: B has the ridge)")
     print("acceptance (issue 20): RMS <= 0.03 mm, p95 <= 0.06 mm; cut depth within 0.05 mm, "
           "length within 0.2 mm")
 
