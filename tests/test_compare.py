@@ -473,3 +473,19 @@ def test_rendered_scans_register(scans, tmp_path):
     print(f"320x180: pose error {err:.3f} mm, turn {reg['rotation_about_z_deg']:.4f} deg, "
           f"residual RMS {reg['residual_rms_mm']:.4f} mm, p95 "
           f"{doc['difference']['p95_abs_mm']:.4f} mm")
+
+
+def test_one_profile_across_both_maps(cmp_ac):
+    """Across the cut: B (with its ridge) 0.5 mm above A over the cut's width, equal beside."""
+    from impress_gui.core.compare.difference import pair_profile
+
+    cx, cy = cut_in_a()
+    across = np.array([np.sin(np.radians(CUT.angle_deg)), np.cos(np.radians(CUT.angle_deg))])
+    start, end = np.array([cx, cy]) - 2.0 * across, np.array([cx, cy]) + 2.0 * across
+    prof = pair_profile(cmp_ac.a, cmp_ac.b_on_a, tuple(start), tuple(end))
+    assert prof.distance_mm[-1] == pytest.approx(4.0)
+    rise = -prof.difference_mm
+    on = np.abs(prof.distance_mm - 2.0) < CUT.width_mm / 2 - 0.1
+    off = np.abs(prof.distance_mm - 2.0) > CUT.width_mm / 2 + 0.2
+    assert np.allclose(rise[on], CUT.depth_mm, atol=0.02)
+    assert np.all(np.abs(rise[off]) < 0.02)

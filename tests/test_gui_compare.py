@@ -62,6 +62,23 @@ def test_compare_panel_compares_outlines_and_writes(panel, folders, qtbot, tmp_p
     assert panel.overlay.isVisible()
     panel.opacity_slider.setValue(20)
     assert abs(panel.overlay.opacity() - 0.2) < 1e-6
+    # a profile across the cut (A's frame is the shoe's own: the cut at (15, -230) along
+    # (cos 30, -sin 30)), given by two clicks' worth of points: B (with the ridge) is 0.5 mm
+    # above A at the middle, the two agree at the ends
+    cx, cy = 15.0, -230.0
+    across = np.array([np.sin(np.radians(30.0)), np.cos(np.radians(30.0))])
+    c0, r0 = panel.mm_to_view(cx, cy)
+    assert np.allclose(panel.view_to_mm(c0, r0), (cx, cy), atol=1e-9)
+    panel.add_profile_point(*(np.array([cx, cy]) - 2.0 * across))
+    with qtbot.waitSignal(panel.profiled, timeout=5_000) as blocker:
+        panel.add_profile_point(*(np.array([cx, cy]) + 2.0 * across))
+    prof = blocker.args[0]
+    rise = prof.b_mm - prof.a_mm
+    mid = np.abs(prof.distance_mm - 2.0) < 0.15
+    assert abs(np.nanmax(rise[mid]) - 0.5) < 0.1
+    assert np.all(np.abs(rise[prof.distance_mm < 1.0]) < 0.05)
+    xs, ys = panel.curve_b.getData()
+    assert len(xs) == len(prof.distance_mm)
     out = tmp_path / "cmp"
     with qtbot.waitSignal(panel.written, timeout=120_000):
         panel.write_to(out)

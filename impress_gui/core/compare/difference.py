@@ -196,3 +196,34 @@ def outline(diff: np.ndarray, a: Surface, threshold_mm: float, min_area_mm2: flo
     sel = kept[labels]
     edge = sel & ~ndimage.binary_erosion(sel, np.ones((3, 3), bool))
     return regions, edge
+
+
+@dataclass(frozen=True)
+class PairProfile:
+    """Both maps along one line: ``distance_mm`` from the start, ``a_mm`` and ``b_mm`` (B moved
+    onto A) bilinear on A's grid, NaN where a map has no data."""
+
+    start_mm: tuple[float, float]
+    end_mm: tuple[float, float]
+    distance_mm: np.ndarray
+    a_mm: np.ndarray
+    b_mm: np.ndarray
+
+    @property
+    def difference_mm(self) -> np.ndarray:
+        return self.a_mm - self.b_mm
+
+
+def pair_profile(a: Surface, b_on_a: np.ndarray, start_mm: tuple[float, float],
+                 end_mm: tuple[float, float], step_mm: float | None = None) -> PairProfile:
+    """A's heights and B's (resampled on A's grid) along the segment ``start_mm`` ->
+    ``end_mm`` (export frame), every ``step_mm`` (default: half a cell)."""
+    step = step_mm or a.pixel_mm / 2
+    (x0, y0), (x1, y1) = start_mm, end_mm
+    length = math.hypot(x1 - x0, y1 - y0)
+    n = max(2, int(math.ceil(length / step)) + 1)
+    t = np.linspace(0.0, 1.0, n)
+    x, y = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
+    fi, fj = a.cell(x, y)
+    return PairProfile((float(x0), float(y0)), (float(x1), float(y1)), t * length,
+                       bilinear(a.height_mm, fi, fj), bilinear(b_on_a, fi, fj))

@@ -2,7 +2,8 @@
 A (automatically, with mirror and height inversion available), see the residual RMS and the
 overlap, the signed difference map (mm, diverging colours) with the regions beyond a threshold
 outlined, the maps A and B (moved onto A) and an overlay of B over A with adjustable opacity,
-and write the whole comparison folder (``impress compare``'s files).
+one depth profile across both maps on the same chart (two clicks on the map with "profile"
+checked), and write the whole comparison folder (``impress compare``'s files).
 
 The work runs in the core (:mod:`impress_gui.core.compare`) on worker threads
 (:class:`~impress_gui.ui.worker.Worker`); a threshold change re-outlines through
@@ -32,7 +33,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from impress_gui.core.compare.difference import outline
+from impress_gui.core.compare.difference import PairProfile, outline, pair_profile
 from impress_gui.core.compare.record import (
     DEFAULT_THRESHOLD_MM,
     CompareParams,
@@ -57,6 +58,7 @@ class ComparePanel(QWidget):
     changed = Signal()  # the window's Tab protocol: nothing here goes into the project yet
     status = Signal(str)  # a line for the status bar
     compared = Signal(object)
+    profiled = Signal(object)
     outlined = Signal(int)
     written = Signal(object)
     failed = Signal(str, str)
@@ -65,6 +67,8 @@ class ComparePanel(QWidget):
         super().__init__(parent)
         self.comparison: Comparison | None = None
         self._edges: np.ndarray | None = None
+        self.profile: PairProfile | None = None
+        self._clicks: list[tuple[float, float]] = []
         self._worker = Worker(parent=self, name="compare")
         self._worker.finished.connect(self._on_compared)
         self._worker.failed.connect(self._on_failed)
@@ -95,6 +99,7 @@ class ComparePanel(QWidget):
         self.opacity_slider = QSlider(Qt.Orientation.Horizontal)
         self.opacity_slider.setRange(0, 100)
         self.opacity_slider.setValue(50)
+        self.profile_check = QCheckBox("profile: click its two ends on the map")
         self.status_label = QLabel("Choose A and B, then Compare.")
         self.status_label.setWordWrap(True)
         self.result_label = QLabel("")
@@ -122,6 +127,7 @@ class ComparePanel(QWidget):
         shown.addWidget(self.view_combo)
         shown.addWidget(QLabel("B opacity"))
         shown.addWidget(self.opacity_slider)
+        shown.addWidget(self.profile_check)
 
         self.plot = pg.GraphicsLayoutWidget()
         self.view_box = self.plot.addViewBox(lockAspect=True, invertY=True, enableMenu=False)
@@ -130,6 +136,16 @@ class ComparePanel(QWidget):
         self.edges = pg.ImageItem(axisOrder="row-major")
         for item in (self.image, self.overlay, self.edges):
             self.view_box.addItem(item)
+        self.line = pg.PlotDataItem(pen=pg.mkPen((255, 0, 255), width=2))
+        self.view_box.addItem(self.line)
+        self.profile_plot = pg.PlotWidget()
+        self.profile_plot.setLabel("bottom", "distance along the line (mm)")
+        self.profile_plot.setLabel("left", "height (mm)")
+        self.profile_plot.addLegend()
+        self.curve_a = self.profile_plot.plot(pen=pg.mkPen((40, 90, 220), width=2), name="A")
+        self.curve_b = self.profile_plot.plot(pen=pg.mkPen((230, 120, 20), width=2),
+                                              name="B moved onto A")
+        self.plot.scene().sigMouseClicked.connect(self._on_scene_click)
 
         layout = QVBoxLayout(self)
         layout.addLayout(form)
@@ -137,7 +153,8 @@ class ComparePanel(QWidget):
         layout.addWidget(self.status_label)
         layout.addWidget(self.result_label)
         layout.addLayout(shown)
-        layout.addWidget(self.plot, 1)
+        layout.addWidget(self.plot, 3)
+        layout.addWidget(self.profile_plot, 1)
 
         self.compare_button.clicked.connect(self.start_compare)
         self.write_button.clicked.connect(self._ask_write)
@@ -214,6 +231,10 @@ class ComparePanel(QWidget):
             f"95th percentile of |A - B| {st.p95_abs_mm:.4f} mm; {len(cmp.regions)} region(s) "
             f"above {self.threshold_spin.value():g} mm")
         self._edges = cmp.outline
+        self.profile, self._clicks = None, []
+        self.curve_a.setData([], [])
+        self.curve_b.setData([], [])
+        self.line.setData([], [])
         self._show()
         self.view_box.autoRange(padding=0.02)
         self.compared.emit(cmp)
@@ -233,6 +254,51 @@ class ComparePanel(QWidget):
         self.result_label.setText(f"{head}; {len(regions)} region(s) above {t:g} mm")
         self._show()
         self.outlined.emit(len(regions))
+
+    # ----- the profile ------------------------------------------------------------------------
+    def view_to_mm(self, col: float, row: float) -> tuple[float, float]:
+        """A point of the map as drawn (columns, rows from the top) in A's export frame."""
+        cmp = self.comparison
+        assert cmp is not None
+        r = cmp.a.shape[0] - 1 - row if cmp.a.y_step_mm > 0 else row
+        x, y = cmp.a.xy(r, col)
+        return float(x), float(y)
+
+    def mm_to_view(self, x: float, y: float) -> tuple[float, float]:
+        cmp = self.comparison
+        assert cmp is not None
+        fi, fj = cmp.a.cell(x, y)
+        row = cmp.a.shape[0] - 1 - fi if cmp.a.y_step_mm > 0 else fi
+        return float(fj), float(row)
+
+    def _on_scene_click(self, ev) -> None:
+        if self.comparison is None or not self.profile_check.isChecked():
+            return
+        if ev.button() != Qt.MouseButton.LeftButton:
+            return
+        p = self.view_box.mapSceneToView(ev.scenePos())
+        # the image's pixel [r, c] covers [c, c + 1) x [r, r + 1) of the view
+        self.add_profile_point(*self.view_to_mm(float(p.x()) - 0.5, float(p.y()) - 0.5))
+
+    def add_profile_point(self, x_mm: float, y_mm: float) -> None:
+        """One end of the profile (export frame, mm); the second draws it."""
+        self._clicks.append((x_mm, y_mm))
+        if len(self._clicks) == 2:
+            self.set_profile(*self._clicks)
+            self._clicks = []
+
+    def set_profile(self, start_mm: tuple[float, float], end_mm: tuple[float, float]) -> None:
+        """Draw both maps along the segment (export frame, mm) on one chart."""
+        cmp = self.comparison
+        if cmp is None:
+            return
+        prof = pair_profile(cmp.a, cmp.b_on_a, start_mm, end_mm)
+        self.profile = prof
+        self.curve_a.setData(prof.distance_mm, prof.a_mm, connect="finite")
+        self.curve_b.setData(prof.distance_mm, prof.b_mm, connect="finite")
+        (c0, r0), (c1, r1) = self.mm_to_view(*start_mm), self.mm_to_view(*end_mm)
+        self.line.setData([c0 + 0.5, c1 + 0.5], [r0 + 0.5, r1 + 0.5])
+        self.profiled.emit(prof)
 
     def _on_written(self, doc: dict) -> None:
         self.status_label.setText("comparison folder written")
