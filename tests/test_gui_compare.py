@@ -59,8 +59,23 @@ def test_compare_panel_compares_outlines_and_writes(panel, folders, qtbot, tmp_p
     for k in range(panel.view_combo.count()):
         panel.view_combo.setCurrentIndex(k)
         assert panel.image.image is not None
-    assert panel.overlay.isVisible()
+    # side by side: B on the right, pan and zoom linked, one cursor in both
+    assert panel.view_combo.currentText().startswith("A | B")
+    assert panel.plot_b.isVisibleTo(panel)
+    assert panel.image_b.image.shape == cmp.b_on_a.shape
+    panel.view_box.setRange(xRange=(100, 300), yRange=(200, 400), padding=0)
+    assert np.allclose(panel.view_box_b.viewRange(), panel.view_box.viewRange())
+    panel.set_cursor(150.0, 250.0)
+    for c in panel.cursors:
+        assert list(c.getData()[0]) == [150.0] and list(c.getData()[1]) == [250.0]
+    panel.view_combo.setCurrentIndex(3)  # B over A
+    assert panel.overlay.isVisible() and not panel.plot_b.isVisibleTo(panel)
     panel.opacity_slider.setValue(20)
+    assert abs(panel.overlay.opacity() - 0.2) < 1e-6
+    panel.flicker_check.setChecked(True)
+    qtbot.waitUntil(lambda: panel.flicker_ticks >= 2, timeout=5_000)
+    assert panel.overlay.opacity() in (0.0, 1.0)
+    panel.flicker_check.setChecked(False)
     assert abs(panel.overlay.opacity() - 0.2) < 1e-6
     # a profile across the cut (A's frame is the shoe's own: the cut at (15, -230) along
     # (cos 30, -sin 30)), given by two clicks' worth of points: B (with the ridge) is 0.5 mm

@@ -1,7 +1,8 @@
 """A minimal Compare panel: choose A and B (reconstruction folders, X3P or PLY), register B onto
 A (automatically, with mirror and height inversion available), see the residual RMS and the
 overlap, the signed difference map (mm, diverging colours) with the regions beyond a threshold
-outlined, the maps A and B (moved onto A) and an overlay of B over A with adjustable opacity,
+outlined, the maps A and B (moved onto A), side by side with linked pan, zoom and cursor, an
+overlay of B over A with adjustable opacity and a flicker toggle,
 one depth profile across both maps on the same chart (two clicks on the map with "profile"
 checked), and write the whole comparison folder (``impress compare``'s files).
 
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
@@ -47,7 +48,8 @@ from impress_gui.core.compare.register import RegistrationParams
 from impress_gui.core.compare.surfaces import load_surface
 from impress_gui.ui.worker import LatestOnly, Worker
 
-VIEWS = ("difference A - B", "A", "B moved onto A", "B over A")
+VIEWS = ("difference A - B", "A", "B moved onto A", "B over A", "A | B side by side")
+FLICKER_MS = 500
 
 
 class ComparePanel(QWidget):
@@ -100,6 +102,11 @@ class ComparePanel(QWidget):
         self.opacity_slider.setRange(0, 100)
         self.opacity_slider.setValue(50)
         self.profile_check = QCheckBox("profile: click its two ends on the map")
+        self.flicker_check = QCheckBox("flicker")
+        self.flicker_ticks = 0
+        self._flicker = QTimer(self)
+        self._flicker.setInterval(FLICKER_MS)
+        self._flicker.timeout.connect(self._flick)
         self.status_label = QLabel("Choose A and B, then Compare.")
         self.status_label.setWordWrap(True)
         self.result_label = QLabel("")
@@ -127,6 +134,7 @@ class ComparePanel(QWidget):
         shown.addWidget(self.view_combo)
         shown.addWidget(QLabel("B opacity"))
         shown.addWidget(self.opacity_slider)
+        shown.addWidget(self.flicker_check)
         shown.addWidget(self.profile_check)
 
         self.plot = pg.GraphicsLayoutWidget()
@@ -138,6 +146,26 @@ class ComparePanel(QWidget):
             self.view_box.addItem(item)
         self.line = pg.PlotDataItem(pen=pg.mkPen((255, 0, 255), width=2))
         self.view_box.addItem(self.line)
+        # the second map of the side-by-side view, its pan and zoom linked to the first
+        self.plot_b = pg.GraphicsLayoutWidget()
+        self.view_box_b = self.plot_b.addViewBox(lockAspect=True, invertY=True,
+                                                 enableMenu=False)
+        self.image_b = pg.ImageItem(axisOrder="row-major")
+        self.view_box_b.addItem(self.image_b)
+        self.view_box_b.setXLink(self.view_box)
+        self.view_box_b.setYLink(self.view_box)
+        self.plot_b.setVisible(False)
+        # a linked cursor: the same cell marked in both maps
+        self.cursors = []
+        for vb in (self.view_box, self.view_box_b):
+            c = pg.ScatterPlotItem(size=14, symbol="+", pen=pg.mkPen((255, 0, 255), width=2),
+                                   brush=None)
+            vb.addItem(c)
+            self.cursors.append(c)
+        self.plot.scene().sigMouseMoved.connect(
+            lambda pos: self._hover(self.view_box, pos))
+        self.plot_b.scene().sigMouseMoved.connect(
+            lambda pos: self._hover(self.view_box_b, pos))
         self.profile_plot = pg.PlotWidget()
         self.profile_plot.setLabel("bottom", "distance along the line (mm)")
         self.profile_plot.setLabel("left", "height (mm)")
@@ -153,7 +181,10 @@ class ComparePanel(QWidget):
         layout.addWidget(self.status_label)
         layout.addWidget(self.result_label)
         layout.addLayout(shown)
-        layout.addWidget(self.plot, 3)
+        maps = QHBoxLayout()
+        maps.addWidget(self.plot, 1)
+        maps.addWidget(self.plot_b, 1)
+        layout.addLayout(maps, 3)
         layout.addWidget(self.profile_plot, 1)
 
         self.compare_button.clicked.connect(self.start_compare)
@@ -161,6 +192,7 @@ class ComparePanel(QWidget):
         self.threshold_spin.valueChanged.connect(self._reoutline)
         self.view_combo.currentIndexChanged.connect(self._show)
         self.opacity_slider.valueChanged.connect(self._show)
+        self.flicker_check.toggled.connect(self._set_flicker)
 
     # ----- actions ---------------------------------------------------------------------------
     def params(self) -> CompareParams:
@@ -198,7 +230,33 @@ class ComparePanel(QWidget):
     def is_dirty(self) -> bool:
         return False
 
+    def _hover(self, vb, pos) -> None:
+        p = vb.mapSceneToView(pos)
+        self.set_cursor(float(p.x()), float(p.y()))
+
+    def set_cursor(self, col: float, row: float) -> None:
+        """Mark the same place (map columns, rows from the top) in both maps."""
+        for c in self.cursors:
+            c.setData([col], [row])
+
+    def _set_flicker(self, on: bool) -> None:
+        if on:
+            self._flicker.start()
+        else:
+            self._flicker.stop()
+            self._show()
+
+    def _flick(self) -> None:
+        """Flicker: the overlay of B shown and hidden in turn (the view switches to B over A)."""
+        if self.comparison is None:
+            return
+        if self.view_combo.currentText() != VIEWS[3]:
+            self.view_combo.setCurrentIndex(3)
+        self.flicker_ticks += 1
+        self.overlay.setOpacity(1.0 if self.flicker_ticks % 2 else 0.0)
+
     def shutdown(self) -> None:
+        self._flicker.stop()
         self._worker.shutdown()
         self._writer.shutdown()
         self._outliner.shutdown()
@@ -311,16 +369,16 @@ class ComparePanel(QWidget):
         self.failed.emit(code, message)
 
     def shown_image(self) -> np.ndarray | None:
-        """The array the map shows now (the difference, A or B on A)."""
+        """The array the (first) map shows now (the difference, A or B on A)."""
         cmp = self.comparison
         if cmp is None:
             return None
         view = self.view_combo.currentText()
         if view == VIEWS[0]:
             return cmp.diff
-        if view == VIEWS[1]:
-            return cmp.a.height_mm
-        return cmp.b_on_a
+        if view == VIEWS[2]:
+            return cmp.b_on_a
+        return cmp.a.height_mm  # A alone, under the overlay, or on the left side by side
 
     def _show(self) -> None:
         cmp = self.comparison
@@ -334,6 +392,7 @@ class ComparePanel(QWidget):
         view = self.view_combo.currentText()
         data = self.shown_image()
         assert data is not None
+        self.plot_b.setVisible(view == VIEWS[4])
         if view == VIEWS[0]:
             r = colour_range(cmp.stats, float(self.threshold_spin.value()))
             self.image.setLookupTable(diverging_lut())
@@ -342,8 +401,11 @@ class ComparePanel(QWidget):
             finite = cmp.a.height_mm[np.isfinite(cmp.a.height_mm)]
             lo, hi = (np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0))
             self.image.setLookupTable(None)
-            self.image.setImage(rows(cmp.a.height_mm if view == VIEWS[3] else data),
+            self.image.setImage(rows(cmp.a.height_mm if view in VIEWS[3:] else data),
                                 levels=(float(lo), float(hi)), autoLevels=False)
+            if view == VIEWS[4]:
+                self.image_b.setImage(rows(cmp.b_on_a), levels=(float(lo), float(hi)),
+                                      autoLevels=False)
         if view == VIEWS[3]:
             self.overlay.setImage(rows(cmp.b_on_a), levels=self.image.levels, autoLevels=False)
             self.overlay.setOpacity(self.opacity_slider.value() / 100.0)
