@@ -308,6 +308,26 @@ def test_command_reads_a_point_cloud_and_makes_a_mean(recons, tmp_path):
     assert np.nanmedian(std[count == 3]) < 0.02
 
 
+def test_command_takes_point_pairs(recons, tmp_path):
+    """Three pairs (shoe points as each input's export frame has them, 0.5 mm off) make the
+    coarse step; the record keeps them."""
+    shoe = [(0.0, 180.0), (30.0, 330.0), (-30.0, 380.0)]
+    pairs = []
+    for u, v in shoe:
+        xa, ya = ShoePose.of(None).to_rail(u, v)
+        xc, yc = ShoePose.of(POSE_C).to_rail(u, v)
+        pairs.append({"a": [float(xa) + 0.5, float(-ya)], "b": [float(xc), float(-yc) + 0.5]})
+    (tmp_path / "pairs.json").write_text(json.dumps({"pairs": pairs}))
+    out = tmp_path / "paired"
+    assert main(["compare", str(recons["a"]), str(recons["c"]), "--pairs",
+                 str(tmp_path / "pairs.json"), "-o", str(out)]) == 0
+    doc = json.loads((out / "compare.json").read_text())
+    reg = doc["registration"]
+    assert reg["coarse"]["method"].startswith("point pairs") and reg["coarse"]["pairs"] == 3
+    assert doc["parameters"]["registration"]["pairs"][0]["a"] == pairs[0]["a"]
+    assert pose_error_mm(np.array(reg["matrix_b_to_a"]), POSE_C) < 0.05
+
+
 def _fails(capsys, argv, code: str, out: Path) -> None:
     assert main(argv) == 2
     err = capsys.readouterr().err
