@@ -13,7 +13,8 @@ from PySide6.QtCore import Qt
 from impress_gui.sim.scenes import ShoeCut, shoe_relief
 
 pytest.importorskip("open3d")
-pytestmark = pytest.mark.usefixtures("no_stray_threads")
+pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
+              pytest.mark.usefixtures("no_stray_threads")]
 
 POSE = {"rotate_deg": -12.0, "shift_x_mm": -6.0, "shift_y_mm": 5.0}
 
@@ -111,3 +112,47 @@ def test_compare_panel_reports_a_coded_error(panel, folders, qtbot, tmp_path):
     assert blocker.args[0] == "E-COMPARE-INPUT"
     assert "[E-COMPARE-INPUT]" in panel.status_label.text()
     assert panel.compare_button.isEnabled()
+
+
+def test_compare_panel_takes_clicked_point_pairs(panel, folders, qtbot):
+    """Pick pairs: A and B shown side by side, three pairs clicked (here: given as the points
+    a click lands on), Compare uses them for the coarse step."""
+    from impress_gui.sim.scenes import ShoePose
+
+    panel.a_edit.setText(str(folders[0]))
+    panel.b_edit.setText(str(folders[1]))
+    with qtbot.waitSignal(panel.loaded, timeout=60_000):
+        panel.pairs_check.setChecked(True)
+    assert panel.plot_b.isVisibleTo(panel) and panel.image_b.image is not None
+    for u, v in ((0.0, 180.0), (30.0, 330.0), (-30.0, 380.0)):
+        xa, ya = ShoePose.of(None).to_rail(u, v)
+        xb, yb = ShoePose.of(POSE).to_rail(u, v)
+        panel.add_pair_point("a", float(xa) + 0.4, float(-ya))
+        panel.add_pair_point("b", float(xb), float(-yb) - 0.4)
+    assert len(panel.pairs) == 3 and "used by Compare" in panel.pairs_label.text()
+    assert len(panel.pair_marks[0].getData()[0]) == 3
+    # a real click on the left map starts a fourth pair at the cell clicked
+    from PySide6.QtCore import QPointF
+
+    panel.resize(900, 900)
+    panel.show()
+    qtbot.waitExposed(panel)
+    panel.view_box.autoRange(padding=0.02)
+    col, row = 300.0, 500.0
+    scene = panel.view_box.mapViewToScene(QPointF(col + 0.5, row + 0.5))
+    qtbot.mouseClick(panel.plot.viewport(), Qt.MouseButton.LeftButton,
+                     pos=panel.plot.mapFromScene(scene))
+    assert panel._pending.get("a") is not None
+    s = panel.surfaces[0]
+    x, y = s.xy(row, col)  # A's rows from the top: y_step < 0 for a reconstruction
+    assert np.hypot(panel._pending["a"][0] - x, panel._pending["a"][1] - y) < 2 * s.pixel_mm
+    assert len(panel.pair_marks[0].getData()[0]) == 4  # the pending click is marked too
+    panel._pending.clear()
+    with qtbot.waitSignal(panel.compared, timeout=120_000) as blocker:
+        panel.compare_button.click()
+    reg = blocker.args[0].registration
+    assert reg.coarse["method"].startswith("point pairs") and reg.coarse["pairs"] == 3
+    assert abs(reg.rotation_deg() - (-12.0)) < 0.05
+    assert not panel.pairs_check.isChecked()
+    panel.clear_pairs()
+    assert panel.pairs == [] and panel.params().registration.pairs is None

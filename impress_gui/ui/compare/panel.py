@@ -4,7 +4,8 @@ overlap, the signed difference map (mm, diverging colours) with the regions beyo
 outlined, the maps A and B (moved onto A), side by side with linked pan, zoom and cursor, an
 overlay of B over A with adjustable opacity and a flicker toggle,
 one depth profile across both maps on the same chart (two clicks on the map with "profile"
-checked), and write the whole comparison folder (``impress compare``'s files).
+checked), point pairs for the coarse registration clicked on A and B side by side ("pick
+pairs"), and write the whole comparison folder (``impress compare``'s files).
 
 The work runs in the core (:mod:`impress_gui.core.compare`) on worker threads
 (:class:`~impress_gui.ui.worker.Worker`); a threshold change re-outlines through
@@ -45,7 +46,7 @@ from impress_gui.core.compare.record import (
     write_comparison,
 )
 from impress_gui.core.compare.register import RegistrationParams
-from impress_gui.core.compare.surfaces import load_surface
+from impress_gui.core.compare.surfaces import Surface, load_surface
 from impress_gui.ui.worker import LatestOnly, Worker
 
 VIEWS = ("difference A - B", "A", "B moved onto A", "B over A", "A | B side by side")
@@ -61,6 +62,7 @@ class ComparePanel(QWidget):
     status = Signal(str)  # a line for the status bar
     compared = Signal(object)
     profiled = Signal(object)
+    loaded = Signal()  # A and B read for picking pairs
     outlined = Signal(int)
     written = Signal(object)
     failed = Signal(str, str)
@@ -70,6 +72,12 @@ class ComparePanel(QWidget):
         self.comparison: Comparison | None = None
         self._edges: np.ndarray | None = None
         self.profile: PairProfile | None = None
+        self.surfaces: tuple[Surface, Surface] | None = None
+        self.pairs: list[tuple[tuple[float, float], tuple[float, float]]] = []
+        self._pending: dict[str, tuple[float, float]] = {}
+        self._loader = Worker(parent=self, name="compare-load")
+        self._loader.finished.connect(self._on_loaded)
+        self._loader.failed.connect(self._on_failed)
         self._clicks: list[tuple[float, float]] = []
         self._worker = Worker(parent=self, name="compare")
         self._worker.finished.connect(self._on_compared)
@@ -94,6 +102,9 @@ class ComparePanel(QWidget):
         self.threshold_spin.setSuffix(" mm")
         self.threshold_spin.setValue(DEFAULT_THRESHOLD_MM)
         self.compare_button = QPushButton("Compare")
+        self.pairs_check = QCheckBox("pick point pairs (A left, B right)")
+        self.clear_pairs_button = QPushButton("Clear pairs")
+        self.pairs_label = QLabel("no point pairs: the coarse registration is automatic")
         self.write_button = QPushButton("Write comparison folder…")
         self.write_button.setEnabled(False)
         self.view_combo = QComboBox()
@@ -129,6 +140,10 @@ class ComparePanel(QWidget):
         buttons = QHBoxLayout()
         buttons.addWidget(self.compare_button)
         buttons.addWidget(self.write_button)
+        pairs_row = QHBoxLayout()
+        pairs_row.addWidget(self.pairs_check)
+        pairs_row.addWidget(self.clear_pairs_button)
+        pairs_row.addWidget(self.pairs_label, 1)
         shown = QHBoxLayout()
         shown.addWidget(QLabel("show"))
         shown.addWidget(self.view_combo)
@@ -152,6 +167,13 @@ class ComparePanel(QWidget):
                                                  enableMenu=False)
         self.image_b = pg.ImageItem(axisOrder="row-major")
         self.view_box_b.addItem(self.image_b)
+        self.pair_marks = []
+        for vb in (self.view_box, self.view_box_b):
+            m = pg.ScatterPlotItem(size=12, symbol="o", pen=pg.mkPen((0, 220, 255), width=2),
+                                   brush=None)
+            vb.addItem(m)
+            self.pair_marks.append(m)
+        self.plot_b.scene().sigMouseClicked.connect(self._on_scene_click_b)
         self.view_box_b.setXLink(self.view_box)
         self.view_box_b.setYLink(self.view_box)
         self.plot_b.setVisible(False)
@@ -178,6 +200,7 @@ class ComparePanel(QWidget):
         layout = QVBoxLayout(self)
         layout.addLayout(form)
         layout.addLayout(buttons)
+        layout.addLayout(pairs_row)
         layout.addWidget(self.status_label)
         layout.addWidget(self.result_label)
         layout.addLayout(shown)
@@ -189,6 +212,8 @@ class ComparePanel(QWidget):
 
         self.compare_button.clicked.connect(self.start_compare)
         self.write_button.clicked.connect(self._ask_write)
+        self.pairs_check.toggled.connect(self._set_pairs_mode)
+        self.clear_pairs_button.clicked.connect(self.clear_pairs)
         self.threshold_spin.valueChanged.connect(self._reoutline)
         self.view_combo.currentIndexChanged.connect(self._show)
         self.opacity_slider.valueChanged.connect(self._show)
@@ -196,8 +221,9 @@ class ComparePanel(QWidget):
 
     # ----- actions ---------------------------------------------------------------------------
     def params(self) -> CompareParams:
+        pairs = tuple(self.pairs) if len(self.pairs) >= 3 else None
         reg = RegistrationParams(mirror=self.mirror_check.isChecked(),
-                                 invert=self.invert_check.isChecked())
+                                 invert=self.invert_check.isChecked(), pairs=pairs)
         return CompareParams(registration=reg, threshold_mm=float(self.threshold_spin.value()))
 
     def start_compare(self) -> None:
@@ -255,8 +281,75 @@ class ComparePanel(QWidget):
         self.flicker_ticks += 1
         self.overlay.setOpacity(1.0 if self.flicker_ticks % 2 else 0.0)
 
+    # ----- point pairs ------------------------------------------------------------------------
+    def _set_pairs_mode(self, on: bool) -> None:
+        if not on:
+            self.view_box_b.setXLink(self.view_box)
+            self.view_box_b.setYLink(self.view_box)
+            self.plot_b.setVisible(False)
+            self._show()
+            return
+        if self._loader.is_running():
+            return
+        a, b, px = self.a_edit.text().strip(), self.b_edit.text().strip(), self.params()
+        self.status_label.setText("reading A and B for the point pairs…")
+        self._loader.start(lambda progress, cancel: (load_surface(a, px.ply_pixel_mm),
+                                                     load_surface(b, px.ply_pixel_mm)))
+
+    def _on_loaded(self, surfaces) -> None:
+        self.surfaces = surfaces
+        a, b = surfaces
+        self.view_box_b.setXLink(None)
+        self.view_box_b.setYLink(None)
+        for img, s in ((self.image, a), (self.image_b, b)):
+            h = s.height_mm[::-1] if s.y_step_mm > 0 else s.height_mm
+            fin = h[np.isfinite(h)]
+            lo, hi = (np.percentile(fin, [1, 99]) if fin.size else (0.0, 1.0))
+            img.setLookupTable(None)
+            img.setImage(h, levels=(float(lo), float(hi)), autoLevels=False)
+        self.overlay.setVisible(False)
+        self.edges.setVisible(False)
+        self.plot_b.setVisible(True)
+        self.view_box.autoRange(padding=0.02)
+        self.view_box_b.autoRange(padding=0.02)
+        self.status_label.setText("click a point on A (left), then the same point on B (right)")
+        self._mark_pairs()
+        self.loaded.emit()
+
+    def _on_scene_click_b(self, ev) -> None:
+        if self.pairs_check.isChecked() and self.surfaces is not None \
+                and ev.button() == Qt.MouseButton.LeftButton:
+            p = self.view_box_b.mapSceneToView(ev.scenePos())
+            self.add_pair_point("b", *_to_mm(self.surfaces[1], float(p.x()) - 0.5,
+                                             float(p.y()) - 0.5))
+
+    def add_pair_point(self, side: str, x_mm: float, y_mm: float) -> None:
+        """One click of a pair: ``side`` "a" or "b", the point in that input's export frame."""
+        self._pending[side] = (float(x_mm), float(y_mm))
+        if "a" in self._pending and "b" in self._pending:
+            self.pairs.append((self._pending.pop("a"), self._pending.pop("b")))
+        self._mark_pairs()
+
+    def clear_pairs(self) -> None:
+        self.pairs, self._pending = [], {}
+        self._mark_pairs()
+
+    def _mark_pairs(self) -> None:
+        n = len(self.pairs)
+        self.pairs_label.setText(
+            f"{n} point pair(s){': used by Compare' if n >= 3 else ' (3 needed)' if n else ''}"
+            if n else "no point pairs: the coarse registration is automatic")
+        if self.surfaces is None:
+            return
+        for k, (mark, s) in enumerate(zip(self.pair_marks, self.surfaces, strict=True)):
+            pts = [p[k] for p in self.pairs] + ([self._pending[("a", "b")[k]]]
+                                                if ("a", "b")[k] in self._pending else [])
+            view = [_to_view(s, x, y) for x, y in pts]
+            mark.setData([c + 0.5 for c, _ in view], [r + 0.5 for _, r in view])
+
     def shutdown(self) -> None:
         self._flicker.stop()
+        self._loader.shutdown()
         self._worker.shutdown()
         self._writer.shutdown()
         self._outliner.shutdown()
@@ -278,6 +371,9 @@ class ComparePanel(QWidget):
     # ----- results ---------------------------------------------------------------------------
     def _on_compared(self, cmp: Comparison) -> None:
         self.comparison = cmp
+        self.pairs_check.setChecked(False)
+        self.view_box_b.setXLink(self.view_box)
+        self.view_box_b.setYLink(self.view_box)
         self.compare_button.setEnabled(True)
         self.write_button.setEnabled(True)
         reg, st = cmp.registration, cmp.stats
@@ -316,25 +412,23 @@ class ComparePanel(QWidget):
     # ----- the profile ------------------------------------------------------------------------
     def view_to_mm(self, col: float, row: float) -> tuple[float, float]:
         """A point of the map as drawn (columns, rows from the top) in A's export frame."""
-        cmp = self.comparison
-        assert cmp is not None
-        r = cmp.a.shape[0] - 1 - row if cmp.a.y_step_mm > 0 else row
-        x, y = cmp.a.xy(r, col)
-        return float(x), float(y)
+        assert self.comparison is not None
+        return _to_mm(self.comparison.a, col, row)
 
     def mm_to_view(self, x: float, y: float) -> tuple[float, float]:
-        cmp = self.comparison
-        assert cmp is not None
-        fi, fj = cmp.a.cell(x, y)
-        row = cmp.a.shape[0] - 1 - fi if cmp.a.y_step_mm > 0 else fi
-        return float(fj), float(row)
+        assert self.comparison is not None
+        return _to_view(self.comparison.a, x, y)
 
     def _on_scene_click(self, ev) -> None:
-        if self.comparison is None or not self.profile_check.isChecked():
-            return
         if ev.button() != Qt.MouseButton.LeftButton:
             return
         p = self.view_box.mapSceneToView(ev.scenePos())
+        if self.pairs_check.isChecked() and self.surfaces is not None:
+            self.add_pair_point("a", *_to_mm(self.surfaces[0], float(p.x()) - 0.5,
+                                             float(p.y()) - 0.5))
+            return
+        if self.comparison is None or not self.profile_check.isChecked():
+            return
         # the image's pixel [r, c] covers [c, c + 1) x [r, r + 1) of the view
         self.add_profile_point(*self.view_to_mm(float(p.x()) - 0.5, float(p.y()) - 0.5))
 
@@ -416,3 +510,16 @@ class ComparePanel(QWidget):
         rgba[rows(self._edges if self._edges is not None else cmp.outline)] = (0, 200, 0, 255)
         self.edges.setImage(rgba, autoLevels=False)
         self.edges.setVisible(view == VIEWS[0])
+
+
+def _to_mm(s: Surface, col: float, row: float) -> tuple[float, float]:
+    """A point of a map as drawn (columns, rows from the top) in the surface's export frame."""
+    r = s.shape[0] - 1 - row if s.y_step_mm > 0 else row
+    x, y = s.xy(r, col)
+    return float(x), float(y)
+
+
+def _to_view(s: Surface, x: float, y: float) -> tuple[float, float]:
+    fi, fj = s.cell(x, y)
+    row = s.shape[0] - 1 - fi if s.y_step_mm > 0 else fi
+    return float(fj), float(row)
