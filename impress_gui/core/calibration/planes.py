@@ -4,7 +4,7 @@ tilt (poorly fixed by the corner picks) is refined so the stripe points lie on t
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -29,6 +29,10 @@ from impress_gui.core.calibration.target import TargetModel, _inside_convex
 # faces that the fallback gives (random rigs 0-7 at 640x360: 0 where the strict tests fail,
 # 0.49-1.0 where they calibrate; the presets 0.86-0.98)
 BLOOM_SWITCH = 0.25
+#: how a laser's stripe rows on the target are estimated (see observe_stripes)
+ROWS_CENTRE = "centre of mass above half maximum"
+ROWS_MIDPOINT = "midpoint of the half-maximum crossings"
+ROWS_BLOOMING = "blooming fallback (centre of mass)"
 
 
 @dataclass(frozen=True)
@@ -40,6 +44,7 @@ class LaserPlaneFit:
     frames: tuple[int, ...]
     heights_mm: tuple[float, ...]  # target-face heights the stripe was measured on
     method: str = "stripe-fit"
+    stripe_rows: str = ""  # how the stripe's rows were estimated (ROWS_*; "" = not recorded)
 
 
 def _face_polygons(calib_pose, target: TargetModel):
@@ -59,13 +64,17 @@ def _face_polygons(calib_pose, target: TargetModel):
 
 def stripe_uv_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
                         pose, target: TargetModel, travel_mm: float, params=None,
-                        blooming: bool = False) -> np.ndarray:
+                        blooming: bool = False, midpoints: bool = False):
     """Sub-pixel stripe positions ``(N, 2)`` of one laser inside the target's image region
-    (``blooming``: with the fallback for a saturated stripe, ``detect_band_blooming``)."""
+    (``blooming``: with the fallback for a saturated stripe, ``detect_band_blooming``).
+    ``midpoints``: return ``(centre-of-mass positions, half-maximum midpoint positions)``, the
+    same columns re-estimated by :func:`~impress_gui.core.reconstruction.stripes.half_max_midpoints`."""
     from impress_gui.core.reconstruction.stripes import (
+        Planes,
         StripeParams,
         detect_band,
         detect_band_blooming,
+        half_max_midpoints,
     )
 
     faces = _face_polygons(pose, target)
@@ -76,13 +85,19 @@ def stripe_uv_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.n
     c0 = int(max(0, np.floor(all_uv[:, 0].min())))
     c1 = int(min(w, np.ceil(all_uv[:, 0].max()) + 1))
     if r1 - r0 < 10 or c1 - c0 < 10:
-        return np.zeros((0, 2))
+        return (np.zeros((0, 2)), np.zeros((0, 2))) if midpoints else np.zeros((0, 2))
+    params = params or StripeParams()
+    band = rgb[r0:r1, c0:c1]
     if blooming:
-        res = detect_band_blooming(laser, rgb[r0:r1, c0:c1], r0, params or StripeParams())
+        res = detect_band_blooming(laser, band, r0, params)
     else:
-        res = detect_band(laser, rgb[r0:r1, c0:c1], r0, params or StripeParams(), None)
+        res = detect_band(laser, band, r0, params, None)
     cols = np.flatnonzero(res.found)
-    return np.column_stack([cols + c0, res.rows[cols]])
+    uv = np.column_stack([cols + c0, res.rows[cols]])
+    if not midpoints:
+        return uv
+    mid = half_max_midpoints(Planes.from_rgb(band).y, res.rows - r0, params.half_window_px) + r0
+    return uv, np.column_stack([cols + c0, mid[cols]])
 
 
 def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: float):
@@ -111,7 +126,7 @@ def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: floa
         hq = hit - poly[0]
         u, v = hq @ e1, hq @ e2
 
-        def inside(pp):
+        def inside(pp, poly=poly, e1=e1, e2=e2, u=u, v=v, t=t):
             q = pp - poly[0]
             return _inside_convex(np.column_stack([q @ e1, q @ e2]), u, v) & (t > 0)
 
@@ -159,6 +174,7 @@ class StripeObservations:
     frames: dict[str, int]  # calibration frame of each laser
     rays: dict[str, list]
     blooming: tuple[str, ...] = ()  # lasers detected with the blooming fallback
+    rows: dict[str, str] = field(default_factory=dict)  # each laser's row estimator
 
     def points(self, name: str, rot: np.ndarray, pose_rt):
         """The stripe points on the target's faces, their heights and frames (only frames where
@@ -193,8 +209,8 @@ class StripeObservations:
                 pts = [p for p, g in zip(pts, good) if g]
                 hts = [h for h, g in zip(hts, good) if g]
                 used = [k for k, g in zip(used, good) if g]
-            out[name] = (fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used),
-                         pts)
+            fit = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
+            out[name] = (replace(fit, stripe_rows=self.rows.get(name, "")), pts)
         return out
 
 
@@ -208,33 +224,60 @@ def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: Ta
     rot_b, r_o, t_o = pose.rotation, pose.target_rotation, pose.target_translation_mm
     v_true = pose.implied_speed_mm_s  # the travel between frames that matches the target's pose
     frames = {"green": picks.t1, "red": picks.t2}
-    found: dict[bool, dict[str, list]] = {False: {}, True: {}}  # strict / blooming fallback
+    variants = (ROWS_CENTRE, ROWS_MIDPOINT, ROWS_BLOOMING)
+    found: dict[str, dict[str, list]] = {v: {} for v in variants}
     for i, (name, t_c) in enumerate(frames.items()):
         cancel.check()
         report(progress, 0.15 + 0.3 * i, f"{name} stripe on the target")
         span = max(3, min(plane_span, int(round(plane_travel_mm / max(v_true, 1e-6) * fps))))
         lo, hi = max(0, t_c - span), min(video.frame_count, t_c + span + 1)
         wanted = sorted(set(np.linspace(lo, hi - 1, max(1, plane_frames)).astype(int)) | {t_c})
-        found[False][name], found[True][name] = [], []
+        for v in variants:
+            found[v][name] = []
         for k in wanted:
             cancel.check()
             dt_k = float(times[k] - times[picks.t1])
             rgb = video.read(int(k))
-            for bloom in (False, True):
-                uv = stripe_uv_on_target(rgb, name, intrinsics, rot_b, (r_o, t_o), target,
-                                         v_true * dt_k, blooming=bloom)
+            args = (rgb, name, intrinsics, rot_b, (r_o, t_o), target, v_true * dt_k)
+            com, mid = stripe_uv_on_target(*args, midpoints=True)
+            uvs = {ROWS_CENTRE: com, ROWS_MIDPOINT: mid,
+                   ROWS_BLOOMING: stripe_uv_on_target(*args, blooming=True)}
+            for v, uv in uvs.items():
                 if len(uv):
-                    found[bloom][name].append((int(k), dt_k, intrinsics.rays(uv)))
+                    found[v][name].append((int(k), dt_k, intrinsics.rays(uv)))
     # a blooming stripe (a saturated, nearly white core on the light target) escapes the
     # colour tests in most columns: a laser is detected with the fallback in all its frames
     # when the strict tests give less than BLOOM_SWITCH of the fallback's points on the faces
     # (in the frames where the stripe crosses two faces, as the plane fit takes them)
-    by_test = [StripeObservations(target, v_true, frames, found[b]) for b in (False, True)]
-    blooming = tuple(name for name in frames
-                     if _face_points(by_test[0], name, rot_b, (r_o, t_o))
-                     < BLOOM_SWITCH * _face_points(by_test[1], name, rot_b, (r_o, t_o)))
+    by = {v: StripeObservations(target, v_true, frames, found[v]) for v in variants}
+    rt = (r_o, t_o)
+    rows = {}
+    for name in frames:
+        if (_face_points(by[ROWS_CENTRE], name, rot_b, rt)
+                < BLOOM_SWITCH * _face_points(by[ROWS_BLOOMING], name, rot_b, rt)):
+            rows[name] = ROWS_BLOOMING
+        else:
+            # the centre of mass is pulled towards whole pixels by the stripe's phase, and on
+            # a face of constant height the phase is the same in every frame: the faces'
+            # points shift by different amounts and turn the plane. The crossings' midpoint
+            # is locked 2-5 times less on most stripes, not on all (a narrow, strongly
+            # saturated core): take the estimator whose points lie better on one plane
+            rms = {v: _plane_rms(by[v], name, rot_b, rt) for v in (ROWS_CENTRE, ROWS_MIDPOINT)}
+            rows[name] = ROWS_MIDPOINT if rms[ROWS_MIDPOINT] < rms[ROWS_CENTRE] else ROWS_CENTRE
     return StripeObservations(target, v_true, frames,
-                              {name: found[name in blooming][name] for name in frames}, blooming)
+                              {name: found[rows[name]][name] for name in frames},
+                              tuple(n for n in frames if rows[n] == ROWS_BLOOMING), rows)
+
+
+def _plane_rms(obs: StripeObservations, name: str, rot: np.ndarray, pose_rt) -> float:
+    """The plane fit's RMS (mm) of one laser's stripe points (inf when it cannot be fitted)."""
+    pts, hts, used = obs.points(name, rot, pose_rt)
+    if not pts:
+        return float("inf")
+    try:
+        return fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used).rms_mm
+    except CalibrationError:
+        return float("inf")
 
 
 def _face_points(obs: StripeObservations, name: str, rot: np.ndarray, pose_rt) -> int:

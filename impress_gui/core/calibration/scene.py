@@ -123,6 +123,7 @@ class SceneCalibration:
                 n: {"normal": f.plane.normal.tolist(), "offset_mm": f.plane.offset_mm,
                     "rms_mm": f.rms_mm, "n_points": f.n_points, "frames": list(f.frames),
                     "heights_mm": list(f.heights_mm), "method": f.method}
+                | ({"stripe_rows": f.stripe_rows} if f.stripe_rows else {})
                 for n, f in self.planes.items()},
             "warnings": list(self.warnings),
             "inputs": self.inputs,
@@ -140,7 +141,7 @@ class SceneCalibration:
                     int(require(pd, "n_points", int, where)),
                     tuple(int(v) for v in pd.get("frames", [])),
                     tuple(float(v) for v in pd.get("heights_mm", [])),
-                    str(pd.get("method", "stripe-fit")))
+                    str(pd.get("method", "stripe-fit")), str(pd.get("stripe_rows", "")))
             for name in ("green", "red"):
                 if name not in planes:
                     raise FormatError(f"{where}the {name} laser plane is missing")
