@@ -102,6 +102,13 @@ def test_compare_panel_compares_outlines_and_writes(panel, folders, qtbot, tmp_p
     assert doc["parameters"]["threshold_mm"] == 1.5
     assert np.allclose(doc["registration"]["matrix_b_to_a"], cmp.registration.matrix,
                        atol=1e-6)
+    # the report also as PDF, read back by pypdf (not written here): the registration's figures
+    from pypdf import PdfReader
+
+    text = " ".join(" ".join(page.extract_text().split())
+                    for page in PdfReader(out / "report.pdf").pages)
+    assert "IMPREsS comparison report" in text
+    assert f"{doc['registration']['residual_rms_mm']:.4f}" in text
 
 
 def test_compare_panel_reports_a_coded_error(panel, folders, qtbot, tmp_path):

@@ -24,7 +24,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,7 +51,7 @@ COMPARE_VERSION = 1
 KIND = "comparison"
 RECORD_FILE = "compare.json"
 FILES = ("difference.tif", "a.tif", "b_on_a.tif", "difference.png", "histogram.png",
-         "mean.tif", "std.tif", "count.tif", RECORD_FILE, "report.html")
+         "mean.tif", "std.tif", "count.tif", RECORD_FILE, "report.html", "report.pdf")
 DEFAULT_THRESHOLD_MM = 0.25
 MAX_FIGURE_PX = 1600
 FRAME = ("right-handed, in mm: the export frame of input A (x = rail X, y = -rail Y, z up); "
@@ -380,11 +380,13 @@ def _json_bytes(doc: dict) -> bytes:
 def write_comparison(inputs: Sequence[str | Path], output: str | Path,
                      params: CompareParams = CompareParams(),
                      progress: ProgressCallback | None = None,
-                     cancel: CancelToken | None = None) -> dict:
+                     cancel: CancelToken | None = None,
+                     pdf: Callable[[str], bytes] | None = None) -> dict:
     """Compare ``inputs[0]`` (A) with ``inputs[1]`` (B) - and, with ``params.mean``, make the
     mean track of all of them on A's window - and write the folder ``output``. Returns the
     record. Inputs, output and parameters are checked before any work; on any error nothing is
-    written."""
+    written. ``pdf``: renders the report's HTML as PDF bytes (the window passes Qt's
+    renderer), written as ``report.pdf`` in the same atomic folder."""
     from impress_gui.core.base.outdir import OutputFolder, check_output_dir, writing
 
     paths = [Path(p) for p in inputs]
@@ -454,6 +456,8 @@ def write_comparison(inputs: Sequence[str | Path], output: str | Path,
         cancel.check()
     payload[RECORD_FILE] = _json_bytes(doc)
     payload["report.html"] = report_html(doc, files, images).encode("utf-8")
+    if pdf is not None:
+        payload["report.pdf"] = pdf(payload["report.html"].decode("utf-8"))
     with OutputFolder(output, KIND, inputs=paths, allowed=FILES) as folder:
         for name in sorted(payload):
             with writing(folder.path(name)):

@@ -241,14 +241,22 @@ class ComparePanel(QWidget):
         self._worker.start(task)
 
     def write_to(self, folder: str | Path) -> None:
-        """Write ``impress compare``'s folder for the current inputs and settings."""
+        """Write ``impress compare``'s folder for the current inputs and settings, with the
+        report also as PDF (``report.pdf``: the format courts and case files take)."""
         if self._writer.is_running():
             return
         inputs = [self.a_edit.text().strip(), self.b_edit.text().strip()]
         params = self.params()
         self.status_label.setText(f"writing {folder}…")
+        from impress_gui import __version__
+        from impress_gui.ui.pdf import html_to_pdf
+
+        def pdf(html: str) -> bytes:
+            return html_to_pdf(html, "IMPREsS comparison report",
+                               f"IMPREsS workstation {__version__}")
+
         self._writer.start(lambda progress, cancel: write_comparison(
-            inputs, folder, params, progress, cancel))
+            inputs, folder, params, progress, cancel, pdf=pdf))
 
     def commit_to_project(self) -> None:
         """The window's Tab protocol: a comparison is not kept in the project yet."""
