@@ -188,7 +188,14 @@ class MainWindow(QMainWindow):
         )
         m.addSeparator()
         act(m, "&Quit", self.close, QKeySequence.StandardKey.Quit)
+        self._build_edit_menu(act)
         view = self.menuBar().addMenu("&View")
+        self.side_action = act(
+            view, "Heightmap and texture &side by side", self.toggle_side_by_side,
+            QKeySequence("S"), "Viewer: the texture beside the map, pan, zoom and cursor linked",
+        )
+        self.side_action.setCheckable(True)
+        self.viewer_tab.side_by_side_changed.connect(self.side_action.setChecked)
         if self.motor_dock is not None:
             view.addAction(self.motor_dock.toggleViewAction())
         self._build_measure_menu(act)
@@ -211,6 +218,35 @@ class MainWindow(QMainWindow):
             ),
         )
         self._fill_recent()
+
+    def _build_edit_menu(self, act) -> None:
+        """Edit > Undo / Redo of the viewer's edits (measurements, annotations, levelling),
+        named after the step they undo; active while the viewer is in front (the calibration
+        tab's corners have their own undo under the same keys)."""
+        menu = self.menuBar().addMenu("&Edit")
+        stack = self.viewer_tab.undo_stack
+        self.undo_action = act(menu, "&Undo", stack.undo, QKeySequence.StandardKey.Undo,
+                               "Undo the viewer's last edit")
+        self.redo_action = act(menu, "&Redo", stack.redo, QKeySequence.StandardKey.Redo,
+                               "Redo the viewer's edit undone last")
+        for signal in (stack.indexChanged, stack.cleanChanged, stack.canUndoChanged,
+                       stack.canRedoChanged, stack.undoTextChanged, stack.redoTextChanged):
+            signal.connect(lambda *_: self._update_undo_actions())
+        self.tabs.currentChanged.connect(lambda _i: self._update_undo_actions())
+        self._update_undo_actions()
+
+    def _update_undo_actions(self) -> None:
+        try:
+            stack = self.viewer_tab.undo_stack
+            front = self.tabs.currentWidget() is self.viewer_tab
+        except RuntimeError:  # the window is being destroyed (its stack empties last)
+            return
+        for action, word, can, text in (
+            (self.undo_action, "&Undo", stack.canUndo(), stack.undoText()),
+            (self.redo_action, "&Redo", stack.canRedo(), stack.redoText()),
+        ):
+            action.setText(f"{word} {text}" if can and text else word)
+            action.setEnabled(front and can)
 
     # the viewer's tools, one key each (listed in the Measure menu; a text field being edited
     # keeps its letters)
@@ -239,6 +275,11 @@ class MainWindow(QMainWindow):
         region) chosen."""
         self.tabs.setCurrentWidget(self.viewer_tab)
         self.viewer_tab.set_mode(key)
+
+    def toggle_side_by_side(self) -> None:
+        """The viewer in front, its texture shown beside the map (or no longer)."""
+        self.tabs.setCurrentWidget(self.viewer_tab)
+        self.viewer_tab.set_side_by_side(self.side_action.isChecked())
 
     def zoom_viewer_to_fit(self) -> None:
         self.tabs.setCurrentWidget(self.viewer_tab)

@@ -100,6 +100,20 @@ class ShownReconstruction:
         self.plane = None
         self._levelled.clear()
 
+    def plane_state(self) -> tuple:
+        """The levelling as it is (plane, levelled heights, their automatic ranges), for
+        :meth:`restore_plane` (undo and redo)."""
+        autos = {k: v for k, v in self._auto.items() if k.endswith("/levelled")}
+        return self.plane, dict(self._levelled), autos
+
+    def restore_plane(self, state: tuple) -> None:
+        plane, levelled, autos = state
+        self.plane = plane
+        self._levelled = dict(levelled)
+        for k in [k for k in self._auto if k.endswith("/levelled")]:
+            del self._auto[k]
+        self._auto.update(autos)
+
     # ----- colour ranges ----------------------------------------------------------------------
     def _range_key(self, key: str) -> str:
         return f"{key}/levelled" if self.plane is not None and key != "difference" else key

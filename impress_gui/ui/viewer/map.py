@@ -28,6 +28,7 @@ from impress_gui.ui.viewer.image import LodImage
 RULER_PEN = (255, 255, 255)
 BAND_COLOURS = {"A": (60, 140, 255), "B": (255, 150, 30)}
 MARK_COLOUR = (255, 60, 220)
+CROSSHAIR_PEN = (0, 255, 255)
 #: the orientation and the rail's direction, shown above the map (and in the figures)
 RAIL_TEXT = "Seen from above as the camera sees it · x → · rail motion (+y) ↓"
 X_LABEL = "x (mm)"
@@ -137,6 +138,14 @@ class MapView(pg.GraphicsLayoutWidget):
         self.region: pg.RectROI | None = None
         # saved measurements
         self.saved_items: list = []
+        # the cursor's place, drawn when another view shows the same ground (side by side)
+        pen = pg.mkPen(CROSSHAIR_PEN, width=1)
+        self.cross_lines = (pg.InfiniteLine(angle=90, movable=False, pen=pen),
+                            pg.InfiniteLine(angle=0, movable=False, pen=pen))
+        for line in self.cross_lines:
+            line.setZValue(40)
+            line.hide()
+            self.plot.addItem(line, ignoreBounds=True)
         self.scene().sigMouseMoved.connect(self._on_mouse_moved)
 
     # ----- layers -----------------------------------------------------------------------------
@@ -341,6 +350,21 @@ class MapView(pg.GraphicsLayoutWidget):
                 item.setZValue(23)
                 self.plot.addItem(item)
                 self.saved_items.append(item)
+
+    # ----- the linked cursor --------------------------------------------------------------------
+    def set_crosshair(self, x_mm: float | None, y_mm: float | None = None) -> None:
+        """Draw the cursor's crosshair at ``(x_mm, y_mm)`` (None: hide it)."""
+        for line, v in zip(self.cross_lines, (x_mm, y_mm)):
+            if x_mm is None:
+                line.hide()
+            else:
+                line.setValue(v)
+                line.show()
+
+    def crosshair(self) -> tuple[float, float] | None:
+        """Where the crosshair is drawn (None when hidden)."""
+        vx, hy = self.cross_lines
+        return (float(vx.value()), float(hy.value())) if vx.isVisible() else None
 
     # ----- mapping and events -------------------------------------------------------------------
     def map_to_viewport(self, x_mm: float, y_mm: float) -> QPoint:

@@ -8,6 +8,7 @@ Numbers come from :mod:`impress_gui.core.measure.readings`."""
 from __future__ import annotations
 
 from PySide6.QtCore import QObject, QRectF, Signal
+from PySide6.QtGui import QUndoStack
 
 from impress_gui.core.base.errors import ImpressError
 from impress_gui.core.measure import readings as M
@@ -20,6 +21,13 @@ from impress_gui.ui.viewer.layers import LayerDisplay
 from impress_gui.ui.viewer.map import MapView
 from impress_gui.ui.viewer.panels import MeasurementTable, ToolPanel
 from impress_gui.ui.viewer.ruler import RulerProfile
+from impress_gui.ui.viewer.undo import (
+    AddMeasurement,
+    ClearMeasurements,
+    EditMeasurement,
+    LevellingChange,
+    RemoveMeasurement,
+)
 
 
 class Levelling(QObject):
@@ -37,8 +45,11 @@ class Levelling(QObject):
         tasks: TaskBar,
         messenger: Messenger,
         parent: QObject | None = None,
+        undo_stack: QUndoStack | None = None,
     ) -> None:
         super().__init__(parent)
+        self.undo_stack = undo_stack if undo_stack is not None else QUndoStack(self)
+        self.how = ""  # how the plane was fitted (three points, region)
         self.layers = layers
         self.map = map_view
         self.tools = tools
@@ -56,6 +67,7 @@ class Levelling(QObject):
     def reset(self) -> None:
         """A new reconstruction: no points, no region, the text for its (absent) plane."""
         self.restart_points()
+        self.how = ""
         self.map.show_region(None)
         self.show_text()
 
@@ -110,12 +122,15 @@ class Levelling(QObject):
 
         def done(result) -> None:
             plane, lev, auto = result
+            before = self.state()
             recon.set_plane(plane, key, lev, auto)
+            self.how = how
             self.show_text(how)
             self.layers.refresh()
             self.status.emit(
                 f"Levelled ({how}): tilt {plane.tilt_deg:.3f}°, fit RMS {plane.rms_mm:.3f} mm"
             )
+            self.undo_stack.push(LevellingChange(self, before, self.state(), f"level ({how})"))
             self.levelled.emit()
 
         try:
@@ -125,11 +140,34 @@ class Levelling(QObject):
             return False
 
     def clear(self) -> None:
+        """Heights relative to the calibration's ground again (undoable)."""
+        before = self.state()
         self.layers.recon.clear_plane()
+        self.how = ""
         self.restart_points()
         self.map.show_region(None)
         self.show_text()
         self.layers.refresh()
+        if before[0] is not None:
+            self.undo_stack.push(LevellingChange(self, before, self.state(), "clear levelling"))
+        self.levelled.emit()
+
+    # ----- undo and redo ------------------------------------------------------------------------
+    def state(self) -> tuple:
+        """The levelling as it is: the reconstruction's plane state and how it was fitted."""
+        return self.layers.recon.plane_state(), self.how
+
+    def restore(self, state: tuple, why: str) -> None:
+        """Back to a levelling ``state`` (undo, redo): the plane and the heights levelled by
+        it, the map and the text."""
+        plane_state, how = state
+        self.layers.recon.restore_plane(plane_state)
+        self.how = how
+        self.restart_points()
+        self.show_text(how)
+        self.layers.refresh()
+        p = self.layers.recon.plane
+        self.status.emit(f"Levelling {'off' if p is None else f'({how})'} ({why})")
         self.levelled.emit()
 
     def show_text(self, how: str = "") -> None:
@@ -164,8 +202,10 @@ class MeasurementList(QObject):
         ruler: RulerProfile,
         messenger: Messenger,
         parent: QObject | None = None,
+        undo_stack: QUndoStack | None = None,
     ) -> None:
         super().__init__(parent)
+        self.undo_stack = undo_stack if undo_stack is not None else QUndoStack(self)
         self.session = session
         self.table = table
         self.map = map_view
@@ -178,6 +218,7 @@ class MeasurementList(QObject):
         table.show_button.clicked.connect(self.show_selected)
         table.update_button.clicked.connect(self.update_selected_from_ruler)
         table.delete_button.clicked.connect(self.delete_selected)
+        table.clear_button.clicked.connect(self.clear_all)
 
     @property
     def project(self) -> Project:
@@ -235,10 +276,54 @@ class MeasurementList(QObject):
         return m
 
     def add(self, m: dict) -> None:
-        self.project.add_measurement(m)
-        self.refresh()
-        self.changed.emit()
+        """Add ``m`` at the end of the list (undoable)."""
+        self.undo_stack.push(AddMeasurement(self, len(self.project.measurements), m))
         self.status.emit(f"Measurement {len(self.project.measurements)} added")
+
+    # ----- the changes the undo stack's commands make (each logged in the project) ------------
+    def _row_of(self, row: int, m: dict) -> int | None:
+        """Where ``m`` is in the list: at ``row`` normally, else found by its id."""
+        ms = self.project.measurements
+        if 0 <= row < len(ms) and ms[row].get("id") == m.get("id"):
+            return row
+        return next((k for k, x in enumerate(ms) if x.get("id") == m.get("id")), None)
+
+    def _done(self, refresh: bool, selected: int | None = None) -> None:
+        if refresh:
+            self.refresh(selected)
+            self.changed.emit()
+
+    def insert_record(self, row: int, m: dict, action: str, refresh: bool = True) -> None:
+        p = self.project
+        row = min(max(row, 0), len(p.measurements))
+        if row == len(p.measurements) and action == "measurement added":
+            p.add_measurement(m)
+        else:
+            p.measurements.insert(row, dict(m))
+            p.dirty = True
+            p.log(action, {"number": row + 1, **dict(m)})
+        self._done(refresh)
+
+    def remove_record(self, row: int, m: dict, action: str, refresh: bool = True) -> None:
+        p = self.project
+        found = self._row_of(row, m)
+        if found is None:
+            return
+        gone = p.measurements.pop(found)
+        p.dirty = True
+        p.log(action, {"number": found + 1, "id": gone.get("id")})
+        self._done(refresh)
+
+    def replace_record(self, row: int, old: dict, new: dict, action: str) -> None:
+        p = self.project
+        found = self._row_of(row, old)
+        if found is None:
+            return
+        changes = {k: v for k, v in new.items() if old.get(k) != v}
+        p.measurements[found] = dict(new)
+        p.dirty = True
+        p.log(action, {"number": found + 1, "id": new.get("id"), **changes})
+        self._done(True, found)
 
     # ----- the list -----------------------------------------------------------------------------
     def refresh(self, selected: int | None = None) -> None:
@@ -247,30 +332,23 @@ class MeasurementList(QObject):
         self.map.show_measurements(ms if self.layers.recon.data is not None else [], selected)
 
     def edit(self, row: int, **changes) -> None:
-        """Change a measurement's fields (label, note, points_mm, values, params)."""
-        p = self.project
-        if hasattr(p, "update_measurement"):
-            p.update_measurement(row, changes)
-        else:  # the project's list is public; record the edit in its log
-            p.measurements[row] = {**p.measurements[row], **changes}
-            p.dirty = True
-            p.log(
-                "measurement edited",
-                {"number": row + 1, "id": p.measurements[row].get("id"), **changes},
-            )
-        self.refresh(row)
-        self.changed.emit()
+        """Change a measurement's fields (label, note, points_mm, values, params; undoable)."""
+        before = dict(self.project.measurements[row])
+        after = {**before, **changes}
+        what = "edit " + " and ".join(sorted(k.replace("_mm", "") for k in changes))
+        self.undo_stack.push(EditMeasurement(self, row, before, after, what))
 
     def delete(self, row: int) -> None:
-        p = self.project
-        if hasattr(p, "remove_measurement"):
-            p.remove_measurement(row)
-        else:
-            gone = p.measurements.pop(row)
-            p.dirty = True
-            p.log("measurement deleted", {"number": row + 1, "id": gone.get("id")})
-        self.refresh()
-        self.changed.emit()
+        """Delete the measurement at ``row`` (undoable)."""
+        m = self.project.measurements[row]
+        self.undo_stack.push(RemoveMeasurement(self, row, m))
+
+    def clear_all(self) -> None:
+        """Delete every measurement of the list (undoable: one step brings them all back)."""
+        ms = self.project.measurements
+        if ms:
+            self.undo_stack.push(ClearMeasurements(self, list(ms)))
+            self.status.emit("Measurements cleared (Edit > Undo brings them back)")
 
     def _on_table_edited(self, row: int, field: str, text: str) -> None:
         if self.project.measurements[row].get(field, "") != text:

@@ -64,6 +64,7 @@ class DisplayPanel(QGroupBox):
     auto_range = Signal()
     blend_changed = Signal(float)
     light_changed = Signal(float, float)
+    side_by_side = Signal(bool)
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__("Display", parent)
@@ -117,6 +118,16 @@ class DisplayPanel(QGroupBox):
         g.addWidget(QLabel("Light az/elev"), 4, 0)
         g.addWidget(self.azimuth, 4, 1)
         g.addWidget(self.elevation, 4, 2)
+        # the heightmap and the texture in two views, panned and zoomed together
+        self.side_button = QPushButton("Side by side: layer | texture")
+        self.side_button.setCheckable(True)
+        self.side_button.setToolTip(
+            "Show the texture in a second view beside the map, with the same pan and zoom "
+            "and the cursor's crosshair in both; the readout gives the height under the "
+            "cursor in either (View menu, key S)"
+        )
+        self.side_button.toggled.connect(self.side_by_side)
+        g.addWidget(self.side_button, 6, 0, 1, 4)
         # the contribution layer's legend: which laser each colour stands for
         self.legend = QLabel(legend_html())
         self.legend.setTextFormat(Qt.TextFormat.RichText)
@@ -228,8 +239,11 @@ class MeasurementTable(QGroupBox):
         self.show_button.setToolTip("Put the ruler (or view) on the selected measurement")
         self.update_button = QPushButton("Update from ruler")
         self.delete_button = QPushButton("Delete")
+        self.clear_button = QPushButton("Clear all")
+        self.clear_button.setToolTip("Delete every measurement (Edit > Undo brings them back)")
         self.export_button = QPushButton("Export CSV...")
-        for b in (self.show_button, self.update_button, self.delete_button, self.export_button):
+        for b in (self.show_button, self.update_button, self.delete_button, self.clear_button,
+                  self.export_button):
             row.addWidget(b)
         v.addLayout(row)
         self._filling = False

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QUndoStack
 from PySide6.QtWidgets import QHBoxLayout, QScrollArea, QSplitter, QVBoxLayout, QWidget
 
 from impress_gui.core.formats.writers import contribution_png
@@ -40,7 +41,7 @@ from impress_gui.ui.viewer.layers import (
     ShownReconstruction,
     core_azimuth,
 )
-from impress_gui.ui.viewer.map import MapView
+from impress_gui.ui.viewer.map import RAIL_TEXT, MapView
 from impress_gui.ui.viewer.measurements import Levelling, MeasurementList
 from impress_gui.ui.viewer.panels import DisplayPanel, ExportPanel, MeasurementTable, ToolPanel
 from impress_gui.ui.viewer.profile import ProfilePlot
@@ -78,6 +79,7 @@ class ViewerTab(QWidget):
     profile_changed = Signal()
     levelled_changed = Signal()
     layer_shown = Signal(str)
+    side_by_side_changed = Signal(bool)
 
     def __init__(
         self,
@@ -99,8 +101,10 @@ class ViewerTab(QWidget):
         self.recon = ShownReconstruction()
         self.layers = LayerDisplay(self.recon, self.display, self.map, self)
         self.ruler = RulerProfile(self.layers, self.map, self.profile_plot, self.tools, self)
+        # the viewer's edits (measurements, levelling), one stack per opened reconstruction
+        self.undo_stack = QUndoStack(self)
         self.levelling = Levelling(
-            self.layers, self.map, self.tools, self.tasks, self.messenger, self
+            self.layers, self.map, self.tools, self.tasks, self.messenger, self, self.undo_stack
         )
         self.measurements = MeasurementList(
             self.session,
@@ -111,6 +115,7 @@ class ViewerTab(QWidget):
             self.ruler,
             self.messenger,
             self,
+            self.undo_stack,
         )
         self.actions = ViewerExports(
             self.session,
@@ -139,8 +144,19 @@ class ViewerTab(QWidget):
         lv.setContentsMargins(0, 0, 0, 0)
         vsplit = QSplitter(Qt.Orientation.Vertical)
         self.map = MapView()
+        # the texture beside the map (side by side), hidden until asked for
+        self.texture_map = MapView()
+        self.texture_map.direction_label.setText("Texture · " + RAIL_TEXT)
+        self.texture_map.hide()
+        # its colour bar is never seen (the texture has no heights) but takes the place of the
+        # map's, so that both views are the same size and show the same ground
+        self.texture_map.colour_bar.setOpacity(0.0)
+        self.texture_map.colour_bar.setEnabled(False)
+        self.maps_split = QSplitter(Qt.Orientation.Horizontal)
+        self.maps_split.addWidget(self.map)
+        self.maps_split.addWidget(self.texture_map)
         self.profile_plot = ProfilePlot()
-        vsplit.addWidget(self.map)
+        vsplit.addWidget(self.maps_split)
         vsplit.addWidget(self.profile_plot)
         vsplit.setStretchFactor(0, 3)
         vsplit.setStretchFactor(1, 1)
@@ -167,9 +183,12 @@ class ViewerTab(QWidget):
     def _connect(self) -> None:
         """What the tab itself follows: modes, clicks and the cursor; the parts' signals."""
         self.tools.mode_changed.connect(self.set_mode)
-        self.map.hovered.connect(self.show_readout)
-        self.map.left_map.connect(lambda: self.tools.readout.setText("Cursor: outside the map"))
-        self.map.clicked.connect(self._on_map_clicked)
+        for view in (self.map, self.texture_map):
+            view.hovered.connect(self._on_hovered)
+            view.left_map.connect(self._on_left_map)
+            view.clicked.connect(self._on_map_clicked)
+        self.display.side_by_side.connect(self.set_side_by_side)
+        self.layers.shown.connect(lambda _k: self._match_side_geometry())
         self.layers.shown.connect(self.layer_shown)
         self.layers.status.connect(self.status)
         self.ruler.profile_changed.connect(self.profile_changed)
@@ -202,6 +221,7 @@ class ViewerTab(QWidget):
 
     def _on_project_changed(self, project: Project) -> None:
         """The session opened ``project``: its measurements, and its newest reconstruction."""
+        self.undo_stack.clear()  # the edits were another project's
         self.refresh_measurements()
         folder = latest_reconstruction(project)
         if folder is not None:
@@ -232,6 +252,7 @@ class ViewerTab(QWidget):
             or self.ruler.is_busy()
             or self.layers.is_busy()
             or self.map.is_busy()
+            or self.texture_map.is_busy()
         )
 
     def shutdown(self) -> None:
@@ -241,6 +262,7 @@ class ViewerTab(QWidget):
         self.ruler.shutdown()
         self.layers.shutdown()
         self.map.shutdown()
+        self.texture_map.shutdown()
         self.actions.shutdown()
         s = self.session
         s.project_changed.disconnect(self._on_project_changed)
@@ -298,9 +320,11 @@ class ViewerTab(QWidget):
         """Show a reconstruction (``contribution_rgb`` and the ``auto`` colour ranges per
         layer are computed here when not given)."""
         self.recon.reset(data, contribution_rgb, auto)
+        self.undo_stack.clear()  # undo works within one opened reconstruction
         self.levelling.reset()
         self.ruler.clear()
         self.layers.show_data()
+        self._show_side_texture()
         if data is None:
             return
         self.refresh_measurements()
@@ -327,6 +351,67 @@ class ViewerTab(QWidget):
     def auto_range(self) -> None:
         """Back to the automatic range (recomputed) for the shown layer."""
         self.layers.auto_range()
+
+    # ----- side by side ----------------------------------------------------------------------------
+    def is_side_by_side(self) -> bool:
+        return self.display.side_button.isChecked()
+
+    def set_side_by_side(self, on: bool) -> None:
+        """Show the texture in a second view beside the map (``on``), panned and zoomed with
+        it (the views' ranges are linked), the cursor's crosshair drawn in both."""
+        b = self.display.side_button
+        if b.isChecked() != on:
+            b.blockSignals(True)
+            b.setChecked(on)
+            b.blockSignals(False)
+        tm = self.texture_map
+        if on:
+            tm.show()
+            half = max(self.maps_split.width() // 2, 1)
+            self.maps_split.setSizes([half, half])
+            self._show_side_texture()
+            tm.vb.setXLink(self.map.vb)
+            tm.vb.setYLink(self.map.vb)
+        else:
+            tm.vb.setXLink(None)
+            tm.vb.setYLink(None)
+            tm.hide()
+            self._on_left_map()
+        self.side_by_side_changed.emit(on)
+
+    def _show_side_texture(self) -> None:
+        """The texture of the open reconstruction in the second view (when it is shown)."""
+        tm, data = self.texture_map, self.data
+        if not self.display.side_button.isChecked():
+            return
+        tm.set_spec(None if data is None else data.spec, fit=False)
+        if data is None or data.texture_rgb is None:
+            tm.rgb.set_data(None, None)
+            tm.direction_label.setText("This reconstruction has no texture")
+            return
+        tm.direction_label.setText("Texture · " + RAIL_TEXT)
+        tm.show_rgb(data.texture_rgb)
+        self._match_side_geometry()
+        tm.vb.setRange(self.map.vb.viewRect(), padding=0)
+
+    def _match_side_geometry(self) -> None:
+        """The texture's view as large as the map's: an (unseen) colour bar where the map
+        has one."""
+        if self.display.side_button.isChecked():
+            self.texture_map.colour_bar.setVisible(self.map.colour_bar.isVisible())
+
+    def _on_hovered(self, x_mm: float, y_mm: float) -> None:
+        """The cursor over either view: the readout, and the crosshair in both when side by
+        side."""
+        self.show_readout(x_mm, y_mm)
+        if self.texture_map.isVisible():
+            for view in (self.map, self.texture_map):
+                view.set_crosshair(x_mm, y_mm)
+
+    def _on_left_map(self) -> None:
+        self.tools.readout.setText("Cursor: outside the map")
+        for view in (self.map, self.texture_map):
+            view.set_crosshair(None)
 
     # ----- cursor readout -------------------------------------------------------------------------
     def readout_at(self, x_mm: float, y_mm: float) -> M.Readout:
@@ -356,7 +441,8 @@ class ViewerTab(QWidget):
         self._pending.clear()
         self.tools.set_mode(mode)
         self.tools.hint.setText(HINTS[mode])
-        self.map.set_placing(mode != "pan")
+        for view in (self.map, self.texture_map):
+            view.set_placing(mode != "pan")
         if mode == "level3":
             self.levelling.restart_points()
 
