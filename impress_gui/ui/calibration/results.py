@@ -1,5 +1,7 @@
-"""What a scene calibration found, laid out so a user can judge it: warnings first, then the
-pose, the fit of the target, the speed check and the laser planes."""
+"""What a scene calibration found, laid out so a user can judge it: warnings first, then one
+line with the numbers that decide (pose, fit, speed check, planes, worst corner), then the
+details (each value in full and the corners' residuals) behind a Details button, so that the
+whole result fits on a 1920x1080 screen without scrolling."""
 
 from __future__ import annotations
 
@@ -8,10 +10,12 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import (
     QFormLayout,
     QGroupBox,
+    QHBoxLayout,
     QHeaderView,
     QLabel,
     QTableWidget,
     QTableWidgetItem,
+    QToolButton,
     QVBoxLayout,
     QWidget,
 )
@@ -59,6 +63,20 @@ def fmt_vanishing_point(vp: np.ndarray) -> str:
     return f"({vp[0]:.1f}, {vp[1]:.1f}) px"
 
 
+def summary_line(cal: SceneCalibration) -> str:
+    """The numbers that decide whether a calibration is good, on one line."""
+    diff = 100 * (cal.implied_speed_mm_s / cal.speed_mm_s - 1)
+    planes = ", ".join(
+        f"{name} {f.rms_mm:.3f} mm" for name, f in cal.planes.items() if f is not None
+    ) or "none fitted"
+    worst = max(cal.corner_residuals_mm, default=float("nan"))
+    return (
+        f"Roll {cal.roll_deg:+.3f}°, tilt {cal.tilt_deg:+.3f}°; reprojection RMS "
+        f"{cal.reprojection_rms_px:.3f} px; worst corner {worst:.3f} mm; speed check "
+        f"{diff:+.2f} %; plane fit RMS: {planes}"
+    )
+
+
 class CalibrationResults(QGroupBox):
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__("Calibration result", parent)
@@ -79,7 +97,26 @@ class CalibrationResults(QGroupBox):
         )
         self.empty_label.setWordWrap(True)
         box.addWidget(self.empty_label)
+        # the numbers that decide, on one line; the rest behind Details
+        head = QHBoxLayout()
+        self.summary_label = QLabel("")
+        self.summary_label.setWordWrap(True)
+        self.summary_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.details_button = QToolButton()
+        self.details_button.setText("Details")
+        self.details_button.setCheckable(True)
+        self.details_button.setToolButtonStyle(Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
+        self.details_button.setArrowType(Qt.ArrowType.RightArrow)
+        self.details_button.setToolTip("Each value in full and the residual of each corner")
+        self.details_button.toggled.connect(self.show_details)
+        head.addWidget(self.summary_label, 1)
+        head.addWidget(self.details_button, 0, Qt.AlignmentFlag.AlignTop)
+        box.addLayout(head)
+        self.details = QWidget()
+        dbox = QVBoxLayout(self.details)
+        dbox.setContentsMargins(0, 0, 0, 0)
         form = QFormLayout()
+        form.setVerticalSpacing(2)
         self.values: dict[str, QLabel] = {}
         for key, title in (
             ("roll", "Roll"),
@@ -95,7 +132,7 @@ class CalibrationResults(QGroupBox):
             lab.setWordWrap(True)
             form.addRow(title, lab)
             self.values[key] = lab
-        box.addLayout(form)
+        dbox.addLayout(form)
         self.table = QTableWidget(1, len(CORNER_NAMES))
         self.table.setHorizontalHeaderLabels(list(CORNER_NAMES))
         self.table.setVerticalHeaderLabels(["residual (mm)"])
@@ -111,18 +148,36 @@ class CalibrationResults(QGroupBox):
         self.table.setToolTip(
             "Distance of each corner (by motion parallax) from the fitted target model, in mm"
         )
-        box.addWidget(self.table)
+        dbox.addWidget(self.table)
+        box.addWidget(self.details)
+        self.details.hide()
         self.show_calibration(None)
 
+    def show_details(self, on: bool) -> None:
+        """Show (or fold away) each value in full and the corners' residuals."""
+        if self.details_button.isChecked() != on:
+            self.details_button.setChecked(on)  # toggled comes back here
+            return
+        self.details_button.setArrowType(
+            Qt.ArrowType.DownArrow if on else Qt.ArrowType.RightArrow
+        )
+        self.details.setVisible(on and self._cal is not None)
+
     def show_calibration(self, cal: SceneCalibration | None) -> None:
+        self._cal = cal
         self.empty_label.setVisible(cal is None)
         self.table.setVisible(cal is not None)
+        self.summary_label.setVisible(cal is not None)
+        self.details_button.setVisible(cal is not None)
+        self.details.setVisible(cal is not None and self.details_button.isChecked())
         self.set_stale(False)
         if cal is None:
             for lab in self.values.values():
                 lab.setText("-")
+            self.summary_label.setText("")
             self.warnings_label.hide()
             return
+        self.summary_label.setText(summary_line(cal))
         v = self.values
         v["roll"].setText(f"{cal.roll_deg:+.3f} deg")
         v["tilt"].setText(f"{cal.tilt_deg:+.3f} deg")

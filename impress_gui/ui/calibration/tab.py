@@ -183,8 +183,11 @@ class CalibrationTab(QWidget):
                 "Calibrate the camera from a video or a folder of images of a checkerboard "
                 "(the board's inner corners and square size are asked first)"
             )
+        # the result under the frame, always in sight (in the sidebar it was below the fold
+        # of a 1080-line screen); the sidebar keeps an empty place for it
         self.results = CalibrationResults()
-        self.sidebar = sb = CalibrationSidebar(self.setup, self.results)
+        lv.insertWidget(lv.indexOf(self.tasks), self.results)
+        self.sidebar = sb = CalibrationSidebar(self.setup, QWidget())
         split.addWidget(sb)
         split.setStretchFactor(0, 3)
         split.setStretchFactor(1, 1)
