@@ -39,6 +39,7 @@ def render_surface(
     exaggeration: float = 1.0,
     zoom: float = 1.0,
     max_points: int = 300_000,
+    axes: dict | None = None,
 ) -> np.ndarray:
     """An orthographic, Lambert-shaded view ``(H, W, 3)`` uint8 of the surface seen from
     ``azimuth_deg`` at ``elevation_deg`` above the horizon.
@@ -48,7 +49,10 @@ def render_surface(
     is turned, never mirrored: seen from straight above at azimuth 180 it is the camera's view,
     as the viewer's map and ``texture.png`` (row 0 at the top, x to the right). The azimuth
     is where the eye stands, clockwise from the top of the map (-y): 180 is below the map's
-    bottom edge, looking up the map."""
+    bottom edge, looking up the map.
+
+    ``axes``, when given, receives where the frame's axes and a scale bar go on the image
+    (:func:`axes_geometry`): the window draws them over it."""
     import cv2
 
     w_out, h_out = size
@@ -87,7 +91,10 @@ def render_surface(
         nx = np.concatenate([nx, np.zeros(idx.size)])
         ny = np.concatenate([ny, np.zeros(idx.size)])
         base = np.concatenate([base, base[idx] * 0.55])
-    x, y, zz = x - x.mean(), y - y.mean(), zz - zz.mean()
+    lows = (x.min(), y.min(), zz.min())  # the surface's lowest corner in the frame (mm)
+    spans = (np.ptp(x), np.ptp(y))
+    mean = (x.mean(), y.mean(), zz.mean())
+    x, y, zz = x - mean[0], y - mean[1], zz - mean[2]
     az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
     # the screen frame: eye (from the surface towards the viewer), right, up = eye x right
     eye = np.array([math.sin(az) * math.cos(el), math.cos(az) * math.cos(el), math.sin(el)])
@@ -107,6 +114,18 @@ def render_surface(
     r = max(1.0, spacing / 0.8)  # neighbouring cells land on touching buffer pixels
     wb, hb = max(2, int(w_out / r)), max(2, int(h_out / r))
     sb = scale / r
+    if axes is not None:
+
+        def to_screen(p: tuple[float, float, float]) -> tuple[float, float]:
+            """Output pixel of a point of the frame (mm, the height exaggerated)."""
+            q = np.subtract(p, mean)
+            pu, pv = q @ right, q @ up
+            return ((pu * sb + wb / 2 + 0.5) * w_out / wb - 0.5,
+                    (hb / 2 - pv * sb + 0.5) * h_out / hb - 0.5)
+
+        axes.clear()
+        axes.update(axes_geometry(to_screen, lows, spans, scale / r * w_out / wb,
+                                  exaggeration, (w_out, h_out)))
     px = np.rint(u * sb + wb / 2).astype(np.int64)
     py = np.rint(hb / 2 - v * sb).astype(np.int64)
     inside = (px >= 0) & (px < wb) & (py >= 0) & (py < hb)
@@ -128,6 +147,52 @@ def render_surface(
     return cv2.resize(buf, (w_out, h_out), interpolation=cv2.INTER_LINEAR)
 
 
+def nice_length(mm: float) -> float:
+    """The round length (1, 2 or 5 times a power of ten, mm) at most ``mm``."""
+    if not mm > 0:
+        return 1.0
+    e = 10.0 ** math.floor(math.log10(mm))
+    return max(k * e for k in (1.0, 2.0, 5.0) if k * e <= mm)
+
+
+AXIS_COLOURS = {"x": (255, 80, 80), "y": (80, 220, 80), "z": (90, 150, 255)}
+#: what the axes are (the right-handed export frame)
+FRAME_TEXT = "x across the rail, y = -rail y (up the map), z up; mm"
+
+
+def axes_geometry(to_screen, lows, spans, px_per_mm: float, exaggeration: float,
+                  size: tuple[int, int]) -> dict:
+    """Where the axes of the right-handed export frame (x across the rail, y = -rail y, z up)
+    and a scale bar go on an image of ``size`` (W, H): ``to_screen`` maps a frame point (mm,
+    height exaggerated) to the image, ``lows`` is the surface's lowest corner, ``spans`` its
+    extent in x and y (mm), ``px_per_mm`` the image's scale (orthographic: the same for every
+    length parallel to the screen).
+
+    Returns ``{"origin": (u, v), "ends": {"x"|"y"|"z": (u, v)}, "labels": {axis: text},
+    "length_mm", "scale_bar": {"mm", "px", "at": (u, v)}, "frame": text}``."""
+    length = nice_length(0.3 * max(spans))
+    x0, y0, z0 = lows
+    origin = to_screen((x0, y0, z0))
+    ends = {
+        "x": to_screen((x0 + length, y0, z0)),
+        "y": to_screen((x0, y0 + length, z0)),
+        "z": to_screen((x0, y0, z0 + length * exaggeration)),
+    }
+    num = f"{length:g} mm"
+    labels = {"x": f"x {num}", "y": f"y {num}",
+              "z": f"z {num}" + (f" (x{exaggeration:g})" if exaggeration != 1 else "")}
+    w, h = size
+    bar_mm = nice_length(0.25 * w / max(px_per_mm, 1e-9))
+    return {
+        "origin": origin,
+        "ends": ends,
+        "labels": labels,
+        "length_mm": length,
+        "scale_bar": {"mm": bar_mm, "px": bar_mm * px_per_mm, "at": (16.0, h - 18.0)},
+        "frame": FRAME_TEXT,
+    }
+
+
 def opengl_status() -> str:
     """Empty when pyqtgraph's OpenGL widgets can be used, else the reason they cannot."""
     try:
@@ -139,6 +204,55 @@ def opengl_status() -> str:
     if QGuiApplication.platformName() in ("offscreen", "minimal"):
         return "OpenGL 3D is not available on this display"
     return ""
+
+
+class AxesOverlay(QWidget):
+    """Draws the axes (x red, y green, z blue, labelled in mm), the frame's description and
+    a scale bar over the rendered image centred in its parent (mouse events go through)."""
+
+    def __init__(self, parent: QWidget) -> None:
+        super().__init__(parent)
+        self.setAttribute(Qt.WidgetAttribute.WA_TransparentForMouseEvents)
+        self.axes: dict = {}
+        self.image_size = (0, 0)
+
+    def set_axes(self, axes: dict, image_size: tuple[int, int]) -> None:
+        self.axes, self.image_size = axes, image_size
+        self.resize(self.parentWidget().size())
+        self.update()
+
+    def offset(self) -> QPointF:
+        """Where the image's top left corner is in this widget (the image is centred)."""
+        w, h = self.image_size
+        return QPointF((self.width() - w) / 2, (self.height() - h) / 2)
+
+    def to_widget(self, p: tuple[float, float]) -> QPointF:
+        return QPointF(p[0], p[1]) + self.offset()
+
+    def paintEvent(self, _ev) -> None:  # noqa: N802 - Qt override
+        from PySide6.QtGui import QColor, QPainter, QPen
+
+        a = self.axes
+        if not a:
+            return
+        qp = QPainter(self)
+        qp.setRenderHint(QPainter.RenderHint.Antialiasing)
+        o = self.to_widget(a["origin"])
+        for name, end in a["ends"].items():
+            colour = QColor(*AXIS_COLOURS[name])
+            qp.setPen(QPen(colour, 2))
+            e = self.to_widget(end)
+            qp.drawLine(o, e)
+            qp.drawText(e + QPointF(4, -4), a["labels"][name])
+        white = QColor(235, 235, 235)
+        qp.setPen(QPen(white, 3))
+        bar = a["scale_bar"]
+        at = self.to_widget(bar["at"])
+        qp.drawLine(at, at + QPointF(bar["px"], 0))
+        qp.setPen(QPen(white, 1))
+        qp.drawText(at + QPointF(0, -6), f"{bar['mm']:g} mm")
+        qp.drawText(self.to_widget((8.0, 16.0)), a["frame"])
+        qp.end()
 
 
 class Surface3DWindow(QWidget):
@@ -174,6 +288,9 @@ class Surface3DWindow(QWidget):
         self.view.setMinimumSize(320, 240)
         self.view.setStyleSheet("background: rgb(40, 40, 48)")
         v.addWidget(self.view, 1)
+        # the export frame's axes and a scale bar, drawn over the surface
+        self.axes: dict = {}
+        self.overlay = AxesOverlay(self.view)
         row = QHBoxLayout()
         row.addWidget(QLabel("Vertical exaggeration"))
         self.exaggeration = QDoubleSpinBox()
@@ -201,9 +318,15 @@ class Surface3DWindow(QWidget):
             self.exaggeration.value(),
             self.zoom,
         )
-        self.worker.submit(lambda _p, _c: render_surface(*args))
+        def task(_p, _c):
+            axes: dict = {}
+            return render_surface(*args, axes=axes), axes
 
-    def _show(self, rgb: np.ndarray) -> None:
+        self.worker.submit(task)
+
+    def _show(self, result) -> None:
+        rgb, self.axes = result
+        self.overlay.set_axes(self.axes, (rgb.shape[1], rgb.shape[0]))
         self._rgb = np.ascontiguousarray(rgb)
         h, w = rgb.shape[:2]
         img = QImage(self._rgb.data, w, h, 3 * w, QImage.Format.Format_RGB888)
@@ -238,6 +361,7 @@ class Surface3DWindow(QWidget):
             self.request()
             return True
         if t == QEvent.Type.Resize:
+            self.overlay.resize(self.view.size())
             self.request()
         return super().eventFilter(obj, ev)
 
