@@ -163,3 +163,43 @@ def test_compare_panel_takes_clicked_point_pairs(panel, folders, qtbot):
     assert not panel.pairs_check.isChecked()
     panel.clear_pairs()
     assert panel.pairs == [] and panel.params().registration.pairs is None
+
+
+def test_a_written_comparison_goes_into_the_case_record(folders, qtbot, tmp_path):
+    """With a case open, writing the comparison adds its record to the case's outputs (path,
+    SHA-256) and logs which scans were compared (their hashes), the registration and the
+    parameters; the saved project's log, read back, says so."""
+    import hashlib
+
+    from impress_gui.core.project.log import read_log
+    from impress_gui.core.project.project import Project
+    from impress_gui.session.session import Session
+    from impress_gui.ui.compare.panel import ComparePanel
+
+    project = Project()
+    project.save(tmp_path / "case")
+    session = Session(project)
+    panel = ComparePanel(session=session)
+    qtbot.addWidget(panel)
+    try:
+        panel.a_edit.setText(str(folders[0]))
+        panel.b_edit.setText(str(folders[1]))
+        with qtbot.waitSignal(panel.compared, timeout=120_000):
+            panel.compare_button.click()
+        out = tmp_path / "cmp"
+        with qtbot.waitSignals([panel.written, panel.changed], timeout=120_000):
+            panel.write_to(out)
+    finally:
+        panel.shutdown()
+    record = out / "compare.json"
+    entry = [o for o in project.outputs if o["kind"] == "comparison"]
+    assert len(entry) == 1 and entry[0]["path"] == str(record.resolve())
+    assert entry[0]["sha256"] == hashlib.sha256(record.read_bytes()).hexdigest()
+    project.save()
+    logged = [e for e in read_log(project.log_file) if e.get("action") == "comparison"]
+    assert len(logged) == 1
+    details = logged[0]["details"]
+    doc = json.loads(record.read_text())
+    assert details["inputs"] == doc["inputs"]
+    assert details["registration"]["matrix_b_to_a"] == doc["registration"]["matrix_b_to_a"]
+    assert details["parameters"]["threshold_mm"] == doc["parameters"]["threshold_mm"]

@@ -67,8 +67,10 @@ class ComparePanel(QWidget):
     written = Signal(object)
     failed = Signal(str, str)
 
-    def __init__(self, parent: QWidget | None = None) -> None:
+    def __init__(self, parent: QWidget | None = None, session=None) -> None:
         super().__init__(parent)
+        self.session = session  # the window's Session: written comparisons go into its case
+        self._writing_to: Path | None = None
         self.comparison: Comparison | None = None
         self._edges: np.ndarray | None = None
         self.profile: PairProfile | None = None
@@ -248,6 +250,7 @@ class ComparePanel(QWidget):
         inputs = [self.a_edit.text().strip(), self.b_edit.text().strip()]
         params = self.params()
         self.status_label.setText(f"writing {folder}…")
+        self._writing_to = Path(folder)
         from impress_gui import __version__
         from impress_gui.ui.pdf import html_to_pdf
 
@@ -259,7 +262,8 @@ class ComparePanel(QWidget):
             inputs, folder, params, progress, cancel, pdf=pdf))
 
     def commit_to_project(self) -> None:
-        """The window's Tab protocol: a comparison is not kept in the project yet."""
+        """The window's Tab protocol: a written comparison is recorded in the case as soon as
+        it is written (:meth:`_record_in_case`); nothing is pending here."""
 
     def is_dirty(self) -> bool:
         return False
@@ -461,9 +465,32 @@ class ComparePanel(QWidget):
         self.profiled.emit(prof)
 
     def _on_written(self, doc: dict) -> None:
+        self._record_in_case(doc)
         self.status_label.setText("comparison folder written")
         self.status.emit("comparison folder written")
         self.written.emit(doc)
+
+    def _record_in_case(self, doc: dict) -> None:
+        """The case record (when a case is open): the comparison folder's record as an output
+        (path, SHA-256) and a log entry naming the scans compared (with their hashes), the
+        registration and every parameter."""
+        project = getattr(self.session, "project", None)
+        if project is None or self._writing_to is None:
+            return
+        from impress_gui.core.compare.record import RECORD_FILE
+
+        record = self._writing_to / RECORD_FILE
+        project.add_output(record, "comparison")
+        reg = doc.get("registration") or {}
+        project.log("comparison", {
+            "folder": str(self._writing_to.resolve()),
+            "inputs": doc.get("inputs"),
+            "registration": {k: reg[k] for k in ("matrix_b_to_a", "mirror", "invert",
+                                                 "rotation_about_z_deg", "residual_rms_mm",
+                                                 "overlap") if k in reg},
+            "parameters": doc.get("parameters"),
+        })
+        self.changed.emit()
 
     def _on_failed(self, code: str, message: str) -> None:
         self.compare_button.setEnabled(True)
