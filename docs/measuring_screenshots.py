@@ -2,7 +2,8 @@
 
 Runs the real window on the simulated `blocks` scan (640x360, 200 mm at 39.414 mm/s):
 processing preview, a run in progress, the viewer with a ruler across the widest slot and its
-profile, hillshade with levelling, the 3D view and an exported figure. Use a virtual X server
+profile, the heightmap and the texture side by side, hillshade with levelling, the 3D view
+(axes and scale bar) and an exported figure. Use a virtual X server
 so that the pictures are those of a real display:
 
     xvfb-run -s "-screen 0 1920x1080x24" .venv/bin/python docs/measuring_screenshots.py [--scan DIR]
@@ -141,6 +142,13 @@ def main() -> None:
     v.add_marker(-55.0, y_slot - 35.0, "plate")
     v.show_readout(28.5, y_slot + 10.0)
     shot(win, "viewer-ruler-profile.png")
+
+    # the heightmap and the texture side by side, the cursor's crosshair in both
+    v.set_side_by_side(True)
+    wait(ms=2500)
+    v._on_hovered(28.5, y_slot + 10.0)
+    shot(win, "viewer-side-by-side.png")
+    v.set_side_by_side(False)
 
     v.display.set_layer("hillshade")
     wait(v.layer_shown, 20000)

@@ -242,8 +242,11 @@ class MeasurementTable(QGroupBox):
         self.clear_button = QPushButton("Clear all")
         self.clear_button.setToolTip("Delete every measurement (Edit > Undo brings them back)")
         self.export_button = QPushButton("Export CSV...")
-        for b in (self.show_button, self.update_button, self.delete_button, self.clear_button,
-                  self.export_button):
+        for b in (self.show_button, self.update_button, self.delete_button):
+            row.addWidget(b)
+        v.addLayout(row)
+        row = QHBoxLayout()  # a second row: the panel stays narrow enough to show them all
+        for b in (self.clear_button, self.export_button):
             row.addWidget(b)
         v.addLayout(row)
         self._filling = False
