@@ -237,21 +237,30 @@ class AxesOverlay(QWidget):
             return
         qp = QPainter(self)
         qp.setRenderHint(QPainter.RenderHint.Antialiasing)
+        shadow = QColor(0, 0, 0, 200)
+
+        def text(at: QPointF, words: str, colour: QColor) -> None:
+            """Text with a dark shadow, readable over a light surface too."""
+            qp.setPen(QPen(shadow, 1))
+            for d in ((1, 1), (-1, 1), (1, -1), (-1, -1)):
+                qp.drawText(at + QPointF(*d), words)
+            qp.setPen(QPen(colour, 1))
+            qp.drawText(at, words)
+
         o = self.to_widget(a["origin"])
         for name, end in a["ends"].items():
             colour = QColor(*AXIS_COLOURS[name])
             qp.setPen(QPen(colour, 2))
             e = self.to_widget(end)
             qp.drawLine(o, e)
-            qp.drawText(e + QPointF(4, -4), a["labels"][name])
+            text(e + QPointF(4, -4), a["labels"][name], colour)
         white = QColor(235, 235, 235)
         qp.setPen(QPen(white, 3))
         bar = a["scale_bar"]
         at = self.to_widget(bar["at"])
         qp.drawLine(at, at + QPointF(bar["px"], 0))
-        qp.setPen(QPen(white, 1))
-        qp.drawText(at + QPointF(0, -6), f"{bar['mm']:g} mm")
-        qp.drawText(self.to_widget((8.0, 16.0)), a["frame"])
+        text(at + QPointF(0, -6), f"{bar['mm']:g} mm", white)
+        text(self.to_widget((8.0, 16.0)), a["frame"], white)
         qp.end()
 
 
