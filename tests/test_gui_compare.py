@@ -203,3 +203,25 @@ def test_a_written_comparison_goes_into_the_case_record(folders, qtbot, tmp_path
     assert details["inputs"] == doc["inputs"]
     assert details["registration"]["matrix_b_to_a"] == doc["registration"]["matrix_b_to_a"]
     assert details["parameters"]["threshold_mm"] == doc["parameters"]["threshold_mm"]
+
+
+def test_the_window_has_the_compare_tab_over_its_session(qtbot, tmp_path, folders):
+    """The Compare tab is in the window, built over the window's session (so its comparisons
+    go into the open case), and stops with the window."""
+    from impress_gui.ui.app import build_main_window, make_settings
+
+    window = build_main_window(make_settings(tmp_path / "settings.ini"), with_motor=False)
+    qtbot.addWidget(window)
+    try:
+        titles = [window.tabs.tabText(i) for i in range(window.tabs.count())]
+        assert "Compare" in titles
+        tab = window.tabs.widget(titles.index("Compare"))
+        assert tab is window.compare_tab and tab.session is window.session
+        window.tabs.setCurrentWidget(tab)
+        tab.a_edit.setText(str(folders[0]))
+        tab.b_edit.setText(str(folders[1]))
+        with qtbot.waitSignal(tab.compared, timeout=120_000):
+            tab.compare_button.click()
+        assert tab.comparison is not None
+    finally:
+        window.shutdown()

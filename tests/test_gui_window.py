@@ -76,7 +76,7 @@ def calibrated_project(qtbot, window, scan: Path, video: Path | None = None):
 
 def test_window_has_tabs_motor_dock_menus_and_status(window):
     titles = [window.tabs.tabText(i) for i in range(window.tabs.count())]
-    assert titles == ["Calibration", "Processing", "Viewer"]
+    assert titles == ["Calibration", "Processing", "Viewer", "Compare"]
     for tab in window.extra_tabs.values():
         if getattr(tab, "is_placeholder", False):
             assert "Coming soon" in tab.findChildren(type(window.project_label))[0].text()

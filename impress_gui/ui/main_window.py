@@ -36,6 +36,7 @@ from impress_gui.core.reconstruction.compiled import prepare_in_background
 from impress_gui.session.session import Session
 from impress_gui.ui.calibration.tab import CalibrationTab
 from impress_gui.ui.case_dialog import CaseDialog
+from impress_gui.ui.compare.panel import ComparePanel
 from impress_gui.ui.messages import Dialogs, Messenger
 from impress_gui.ui.motor.panel import MotorPanel
 from impress_gui.ui.processing.tab import ProcessingTab
@@ -98,9 +99,12 @@ class MainWindow(QMainWindow):
         self._tabs.append(self.processing_tab)
         self.viewer_tab = ViewerTab(messenger=self.messenger, dialogs=self.dialogs, session=s)
         self._tabs.append(self.viewer_tab)
+        self.compare_tab = ComparePanel(session=s)
+        self._tabs.append(self.compare_tab)
         # the tabs after the first, by title
         self.extra_tabs: dict[str, QWidget] = {"Processing": self.processing_tab,
-                                               "Viewer": self.viewer_tab}
+                                               "Viewer": self.viewer_tab,
+                                               "Compare": self.compare_tab}
         for title, tab in (("Calibration", self.calibration_tab), *self.extra_tabs.items()):
             self.tabs.addTab(tab, title)
             tab.changed.connect(self._update_title)
