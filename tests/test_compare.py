@@ -509,3 +509,23 @@ def test_one_profile_across_both_maps(cmp_ac):
     off = np.abs(prof.distance_mm - 2.0) > CUT.width_mm / 2 + 0.2
     assert np.allclose(rise[on], CUT.depth_mm, atol=0.02)
     assert np.all(np.abs(rise[off]) < 0.02)
+
+
+def test_steep_walls_are_not_outlined_unless_asked():
+    """On a 0.2 mm grid every tread wall differs by more than 0.25 mm after resampling (one cell
+    of lateral misplacement there is more than that): outlined, they hide the cut among ~200
+    regions. Left out (the default), the cut is the one region, its depth and length read
+    within the acceptance's 0.05 and 0.2 mm."""
+    from impress_gui.core.compare.difference import outline, steep_walls
+
+    a = truth_surface(shoe_relief(0.2, 1))
+    c = truth_surface(shoe_relief(0.2, 1, POSE_C, CUT))
+    cmp = compare(a, c)
+    everything, _ = outline(cmp.diff, cmp.a, 0.25, walls=True)
+    regions, edge = outline(cmp.diff, cmp.a, 0.25)
+    assert len(everything) > 50
+    assert len(regions) == 1
+    cut = regions[0]
+    assert abs(cut.max_depth_mm - CUT.depth_mm) <= 0.05
+    assert abs(cut.length_mm - CUT.length_mm) <= 0.2
+    assert edge.any() and not (edge & steep_walls(cmp.a, 0.25)).any()

@@ -33,6 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threshold-mm", type=float, default=DEFAULT_THRESHOLD_MM,
                    help=f"outline the regions where |A - B| exceeds this (default "
                    f"{DEFAULT_THRESHOLD_MM:g})")
+    p.add_argument("--outline-walls", action="store_true",
+                   help="outline differences on A's steep walls too (left out by default: one "
+                   "cell of lateral misplacement there exceeds the threshold)")
     p.add_argument("--max-distance-mm", type=float, default=d.max_distance_mm,
                    help=f"the final ICP's correspondence distance: farther points are outliers "
                    f"(default {d.max_distance_mm:g})")
@@ -60,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
                              relief_mm=args.relief_mm, sample_mm=args.sample_mm,
                              max_distance_mm=args.max_distance_mm)
     params = CompareParams(registration=reg, threshold_mm=args.threshold_mm,
+                           outline_walls=args.outline_walls,
                            ply_pixel_mm=args.ply_grid_mm, mean=args.mean)
     doc = write_comparison(args.inputs, args.output, params, progress_printer())
     r, d = doc["registration"], doc["difference"]

@@ -150,14 +150,31 @@ class Region:
                 "centroid_mm": [round(v, 6) for v in self.centroid_mm]}
 
 
+def steep_walls(a: Surface, threshold_mm: float) -> np.ndarray:
+    """A's cells on walls so steep that one cell of lateral misplacement changes the height by
+    more than ``threshold_mm`` (``|grad A| * pixel > threshold``): there the difference of two
+    scans of the same surface exceeds the threshold from resampling and the lateral
+    registration residual alone, whatever the surfaces' own agreement."""
+    h = np.asarray(a.height_mm, np.float64)
+    with np.errstate(invalid="ignore"):
+        gy, gx = np.gradient(h, a.pixel_mm)
+        steep = np.hypot(gx, gy) * a.pixel_mm > threshold_mm
+    return steep & np.isfinite(h)
+
+
 def outline(diff: np.ndarray, a: Surface, threshold_mm: float, min_area_mm2: float = 0.1,
-            max_regions: int = MAX_REGIONS) -> tuple[list[Region], np.ndarray]:
+            max_regions: int = MAX_REGIONS,
+            walls: bool = False) -> tuple[list[Region], np.ndarray]:
     """The regions where ``|A - B| > threshold_mm`` (8-connected, at least ``min_area_mm2``),
-    largest first, and their outline mask (the regions' border cells)."""
+    largest first, and their outline mask (the regions' border cells). Cells on A's
+    :func:`steep_walls` are left out unless ``walls``: every tread wall would otherwise be
+    outlined, hiding the differences an examiner looks for."""
     from scipy import ndimage
 
     with np.errstate(invalid="ignore"):
         mask = np.abs(diff) > threshold_mm
+    if not walls:
+        mask &= ~steep_walls(a, threshold_mm)
     labels, n = ndimage.label(mask, np.ones((3, 3), int))
     edge = np.zeros(diff.shape, bool)
     if n == 0:

@@ -63,6 +63,7 @@ class CompareParams:
     registration: RegistrationParams = field(default_factory=RegistrationParams)
     threshold_mm: float = DEFAULT_THRESHOLD_MM
     min_region_mm2: float = 0.1
+    outline_walls: bool = False  # outline A's steep walls too (difference.steep_walls)
     histogram_half_range_mm: float = 1.0
     ply_pixel_mm: float = DEFAULT_PLY_PIXEL_MM
     mean: bool = False
@@ -79,7 +80,7 @@ class CompareParams:
 
     def to_json(self) -> dict:
         return {"registration": self.registration.to_json(), "threshold_mm": self.threshold_mm,
-                "min_region_mm2": self.min_region_mm2,
+                "min_region_mm2": self.min_region_mm2, "outline_walls": self.outline_walls,
                 "histogram_half_range_mm": self.histogram_half_range_mm,
                 "ply_pixel_mm": self.ply_pixel_mm, "mean": self.mean}
 
@@ -109,7 +110,8 @@ def compare(a: Surface, b: Surface, params: CompareParams = CompareParams(),
     if stats.cells < 100:
         raise InputError(f"after registration A and B share {stats.cells} cells: no difference map",
                  code=codes.E_COMPARE_NO_OVERLAP)
-    regions, edge = outline(diff, win, params.threshold_mm, params.min_region_mm2)
+    regions, edge = outline(diff, win, params.threshold_mm, params.min_region_mm2,
+                            walls=params.outline_walls)
     report(progress, 1.0, "compared")
     return Comparison(win, b_on, diff, reg, stats, regions, edge)
 
@@ -248,7 +250,11 @@ def record_document(cmp: Comparison, b: Surface, params: CompareParams, colour_m
         "grid": cmp.a.grid_json(),
         "difference": {**cmp.stats.to_json(), "sign": "A - B (positive: A higher)",
                        "colour_half_range_mm": colour_mm},
-        "regions": {"threshold_mm": params.threshold_mm, "count": len(cmp.regions),
+        "regions": {"threshold_mm": params.threshold_mm,
+                    "steep_walls": "outlined" if params.outline_walls else (
+                        "left out: cells of A where one cell of lateral misplacement changes "
+                        "the height by more than the threshold"),
+                    "count": len(cmp.regions),
                     "items": [r.to_json() for r in cmp.regions]},
     }
     if more:
