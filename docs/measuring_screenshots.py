@@ -175,6 +175,42 @@ def main() -> None:
     w3.exaggeration.setValue(2.0)
     wait(w3.rendered, 20000)
     shot(w3, "viewer-3d.png")
+    w3.close()
+
+    # the Compare tab: the simulator's true shoe relief against a copy turned by -12 deg,
+    # shifted and given a cut 0.5 mm deep and 3 mm long, both as X3P files
+    from impress_gui.core.formats.writers import x3p_bytes
+    from impress_gui.sim.scenes import ShoeCut, shoe_relief
+
+    pose = {"rotate_deg": -12.0, "shift_x_mm": -6.0, "shift_y_mm": 5.0}
+    for name, scene in (("shoe-a", shoe_relief(0.2, 1)),
+                        ("shoe-b", shoe_relief(0.2, 1, pose, ShoeCut()))):
+        (tmp / f"{name}.x3p").write_bytes(
+            x3p_bytes(scene, scene.height_mm, "2026-01-01T00:00:00Z"))
+    c = win.compare_tab
+    win.tabs.setCurrentWidget(c)
+    c.a_edit.setText(str(tmp / "shoe-a.x3p"))
+    c.b_edit.setText(str(tmp / "shoe-b.x3p"))
+    c.threshold_spin.setValue(0.25)
+    c.compare_button.click()
+    wait(c.compared, 180000)
+    wait(ms=1500)
+    # zoomed on the one outlined region (the cut), with a profile drawn across it
+    cut = c.comparison.regions[0]
+    col, row = c.mm_to_view(*cut.centroid_mm)
+    c.view_box.setRange(QRectF(col - 60, row - 40, 120, 80), padding=0)
+    import math
+
+    x, y = cut.centroid_mm
+    across = math.radians(cut.axis_deg + 90.0)
+    dx, dy = 4.0 * math.cos(across), 4.0 * math.sin(across)
+    c.set_profile((x - dx, y - dy), (x + dx, y + dy))
+    wait(ms=1500)
+    shot(win, "compare-difference.png")
+    c.view_box.autoRange()
+    c.view_combo.setCurrentText("A | B side by side")
+    wait(ms=1500)
+    shot(win, "compare-side-by-side.png")
     win.shutdown()
     win.close()
     app.processEvents()
