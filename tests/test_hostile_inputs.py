@@ -355,7 +355,7 @@ CASES: list[Case] = [
          "E-SIM-OPTION"),
     # --- the command line itself --------------------------------------------------------------------
     Case("a mistyped command", ["proces", "x"], "E-USAGE"),
-    Case("an unknown command with --help", ["compare", "--help"], "E-USAGE"),
+    Case("an unknown command with --help", ["contrast", "--help"], "E-USAGE"),
     Case("process without arguments", ["process"], "E-USAGE"),
     Case("process with an unknown option", _proc() + ["--turbo"], "E-USAGE"),
 ]
