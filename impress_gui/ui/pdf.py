@@ -8,14 +8,24 @@ import base64
 import re
 
 from PySide6.QtCore import QBuffer, QByteArray, QIODevice, QMarginsF, QUrl
-from PySide6.QtGui import QImage, QPageLayout, QPageSize, QPdfWriter, QTextDocument
+from PySide6.QtGui import (
+    QFont,
+    QImage,
+    QPageLayout,
+    QPageSize,
+    QPdfWriter,
+    QTextCharFormat,
+    QTextCursor,
+    QTextDocument,
+)
 
 _DATA_URI = re.compile(r"""src=(['"])data:image/png;base64,([A-Za-z0-9+/=]+)\1""")
 
 
 def html_to_pdf(html: str, title: str, creator: str) -> bytes:
     """``html`` (inline PNG images as data URIs) as an A4 PDF; ``title`` and ``creator`` go
-    into the PDF's document information."""
+    into the PDF's document information. Text is laid out without ligatures, so that hashes
+    and identifiers copied out of the PDF are the characters written."""
     doc = QTextDocument()
     images: list[bytes] = []
 
@@ -30,6 +40,13 @@ def html_to_pdf(html: str, title: str, creator: str) -> bytes:
             image = image.scaledToWidth(1600)
         doc.addResource(QTextDocument.ResourceType.ImageResource, QUrl(f"image{k}.png"), image)
     doc.setHtml(html)
+    # no ligatures: "ff" in a SHA-256 would otherwise become one glyph (U+FB00) that a reader
+    # copies out of the PDF as another character, and the hash no longer verifies
+    cursor = QTextCursor(doc)
+    cursor.select(QTextCursor.SelectionType.Document)
+    plain = QTextCharFormat()
+    plain.setFontStyleStrategy(QFont.StyleStrategy.PreferNoShaping)
+    cursor.mergeCharFormat(plain)
     data = QByteArray()
     buffer = QBuffer(data)
     buffer.open(QIODevice.OpenModeFlag.WriteOnly)
