@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import uuid
 from collections.abc import Mapping, Sequence
@@ -27,12 +28,16 @@ def new_measurement(
     label: str = "",
     note: str = "",
     params: Mapping | None = None,
+    uncertainty: Mapping | None = None,
 ) -> dict:
     """A JSON-able measurement record as kept in the project's ``measurements`` list:
     ``{"id", "kind", "label", "note", "points_mm", "params", "values", "created_utc"}``
-    (non-finite values are stored as None)."""
+    (non-finite values are stored as None), and ``"uncertainty"`` when given: the budgets of
+    its readings by name (:func:`impress_gui.core.measure.uncertainty.budgets_json`), whose
+    ``u_c_*_mm`` and ``U_k2_*_mm`` are also among the values."""
     if kind not in MEASUREMENT_KINDS:
         raise InputError(f"unknown measurement kind {kind!r}")
+    extra = {} if not uncertainty else {"uncertainty": _jsonable(dict(uncertainty))}
     return {
         "id": uuid.uuid4().hex[:8],
         "kind": kind,
@@ -42,7 +47,7 @@ def new_measurement(
         "params": _jsonable(dict(params or {})),
         "values": _jsonable(dict(values)),
         "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-    }
+    } | extra
 
 
 def _jsonable(obj):
@@ -132,7 +137,9 @@ def read_profile_csv(text: str) -> tuple[np.ndarray, np.ndarray]:
 def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None = None) -> str:
     """Leading ``# key: value`` lines of ``provenance`` (software version, the open
     reconstruction's hashes), then one row per measurement: number, id, kind, label, note,
-    points, every value, and the layer and heightmap SHA-256 it was measured on."""
+    points, every value (with the uncertainties ``u_c_*_mm`` and ``U_k2_*_mm`` when measured
+    with them), and the layer and heightmap SHA-256 it was measured on; when any measurement
+    has an uncertainty budget, a last column ``uncertainty_budget`` holds it as JSON."""
     value_keys: list[str] = []
     n_pts = 0
     for m in measurements:
@@ -146,7 +153,9 @@ def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None
     buf = io.StringIO()
     buf.write(csv_header(provenance))
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(head + value_keys + ["layer", "heightmap_sha256"])
+    with_budget = any(m.get("uncertainty") for m in measurements)
+    w.writerow(head + value_keys + ["layer", "heightmap_sha256"]
+               + (["uncertainty_budget"] if with_budget else []))
     for k, m in enumerate(measurements, 1):
         row = [k, m.get("id", ""), m.get("kind", ""), m.get("label", ""), m.get("note", "")]
         pts = list(m.get("points_mm", []))
@@ -156,5 +165,8 @@ def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None
         row += [_fmt(vals.get(key)) for key in value_keys]
         params = m.get("params") or {}
         row += [params.get("layer") or "", params.get("heightmap_sha256") or ""]
+        if with_budget:
+            b = m.get("uncertainty")
+            row.append(json.dumps(b, separators=(",", ":"), sort_keys=True) if b else "")
         w.writerow(row)
     return buf.getvalue()

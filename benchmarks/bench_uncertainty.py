@@ -1,0 +1,290 @@
+"""Do the stated uncertainties cover the true errors? (issue 22)
+
+For each random rig (the cached simulator scans of bench_random_rigs.py at 640x360) and each of
+``--draws`` click-noise draws: the scene is calibrated from the simulator's exact corner picks
+plus normal noise of ``--noise-px`` (as a person's clicks), reconstructed with the default
+settings, and random readings of every kind are taken on the map with their budgets
+(impress_gui.core.measure.uncertainty, the calibration's Monte Carlo with ``--trials`` trials).
+Each reading's true value comes from the simulator's truth:
+
+- heights (point, step B - A, depth below a plane through three points, dz): the same
+  readings on the true heights under each reconstructed cell (sim.truth.truth_for_reconstruction,
+  as bench_random_rigs.py compares heights);
+- lengths (ruler xy and 3D, width at a level): the reading's end points taken to where they
+  truly are by the TRUE calibration (the simulator's rotation, laser planes and target pose,
+  through the same camera ray at the same time: core.calibration.uncertainty.map_points).
+
+Coverage = the share of readings whose true error lies within their expanded uncertainty
+U (k = 2); the target is 93-97 % per reading kind. Readings on or near a height edge (a jump of
+more than 1 mm within 0.5 mm in the truth) are left out: there the measurand itself is not
+defined to better than a cell.
+
+Usage: .venv/bin/python benchmarks/bench_uncertainty.py [--seeds 0,1,2,3] [--draws 2]
+       [--noise-px 0.5] [--trials 30] [--per-kind 25] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+import common
+
+# the cached random-rig scans at 640x360 are valid for the current simulator; common.SIM_KEY
+# differs only because of simulator options these scans do not use
+common.SIM_KEY = "95a603848f"
+
+KINDS = ("height", "ruler xy", "ruler 3D", "ruler dz", "step height", "width", "depth")
+
+
+def true_params(scan_dir: Path, cal):
+    """The simulator's true calibration as a CalParams (true ideal frame, origin at the camera
+    at frame t1)."""
+    from impress_gui.core.calibration.geometry import Plane
+    from impress_gui.core.calibration.solve import umeyama
+    from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
+    from impress_gui.core.calibration.uncertainty import CalParams, reference_coeffs
+    from impress_gui.sim.truth import rail_to_reconstruction
+
+    truth = json.loads((scan_dir / "truth.json").read_text())
+    target = TargetModel.load(scan_dir / "target.json")
+    tc = np.array([truth["target"]["corners_rail_mm"][c] for c in CORNER_NAMES])
+    corners = rail_to_reconstruction(scan_dir, tc)
+    _, r_o, t_o = umeyama(target.corner_array(), corners, with_scale=False)
+    normals, offsets = {}, {}
+    for name in ("green", "red"):
+        tp = Plane.from_json(truth["lasers"][name]["plane"], name).oriented_like(
+            cal.planes[name].plane)
+        normals[name] = np.asarray(tp.normal, float)[None]
+        offsets[name] = np.array([float(tp.offset_mm)])
+    rot = np.asarray(truth["rotation_camera_to_ideal"], float)
+    return CalParams(rot[None], normals, offsets, reference_coeffs(r_o, t_o)[None], np.ones(1))
+
+
+class Rig:
+    """One calibrated, reconstructed draw and what the readings need."""
+
+    def __init__(self, seed: int, draw: int, noise_px: float, trials: int) -> None:
+        from impress_gui.core.calibration.target import TargetModel
+        from impress_gui.core.calibration.uncertainty import CalParams
+        from impress_gui.core.formats.video import open_video
+        from impress_gui.core.measure.uncertainty import UncertaintyContext
+        from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
+        from impress_gui.sim.truth import truth_for_reconstruction
+
+        d = common.CACHE / f"random-{seed}-640x360-{common.SIM_KEY}"
+        if not (d / "truth.json").exists():
+            raise FileNotFoundError(f"{d}: not cached (this benchmark renders nothing)")
+        self.dir = d
+        truth = json.loads((d / "truth.json").read_text())
+        t0 = time.perf_counter()
+        self.cal = cal = common.calibrate(d, noise_px=noise_px, seed=1000 * seed + draw + 1)
+        with open_video(d / truth["video"]) as v:
+            rec = reconstruct(v, cal, ProcessParams())
+        self.t_rec = time.perf_counter() - t0
+        self.spec = rec.spec
+        self.h = rec.height_mm
+        self.truth = truth_for_reconstruction(d, rec.spec, rec.height_mm, cal.reference_depth)
+        self.edge = common.edge_mask(self.truth, 5, 1.0)
+        t0 = time.perf_counter()
+        self.ctx = UncertaintyContext.for_calibration(
+            self.h, rec.spec, cal, TargetModel.load(d / "target.json"), rec.contribution,
+            trials=trials)
+        self.t_mc = time.perf_counter() - t0
+        self.nominal = CalParams.of_calibration(cal)
+        self.true = true_params(d, cal)
+        self.contrib = rec.contribution
+        self.ok = np.isfinite(self.h) & np.isfinite(self.truth) & ~self.edge
+        self.cells = np.argwhere(self.ok)
+
+    def to_true(self, x, y, h):
+        """Map points to where they truly are (true ideal frame)."""
+        from impress_gui.core.calibration.uncertainty import map_points
+
+        x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, h))
+        out = np.zeros((3, len(x)))
+        for n in range(len(x)):
+            acc = np.zeros(3)
+            for laser, w in self.ctx.lasers_at(x[n], y[n]):
+                tx, ty, th = map_points(self.nominal, self.true, x[n:n + 1], y[n:n + 1],
+                                        h[n:n + 1], laser)
+                acc += w * np.array([tx[0, 0], ty[0, 0], th[0, 0]])
+            out[:, n] = acc
+        return out
+
+    def random_point(self, rng):
+        i, j = self.cells[rng.integers(len(self.cells))]
+        return float(self.spec.x0_mm + j * self.spec.pixel_mm), float(
+            self.spec.y0_mm + i * self.spec.pixel_mm)
+
+    def clean_disk(self, x, y, r) -> bool:
+        from impress_gui.core.measure.readings import readout
+
+        e = readout(self.edge.astype(np.float32), self.spec, x, y, r + 0.5)
+        return e.has_data and e.height_mm == 0.0
+
+
+def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
+    from impress_gui.core.measure import readings as M
+    from impress_gui.core.measure import uncertainty as U
+
+    out: list[dict] = []
+    ctx, spec = rig.ctx, rig.spec
+    radius = 0.5
+
+    def add(kind, budget, err):
+        if math.isfinite(err) and math.isfinite(budget.U_mm):
+            out.append({"kind": kind, "err": float(err), "U": budget.U_mm, "u_c": budget.u_c_mm,
+                        "parts": {c.name: c.u_mm for c in budget.components}})
+
+    tries = 0
+    counts = dict.fromkeys(KINDS, 0)
+    while tries < 60 * per_kind and min(counts.values()) < per_kind:
+        tries += 1
+        x, y = rig.random_point(rng)
+        if not rig.clean_disk(x, y, radius):
+            continue
+        # height at a point
+        if counts["height"] < per_kind:
+            r = M.readout(rig.h, spec, x, y, radius)
+            t = M.readout(rig.truth, spec, x, y, radius)
+            if r.has_data and t.has_data:
+                add("height", U.height_budget(ctx, r), r.height_mm - t.height_mm)
+                counts["height"] += 1
+        # ruler: a second point 10-60 mm away
+        ang = rng.uniform(0, 2 * math.pi)
+        dist = rng.uniform(10, 60)
+        x2, y2 = x + dist * math.cos(ang), y + dist * math.sin(ang)
+        if min(counts["ruler xy"], counts["ruler 3D"], counts["ruler dz"]) < per_kind and \
+                rig.clean_disk(x2, y2, radius):
+            r = M.ruler(rig.h, spec, (x, y), (x2, y2), radius)
+            t = M.ruler(rig.truth, spec, (x, y), (x2, y2), radius)
+            if np.isfinite([r.dz_mm, t.dz_mm]).all():
+                b = U.ruler_budgets(ctx, r)
+                p = rig.to_true([x, x2], [y, y2], [r.start.height_mm, r.end.height_mm])
+                xy_true = math.hypot(p[0, 1] - p[0, 0], p[1, 1] - p[1, 0])
+                dz_true = t.dz_mm
+                for key, kind, err in (("xy", "ruler xy", r.xy_mm - xy_true),
+                                       ("3d", "ruler 3D", r.d3_mm - math.hypot(xy_true, dz_true)),
+                                       ("dz", "ruler dz", r.dz_mm - dz_true)):
+                    if counts[kind] < per_kind:
+                        add(kind, b[key], err)
+                        counts[kind] += 1
+        # a profile 24 mm long from the point, 1 mm wide: a step between bands and a width
+        x3, y3 = x + 24 * math.cos(ang), y + 24 * math.sin(ang)
+        if counts["step height"] < per_kind or counts["width"] < per_kind:
+            prof = M.line_profile(rig.h, spec, (x, y), (x3, y3), 1.0)
+            tprof = M.line_profile(rig.truth, spec, (x, y), (x3, y3), 1.0)
+            ba, bb = (1.0, 5.0), (17.0, 21.0)
+            ea = M.line_profile(rig.edge.astype(np.float32), spec, (x, y), (x3, y3), 2.0)
+            clean = lambda band: np.nanmax(  # noqa: E731
+                np.where((ea.distance_mm >= band[0] - 0.5) & (ea.distance_mm <= band[1] + 0.5),
+                         ea.height_mm, 0.0)) == 0.0
+            if counts["step height"] < per_kind and clean(ba) and clean(bb):
+                s = M.step_height(prof, ba, bb)
+                ts = M.step_height(tprof, ba, bb)
+                if s.a.n >= 20 and s.b.n >= 20 and math.isfinite(ts.difference_mm):
+                    add("step height", U.step_budget(ctx, prof, s, ba, bb),
+                        s.difference_mm - ts.difference_mm)
+                    counts["step height"] += 1
+            if counts["width"] < per_kind:
+                th = tprof.height_mm
+                if np.isfinite(th).mean() > 0.9 and np.nanmax(th) - np.nanmin(th) > 1.5:
+                    level = float((np.nanmax(th) + np.nanmin(th)) / 2)
+                    tc = M.level_crossings(tprof, level)
+                    if len(tc) == 2 and tc[1] - tc[0] > 1.0:
+                        around = float((tc[0] + tc[1]) / 2)
+                        w = M.width_at_level(prof, level, around)
+                        if math.isfinite(w.width_mm):
+                            ux, uy = (x3 - x) / 24, (y3 - y) / 24
+                            pts = rig.to_true(x + tc * ux, y + tc * uy, [level, level])
+                            w_true = math.hypot(pts[0, 1] - pts[0, 0], pts[1, 1] - pts[1, 0])
+                            add("width", U.width_budget(ctx, prof, w), w.width_mm - w_true)
+                            counts["width"] += 1
+        # depth below a plane through three points 8-15 mm around
+        if counts["depth"] < per_kind:
+            sup = []
+            for k in range(3):
+                a = ang + 2 * math.pi * k / 3 + rng.uniform(-0.3, 0.3)
+                rr = rng.uniform(8, 15)
+                sx, sy = x + rr * math.cos(a), y + rr * math.sin(a)
+                if not rig.clean_disk(sx, sy, radius):
+                    break
+                sup.append((sx, sy))
+            if len(sup) == 3:
+                rs = [M.readout(rig.h, spec, sx, sy, radius) for sx, sy in sup]
+                ts = [M.readout(rig.truth, spec, sx, sy, radius) for sx, sy in sup]
+                r = M.readout(rig.h, spec, x, y, radius)
+                t = M.readout(rig.truth, spec, x, y, radius)
+                if all(v.has_data for v in (*rs, *ts, r, t)):
+                    b = U.depth_budget(ctx, r, rs)
+                    tp = M.plane_from_points([(v.x_mm, v.y_mm, v.height_mm) for v in ts])
+                    add("depth", b, b.value_mm - float(tp.at(x, y) - t.height_mm))
+                    counts["depth"] += 1
+    return out
+
+
+def table(rows: list[dict]) -> str:
+    lines = [f"{'reading':<12} {'n':>4} {'within U':>9} {'median U':>9} {'median |e|':>10} "
+             f"{'rms e/u_c':>9}  largest components (median u_i, mm)"]
+    for kind in KINDS:
+        rr = [r for r in rows if r["kind"] == kind]
+        if not rr:
+            lines.append(f"{kind:<12} {0:>4} {'-':>9}")
+            continue
+        e = np.array([r["err"] for r in rr])
+        u = np.array([r["U"] for r in rr])
+        uc = np.array([r["u_c"] for r in rr])
+        cov = 100 * float(np.mean(np.abs(e) <= u))
+        names = sorted({n for r in rr for n in r["parts"]})
+        med = {n: float(np.nanmedian([r["parts"].get(n, np.nan) for r in rr])) for n in names}
+        parts = ", ".join(f"{n} {v:.3f}" for n, v in sorted(med.items(), key=lambda kv: -kv[1]))
+        lines.append(f"{kind:<12} {len(rr):>4} {cov:>8.1f}% {np.median(u):>9.3f} "
+                     f"{np.median(np.abs(e)):>10.3f} {np.sqrt(np.mean((e / uc) ** 2)):>9.2f}  "
+                     f"{parts}")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", default="0,1,2,3")
+    ap.add_argument("--draws", type=int, default=2)
+    ap.add_argument("--noise-px", type=float, default=0.5)
+    ap.add_argument("--trials", type=int, default=30)
+    ap.add_argument("--per-kind", type=int, default=25)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",") if s]
+    print(f"random rigs {seeds} at 640x360, {args.draws} draws of click noise "
+          f"{args.noise_px} px each, {args.trials} Monte Carlo trials per calibration")
+    rows: list[dict] = []
+    for seed in seeds:
+        for draw in range(args.draws):
+            t0 = time.perf_counter()
+            try:
+                rig = Rig(seed, draw, args.noise_px, args.trials)
+            except Exception as exc:  # noqa: BLE001 - a rig the product refuses is a result
+                print(f"  seed {seed} draw {draw}: not measured ({type(exc).__name__}: {exc})")
+                continue
+            rng = np.random.default_rng(100 * seed + draw)
+            got = readings(rig, rng, args.per_kind)
+            for r in got:
+                r.update(seed=seed, draw=draw)
+            rows += got
+            e = rig.ctx.ensemble
+            print(f"  seed {seed} draw {draw}: {len(got)} readings; calibrate+reconstruct "
+                  f"{rig.t_rec:.0f} s, Monte Carlo {rig.t_mc:.0f} s; click sigma "
+                  f"{e.click_sigma_px if e else float('nan'):.2f} px; "
+                  f"{'; '.join(rig.ctx.notes) or 'calibration component in'}", flush=True)
+            if args.json:
+                args.json.write_text(json.dumps(rows, indent=0))
+    print(table(rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,347 @@
+"""How uncertain a scene calibration is, by Monte Carlo (Qt-free; GUM Supplement 1 style).
+
+The calibration file does not keep the pixels it was computed from (the corner picks are a
+separate file, the stripe pixels are not written at all), so the Monte Carlo works from what the
+file does hold - the solved pose, the target pose, the laser planes with their fit RMS, point
+counts and frames, the reprojection RMS of the picks - and the target model:
+
+1. the twelve "model picks" are the fitted target corners projected into frames t1 and t2 (the
+   picks as they would be without click noise);
+2. each trial adds independent normal click noise of ``click_sigma_px`` to every pick and solves
+   the pose again with the product's own solver (:func:`~impress_gui.core.calibration.solve.solve_pose`:
+   vanishing point, parallax, rigid fit, bundle refinement); the tilt refinement by the stripes
+   is not re-run (it needs the video), so the tilt spread is that of the picks alone - on the
+   large side;
+3. each laser's stripe on the target is rebuilt from the recorded plane: in each recorded frame
+   the line where the plane cuts each top face, seen as camera rays. A trial intersects those
+   rays with the target faces of its own pose (and its own travel), adds stripe noise of the
+   plane's recorded RMS (half of its variance as one offset per frame and face - neighbouring
+   stripe points are not independent - and half per point) and fits the plane again;
+4. a trial's parameters map any reconstructed cell to where that trial would have put it
+   (:meth:`CalibrationEnsemble.map_points`: the same camera ray at the same time, through the
+   trial's rotation, laser plane and reference plane). The spread of a reading over the trials
+   is the calibration's standard uncertainty of that reading, correlations included (both ends
+   of a ruler move together).
+
+Trials are relative to a trial without noise (the same procedure, noise-free), so the procedure's
+own small departures from the recorded calibration cancel. Results are cached per calibration
+(its JSON text), target, sigma, count and seed: the same input gives the same numbers.
+
+The click noise is estimated from the reprojection residuals (RMS x sqrt(24 / (24 - 9)): 24
+coordinates, 9 pose parameters) with a floor of :data:`DEFAULT_CLICK_SIGMA_PX` (a person marking a
+corner in a video frame is not more precise than that, and picks taken from a simulator are
+exact).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from impress_gui.core.base.errors import CalibrationError, InputError
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.calibration.planes import StripeObservations, refine_tilt
+from impress_gui.core.calibration.solve import SPEED_WARN_FRACTION, solve_pose
+from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
+
+#: the smallest click noise assumed (px): a stated default, used when the residuals say less
+DEFAULT_CLICK_SIGMA_PX = 0.3
+#: trials of the Monte Carlo (the SD of a reading is then known to about 7 % of itself)
+DEFAULT_TRIALS = 60
+DEFAULT_SEED = 22
+LASERS = ("green", "red")
+#: points per stripe segment (one frame, one face) of the rebuilt stripes
+SEGMENT_POINTS = 24
+
+
+@dataclass(frozen=True)
+class CalParams:
+    """The parameters that map a pixel ray to a heightmap cell, for ``S`` parameter sets:
+    ``rotation (S, 3, 3)`` camera -> ideal, per laser ``normals (S, 3)`` and ``offsets (S,)``
+    (plane ``n . X = d`` in the camera-fixed ideal frame), ``ref (S, 3)`` the reference depth
+    ``c0 + cx x + cy y`` and ``speed_scale (S,)`` (the true travel over the entered one)."""
+
+    rotation: np.ndarray
+    normals: dict
+    offsets: dict
+    ref: np.ndarray
+    speed_scale: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return len(self.rotation)
+
+    @classmethod
+    def of_calibration(cls, cal) -> CalParams:
+        """The one parameter set of a :class:`~impress_gui.core.calibration.scene.SceneCalibration`."""
+        return cls(np.asarray(cal.rotation, float)[None],
+                   {n: np.asarray(cal.planes[n].plane.normal, float)[None] for n in LASERS},
+                   {n: np.array([float(cal.planes[n].plane.offset_mm)]) for n in LASERS},
+                   reference_coeffs(cal.target_rotation, cal.target_translation_mm)[None],
+                   np.ones(1))
+
+    def take(self, idx) -> CalParams:
+        return CalParams(self.rotation[idx], {n: v[idx] for n, v in self.normals.items()},
+                         {n: v[idx] for n, v in self.offsets.items()}, self.ref[idx],
+                         self.speed_scale[idx])
+
+
+def reference_coeffs(target_rotation: np.ndarray, target_translation: np.ndarray) -> np.ndarray:
+    """``(c0, cx, cy)`` of the target base plane's depth ``c0 + cx x + cy y`` (as
+    :meth:`SceneCalibration.reference_depth`)."""
+    n = -np.asarray(target_rotation, float) @ np.array([0.0, 0.0, 1.0])
+    p0 = np.asarray(target_translation, float)
+    return np.array([p0[2] + (n[0] * p0[0] + n[1] * p0[1]) / n[2], -n[0] / n[2], -n[1] / n[2]])
+
+
+def map_points(src: CalParams, dst: CalParams, x, y, h, laser) -> tuple:
+    """Where the parameter sets ``dst`` put the cells ``(x, y, h)`` (arrays ``(N,)``) that the
+    single set ``src`` reconstructed from laser ``laser`` (a name, or ``(N,)`` names): the same
+    camera ray at the same time, through each set's rotation, laser plane and reference.
+    Returns ``(x', y', h')`` each ``(S, N)``."""
+    x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, h))
+    lasers = np.broadcast_to(np.asarray(laser), x.shape)
+    out = [np.full((dst.size, len(x)), np.nan) for _ in range(3)]
+    r0 = src.rotation[0]
+    for name in LASERS:
+        sel = lasers == name
+        if not sel.any():
+            continue
+        xs, ys, hs = x[sel], y[sel], h[sel]
+        n0, d0 = src.normals[name][0], src.offsets[name][0]
+        z = src.ref[0, 0] + src.ref[0, 1] * xs + src.ref[0, 2] * ys - hs
+        travel = (n0[0] * xs + n0[1] * ys + n0[2] * z - d0) / n0[1]
+        q_ideal = np.column_stack([xs, ys - travel, z])
+        cam = q_ideal @ r0  # rows: R^T q (camera-frame ray directions)
+        q = np.einsum("sij,nj->sni", dst.rotation, cam)
+        den = np.einsum("sni,si->sn", q, dst.normals[name])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = dst.offsets[name][:, None] / den
+        px = lam * q[..., 0]
+        py = lam * q[..., 1] + travel[None] * dst.speed_scale[:, None]
+        pz = lam * q[..., 2]
+        ph = dst.ref[:, :1] + dst.ref[:, 1:2] * px + dst.ref[:, 2:3] * py - pz
+        for o, v in zip(out, (px, py, ph)):
+            o[:, sel] = v
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class CalibrationEnsemble:
+    """The Monte Carlo trials of one calibration (see the module's description).
+
+    ``nominal`` is the calibration itself, ``base`` the noise-free trial, ``trials`` the noisy
+    ones; ``summary`` holds the spread of the solved quantities (roll, tilt, implied speed,
+    each plane's angle and offset) for the budget's description."""
+
+    nominal: CalParams
+    base: CalParams
+    trials: CalParams
+    click_sigma_px: float
+    sigma_source: str
+    seed: int
+    summary: dict
+
+    @property
+    def n_trials(self) -> int:
+        return self.trials.size
+
+    def deltas(self, x, y, h, laser) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(dx, dy, dh)`` each ``(S, N)``: how far each trial moves the cells ``(x, y, h)``
+        of the calibration's own reconstruction, relative to the noise-free trial."""
+        bx, by, bh = map_points(self.nominal, self.base, x, y, h, laser)
+        tx, ty, th = map_points(self.nominal, self.trials, x, y, h, laser)
+        return tx - bx, ty - by, th - bh
+
+
+def click_sigma(cal) -> tuple[float, str]:
+    """The click noise (px) assumed for a calibration and where it comes from."""
+    rms = float(cal.reprojection_rms_px)
+    est = rms * math.sqrt(24.0 / 15.0) if math.isfinite(rms) else 0.0
+    if est > DEFAULT_CLICK_SIGMA_PX:
+        return est, (f"from the picks' reprojection RMS {rms:.3f} px x sqrt(24/15) "
+                     "(24 coordinates, 9 pose parameters)")
+    return DEFAULT_CLICK_SIGMA_PX, (f"the stated default {DEFAULT_CLICK_SIGMA_PX} px (the picks' "
+                                    f"reprojection RMS {rms:.3f} px implies less)")
+
+
+def _pose_travel(cal) -> float:
+    """The travel (mm) between t1 and t2 the target's pose was fitted with."""
+    dt = (cal.t2 - cal.t1) / cal.fps
+    ok = abs(cal.implied_speed_mm_s - cal.speed_mm_s) <= SPEED_WARN_FRACTION * cal.speed_mm_s
+    return (cal.speed_mm_s if ok else cal.implied_speed_mm_s) * dt
+
+
+def model_picks(cal, target: TargetModel) -> Picks:
+    """The fitted target corners projected into frames t1 and t2: picks without click noise."""
+    corners = cal.corners_fit_mm(target)
+    uv1 = cal.project_rail(corners, 0.0)
+    uv2 = cal.project_rail(corners, _pose_travel(cal))
+    return Picks("", cal.t1, cal.t2, {c: tuple(map(float, p)) for c, p in zip(CORNER_NAMES, uv1)},
+                 {c: tuple(map(float, p)) for c, p in zip(CORNER_NAMES, uv2)})
+
+
+def check_target(cal, target: TargetModel, tol_mm: float = 3.0) -> None:
+    """InputError unless ``target`` is the model the calibration was fitted with (its fitted
+    corners must lie near the corners triangulated by parallax)."""
+    fit = cal.corners_fit_mm(target)
+    gap = np.linalg.norm(fit - cal.corners_parallax_mm, axis=1)
+    if not np.all(np.isfinite(gap)) or float(np.max(gap)) > max(tol_mm, 3 * float(
+            np.nanmax(cal.corner_residuals_mm))):
+        raise InputError(f"the target model '{target.name}' does not match the calibration "
+                         f"(corners up to {float(np.nanmax(gap)):.1f} mm apart)")
+
+
+def _segments(cal, target: TargetModel, laser: str):
+    """The rebuilt stripe of ``laser``: per (frame, face) ``(frame, time since t1 (s), points
+    in the ideal frame of that frame's camera (M, 3))`` on the recorded plane."""
+    fit = cal.planes[laser]
+    frames = list(fit.frames) or [cal.t1 if laser == "green" else cal.t2]
+    n, d = fit.plane.normal, fit.plane.offset_mm
+    r_o, t_o = cal.target_rotation, cal.target_translation_mm
+    v_pose = cal.implied_speed_mm_s
+    out = []
+    for face in target.top_faces():
+        poly = face.vertices_mm @ r_o.T + t_o  # rail frame
+        for k in frames:
+            dt = (k - cal.t1) / cal.fps
+            shift = np.array([0.0, v_pose * dt, 0.0])
+            s = (poly - shift) @ n - d  # signed distances of the vertices to the laser plane
+            pts = []
+            for i in range(len(poly)):
+                a, b = poly[i], poly[(i + 1) % len(poly)]
+                sa, sb = s[i], s[(i + 1) % len(poly)]
+                if (sa < 0) != (sb < 0):
+                    pts.append(a + sa / (sa - sb) * (b - a))
+            if len(pts) < 2:
+                continue
+            p, q = pts[0], pts[1]
+            length = float(np.linalg.norm(q - p))
+            if length < 6.0:
+                continue
+            t = np.linspace(1.5 / length, 1 - 1.5 / length, SEGMENT_POINTS)  # inside the inset
+            out.append((int(k), dt, p[None] + t[:, None] * (q - p)[None] - shift))
+    return out
+
+
+def _observations(cal, target, segs, rng, laser_rms: dict | None) -> StripeObservations:
+    """Stripe observations (camera rays) of the rebuilt stripes, with stripe noise of each
+    plane's recorded RMS when ``laser_rms`` is given: half of its variance as one offset per
+    frame and face (neighbouring stripe points are not independent), half per point."""
+    rays = {}
+    for laser in LASERS:
+        nrm = cal.planes[laser].plane.normal
+        by_frame: dict[int, list] = {}
+        for k, dt, pts in segs[laser]:
+            if laser_rms:
+                s = laser_rms[laser] / math.sqrt(2)
+                pts = pts + nrm * (rng.normal(0.0, s) + rng.normal(0.0, s, (len(pts), 1)))
+            cam = pts @ cal.rotation  # rows R^T X: camera frame
+            by_frame.setdefault(k, [dt, []])[1].append(cam / cam[:, 2:3])
+        rays[laser] = [(k, dt, np.concatenate(c)) for k, (dt, c) in sorted(by_frame.items())]
+    return StripeObservations(target, cal.implied_speed_mm_s, {"green": cal.t1, "red": cal.t2},
+                              rays)
+
+
+def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, refine: bool):
+    """One trial: ``(rotation, {laser: (normal, offset)}, ref coeffs, roll, tilt, implied)``:
+    the product's pose solver on noisy picks, its tilt refinement and plane fits on the
+    rebuilt, noisy stripes."""
+    if sigma_px > 0:
+        noisy = {}
+        for key in ("corners_t1", "corners_t2"):
+            noisy[key] = {c: tuple(np.add(v, rng.normal(0.0, sigma_px, 2)))
+                          for c, v in getattr(picks, key).items()}
+        picks = Picks("", picks.t1, picks.t2, noisy["corners_t1"], noisy["corners_t2"])
+    rms = {la: float(cal.planes[la].rms_mm) for la in LASERS} if sigma_px > 0 else None
+    obs = _observations(cal, target, segs, rng, rms)
+    pose = solve_pose(cal.intrinsics, target, picks, cal.speed_mm_s, dt)
+    fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
+    if refine:
+        pose = refine_tilt(obs, fits, cal.intrinsics, target, picks, pose, cal.speed_mm_s, dt,
+                           max(sigma_px, 0.05))
+        fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
+    planes = {}
+    for la in LASERS:
+        pl = fits[la][0].plane.oriented_like(cal.planes[la].plane)
+        planes[la] = (np.asarray(pl.normal, float), float(pl.offset_mm))
+    return (pose.rotation, planes, reference_coeffs(pose.target_rotation,
+                                                    pose.target_translation_mm),
+            pose.roll_rad, pose.tilt_rad, pose.implied_speed_mm_s)
+
+
+def _angle_sd_deg(a: np.ndarray, ref: float) -> float:
+    d = (np.degrees(a - ref) + 180.0) % 360.0 - 180.0
+    return float(np.sqrt(np.mean(d**2)))
+
+
+_CACHE: dict = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def calibration_key(cal, target: TargetModel, sigma_px: float, n: int, seed: int) -> str:
+    h = hashlib.sha256(json.dumps(cal.to_json() | {"software": "", "inputs": {}},
+                                  sort_keys=True, default=str).encode())
+    h.update(json.dumps({n: (f.vertices_mm.tolist()) for n, f in
+                         zip(range(99), target.faces)}, sort_keys=True).encode())
+    h.update(json.dumps(target.corner_array().tolist()).encode())
+    h.update(f"{sigma_px:.6f}/{n}/{seed}".encode())
+    return h.hexdigest()
+
+
+def calibration_ensemble(cal, target: TargetModel, click_sigma_px: float | None = None,
+                         n: int = DEFAULT_TRIALS, seed: int = DEFAULT_SEED) -> CalibrationEnsemble:
+    """The Monte Carlo trials of ``cal`` (fitted with ``target``); ``click_sigma_px`` None:
+    :func:`click_sigma`. Deterministic (``seed``) and cached."""
+    if click_sigma_px is None:
+        sigma, source = click_sigma(cal)
+    else:
+        sigma, source = float(click_sigma_px), "given"
+    key = calibration_key(cal, target, sigma, n, seed)
+    with _CACHE_LOCK:
+        hit = _CACHE.get(key)
+    if hit is not None:
+        return hit
+    check_target(cal, target)
+    picks = model_picks(cal, target)
+    segs = {laser: _segments(cal, target, laser) for laser in LASERS}
+    dt = (cal.t2 - cal.t1) / cal.fps
+    rng = np.random.default_rng(seed)
+    refine = all(f.method == "stripe-fit" for f in cal.planes.values())
+    results = [_trial(cal, target, picks, segs, rng, 0.0, dt, refine)]
+    for _ in range(n):
+        try:
+            results.append(_trial(cal, target, picks, segs, rng, sigma, dt, refine))
+        except CalibrationError:  # a trial the solver refuses is left out (counted)
+            continue
+
+    def params(rs) -> CalParams:
+        return CalParams(np.array([r[0] for r in rs]),
+                         {la: np.array([r[1][la][0] for r in rs]) for la in LASERS},
+                         {la: np.array([r[1][la][1] for r in rs]) for la in LASERS},
+                         np.array([r[2] for r in rs]), np.ones(len(rs)))
+
+    base, trials = params(results[:1]), params(results[1:])
+    if trials.size < max(10, n // 2):
+        raise CalibrationError("the calibration's Monte Carlo failed in most trials")
+    arr = np.array([[r[3], r[4], r[5]] for r in results[1:]])
+    summary = {"trials": trials.size, "refused": n - trials.size,
+               "roll_sd_deg": _angle_sd_deg(arr[:, 0], results[0][3]),
+               "tilt_sd_deg": _angle_sd_deg(arr[:, 1], results[0][4]),
+               "implied_speed_sd_mm_s": float(arr[:, 2].std(ddof=1))}
+    for la in LASERS:
+        nn = trials.normals[la]
+        ang = np.degrees(np.arccos(np.clip(nn @ base.normals[la][0], -1, 1)))
+        summary[f"{la}_plane_angle_sd_deg"] = float(np.sqrt(np.mean(ang**2)))
+        summary[f"{la}_plane_offset_sd_mm"] = float(trials.offsets[la].std(ddof=1))
+        summary[f"{la}_plane_rms_mm"] = float(cal.planes[la].rms_mm)
+    ens = CalibrationEnsemble(CalParams.of_calibration(cal), base, trials, sigma, source, seed,
+                              summary)
+    with _CACHE_LOCK:
+        _CACHE[key] = ens
+    return ens

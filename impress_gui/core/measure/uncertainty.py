@@ -1,0 +1,658 @@
+"""The measurement uncertainty of every reading (Qt-free), in the terms of the GUM (JCGM 100).
+
+A reading's :class:`Budget` lists its components - each an input quantity with its standard
+uncertainty ``u(x_i)``, its sensitivity coefficient ``c_i`` and its contribution
+``u_i = |c_i| u(x_i)`` in mm - combines them by root-sum-square into the combined standard
+uncertainty ``u_c`` (the components are taken as uncorrelated; correlations *within* the
+calibration component are kept, see below) and states the expanded uncertainty
+``U = k u_c`` with ``k = 2`` (about 95 % for a normal distribution).
+
+Components (docs/uncertainty.md says the same for a quality manager):
+
+- **calibration** (type A, Monte Carlo): the spread of the reading over the Monte Carlo trials
+  of the scene calibration (:mod:`impress_gui.core.calibration.uncertainty`): each trial moves
+  every cell the reading uses; the reading is recomputed per trial, so both ends of a ruler or
+  both bands of a step move together and their common part cancels. Sensitivity 1 (the
+  component is already in mm). Absent (and said so) when no calibration is known.
+- **rail speed** (type B, rectangular): the travel along the scan scales with the rail speed.
+  The half-width is the difference between the speed implied by the target and the one entered
+  (a floor of 0.1 % for the motor's own regulation); sensitivity: the reading's change per
+  relative speed change (lengths along the scan; heights through the reference plane's slope).
+- **surface noise** (type A): the standard error of the cells or profile samples averaged,
+  from their scatter about a local plane (a line, for a band), with the sample count reduced to
+  an *effective* count by their spatial autocorrelation (neighbouring cells of a heightmap
+  interpolated from one stripe are not independent): ``n_eff = n / prod(1 + 2 sum rho_k)``.
+- **grid resolution** (type B, rectangular): a position is only resolved to a cell of
+  ``a`` mm, half-width ``a/2``, so ``u = a / (2 sqrt 3)`` per coordinate, times the reading's
+  sensitivity to that position (1 for a length's end, the local slope for a height).
+- **method** (type B, normal): bias and precision of the method from an ``impress validate``
+  report of the rig, when one is given (:class:`UncertaintyContext` ``validation``); the viewer
+  does not look one up yet.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from impress_gui.core.reconstruction.grid import GridSpec
+
+K = 2.0
+SPEED_FLOOR_REL = 0.001  # the servo's own speed regulation, as a relative half-width
+LASER_NAMES = ("green", "red")
+
+
+@dataclass(frozen=True)
+class Component:
+    """One line of a budget. ``u_x`` is the input quantity's standard uncertainty in ``unit``;
+    ``sensitivity`` is ``c_i`` (mm per ``unit``); ``u_mm`` = ``|c_i| u_x``."""
+
+    name: str
+    quantity: str
+    evaluation: str  # "A" or "B" (GUM 4.2 / 4.3)
+    distribution: str
+    u_x: float
+    unit: str
+    sensitivity: float
+    u_mm: float
+    note: str = ""
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "quantity": self.quantity, "type": self.evaluation,
+                "distribution": self.distribution, "u_x": _r(self.u_x), "unit": self.unit,
+                "c": _r(self.sensitivity), "u_mm": _r(self.u_mm), "note": self.note}
+
+
+def _r(v, nd: int = 6):
+    v = float(v)
+    return round(v, nd) if math.isfinite(v) else None
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The uncertainty budget of one reading ``reading`` (e.g. "step height B - A")."""
+
+    reading: str
+    value_mm: float
+    components: tuple[Component, ...]
+    k: float = K
+    notes: tuple[str, ...] = ()
+
+    @property
+    def u_c_mm(self) -> float:
+        us = [c.u_mm for c in self.components if math.isfinite(c.u_mm)]
+        return float(math.sqrt(sum(u * u for u in us))) if us else math.nan
+
+    @property
+    def U_mm(self) -> float:  # noqa: N802 - the GUM's symbol
+        return self.k * self.u_c_mm
+
+    def short(self) -> str:
+        """``± 0.123 mm (k=2)``."""
+        return "± - (k=2)" if not math.isfinite(self.U_mm) else f"± {self.U_mm:.3f} mm (k={self.k:g})"
+
+    def to_json(self) -> dict:
+        return {"reading": self.reading, "value_mm": _r(self.value_mm), "u_c_mm": _r(self.u_c_mm),
+                "U_mm": _r(self.U_mm), "k": self.k,
+                "components": [c.to_json() for c in self.components], "notes": list(self.notes)}
+
+    def text(self) -> str:
+        """A plain-text table of the budget (for a tooltip or a details view)."""
+        lines = [f"{self.reading}: {self.value_mm:.3f} mm; u_c {self.u_c_mm:.4f} mm; "
+                 f"U = {self.k:g} u_c = {self.U_mm:.3f} mm",
+                 "component | input u(x) | c | u_i (mm) | type, distribution"]
+        for c in self.components:
+            lines.append(f"{c.name} | {_g(c.u_x)} {c.unit} | {_g(c.sensitivity)} | "
+                         f"{c.u_mm:.4f} | {c.evaluation}, {c.distribution}"
+                         + (f" - {c.note}" if c.note else ""))
+        lines += list(self.notes)
+        return "\n".join(lines)
+
+
+def _g(v: float) -> str:
+    return "-" if not math.isfinite(v) else f"{v:.4g}"
+
+
+def budget_from_json(doc: Mapping) -> Budget:
+    comps = tuple(Component(c.get("name", ""), c.get("quantity", ""), c.get("type", ""),
+                            c.get("distribution", ""), _f(c.get("u_x")), c.get("unit", ""),
+                            _f(c.get("c")), _f(c.get("u_mm")), c.get("note", ""))
+                  for c in doc.get("components", []))
+    return Budget(doc.get("reading", ""), _f(doc.get("value_mm")), comps,
+                  float(doc.get("k", K)), tuple(doc.get("notes", [])))
+
+
+def _f(v) -> float:
+    return math.nan if v is None else float(v)
+
+
+# ----- what the budgets need ----------------------------------------------------------------------
+@dataclass
+class UncertaintyContext:
+    """What a reading's budget is computed from: the heights measured on (``height``, the
+    layer shown, levelled or not), the grid, the lasers' contribution codes (1 green, 2 red,
+    3/4 both; None: both assumed), the calibration's Monte Carlo (None: no calibration
+    component, said so), the entered and the target-implied rail speed, and a validation
+    report's ``{"bias_mm", "sd_mm", "source"}`` (None: not used)."""
+
+    height: np.ndarray
+    spec: GridSpec
+    contribution: np.ndarray | None = None
+    ensemble: object | None = None  # CalibrationEnsemble
+    speed_mm_s: float | None = None
+    implied_speed_mm_s: float | None = None
+    validation: Mapping | None = None
+    level_plane: object | None = None  # the levelling Plane the heights are relative to
+    level_support: Sequence | None = None  # (x, y) points the plane was fitted to
+    notes: list = field(default_factory=list)
+    laser: str | None = None  # the heights are one laser's ("green", "red"), not fused
+
+    @classmethod
+    def for_calibration(cls, height, spec, cal=None, target=None, contribution=None,
+                        level_plane=None, validation=None, trials: int | None = None
+                        ) -> UncertaintyContext:
+        """A context with the calibration's Monte Carlo (computed once per calibration and
+        cached; a target model that does not fit or a failing solve leave the component out,
+        with a note)."""
+        notes = []
+        ens = None
+        if cal is not None and target is not None:
+            from impress_gui.core.calibration import uncertainty as CU
+
+            try:
+                kw = {} if trials is None else {"n": trials}
+                ens = CU.calibration_ensemble(cal, target, **kw)
+            except Exception as exc:  # noqa: BLE001 - any failure leaves the component out
+                notes.append(f"calibration component not evaluated: {exc}")
+        elif cal is None:
+            notes.append("no scene calibration known: the calibration component is missing")
+        else:
+            notes.append("no target model known: the calibration component is missing")
+        return cls(height, spec, contribution, ens,
+                   None if cal is None else float(cal.speed_mm_s),
+                   None if cal is None else float(cal.implied_speed_mm_s),
+                   validation=validation, level_plane=level_plane, notes=notes)
+
+    # ----- helpers ---------------------------------------------------------------------------
+    def lasers_at(self, x, y) -> list[tuple[str, float]]:
+        """The lasers (and their weights) of the cell at ``(x, y)``."""
+        if self.laser in LASER_NAMES:
+            return [(self.laser, 1.0)]
+        if self.contribution is None:
+            return [("green", 0.5), ("red", 0.5)]
+        i, j = _cell(self.spec, x, y)
+        if not (0 <= i < self.spec.shape[0] and 0 <= j < self.spec.shape[1]):
+            return [("green", 0.5), ("red", 0.5)]
+        c = int(self.contribution[i, j])
+        return {1: [("green", 1.0)], 2: [("red", 1.0)]}.get(c, [("green", 0.5), ("red", 0.5)])
+
+    def calibration_deltas(self, x, y, h) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Per Monte Carlo trial, how the cells ``(x, y)`` with heights ``h`` (the measured,
+        unlevelled heights) move: ``(dx, dy, dh)`` each ``(S, N)``; weighted over the lasers
+        that made each cell."""
+        if self.ensemble is None:
+            return None
+        x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, h))
+        h = np.where(np.isfinite(h), h, 0.0)
+        s = self.ensemble.n_trials
+        out = [np.zeros((s, len(x))) for _ in range(3)]
+        for n, (xi, yi) in enumerate(zip(x, y)):
+            for laser, w in self.lasers_at(xi, yi):
+                d = self.ensemble.deltas(xi, yi, h[n], laser)
+                for o, v in zip(out, d):
+                    o[:, n] += w * v[:, 0]
+        return tuple(out)
+
+    def raw_height(self, x, y, h):
+        """The unlevelled height of a levelled reading (the calibration moves raw heights)."""
+        if self.level_plane is None:
+            return h
+        return np.asarray(h, float) + self.level_plane.at(x, y)
+
+    def speed_half_width_rel(self) -> float | None:
+        if self.speed_mm_s is None or not self.speed_mm_s:
+            return None
+        rel = abs((self.implied_speed_mm_s or self.speed_mm_s) / self.speed_mm_s - 1.0)
+        return max(rel, SPEED_FLOOR_REL)
+
+
+def _cell(spec: GridSpec, x: float, y: float) -> tuple[int, int]:
+    return (int(round((y - spec.y0_mm) / spec.pixel_mm)),
+            int(round((x - spec.x0_mm) / spec.pixel_mm)))
+
+
+# ----- statistics of the averaged cells -------------------------------------------------------
+def _acf_factor(r: np.ndarray, axis: int) -> float:
+    """``1 + 2 sum rho_k`` of residuals ``r`` (2-D, NaN for missing) along ``axis``, summed
+    while the autocorrelation stays positive (lags up to a quarter of the length)."""
+    r = np.moveaxis(np.asarray(r, float), axis, -1)
+    var = np.nanmean(r**2)
+    if not np.isfinite(var) or var <= 0 or r.shape[-1] < 3:
+        return 1.0
+    total = 0.0
+    for lag in range(1, max(2, r.shape[-1] // 2)):
+        prod = r[..., lag:] * r[..., :-lag]
+        if not np.isfinite(prod).any():
+            break
+        rho = float(np.nanmean(prod) / var)
+        if not math.isfinite(rho) or rho <= 0.05:
+            break
+        total += rho
+    return 1.0 + 2.0 * total
+
+
+def patch_noise(height: np.ndarray, spec: GridSpec, x: float, y: float, radius_mm: float,
+                min_radius_mm: float = 0.5) -> tuple[float, float, int, float, float]:
+    """The cells within ``max(radius, min_radius)`` of ``(x, y)``: per-cell noise (robust SD of
+    the residuals about a least-squares plane), effective count, cells, and the plane's slope
+    ``(dh/dx, dh/dy)``. ``(nan, nan, 0, nan, nan)`` with fewer than 4 cells with data."""
+    p = spec.pixel_mm
+    r = max(radius_mm, min_radius_mm) / p
+    fi, fj = (y - spec.y0_mm) / p, (x - spec.x0_mm) / p
+    i0, i1 = max(0, math.ceil(fi - r)), min(spec.shape[0] - 1, math.floor(fi + r))
+    j0, j1 = max(0, math.ceil(fj - r)), min(spec.shape[1] - 1, math.floor(fj + r))
+    if i0 > i1 or j0 > j1:
+        return math.nan, math.nan, 0, math.nan, math.nan
+    sub = np.asarray(height[i0:i1 + 1, j0:j1 + 1], float)
+    ii, jj = np.mgrid[i0:i1 + 1, j0:j1 + 1]
+    disk = (ii - fi) ** 2 + (jj - fj) ** 2 <= r * r
+    ok = disk & np.isfinite(sub)
+    if ok.sum() < 4:
+        return math.nan, math.nan, int(ok.sum()), math.nan, math.nan
+    a = np.column_stack([jj[ok] * p, ii[ok] * p, np.ones(ok.sum())])
+    coef, *_ = np.linalg.lstsq(a, sub[ok], rcond=None)
+    res = np.full(sub.shape, np.nan)
+    res[ok] = sub[ok] - a @ coef
+    mad = float(np.median(np.abs(res[ok])))
+    sigma = max(1.4826 * mad, float(np.sqrt(np.mean(res[ok] ** 2))) * 0.5)
+    factor = _acf_factor(res, 0) * _acf_factor(res, 1)
+    n = int(ok.sum())
+    return sigma, max(1.0, n / factor), n, float(coef[0]), float(coef[1])
+
+
+def disk_repeatability(height: np.ndarray, spec: GridSpec, x: float, y: float,
+                       radius_mm: float) -> tuple[float, int]:
+    """The scatter of a disk mean at this scale: the means of the disk at ``(x, y)`` and of 8
+    disks of the same radius on a ring around it (3 radii + 0.5 mm away, radius at least
+    0.5 mm) about a plane through them; ``(SD, disks used)``. It sees errors correlated over
+    more than the disk (one stripe's offset, a frame's) that the cells' own scatter cannot,
+    and, on a curved or textured surface, some relief too (it then overstates)."""
+    from impress_gui.core.measure.readings import readout
+
+    r = max(radius_mm, 0.5)
+    ring = 3 * r + 0.5
+    pts = [(x, y)] + [(x + ring * math.cos(a), y + ring * math.sin(a))
+                      for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)]
+    vals = []
+    for px, py in pts:
+        rd = readout(height, spec, px, py, r)
+        if rd.n_valid >= max(3, rd.n_cells // 2):
+            vals.append((px, py, rd.height_mm))
+    if len(vals) < 6:
+        return math.nan, len(vals)
+    v = np.array(vals)
+    a = np.column_stack([v[:, 0], v[:, 1], np.ones(len(v))])
+    coef, *_ = np.linalg.lstsq(a, v[:, 2], rcond=None)
+    res = v[:, 2] - a @ coef
+    return float(np.sqrt(np.sum(res**2) / (len(v) - 3))), len(v)
+
+
+def series_noise(values: np.ndarray) -> tuple[float, float, int]:
+    """Profile samples of a band: SD of the residuals about a line, effective count, count."""
+    v = np.asarray(values, float)
+    t = np.arange(len(v), dtype=float)
+    ok = np.isfinite(v)
+    n = int(ok.sum())
+    if n < 3:
+        return (math.nan, math.nan, n)
+    coef = np.polyfit(t[ok], v[ok], 1)
+    res = np.where(ok, v - np.polyval(coef, t), np.nan)
+    sigma = float(np.sqrt(np.nansum(res**2) / max(1, n - 2)))
+    factor = _acf_factor(res[None, :], 1)
+    return sigma, max(1.0, n / factor), n
+
+
+# ----- components -------------------------------------------------------------------------------
+def _cal_component(samples: np.ndarray | None, what: str, ctx: UncertaintyContext) -> list:
+    if samples is None:
+        return []
+    e = ctx.ensemble
+    u = float(np.std(samples, ddof=1))
+    return [Component("calibration", what, "A", f"Monte Carlo, {e.n_trials} trials", u, "mm",
+                      1.0, u, f"click noise {e.click_sigma_px:.2f} px ({e.sigma_source}); "
+                      f"plane fit RMS green {_plane_rms(e, 'green')}, red {_plane_rms(e, 'red')}")]
+
+
+def _plane_rms(e, laser: str) -> str:
+    v = e.summary.get(f"{laser}_plane_rms_mm")
+    return "-" if v is None else f"{v:.3f} mm"
+
+
+def _speed_component(ctx: UncertaintyContext, sens_mm: float) -> list:
+    hw = ctx.speed_half_width_rel()
+    if hw is None:
+        return []
+    u = hw / math.sqrt(3.0)
+    src = (f"entered {ctx.speed_mm_s:.4f} mm/s, implied by the target "
+           f"{(ctx.implied_speed_mm_s or ctx.speed_mm_s):.4f} mm/s")
+    return [Component("rail speed", "relative speed error", "B", "rectangular", u, "(relative)",
+                      sens_mm, abs(sens_mm) * u, src)]
+
+
+def _grid_component(ctx: UncertaintyContext, sens_mm_per_mm: float, n_coords: float,
+                    what: str) -> Component:
+    u = ctx.spec.pixel_mm / (2.0 * math.sqrt(3.0))
+    c = abs(sens_mm_per_mm) * math.sqrt(n_coords)
+    return Component("grid resolution", what, "B", "rectangular", u, "mm", c, c * u,
+                     f"cell {ctx.spec.pixel_mm:g} mm, half-width {ctx.spec.pixel_mm / 2:g} mm")
+
+
+def point_noise(ctx: UncertaintyContext, readout) -> tuple[float, str]:
+    """The surface noise of one point reading (mean over its radius): the larger of the
+    standard error of its cells (effective count) and the scatter of such means nearby
+    (:func:`disk_repeatability`); its standard uncertainty and how it was found."""
+    x, y = readout.x_mm, readout.y_mm
+    sigma, n_eff, n, _, _ = patch_noise(ctx.height, ctx.spec, x, y, readout.radius_mm)
+    if readout.n_valid > 1 and readout.radius_mm > 0:
+        _, n_eff, n, _, _ = patch_noise(ctx.height, ctx.spec, x, y, readout.radius_mm, 0.0)
+    else:
+        n_eff, n = 1.0, 1
+    se = sigma / math.sqrt(max(n_eff, 1.0)) if math.isfinite(sigma) else math.nan
+    rep, k = disk_repeatability(ctx.height, ctx.spec, x, y, readout.radius_mm)
+    u = float(np.nanmax([se, rep])) if np.isfinite([se, rep]).any() else math.nan
+    how = (f"cells: SD {sigma:.4f} mm, n {n}, effective n {n_eff:.1f}, standard error "
+           f"{se:.4f} mm; {k} neighbouring means scatter {rep:.4f} mm; the larger taken")
+    return u, how
+
+
+def _noise_component(sigma: float, n_eff: float, n: int, what: str) -> Component:
+    if not math.isfinite(sigma):
+        return Component("surface noise", what, "A", "normal", math.nan, "mm", 1.0, math.nan,
+                         "too few cells with data to estimate it")
+    u = sigma / math.sqrt(max(n_eff, 1.0))
+    return Component("surface noise", what, "A", "normal", sigma, "mm",
+                     1.0 / math.sqrt(max(n_eff, 1.0)), u,
+                     f"SD {sigma:.4f} mm about a local fit, n {n}, effective n {n_eff:.1f}")
+
+
+def _method_component(ctx: UncertaintyContext, scale: float = 1.0) -> list:
+    v = ctx.validation
+    if not v:
+        return []
+    bias, sd = float(v.get("bias_mm", 0.0) or 0.0), float(v.get("sd_mm", 0.0) or 0.0)
+    u = math.hypot(bias, sd) * scale
+    return [Component("method (validation)", "bias and precision of the method", "B", "normal",
+                      math.hypot(bias, sd), "mm", scale, u,
+                      f"bias {bias:+.3f} mm, SD {sd:.3f} mm from {v.get('source', 'a validation')}")]
+
+
+def _notes(ctx: UncertaintyContext) -> tuple[str, ...]:
+    out = list(ctx.notes)
+    if not ctx.validation:
+        out.append("method bias from an impress validate report: not included")
+    return tuple(out)
+
+
+# ----- budgets per reading ------------------------------------------------------------------------
+def height_budget(ctx: UncertaintyContext, readout, reading: str = "height") -> Budget:
+    """The height of a :class:`~impress_gui.core.measure.readings.Readout` (the mean of the
+    cells within its radius; on a levelled map, the depth from the levelling plane)."""
+    x, y, h = readout.x_mm, readout.y_mm, readout.height_mm
+    _, _, _, gx, gy = patch_noise(ctx.height, ctx.spec, x, y, readout.radius_mm)
+    comps: list = []
+    d = ctx.calibration_deltas([x], [y], ctx.raw_height([x], [y], [h]))
+    if d is not None:
+        dh = d[2][:, 0]
+        if ctx.level_plane is not None:
+            dh = dh - _plane_deltas(ctx, x, y)
+        comps += _cal_component(dh, "height of the point", ctx)
+    ref_slope = _ref_slope_y(ctx)
+    comps += _speed_component(ctx, _y_travel(ctx, y) * ref_slope)
+    u_n, how = point_noise(ctx, readout)
+    comps.append(Component("surface noise", "mean of the cells", "A", "normal", u_n, "mm", 1.0,
+                           u_n, how))
+    slope = math.hypot(gx, gy) if math.isfinite(gx) else 0.0
+    if readout.radius_mm < ctx.spec.pixel_mm / 2:
+        comps.append(_grid_component(ctx, slope, 1.0, "position of the cell read"))
+    comps += _method_component(ctx)
+    return Budget(reading, h, tuple(comps), notes=_notes(ctx))
+
+
+def _y_travel(ctx: UncertaintyContext, y: float) -> float:
+    return float(y)
+
+
+def _ref_slope_y(ctx: UncertaintyContext) -> float:
+    e = ctx.ensemble
+    if e is None:
+        return 0.0
+    return float(e.nominal.ref[0, 2])
+
+
+def _plane_deltas(ctx: UncertaintyContext, x: float, y: float) -> np.ndarray:
+    """How the levelling plane at ``(x, y)`` moves per trial: the plane through its support
+    points (``ctx.level_support``) as the trials move them; without support points the plane
+    is taken not to move (the calibration component is then that of the unlevelled height)."""
+    pl = ctx.level_plane
+    if not ctx.level_support:
+        return np.zeros(ctx.ensemble.n_trials)
+    pts = np.asarray(ctx.level_support, float)[:, :2]
+    raw = pl.at(pts[:, 0], pts[:, 1])
+    dx, dy, dh = ctx.calibration_deltas(pts[:, 0], pts[:, 1], raw)
+    a = np.column_stack([pts[:, 0], pts[:, 1], np.ones(len(pts))])
+    coef = np.linalg.lstsq(a, dh.T, rcond=None)[0]  # (3, S)
+    return coef[0] * x + coef[1] * y + coef[2]
+
+
+def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
+    """The depth of a point below a plane through three support readouts (heights on the
+    unlevelled map): ``plane(P) - h(P)`` with the plane through ``support``'s means."""
+    from impress_gui.core.measure.surface import plane_from_points
+
+    pts = np.array([[s.x_mm, s.y_mm, s.height_mm] for s in support], float)
+    plane = plane_from_points(pts)
+    x, y, h = readout.x_mm, readout.y_mm, readout.height_mm
+    depth = float(plane.at(x, y) - h)
+    m = np.column_stack([pts[:, 0], pts[:, 1], np.ones(3)])
+    w = np.linalg.solve(m.T, np.array([x, y, 1.0]))  # plane(P) = w . heights of the support
+    comps: list = []
+    xs, ys = np.append(pts[:, 0], x), np.append(pts[:, 1], y)
+    d = ctx.calibration_deltas(xs, ys, np.append(pts[:, 2], h))
+    if d is not None:
+        dh = d[2]
+        comps += _cal_component(dh[:, :3] @ w - dh[:, 3], "depth below the plane", ctx)
+    us = np.array([point_noise(ctx, r)[0] for r in (*support, readout)])
+    u = float(math.sqrt(np.nansum((np.append(w, 1.0) * us) ** 2)))
+    comps.append(Component("surface noise", "means at the point and the three plane points", "A",
+                           "normal", u, "mm", 1.0, u,
+                           "each mean's standard error, weighted by its share of the plane at "
+                           "the point (" + ", ".join(f"{v:+.2f}" for v in w) + ")"))
+    comps += _method_component(ctx)
+    return Budget("depth below a plane", depth, tuple(comps), notes=_notes(ctx))
+
+
+def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
+    """Budgets of a :class:`~impress_gui.core.measure.readings.RulerResult`: ``xy``, ``3d``
+    and ``dz`` (the latter two need data at both ends)."""
+    a, b = r.start, r.end
+    pts_x, pts_y = [a.x_mm, b.x_mm], [a.y_mm, b.y_mm]
+    hs = np.array([a.height_mm, b.height_mm], float)
+    d = ctx.calibration_deltas(pts_x, pts_y, ctx.raw_height(pts_x, pts_y, hs))
+    ux, uy = (b.x_mm - a.x_mm), (b.y_mm - a.y_mm)
+    xy = r.xy_mm
+    out: dict[str, Budget] = {}
+    # xy
+    comps: list = []
+    if d is not None:
+        dx, dy = d[0], d[1]
+        xs = np.hypot(ux + dx[:, 1] - dx[:, 0], uy + dy[:, 1] - dy[:, 0])
+        comps += _cal_component(xs - xy, "length in the xy plane", ctx)
+    comps += _speed_component(ctx, (uy * uy / xy) if xy > 0 else 0.0)
+    comps.append(_grid_component(ctx, 1.0, 2.0, "positions of the two ends"))
+    out["xy"] = Budget("ruler xy", xy, tuple(comps), notes=_notes(ctx))
+    # dz and 3D
+    if np.isfinite(hs).all():
+        noise = []
+        for p in (a, b):
+            _, _, _, gx, gy = patch_noise(ctx.height, ctx.spec, p.x_mm, p.y_mm, p.radius_mm)
+            noise.append((point_noise(ctx, p)[0], math.hypot(gx, gy) if math.isfinite(gx)
+                          else 0.0))
+        u_noise = math.sqrt(sum(u * u for u, _ in noise if math.isfinite(u)))
+        slope = math.sqrt(sum(g * g for _, g in noise))
+        dz = r.dz_mm
+        for key, val in (("dz", dz), ("3d", r.d3_mm)):
+            comps = []
+            if d is not None:
+                dx, dy, dh = d
+                dzs = dz + dh[:, 1] - dh[:, 0]
+                if key == "dz":
+                    comps += _cal_component(dzs - dz, "height difference", ctx)
+                else:
+                    xys = np.hypot(ux + dx[:, 1] - dx[:, 0], uy + dy[:, 1] - dy[:, 0])
+                    comps += _cal_component(np.hypot(xys, dzs) - val, "3D length", ctx)
+            c_noise = 1.0 if key == "dz" else (abs(dz) / val if val > 0 else 0.0)
+            comps.append(Component("surface noise", "heights of the two ends", "A", "normal",
+                                   u_noise, "mm", c_noise, c_noise * u_noise,
+                                   "the two ends' means (standard error or nearby scatter, "
+                                   "the larger), in quadrature"))
+            c_grid = slope if key == "dz" else math.hypot(xy / val if val > 0 else 1.0,
+                                                          c_noise * slope)
+            comps.append(_grid_component(ctx, c_grid, 1.0, "positions of the two ends"))
+            comps += _speed_component(ctx, (uy * uy / val) if (key == "3d" and val > 0) else 0.0)
+            comps += _method_component(ctx, c_noise)
+            out[key] = Budget("ruler dz" if key == "dz" else "ruler 3D", val, tuple(comps),
+                              notes=_notes(ctx))
+    return out
+
+
+def _band_points(profile, band: Sequence[float], n: int = 5):
+    lo, hi = sorted(map(float, band))
+    d = np.linspace(lo, hi, n)
+    length = profile.length_mm or 1.0
+    (x0, y0), (x1, y1) = profile.start, profile.end
+    t = d / length
+    return x0 + t * (x1 - x0), y0 + t * (y1 - y0)
+
+
+def _band_values(profile, band: Sequence[float]) -> np.ndarray:
+    lo, hi = sorted(map(float, band))
+    sel = (profile.distance_mm >= lo) & (profile.distance_mm <= hi)
+    return np.asarray(profile.height_mm[sel], float)
+
+
+def step_budget(ctx: UncertaintyContext, profile, step, band_a, band_b) -> Budget:
+    """The step B - A between two bands of a profile (their means)."""
+    comps: list = []
+    xa, ya = _band_points(profile, band_a)
+    xb, yb = _band_points(profile, band_b)
+    xs, ys = np.concatenate([xa, xb]), np.concatenate([ya, yb])
+    hs = np.concatenate([np.full(len(xa), step.a.mean_mm), np.full(len(xb), step.b.mean_mm)])
+    d = ctx.calibration_deltas(xs, ys, ctx.raw_height(xs, ys, hs))
+    if d is not None:
+        dh = d[2]
+        k = len(xa)
+        comps += _cal_component(dh[:, k:].mean(1) - dh[:, :k].mean(1), "step between the bands",
+                                ctx)
+    comps += _speed_component(ctx, _ref_slope_y(ctx) * float(np.mean(yb) - np.mean(ya)))
+    sa = series_noise(_band_values(profile, band_a))
+    sb = series_noise(_band_values(profile, band_b))
+    ua = sa[0] / math.sqrt(sa[1]) if math.isfinite(sa[0]) else math.nan
+    ub = sb[0] / math.sqrt(sb[1]) if math.isfinite(sb[0]) else math.nan
+    u_se = math.hypot(ua, ub)
+    rep, k = _step_repeatability(ctx, profile, band_a, band_b)
+    u = float(np.nanmax([u_se, rep])) if np.isfinite([u_se, rep]).any() else math.nan
+    comps.append(Component("surface noise", "means of the two bands", "A", "normal", u, "mm", 1.0,
+                           u, f"band A: SD {sa[0]:.4f} mm, n {sa[2]}, effective n {sa[1]:.1f}; "
+                           f"band B: SD {sb[0]:.4f} mm, n {sb[2]}, effective n {sb[1]:.1f}; "
+                           f"standard error {u_se:.4f} mm; the same step on {k} parallel "
+                           f"profiles scatters {rep:.4f} mm; the larger taken"))
+    comps += _method_component(ctx)
+    return Budget("step height B - A", step.difference_mm, tuple(comps), notes=_notes(ctx))
+
+
+def _step_repeatability(ctx: UncertaintyContext, profile, band_a, band_b) -> tuple[float, int]:
+    """The scatter of the step on parallel profiles beside this one (offsets of one profile
+    width plus 0.5 mm, three on each side) about a line across them: ``(SD, profiles)``."""
+    from impress_gui.core.measure.readings import line_profile, step_height
+
+    L = profile.length_mm
+    if L <= 0:
+        return math.nan, 0
+    (x0, y0), (x1, y1) = profile.start, profile.end
+    nx, ny = -(y1 - y0) / L, (x1 - x0) / L
+    gap = profile.width_mm + 0.5
+    offs, steps = [], []
+    for k in range(-3, 4):
+        o = k * gap
+        p = line_profile(ctx.height, ctx.spec, (x0 + o * nx, y0 + o * ny),
+                         (x1 + o * nx, y1 + o * ny), profile.width_mm)
+        s = step_height(p, band_a, band_b)
+        if math.isfinite(s.difference_mm):
+            offs.append(o)
+            steps.append(s.difference_mm)
+    if len(steps) < 5:
+        return math.nan, len(steps)
+    coef = np.polyfit(offs, steps, 1)
+    res = np.array(steps) - np.polyval(coef, offs)
+    return float(np.sqrt(np.sum(res**2) / (len(steps) - 2))), len(steps)
+
+
+def width_budget(ctx: UncertaintyContext, profile, width) -> Budget:
+    """The width of a feature at a level (two crossings of a profile)."""
+    comps: list = []
+    L = profile.length_mm or 1.0
+    (x0, y0), (x1, y1) = profile.start, profile.end
+    ux, uy = (x1 - x0) / L, (y1 - y0) / L
+    ds = np.array([width.left_mm, width.right_mm])
+    xs, ys = x0 + ds * ux, y0 + ds * uy
+    lev = np.full(2, width.level_mm)
+    d = ctx.calibration_deltas(xs, ys, ctx.raw_height(xs, ys, lev))
+    if d is not None:
+        dx, dy, _ = d
+        w = np.hypot(xs[1] - xs[0] + dx[:, 1] - dx[:, 0], ys[1] - ys[0] + dy[:, 1] - dy[:, 0])
+        comps += _cal_component(w - width.width_mm, "distance between the crossings", ctx)
+    comps += _speed_component(ctx, width.width_mm * uy * uy)
+    # each crossing: the height noise over the profile's slope there moves it
+    us = []
+    for dd in ds:
+        i = int(np.clip(np.searchsorted(profile.distance_mm, dd), 2, len(profile.height_mm) - 3))
+        seg = np.asarray(profile.height_mm[i - 2:i + 3], float)
+        slope = abs(np.nanmean(np.diff(seg))) / max(1e-9, float(np.median(
+            np.diff(profile.distance_mm))))
+        sg, _, _ = series_noise(_band_values(profile, (dd - 1.0, dd + 1.0)))
+        sg = sg if math.isfinite(sg) else 0.0
+        us.append(sg / max(slope, 0.05) if slope > 0 else math.nan)
+    u = math.hypot(*us)
+    comps.append(Component("surface noise", "positions of the crossings", "A", "normal", u, "mm",
+                           1.0, u, "height noise near each crossing over the wall's slope"))
+    comps.append(_grid_component(ctx, 1.0, 2.0, "positions of the two crossings"))
+    return Budget("width at level", width.width_mm, tuple(comps), notes=_notes(ctx))
+
+
+def with_uncertainty(values: dict, budgets: Mapping[str, Budget]) -> dict:
+    """``values`` with ``U_k2_<name>_mm`` and ``u_c_<name>_mm`` for each budget (name ``""``:
+    ``u_c_mm``, ``U_k2_mm``)."""
+    out = dict(values)
+    for name, b in budgets.items():
+        sfx = f"_{name}" if name else ""
+        out[f"u_c{sfx}_mm"] = b.u_c_mm
+        out[f"U_k2{sfx}_mm"] = b.U_mm
+    return out
+
+
+def budgets_json(budgets: Mapping[str, Budget]) -> dict:
+    return {name: b.to_json() for name, b in budgets.items()}
+
+
+def budgets_text(budgets_doc: Mapping) -> str:
+    """The details of a measurement record's ``uncertainty`` (JSON) as text."""
+    return "\n\n".join(budget_from_json(b).text() for b in budgets_doc.values())
+
+
+def budget_csv_cell(budgets_doc: Mapping | None) -> str:
+    return "" if not budgets_doc else json.dumps(budgets_doc, separators=(",", ":"),
+                                                 sort_keys=True)

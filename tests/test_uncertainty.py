@@ -1,0 +1,182 @@
+"""Uncertainty budgets (issue 22): the GUM arithmetic, the surface-noise component (narrower
+averaging -> larger), the calibration's Monte Carlo (noisier clicks, larger plane residuals ->
+larger; deterministic and cached), and the measurement CSV carrying u_c, U and the budget."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from impress_gui.core.calibration import uncertainty as CU
+from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.calibration.target import TargetModel
+from impress_gui.core.measure import readings as M
+from impress_gui.core.measure import uncertainty as U
+from impress_gui.core.reconstruction.grid import GridSpec
+
+TRIALS = 10
+
+
+def test_budget_combines_by_root_sum_square_and_expands_with_k2():
+    comps = (U.Component("a", "q", "A", "normal", 0.3, "mm", 1.0, 0.3),
+             U.Component("b", "q", "B", "rectangular", 0.2, "mm", 2.0, 0.4))
+    b = U.Budget("height", 1.0, comps)
+    assert b.u_c_mm == pytest.approx(0.5)
+    assert b.U_mm == pytest.approx(1.0)
+    assert b.short() == "± 1.000 mm (k=2)"
+    back = U.budget_from_json(json.loads(json.dumps(b.to_json())))
+    assert back.u_c_mm == pytest.approx(0.5) and back.components[1].sensitivity == 2.0
+    assert "a | 0.3 mm | 1 | 0.3000 | A, normal" in b.text()
+
+
+def _noisy_plane(sigma=0.05, seed=0):
+    spec = GridSpec(0.0, 0.0, 0.1, (400, 400))
+    rng = np.random.default_rng(seed)
+    h = 0.01 * spec.xs()[None, :] + 0.02 * spec.ys()[:, None] + rng.normal(0, sigma, spec.shape)
+    return spec, h.astype(np.float32)
+
+
+def test_surface_noise_grows_as_the_averaging_gets_smaller():
+    spec, h = _noisy_plane()
+    ctx = U.UncertaintyContext(h, spec)
+    u = {}
+    for r in (0.2, 0.5, 1.5):
+        b = U.height_budget(ctx, M.readout(h, spec, 20.0, 20.0, r))
+        u[r] = next(c.u_mm for c in b.components if c.name == "surface noise")
+    assert u[0.2] > u[0.5] > u[1.5] > 0
+    # white noise of 0.05 mm over ~700 cells: the standard error is a few thousandths
+    assert u[1.5] < 0.02
+    # bands of a step: narrower bands, and a narrower profile, give a larger uncertainty
+    steps = {}
+    for width, band in ((0.0, 1.0), (2.0, 1.0), (2.0, 6.0)):
+        p = M.line_profile(h, spec, (5.0, 20.0), (35.0, 20.0), width)
+        a, b = (2.0, 2.0 + band), (20.0, 20.0 + band)
+        s = M.step_height(p, a, b)
+        steps[(width, band)] = U.step_budget(ctx, p, s, a, b).u_c_mm
+    assert steps[(0.0, 1.0)] > steps[(2.0, 1.0)] > steps[(2.0, 6.0)]
+    # without a calibration the budget says the component is missing
+    assert any("no scene calibration" in n for n in
+               U.UncertaintyContext.for_calibration(h, spec).notes)
+
+
+def test_noise_of_a_correlated_surface_is_not_divided_by_the_raw_cell_count():
+    """Cells interpolated from one stripe are correlated: the effective count is far below the
+    cell count, and the standard error does not shrink with it."""
+    from scipy.ndimage import gaussian_filter
+
+    spec, h = _noisy_plane(0.2, 1)
+    smooth = gaussian_filter(h.astype(np.float64), 4).astype(np.float32)  # ~1 mm correlation
+    sig, n_eff, n, _, _ = U.patch_noise(smooth, spec, 20.0, 20.0, 1.5, 0.0)
+    assert n_eff < n / 20
+
+
+@pytest.fixture(scope="module")
+def flat(flat_scan, flat_calibration):
+    return (SceneCalibration.load(flat_calibration),
+            TargetModel.load(flat_scan / "target.json"))
+
+
+def _spread(ens, x=0.0, y=30.0, h=0.0):
+    dx, dy, dh = ens.deltas(np.array([x, x + 30.0]), np.array([y, y]), np.array([h, h]),
+                            "green")
+    length = np.hypot(30.0 + dx[:, 1] - dx[:, 0], dy[:, 1] - dy[:, 0]) - 30.0
+    return float(np.std(dh[:, 0], ddof=1)), float(np.std(length, ddof=1))
+
+
+def test_calibration_monte_carlo_grows_with_click_noise_and_is_deterministic(flat):
+    cal, target = flat
+    CU._CACHE.clear()
+    lo = CU.calibration_ensemble(cal, target, 0.3, n=TRIALS)
+    hi = CU.calibration_ensemble(cal, target, 1.2, n=TRIALS)
+    assert lo.n_trials == TRIALS and hi.n_trials == TRIALS
+    h_lo, l_lo = _spread(lo)
+    h_hi, l_hi = _spread(hi)
+    assert h_hi > 2 * h_lo and l_hi > 2 * l_lo
+    assert hi.summary["tilt_sd_deg"] > lo.summary["tilt_sd_deg"]
+    # cached: the same object; recomputed: the same numbers (a fixed seed)
+    assert CU.calibration_ensemble(cal, target, 0.3, n=TRIALS) is lo
+    CU._CACHE.clear()
+    again = CU.calibration_ensemble(cal, target, 0.3, n=TRIALS)
+    assert again is not lo
+    np.testing.assert_array_equal(again.trials.rotation, lo.trials.rotation)
+    assert _spread(again) == (h_lo, l_lo)
+    # the noise-free trial reproduces the calibration: it maps cells onto themselves
+    bx, by, bh = CU.map_points(lo.nominal, lo.base, [0.0, 10.0], [30.0, 40.0], [0.0, 2.0],
+                               "red")
+    assert np.allclose(bh, [0.0, 2.0], atol=0.05) and np.allclose(bx, [0.0, 10.0], atol=0.05)
+
+
+def test_calibration_monte_carlo_grows_with_the_plane_residuals(flat):
+    cal, target = flat
+    rough = replace(cal, planes={n: replace(f, rms_mm=10 * f.rms_mm + 0.1)
+                                 for n, f in cal.planes.items()})
+    smooth = CU.calibration_ensemble(cal, target, 0.05, n=TRIALS)
+    worse = CU.calibration_ensemble(rough, target, 0.05, n=TRIALS)
+    assert worse.summary["green_plane_offset_sd_mm"] > smooth.summary["green_plane_offset_sd_mm"]
+    assert _spread(worse)[0] > 1.5 * _spread(smooth)[0]
+
+
+def test_click_sigma_from_the_residuals_or_the_stated_default(flat):
+    cal, _ = flat
+    s, why = CU.click_sigma(replace(cal, reprojection_rms_px=0.01))
+    assert s == CU.DEFAULT_CLICK_SIGMA_PX and "default" in why
+    s, why = CU.click_sigma(replace(cal, reprojection_rms_px=1.0))
+    assert s == pytest.approx(math.sqrt(24 / 15)) and "reprojection" in why
+
+
+def test_a_wrong_target_model_leaves_the_calibration_component_out(flat):
+    cal, _ = flat
+    from impress_gui.core.calibration.target import make_l_target
+
+    spec, h = _noisy_plane()
+    ctx = U.UncertaintyContext.for_calibration(h, spec, cal, make_l_target(5, 80, 10, 10, 30))
+    assert ctx.ensemble is None and any("does not match" in n for n in ctx.notes)
+    b = U.height_budget(ctx, M.readout(h, spec, 20.0, 20.0, 0.5))
+    assert "calibration" not in {c.name for c in b.components}
+    assert any("does not match" in n for n in b.notes)
+
+
+def test_readings_budgets_and_the_csv_carry_the_uncertainty(flat):
+    cal, target = flat
+    spec, h = _noisy_plane()
+    ctx = U.UncertaintyContext.for_calibration(h, spec, cal, target, trials=TRIALS)
+    assert ctx.ensemble is not None
+    r = M.ruler(h, spec, (5.0, 5.0), (30.0, 25.0), 0.5)
+    b = U.ruler_budgets(ctx, r)
+    assert set(b) == {"xy", "3d", "dz"}
+    for budget in b.values():
+        names = {c.name for c in budget.components}
+        assert {"calibration", "grid resolution", "rail speed"} <= names
+        assert budget.U_mm == pytest.approx(2 * budget.u_c_mm) and budget.u_c_mm > 0
+    p = M.line_profile(h, spec, (5.0, 20.0), (35.0, 20.0), 1.0)
+    s = M.step_height(p, (2, 6), (20, 24))
+    b["step"] = U.step_budget(ctx, p, s, (2, 6), (20, 24))
+    rd = M.readout(h, spec, 20, 20, 0.5)
+    sup = [M.readout(h, spec, x, y, 0.5) for x, y in ((10, 10), (30, 12), (20, 32))]
+    depth = U.depth_budget(ctx, rd, sup)
+    assert abs(depth.value_mm) < 0.05 and depth.u_c_mm > 0
+    w = M.Width(10.0, 14.0, 4.0, 0.2)
+    assert U.width_budget(ctx, p, w).u_c_mm > 0
+    values = U.with_uncertainty(M.ruler_values(r) | M.step_values(s), b)
+    m = M.new_measurement("ruler", [(5, 5), (30, 25)], values, label="r",
+                          uncertainty=U.budgets_json(b))
+    assert m["uncertainty"]["xy"]["U_mm"] == pytest.approx(b["xy"].U_mm, abs=1e-5)
+    old = M.new_measurement("annotation", [(1, 2)], {"height_mm": 1.0})
+    assert "uncertainty" not in old
+    text = M.measurements_csv([m, old])
+    rows = list(csv.DictReader(io.StringIO("\n".join(
+        line for line in text.splitlines() if not line.startswith("#")))))
+    for key in ("u_c_xy_mm", "U_k2_xy_mm", "U_k2_3d_mm", "U_k2_dz_mm", "U_k2_step_mm"):
+        assert float(rows[0][key]) > 0
+    assert float(rows[0]["U_k2_xy_mm"]) == pytest.approx(b["xy"].U_mm, abs=1e-4)
+    doc = json.loads(rows[0]["uncertainty_budget"])
+    assert {c["name"] for c in doc["step"]["components"]} >= {"calibration", "surface noise"}
+    assert rows[1]["uncertainty_budget"] == "" and rows[1]["U_k2_xy_mm"] == ""
+    # a CSV of measurements without budgets is as before: no budget column
+    assert "uncertainty_budget" not in M.measurements_csv([old])
