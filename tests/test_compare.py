@@ -417,11 +417,14 @@ RECON_POSE_TOL_MM = 0.6  # measured 0.40: scan b's own frame is 0.39 mm off alon
 RECON_TURN_TOL_DEG = 0.1  # measured 0.03 deg
 RECON_RMS_MM = 0.25  # measured 0.159 mm
 RECON_P95_MM = 1.0  # measured 0.755 mm
+#: rendering the two scans takes about 80 s on a quiet 2-core machine the first time (cached
+#: afterwards); a machine shared with other work can take several times that
+RENDER_TIMEOUT_S = 1200
 
 
 def _run(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "impress_gui", *args], check=True,
-                   capture_output=True, timeout=400, cwd=ROOT)
+                   capture_output=True, timeout=RENDER_TIMEOUT_S, cwd=ROOT)
 
 
 def _source_key(args: list[str]) -> str:
@@ -471,6 +474,7 @@ def scans(request, tmp_path_factory):
     return out
 
 
+@pytest.mark.timeout(RENDER_TIMEOUT_S)
 def test_rendered_scans_register(scans, tmp_path):
     (scan_a, recon_a), (scan_b, recon_b) = scans["a"], scans["b"]
     out = tmp_path / "ab"

@@ -37,6 +37,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="region of interest rows, e.g. green=600:800 (default automatic)")
     p.add_argument("--min-peak", type=float, default=25.0,
                    help="minimum stripe peak above background, grey levels")
+    p.add_argument("--weak-run-ratio", type=float, default=0.5,
+                   help="drop short stripe pieces weaker than this share of the frame's stripe "
+                   "(0 keeps every piece; default 0.5)")
     p.add_argument("--no-texture", action="store_true", help="skip the texture")
     p.add_argument("--fps", type=float, default=None, help="override the frame rate")
 
@@ -48,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
     rois = {name: (a, b) for name, a, b in args.roi}
     params = ProcessParams(method=args.method, frame_start=args.frames[0],
                            frame_stop=args.frames[1], grid_mm=args.grid_mm, rois=rois,
-                           min_peak=args.min_peak, texture=not args.no_texture)
+                           min_peak=args.min_peak, weak_run_ratio=args.weak_run_ratio,
+                           texture=not args.no_texture)
     progress = progress_printer()
 
     from impress_gui.core.reconstruction.pipeline import process_files

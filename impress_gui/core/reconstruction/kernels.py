@@ -367,6 +367,62 @@ def stripe_profile(rows, tol_px, min_cols, band_start, rays, normal, offset, tra
     return n_ok
 
 
+@_kernel("int64(float64[:], float32[:], float64, int64, float64, int64[:], float64[:])")
+def prune_weak_runs(rows, strength, tol_px, long_cols, ratio, run_id, scratch):
+    """Drop the short, weak pieces of a detected stripe (in place; returns the columns dropped).
+
+    A *run* is a maximal set of consecutive columns whose rows continue into each other within
+    ``tol_px`` (as :func:`stripe_profile` links them). The frame's typical stripe strength is
+    the median strength over the runs at least ``long_cols`` long; a run shorter than that
+    whose mean strength is below ``ratio`` times it is dropped (rows NaN, strength 0). With no
+    long run nothing is dropped. ``run_id`` and ``scratch`` are work arrays as long as ``rows``.
+    The numpy reference: :func:`impress_gui.core.reconstruction.stripes.prune_weak_runs_numpy`."""
+    n = rows.shape[0]
+    if n == 0 or ratio <= 0.0:
+        return 0
+    r = 0
+    run_id[0] = 0
+    for c in range(1, n):
+        d = abs(rows[c] - rows[c - 1])
+        if not (d <= tol_px):  # NaN on either side breaks the run
+            r += 1
+        run_id[c] = r
+    n_runs = r + 1
+    # runs in column order: [a, b) with their length, finite count and strength sum
+    m = 0
+    a = 0
+    for c in range(1, n + 1):
+        if c == n or run_id[c] != run_id[a]:
+            if c - a >= long_cols:
+                for q in range(a, c):
+                    if not math.isnan(rows[q]):
+                        scratch[m] = strength[q]
+                        m += 1
+            a = c
+    if m == 0 or n_runs == 1:
+        return 0
+    ref = np.median(scratch[:m])
+    dropped = 0
+    a = 0
+    for c in range(1, n + 1):
+        if c == n or run_id[c] != run_id[a]:
+            if c - a < long_cols:
+                total = 0.0
+                count = 0
+                for q in range(a, c):
+                    if not math.isnan(rows[q]):
+                        total += strength[q]
+                        count += 1
+                if count > 0 and total < ratio * ref * count:
+                    for q in range(a, c):
+                        if not math.isnan(rows[q]):
+                            rows[q] = np.nan
+                            strength[q] = 0.0
+                            dropped += 1
+            a = c
+    return dropped
+
+
 @_jit
 def _add(total, count, x0, y0, g, x, y, v):
     j = int(np.rint((x - x0) / g))

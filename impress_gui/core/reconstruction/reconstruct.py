@@ -52,6 +52,9 @@ class ProcessParams:
     max_step_mm: float = 0.8  # larger jumps between neighbours are edges, not slopes
     texture: bool = True
     lut_frames: int = 12
+    # a stripe piece shorter than LONG_RUN_FRACTION of the image width whose mean strength is
+    # below this share of the frame's typical stripe strength is dropped (0: keep every piece)
+    weak_run_ratio: float = 0.5
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -67,6 +70,9 @@ class ProcessParams:
         if (self.frame_start is not None and self.frame_stop is not None
                 and self.frame_stop <= self.frame_start):
             raise InputError("the frame range is empty", code=codes.E_PARAM)
+        if not 0.0 <= self.weak_run_ratio < 1.0:
+            raise InputError("the weak-run ratio must be in 0..1 (0 keeps every stripe piece)",
+                             code=codes.E_PARAM)
 
     def to_json(self) -> dict:
         d = asdict(self)
@@ -431,6 +437,7 @@ class _Tally:
 
     found_frames: dict[str, int]  # frames in which each laser's stripe was found
     found_cols: dict[str, int]  # stripe columns found, summed over frames
+    weak_cols: dict[str, int] = field(default_factory=dict)  # columns of weak pieces dropped
     seen: int = 0  # frames read
     skipped: int = 0  # frames the decoder reported as damaged
     t_loop: float = 0.0  # when the loop started (perf_counter)
@@ -485,7 +492,10 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
     min_cols = max(2, int(0.02 * w))
     plane = {n: run.cal.planes[n].plane for n in LASERS}
     tex = tab.texture
-    tally = _Tally(dict.fromkeys(LASERS, 0), dict.fromkeys(LASERS, 0))
+    tally = _Tally(dict.fromkeys(LASERS, 0), dict.fromkeys(LASERS, 0), dict.fromkeys(LASERS, 0))
+    long_cols = long_run_columns(w)
+    run_id, scratch = np.empty(w, np.int64), np.empty(w)
+    ratio = float(params.weak_run_ratio)
     frames.limit(LOOP_QUEUE_FRAMES)
     last_preview = time.perf_counter()
     n_total = run.n_frames
@@ -505,6 +515,8 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
                 acc[name].reset_chain()
                 continue
             res = detect[name](planes)
+            tally.weak_cols[name] += kern.prune_weak_runs(res.rows, res.strength, CONNECT_PX,
+                                                          long_cols, ratio, run_id, scratch)
             pr = profile[name]
             up = pr.next()
             pl = plane[name]
@@ -585,6 +597,7 @@ def _stats(run: _Run, tab: _Tables, tally: _Tally, finisher: RowFinisher, loop_s
         "frames_damaged_skipped": tally.skipped,
         "stripe_column_share": {
             n: round(tally.found_cols[n] / max(1, tally.found_frames[n] * w), 3) for n in LASERS},
+        "weak_stripe_columns_dropped": tally.weak_cols,
     }
 
 
@@ -626,6 +639,16 @@ def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int)
 
 #: stripe rows of neighbouring columns closer than this (pixels) belong to one curve
 CONNECT_PX = 2.0
+#: a stripe piece at least this share of the image width long sets the frame's typical strength
+#: (see :func:`~impress_gui.core.reconstruction.kernels.prune_weak_runs`); shorter pieces must
+#: be at least ``ProcessParams.weak_run_ratio`` as strong
+LONG_RUN_FRACTION = 1.0 / 60.0
+MIN_LONG_RUN = 8
+
+
+def long_run_columns(width: int) -> int:
+    """Columns a stripe piece needs to count as long in an image ``width`` pixels wide."""
+    return max(MIN_LONG_RUN, int(width * LONG_RUN_FRACTION))
 
 
 class _Profile:

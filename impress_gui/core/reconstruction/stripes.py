@@ -279,6 +279,36 @@ def detect_band(name: str, rgb_band: np.ndarray, row0: int, params: StripeParams
     return StripeResult(res.rows + row0, res.strength)
 
 
+def prune_weak_runs_numpy(rows: np.ndarray, strength: np.ndarray, tol_px: float,
+                         long_cols: int, ratio: float) -> int:
+    """The readable numpy reference of the compiled
+    :func:`~impress_gui.core.reconstruction.kernels.prune_weak_runs` (the tests check they
+    agree): short stripe pieces much weaker than the frame's long pieces are dropped in place.
+
+    Why: where a laser's stripe is faint or broken, the strongest laser-coloured pixel of a
+    column can be a patch of soil of the laser's hue, a few columns wide and hundreds of rows
+    away from the stripe; its heights float far above the surface (wild points). The stripe
+    itself is a long curve and clearly stronger."""
+    n = len(rows)
+    if n == 0 or ratio <= 0:
+        return 0
+    link = np.abs(np.diff(rows)) <= tol_px  # NaN never links
+    run_id = np.concatenate([[0], np.cumsum(~link)])
+    finite = np.isfinite(rows)
+    length = np.bincount(run_id)
+    count = np.bincount(run_id, weights=finite)
+    total = np.bincount(run_id, weights=np.where(finite, strength, 0.0))
+    long_run = (length >= long_cols)[run_id] & finite
+    if not long_run.any() or len(length) == 1:
+        return 0
+    ref = np.median(strength[long_run].astype(np.float64))
+    weak = (length < long_cols) & (count > 0) & (total < ratio * ref * count)
+    drop = weak[run_id] & finite
+    rows[drop] = np.nan
+    strength[drop] = 0.0
+    return int(drop.sum())
+
+
 def half_max_midpoints(luma: np.ndarray, rows: np.ndarray, half_window: int) -> np.ndarray:
     """Each found column's stripe row re-estimated as the midpoint of the two half-maximum
     crossings of the luma profile (linearly interpolated), in a window of ``2 * half_window

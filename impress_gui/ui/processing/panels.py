@@ -82,6 +82,10 @@ class ParamsPanel(QGroupBox):
         self.fuse_tol.setToolTip("Green and red heights closer than this are averaged")
         self.max_step = _dspin(0.05, 20.0, d.max_step_mm, 0.1)
         self.max_step.setToolTip("Larger jumps between neighbouring points are edges")
+        self.weak_ratio = _dspin(0.0, 0.95, d.weak_run_ratio, 0.05, 2)
+        self.weak_ratio.setToolTip(
+            "Short stripe pieces weaker than this share of the frame's stripe are dropped "
+            "(soil of the laser's colour is not the stripe); 0 keeps every piece")
         self.texture = QCheckBox("Registered texture")
         self.texture.setChecked(d.texture)
         self.auto_rois = QCheckBox("Automatic regions of interest (from the calibration)")
@@ -103,6 +107,7 @@ class ParamsPanel(QGroupBox):
             ("Grid", self.grid_mm),
             ("Fusion tolerance", self.fuse_tol),
             ("Edge step", self.max_step),
+            ("Weak pieces", self.weak_ratio),
         ):
             g.addWidget(QLabel(text), row, 0)
             g.addWidget(w, row, 1, 1, 3)
@@ -131,6 +136,7 @@ class ParamsPanel(QGroupBox):
             self.grid_mm,
             self.fuse_tol,
             self.max_step,
+            self.weak_ratio,
             self.h_lo,
             self.h_hi,
             *[s for ab in self.roi.values() for s in ab],
@@ -181,6 +187,7 @@ class ParamsPanel(QGroupBox):
             min_peak=self.min_peak.value(),
             fuse_tolerance_mm=self.fuse_tol.value(),
             max_step_mm=self.max_step.value(),
+            weak_run_ratio=self.weak_ratio.value(),
             texture=self.texture.isChecked(),
         )
 
@@ -194,6 +201,7 @@ class ParamsPanel(QGroupBox):
             ("grid_mm", self.grid_mm),
             ("fuse_tolerance_mm", self.fuse_tol),
             ("max_step_mm", self.max_step),
+            ("weak_run_ratio", self.weak_ratio),
         ):
             if isinstance(doc.get(key), (int, float)):
                 w.setValue(float(doc[key]))

@@ -1,0 +1,96 @@
+"""Short, weak stripe pieces (soil of the laser's hue found where the stripe is faint) are
+dropped before they become wild points; the stripe itself is kept."""
+
+import numpy as np
+import pytest
+
+from impress_gui.core.reconstruction.compiled import kernels
+from impress_gui.core.reconstruction.reconstruct import (
+    CONNECT_PX,
+    ProcessParams,
+    long_run_columns,
+)
+from impress_gui.core.reconstruction.stripes import prune_weak_runs_numpy
+from impress_gui.core.base.errors import InputError
+
+
+def _stripe(w=640, seed=0):
+    """A long, strong stripe (a gentle curve) with faint gaps."""
+    rng = np.random.default_rng(seed)
+    cols = np.arange(w)
+    rows = 300.0 + 20.0 * np.sin(cols / 90.0) + rng.normal(0, 0.05, w)
+    strength = rng.uniform(70.0, 95.0, w).astype(np.float32)
+    return rows, strength
+
+
+def _both(rows, strength, long_cols, ratio=0.5):
+    a_rows, a_str = rows.copy(), strength.copy()
+    b_rows, b_str = rows.copy(), strength.copy()
+    n_a = kernels().prune_weak_runs(a_rows, a_str, CONNECT_PX, long_cols, ratio,
+                                    np.empty(len(rows), np.int64), np.empty(len(rows)))
+    n_b = prune_weak_runs_numpy(b_rows, b_str, CONNECT_PX, long_cols, ratio)
+    assert n_a == n_b
+    np.testing.assert_array_equal(a_rows, b_rows)  # NaN in the same places
+    np.testing.assert_array_equal(a_str, b_str)
+    return a_rows, a_str, n_a
+
+
+def test_a_short_weak_piece_far_from_the_stripe_is_dropped():
+    rows, strength = _stripe()
+    rows[200:210] = np.nan  # the stripe is faint here ...
+    rows[202:205] = [720.0, 720.3, 720.5]  # ... and greenish soil 400 rows away is found
+    strength[202:205] = 28.0
+    out, _, n = _both(rows, strength, long_run_columns(640))
+    assert n == 3
+    assert np.isnan(out[202:205]).all()
+    # everything else untouched
+    keep = np.ones(640, bool)
+    keep[200:210] = False
+    np.testing.assert_array_equal(out[keep], rows[keep])
+
+
+def test_strong_short_pieces_and_weak_long_pieces_are_kept():
+    rows, strength = _stripe()
+    # a short piece at another row but as strong as the stripe: a real step (a wall's top)
+    rows[100:104] = 250.0 + np.arange(4) * 0.2
+    strength[100:104] = 80.0
+    rows[99] = rows[104] = np.nan
+    # the stripe on a long dark patch: weak, but a long continuous curve
+    strength[400:520] = 20.0
+    out, _, n = _both(rows, strength, long_run_columns(640))
+    assert n == 0
+    np.testing.assert_array_equal(out, rows)
+
+
+def test_nothing_is_dropped_without_a_long_piece_or_with_ratio_zero():
+    rows = np.full(300, np.nan)
+    rows[10:14] = 100.0
+    rows[50:53] = 200.0
+    strength = np.where(np.isfinite(rows), 30.0, 0.0).astype(np.float32)
+    strength[50:53] = 90.0
+    _, _, n = _both(rows, strength, long_run_columns(300))
+    assert n == 0
+    r2, s2 = _stripe()
+    r2[5:8] = 900.0
+    s2[5:8] = 10.0
+    _, _, n = _both(r2, s2, long_run_columns(640), ratio=0.0)
+    assert n == 0
+    _, _, n = _both(r2, s2, long_run_columns(640), ratio=0.5)
+    assert n == 3
+
+
+def test_kernel_equals_numpy_on_random_stripes():
+    rng = np.random.default_rng(5)
+    for trial in range(40):
+        w = int(rng.integers(20, 700))
+        rows = np.cumsum(rng.choice([0.0, 0.5, 1.0, 30.0], size=w, p=[0.5, 0.3, 0.15, 0.05]))
+        rows[rng.random(w) < 0.1] = np.nan
+        strength = rng.uniform(5, 100, w).astype(np.float32)
+        _both(rows, strength, long_run_columns(w), ratio=float(rng.uniform(0.1, 0.9)))
+
+
+def test_the_ratio_is_a_recorded_checked_parameter():
+    assert ProcessParams().to_json()["weak_run_ratio"] == 0.5
+    with pytest.raises(InputError):
+        ProcessParams(weak_run_ratio=1.5).validate()
+    assert long_run_columns(1920) == 32 and long_run_columns(320) == 8
