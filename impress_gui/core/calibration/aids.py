@@ -15,7 +15,12 @@ from impress_gui.core.calibration.geometry import Intrinsics, Plane
 from impress_gui.core.calibration.picks import LASER_NAMES, Picks
 from impress_gui.core.calibration.planes import LaserPlaneFit
 from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
-from impress_gui.core.reconstruction.stripes import LASERS, StripeParams, auto_rois, detect
+from impress_gui.core.reconstruction.stripes import (
+    LASERS,
+    StripeParams,
+    auto_rois,
+    detect_band_blooming,
+)
 
 
 @dataclass(frozen=True)
@@ -194,42 +199,329 @@ def refine_corner(rgb: np.ndarray, uv_px, radius_px: int | None = None) -> Corne
     return CornerRefinement((float(ref[0]), float(ref[1])), moved, True)
 
 
-def propose_calibration_frames(video, sample_step: int | None = None,
-                               progress: ProgressCallback | None = None,
-                               cancel: CancelToken | None = None) -> dict[str, int]:
-    """Frames where each laser's stripe lies on the calibration target.
-
-    The target is the tallest object of a scan, so its stripe is displaced furthest from the
-    stripe's usual row: per sampled frame the 95th percentile of that displacement is scored,
-    and the frames scoring at least 60 % of the best form the run where the stripe is on the
-    target. The green stripe (leading) is taken a third into its run and the red one two thirds
-    into its run: far apart (parallax) with the whole target still likely in view. The user
-    checks that all six corners are visible and adjusts. Returns ``{"t1": ..., "t2": ...}``."""
-    cancel = cancel or CancelToken()
+def _stripe_profiles(video, step: int, progress: ProgressCallback | None,
+                     cancel: CancelToken) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Every ``step``-th frame's stripe rows per laser and column: ``(frames, {laser: (K, W)})``
+    (NaN where a column has no stripe). The regions of interest are widened to a quarter of
+    the image height so that the stripe displaced by the target stays inside them; the stripe
+    is detected with the calibration's fallback for a stripe blooming on the light target."""
     n = video.frame_count
-    step = sample_step or max(1, n // 400)
     probe = [video.read(int(k)) for k in np.linspace(0, n - 1, 6).astype(int)]
-    rois = auto_rois(probe, margin_px=probe[0].shape[0] // 6)
+    try:
+        rois = auto_rois(probe, margin_px=max(12, probe[0].shape[0] // 4))
+    except InputError:
+        # a dim laser (unsaturated on the soil) is missed by the bands' bright-pixel count:
+        # search every row for both
+        rois = {name: (0, probe[0].shape[0]) for name in LASERS}
     params = StripeParams(rois=rois)
-    disp: dict[str, list] = {name: [] for name in LASERS}
+    rows: dict[str, list] = {name: [] for name in LASERS}
     frames = []
     for k, rgb in video.iter_frames(0, n):
         if k % step:
             continue
         cancel.check()
-        res = detect(rgb, params)
         frames.append(k)
         for name in LASERS:
-            rows = res[name].rows
-            if np.isfinite(rows).sum() < 0.1 * len(rows):
-                disp[name].append(0.0)
-                continue
-            dev = np.abs(rows - np.nanmedian(rows))
-            disp[name].append(float(np.nanpercentile(dev, 95)))
+            # a laser saturates on the light target: the calibration's blooming fallback
+            a, b = params.rois[name]
+            res = detect_band_blooming(name, rgb[a:b], a, params)
+            rows[name].append(np.asarray(res.rows, float))
         report(progress, k / n, f"scanning frame {k}")
+    return np.array(frames), {name: np.array(v) for name, v in rows.items()}
+
+
+def _ground_rows(rows: np.ndarray, h: int) -> np.ndarray:
+    """Per column the row of the stripe on the bare ground. The ground is flat and the rail
+    parallel to it, so the stripe on it keeps its row while objects pass under it for a part
+    of the scan: per column the most frequent row over the frames, weighted by how many frames
+    agree with it (an impression under a column for most of the scan spreads its rows), then a
+    smooth curve across the columns (a line bent by the lens) fitted with outliers dropped."""
+    k, w = rows.shape
+    mode = np.full(w, np.nan)
+    weight = np.zeros(w)
+    finite = np.isfinite(rows)
+    for c in range(w):
+        v = rows[finite[:, c], c]
+        if v.size < max(5, 0.1 * k):
+            continue
+        hist = np.bincount(np.clip(v, 0, h - 1).astype(int), minlength=h).astype(float)
+        hist = np.convolve(hist, [1.0, 1.0, 1.0], mode="same")
+        m = int(np.argmax(hist))
+        near = v[np.abs(v - (m + 0.5)) <= 1.5]
+        mode[c] = float(np.median(near)) if near.size else m + 0.5
+        weight[c] = near.size / k
+    ok = np.flatnonzero(np.isfinite(mode))
+    if len(ok) < 0.2 * w:
+        return mode
+    # the ground's curve has the most (and best agreeing) columns: a plate under the middle
+    # columns for most of the scan moves their most frequent row, not the outer columns'
+    x = (np.arange(w) - w / 2) / (w / 2)
+    rng = np.random.default_rng(0)
+    best, best_score = None, -1.0
+    for _ in range(200):
+        pick = np.sort(rng.choice(ok, 3, replace=False))
+        if min(np.diff(pick)) < 0.05 * w:
+            continue
+        coef = np.polyfit(x[pick], mode[pick], 2)
+        inl = ok[np.abs(mode[ok] - np.polyval(coef, x[ok])) <= 1.5]
+        score = float(weight[inl].sum())
+        if score > best_score:
+            best, best_score = inl, score
+    keep = best if best is not None and len(best) >= 10 else ok
+    coef = np.polyfit(x[keep], mode[keep], 3, w=weight[keep] + 1e-3)
+    return np.polyval(coef, x)
+
+
+def _fill_gaps(e: np.ndarray, max_gap: int) -> np.ndarray:
+    """``e`` with NaN runs of at most ``max_gap`` columns between finite values interpolated."""
+    e = e.copy()
+    bad = ~np.isfinite(e)
+    if not bad.any() or bad.all():
+        return e
+    idx = np.flatnonzero(bad)
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    good = np.flatnonzero(~bad)
+    for r in runs:
+        if len(r) <= max_gap and r[0] > 0 and r[-1] < len(e) - 1:
+            e[r] = np.interp(r, good, e[good])
+    return e
+
+
+def _plateaus(e: np.ndarray, jump: float, min_len: int) -> list[tuple[int, int, float]]:
+    """Flat runs ``(first, stop, level)`` of a profile: breaks at missing columns and at jumps
+    larger than ``jump`` between neighbouring (median-filtered) columns."""
+    from scipy.ndimage import median_filter
+
+    finite = np.isfinite(e)
+    m = median_filter(np.where(finite, e, -1e6), size=5, mode="nearest")
+    m[~finite] = np.nan
+    brk = ~np.isfinite(m)
+    d = np.abs(np.diff(m))
+    cut = np.flatnonzero(~(d <= jump)) + 1  # NaN differences cut too
+    edges = np.unique(np.concatenate([[0], cut, [len(e)]]))
+    out: list[tuple[int, int, float]] = []
+    gap = max(6, int(0.03 * len(e)))
+    for a, b in zip(edges[:-1], edges[1:]):
+        if b - a < min_len or brk[a:b].any():
+            continue
+        level = float(np.median(m[a:b]))
+        if out and a - out[-1][1] <= gap and abs(level - out[-1][2]) <= max(jump, 0.05 * abs(level)):
+            # one plateau broken by a few columns without stripe (dropouts, speckle)
+            a0, b0, l0 = out[-1]
+            out[-1] = (a0, int(b), (l0 * (b0 - a0) + level * (b - a)) / (b0 - a0 + b - a))
+            continue
+        out.append((int(a), int(b), level))
+    return out
+
+
+def _l_profiles(e: np.ndarray, floor: float, w: int) -> dict | None:
+    """The widest L of one frame's displacement profile ``e`` (positive = raised): two
+    adjacent flat plateaus at two different raised levels, each at least a fifth of their
+    width, with no raised plateau next to them (the target's two top faces; the accuracy
+    plates and steps show one level or more than two)."""
+    min_len = max(4, int(0.015 * w))
+    gap = max(6, int(0.02 * w))
+    segs = _plateaus(_fill_gaps(e, 3), max(1.0, 0.5 * floor), min_len)
+    best = None
+    chain: list = []
+
+    def close(ch):
+        nonlocal best
+        if len(ch) != 2:
+            return
+        (a0, b0, l0), (a1, b1, l1) = ch
+        lo, hi = sorted((l0, l1))
+        width = b1 - a0
+        if lo < floor or lo > 0.85 * hi or hi - lo < floor:
+            return
+        if min(b0 - a0, b1 - a1) < 0.2 * width:
+            return
+        if best is None or width > best["width"]:
+            best = {"a": a0, "j0": b0, "j1": a1, "b": b1, "width": width, "low": lo,
+                    "high": hi, "high_right": l1 > l0}
+
+    for s in segs:
+        raised = s[2] >= floor
+        if raised and chain and s[0] - chain[-1][1] <= gap:
+            chain.append(s)
+            continue
+        if chain:
+            # a raised neighbour just beyond a gap, or a plateau of ground: the chain ends
+            close(chain)
+        chain = [s] if raised else []
+    if chain:
+        close(chain)
+    return best
+
+
+def _face_across(e: np.ndarray, span: tuple[float, float], level: float, floor: float,
+                 min_len: int) -> tuple[int, int] | None:
+    """The plateau of one frame's profile ``e`` at a top face's ``level`` that covers (nearly)
+    the face's whole ``span`` of columns, or None."""
+    c0, c1 = span
+    for a0, b0, l0 in _plateaus(_fill_gaps(e, 3), max(1.0, 0.5 * floor), min_len):
+        if abs(l0 - level) <= 0.1 * level + 1.0 and min(b0, c1) - max(a0, c0) >= 0.9 * (c1 - c0):
+            return a0, b0
+    return None
+
+
+def _off_face(e: np.ndarray, span: tuple[float, float], level: float) -> bool:
+    """Does one frame's profile show the stripe over a face's columns, off the face's level?"""
+    seg = e[int(span[0]):int(span[1])]
+    seg = seg[np.isfinite(seg)]
+    return seg.size >= 0.5 * (span[1] - span[0]) and abs(np.median(seg) - level) > 0.1 * level + 1
+
+
+def _end_points(rows: np.ndarray, a0: int, b0: int) -> np.ndarray:
+    """The stripe's two ends on a face: the mean column and median row of its first and last
+    few columns found there (the outermost one may be missing), NaN when too few are found."""
+    fin = a0 + np.flatnonzero(np.isfinite(rows[a0:b0]))
+    n_in = max(2, (b0 - a0) // 8)
+    if len(fin) < 2 * n_in:
+        return np.full((2, 2), np.nan)
+    return np.array([[fin[:n_in].mean() + 0.5, np.median(rows[fin[:n_in]])],
+                     [fin[-n_in:].mean() + 0.5, np.median(rows[fin[-n_in:]])]])
+
+
+def _l_runs(frames: np.ndarray, d: np.ndarray, floor: float, w: int) -> dict | None:
+    """The longest and highest run of sampled frames showing the same L (either sign of the
+    displacement): ``{"sign", "idx" (sample indices), "l" (their L's)}``."""
+    best = None
+    for sign in (1.0, -1.0):
+        found = [_l_profiles(sign * d[i], floor, w) for i in range(len(frames))]
+        # group consecutive samples with the same L (orientation, and levels within a tenth
+        # of the run's: the top faces are level, the rail parallel to the ground; a stripe
+        # sliding down a riser changes level from frame to frame) into runs
+        runs: list[list[int]] = []
+        for i, q in enumerate(found):
+            if q is None:
+                continue
+            if runs:
+                hi = float(np.median([found[j]["high"] for j in runs[-1]]))
+                lo = float(np.median([found[j]["low"] for j in runs[-1]]))
+                if (i - runs[-1][-1] <= 3
+                        and q["high_right"] == found[runs[-1][0]]["high_right"]
+                        and abs(q["high"] - hi) <= 0.1 * hi + 1.0
+                        and abs(q["low"] - lo) <= 0.15 * lo + 1.0):
+                    runs[-1].append(i)
+                    continue
+            runs.append([i])
+        for run in runs:
+            if len(run) < 3:
+                continue
+            score = len(run) * float(np.median([found[i]["high"] for i in run]))
+            if best is None or score > best["score"]:
+                best = {"score": score, "sign": sign, "idx": run, "l": [found[i] for i in run]}
+    return best
+
+
+def _target_run(frames: np.ndarray, rows: np.ndarray, h: int, w: int) -> dict | None:
+    """Where one laser's stripe lies on the L target, or None: the sampled frames in which it
+    lies across both top faces, and per face the frames (and the stripe's ends) where the
+    stripe enters and leaves it, with whether each is certain (the frames beyond show the
+    stripe off the face) or open (at the video's first or last sample)."""
+    base = _ground_rows(rows, h)
+    if not np.isfinite(base).any():
+        return None
+    d = rows - base
+    near = d[np.isfinite(d) & (np.abs(d) < 6.0)]
+    noise = 1.4826 * float(np.median(np.abs(near))) if near.size else 1.0
+    floor = max(1.5, 4.0 * noise)
+    best = _l_runs(frames, d, floor, w)
+    if best is None:
+        return None
+    widths = np.array([q["width"] for q in best["l"]])
+    full = widths >= 0.85 * np.median(widths)
+    idx = [i for i, f in zip(best["idx"], full) if f]
+    ls = [q for q, f in zip(best["l"], full) if f]
+    med = {key: float(np.median([q[key] for q in ls])) for key in ("a", "j0", "j1", "b")}
+    right = ls[0]["high_right"]
+    spans = {"low": (med["a"], med["j0"]) if right else (med["j1"], med["b"]),
+             "high": (med["j1"], med["b"]) if right else (med["a"], med["j0"])}
+    levels = {key: float(np.median([q[key] for q in ls])) for key in ("low", "high")}
+    e = best["sign"] * d
+    min_len = max(4, int(0.015 * w))
+    n = len(frames)
+    faces = {}
+    for face, span in spans.items():
+        # the frames in which the stripe lies across this face, contiguous with the L's run:
+        # a face enters and leaves the stripe at its own time (the laser's plane is inclined)
+        lvl = levels[face]
+        first, last = idx[0], idx[-1]
+        while first > 0 and _face_across(e[first - 1], span, lvl, floor, min_len):
+            first -= 1
+        while last < n - 1 and _face_across(e[last + 1], span, lvl, floor, min_len):
+            last += 1
+        ends = []
+        for i in (first, last):
+            a0, b0 = (_face_across(e[i], span, lvl, floor, min_len)
+                      or (int(span[0]), int(span[1])))
+            ends.append((int(frames[i]), _end_points(rows[i], a0, b0)))
+        # an end shows where the target's edge is for certain when a frame just beyond it
+        # shows the stripe at the face's columns off the face's level (not where the stripe
+        # was not found)
+        sure = (any(_off_face(e[i], span, lvl) for i in range(max(0, first - 4), first)),
+                any(_off_face(e[i], span, lvl) for i in range(last + 1, min(n, last + 5))))
+        faces[face] = {"ends": ends, "sure": sure, "open": (first == 0, last == n - 1)}
+    return {"frames": frames[idx], "faces": faces, "sign": best["sign"],
+            "low": levels["low"], "high": levels["high"]}
+
+
+def _choose_frames(runs: dict[str, dict], w: int, h: int) -> dict[str, int]:
+    """t1 (green) and t2 (red) inside their lasers' runs on the target: where the corners,
+    predicted from the ends of each top face's stripe as the stripes enter and leave it, moved
+    with the target's image velocity (from the delay between the two stripes), are well inside
+    the picture and the stripe well inside the faces; of those the two frames furthest apart
+    (the most parallax)."""
+    g, r = runs["green"], runs["red"]
+    # every observed edge of a face: (frame, its two corner points) per laser
+    seen = []
+    vel = []
+    for face in ("low", "high"):
+        for end in (0, 1):
+            obs = [(run["faces"][face]["ends"][end], run["faces"][face]["sure"][end])
+                   for run in (g, r) if not run["faces"][face]["open"][end]]
+            obs = [((k, p), sure) for (k, p), sure in obs if np.isfinite(p).all()]
+            seen += [o for o, _ in obs]
+            if len(obs) == 2:
+                (k0, p0), (k1, p1) = obs[0][0], obs[1][0]
+                if abs(k1 - k0) >= 1:
+                    vel.append(((p1 - p0).mean(axis=0) / float(k1 - k0),
+                                obs[0][1] and obs[1][1]))
+    # the velocity from edges seen on both sides (frames beyond them off the face) if any
+    sure = [u for u, ok in vel if ok] or [u for u, _ in vel]
+    v = np.median(sure, axis=0) if sure else None
+    green_first = g["frames"][0] + g["frames"][-1] <= r["frames"][0] + r["frames"][-1]
+    m_good = 0.08 * min(w, h)
+    out = {}
+    for key, run in (("t1", g), ("t2", r)):
+        f0, f1 = int(run["frames"][0]), int(run["frames"][-1])
+        ks = np.arange(f0, f1 + 1)
+        frac = np.minimum(ks - f0, f1 - ks) / max(f1 - f0, 1)
+        if v is None or not seen:
+            score = np.minimum(frac / 0.3, 1.0)
+        else:
+            pts = np.concatenate([p[None] + (ks - k)[:, None, None] * v for k, p in seen],
+                                 axis=1)
+            margin = np.minimum.reduce([pts[..., 0].min(axis=1), w - pts[..., 0].max(axis=1),
+                                        pts[..., 1].min(axis=1), h - pts[..., 1].max(axis=1)])
+            score = np.minimum.reduce([margin / m_good, frac / 0.12, np.ones_like(frac)])
+        top = np.flatnonzero(score >= score.max() - 1e-9)
+        early = (key == "t1") == green_first
+        out[key] = int(ks[top[0]] if early else ks[top[-1]])
+    return out
+
+
+def _propose_by_displacement(frames: np.ndarray, rows: dict[str, np.ndarray]) -> dict[str, int]:
+    """The fallback when no L is recognised: the frames where each stripe is displaced furthest
+    from its usual row (95th percentile per frame), a third and two thirds into their runs."""
     out = {}
     for key, name, where in (("t1", "green", 0.35), ("t2", "red", 0.65)):
-        score = np.array(disp[name])
+        rr = rows[name]
+        score = np.zeros(len(frames))
+        for i, rw in enumerate(rr):
+            if np.isfinite(rw).sum() >= 0.1 * len(rw):
+                score[i] = float(np.nanpercentile(np.abs(rw - np.nanmedian(rw)), 95))
         if score.max() <= 2.0:
             raise CalibrationError(f"no frame shows the {name} stripe displaced by the target",
                                    code=codes.E_NO_TARGET)
@@ -238,6 +530,35 @@ def propose_calibration_frames(video, sample_step: int | None = None,
         run = max(runs, key=lambda r: score[r].sum())
         out[key] = int(frames[run[int(round(where * (len(run) - 1)))]])
     return out
+
+
+def propose_calibration_frames(video, sample_step: int | None = None,
+                               progress: ProgressCallback | None = None,
+                               cancel: CancelToken | None = None) -> dict[str, int]:
+    """Frames where each laser's stripe lies across the L calibration target with all six
+    corners in view: ``{"t1": green frame, "t2": red frame}``.
+
+    Per sampled frame and laser, the stripe's displacement from its row on the bare ground
+    (the most frequent row of each column over the scan) is cut into flat plateaus; the
+    target's two top faces show as two adjacent plateaus at two raised levels and nothing
+    raised beside them (the accuracy plates and steps show one level or more than two), and
+    the run of frames showing that same L is where the stripe lies on the target. Where each
+    stripe enters and leaves the target gives the image of the target's front and back edges,
+    and the delay between the two stripes the target's motion in the picture (down or up,
+    any roll), so the corners can be predicted in every frame: the frames are chosen where they
+    are well inside the picture and the stripe well inside the faces, and as far apart as that
+    allows (the leading stripe's frame is the earlier one). When no L is recognised, the frames
+    where each stripe is displaced most are proposed. The user checks that all six corners are
+    visible and adjusts."""
+    cancel = cancel or CancelToken()
+    n = video.frame_count
+    step = sample_step or max(1, n // 400)
+    frames, rows = _stripe_profiles(video, step, progress, cancel)
+    h, w = video.read(0).shape[:2]
+    runs = {name: _target_run(frames, rows[name], h, w) for name in LASERS}
+    if any(r is None for r in runs.values()):
+        return _propose_by_displacement(frames, rows)
+    return _choose_frames(runs, w, h)
 
 
 def _rays_meet_edges(intr: Intrinsics, rotation: np.ndarray, travel_mm: float,
