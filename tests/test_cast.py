@@ -326,7 +326,7 @@ def test_same_input_same_bytes_and_the_record(recon, tmp_path):
     assert doc["mesh"]["bytes"] == len(data) and doc["mesh"]["file"] == "a.stl"
     assert doc["parameters"] == {"mode": "positive", "base_mm": 4.0,
                                  "crop_mm": [105.0, -100.0, 150.0, -50.0],
-                                 "max_triangles": 50000}
+                                 "max_triangles": 50000, "decimate": "sample"}
     assert doc["frame"]["handedness"] == "right" and "180 deg about the y axis" in \
         doc["frame"]["transformation"]
     header = data[:80].decode("ascii")

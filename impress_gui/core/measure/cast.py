@@ -20,10 +20,25 @@ Frame (see docs/formats.md, "Digital cast"): millimetres, right-handed, the expo
   ``(-x, y, -h)``, the base at ``-max(h) - base_mm``.
 
 Holes (NaN cells) inside the region are filled smoothly (a multigrid harmonic fill: the
-neighbours' mean, solved coarse to fine) and counted; the mesh is decimated by sampling every
-``step``-th cell (the region's last row and column always kept), the smallest step that keeps
-the triangle count at or under ``max_triangles``. Surface vertices lie exactly on heightmap
-cells (float32). Everything is deterministic: the same inputs give the same bytes.
+neighbours' mean, solved coarse to fine) and counted. Two ways to keep the triangle count at or
+under ``max_triangles``:
+
+- ``decimate="sample"`` (the default): every ``step``-th cell (the region's last row and column
+  always kept), the smallest step that fits. Surface vertices lie exactly on heightmap cells
+  (float32); between them the surface cuts corners (a wall one cell wide is smeared over
+  ``step`` cells).
+- ``decimate="quadric"``: the grid mesh at full resolution (or, above
+  :data:`QUADRIC_INPUT_TRIANGLES`, at the finest sampling under it) simplified by open3d's
+  quadric error metric decimation (Garland-Heckbert) to ``max_triangles``: flat ground gets few
+  large triangles, walls and edges keep theirs. The result is checked closed and consistently
+  oriented (outward) and falls back to sampling, said so in the record, if it is not.
+
+:func:`write_cast` verifies the mesh it writes with open3d (edge- and vertex-manifold,
+orientable; no self-intersection when small enough for open3d's quadratic test), checks with
+numpy that every edge is shared by exactly two triangles wound opposite ways (closed,
+consistently oriented) and that the volume is positive (outward), and measures how far the
+surface lies from the heightmap (rays cast straight down on the cells with data); all of it
+goes into the sidecar. Everything is deterministic: the same inputs give the same bytes.
 """
 
 from __future__ import annotations
@@ -39,7 +54,7 @@ import numpy as np
 
 from impress_gui import __version__
 from impress_gui.core.base import codes
-from impress_gui.core.base.errors import FormatError, InputError
+from impress_gui.core.base.errors import FormatError, ImpressError, InputError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.reconstruction.grid import GridSpec
 
@@ -49,6 +64,15 @@ SUFFIXES = {".stl": "stl", ".ply": "ply", ".obj": "obj"}
 DEFAULT_BASE_MM = 5.0
 DEFAULT_MAX_TRIANGLES = 2_000_000
 MIN_TRIANGLES = 20  # the smallest solid: 2x2 surface nodes, 4 walls, a base fan
+DECIMATE_METHODS = ("sample", "quadric")
+#: the quadric decimation's input: the full-resolution grid mesh, or the finest sampling with at
+#: most this many triangles (memory and time: open3d keeps a quadric per vertex)
+QUADRIC_INPUT_TRIANGLES = 4_000_000
+#: open3d's self-intersection test is quadratic (about 45 s for 90 000 triangles on two cores)
+SELF_INTERSECTION_MAX_TRIANGLES = 20_000
+#: the surface deviation is measured on at most this many cells (every k-th row and column)
+DEVIATION_MAX_RAYS = 2_000_000
+SURFACE_TOLERANCE_MM = 0.02
 MAX_BASE_MM = 1000.0
 CHUNK = 1 << 20  # triangles handled at a time in float64
 NEGATIVE_TRANSFORM = "identity: (x, y, z) -> (x, y, z)"
@@ -72,6 +96,7 @@ class CastParams:
     base_mm: float = DEFAULT_BASE_MM
     crop_mm: tuple[float, float, float, float] | None = None
     max_triangles: int = DEFAULT_MAX_TRIANGLES
+    decimate: str = "sample"
 
     def check(self) -> None:
         b = self.base_mm
@@ -91,12 +116,16 @@ class CastParams:
                                  code=codes.E_CAST_CROP)
             if c[0] == c[2] or c[1] == c[3]:
                 raise InputError("the crop has no area: x0 = x1 or y0 = y1", code=codes.E_CAST_CROP)
+        if self.decimate not in DECIMATE_METHODS:
+            raise InputError(f"unknown decimation {self.decimate!r}: use one of "
+                             f"{', '.join(DECIMATE_METHODS)}", code=codes.E_CAST_TRIANGLES)
 
     def to_json(self) -> dict:
         return {"mode": "positive" if self.positive else "negative",
                 "base_mm": float(self.base_mm),
                 "crop_mm": None if self.crop_mm is None else [float(v) for v in self.crop_mm],
-                "max_triangles": int(self.max_triangles)}
+                "max_triangles": int(self.max_triangles),
+                "decimate": self.decimate}
 
 
 @dataclass(frozen=True)
@@ -114,6 +143,7 @@ class CastMesh:
     surface_shape: tuple[int, int]  # (rows, cols) of surface vertices
     base_z_mm: float
     volume_mm3: float
+    decimation: dict | None = None  # how the triangle cap was met (the sidecar's record)
 
     def bounding_box(self) -> dict:
         lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
@@ -226,6 +256,46 @@ def _boundary_loop(nr: int, nc: int) -> np.ndarray:
     return np.concatenate([grid[0, :], grid[1:, -1], grid[-1, -2::-1], grid[-2:0:-1, 0]])
 
 
+def signed_volume(verts: np.ndarray, tris: np.ndarray) -> float:
+    """The signed volume (mm^3) enclosed by a closed mesh: positive for outward normals."""
+    volume = 0.0
+    for k in range(0, len(tris), CHUNK):  # in pieces: float64 temporaries stay small
+        p = verts[tris[k : k + CHUNK]].astype(np.float64)
+        volume += float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum())
+    return volume / 6.0
+
+
+def closed_and_oriented(tris: np.ndarray) -> bool:
+    """Every directed edge occurs once and its reverse once too: each edge is shared by
+    exactly two triangles that traverse it in opposite directions (a closed, edge-manifold,
+    consistently wound surface)."""
+    t = np.asarray(tris, np.int64)
+    if len(t) == 0:
+        return False
+    n = int(t.max()) + 1
+    a = np.concatenate([t[:, 0], t[:, 1], t[:, 2]])
+    b = np.concatenate([t[:, 1], t[:, 2], t[:, 0]])
+    key = np.sort(a * n + b)
+    if len(key) > 1 and bool(np.any(key[1:] == key[:-1])):
+        return False
+    rev = np.sort(b * n + a)
+    return bool(np.array_equal(key, rev))
+
+
+def quadric_decimate(verts: np.ndarray, tris: np.ndarray, target: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """open3d's quadric error decimation of a closed mesh to ``target`` triangles (float32
+    vertices, int64 triangles; unreferenced vertices removed). Deterministic (one thread)."""
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts.astype(np.float64)),
+                                     o3d.utility.Vector3iVector(tris.astype(np.int32)))
+    out = mesh.simplify_quadric_decimation(target_number_of_triangles=int(target))
+    out.remove_unreferenced_vertices()
+    return (np.asarray(out.vertices).astype(np.float32),
+            np.ascontiguousarray(np.asarray(out.triangles).astype(np.int64)))
+
+
 def solid_from_grid(x: np.ndarray, y: np.ndarray, z: np.ndarray, base_z: float
                     ) -> tuple[np.ndarray, np.ndarray, float]:
     """A closed solid between a height field and the plane ``z = base_z`` below it.
@@ -250,11 +320,7 @@ def solid_from_grid(x: np.ndarray, y: np.ndarray, z: np.ndarray, base_z: float
     walls = np.concatenate([np.column_stack([t0, t1, b1]), np.column_stack([t0, b1, b0])])
     fan = np.column_stack([np.full(n_loop, n_top + n_loop), b0, b1])
     tris = np.concatenate([surface, walls, fan]).astype(np.int64)
-    volume = 0.0
-    for k in range(0, len(tris), CHUNK):  # in pieces: float64 temporaries stay small
-        p = verts[tris[k : k + CHUNK]].astype(np.float64)
-        volume += float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum())
-    volume /= 6.0
+    volume = signed_volume(verts, tris)
     if volume < 0:
         tris = tris[:, [0, 2, 1]]
         volume = -volume
@@ -280,9 +346,11 @@ def make_cast(height: np.ndarray, spec: GridSpec, params: CastParams,
     if cancel is not None:
         cancel.check()
     rows, cols = region.shape
-    step = choose_step(rows, cols, params.max_triangles)
+    quadric = params.decimate == "quadric"
+    cap = max(params.max_triangles, QUADRIC_INPUT_TRIANGLES) if quadric else params.max_triangles
+    step = choose_step(rows, cols, cap)
     ri, ci = _samples(rows, step), _samples(cols, step)
-    report(progress, 0.5, f"building the mesh (every {step} cell(s))")
+    report(progress, 0.3, f"building the mesh (every {step} cell(s))")
     jj, ii = np.meshgrid(cs.start + ci, rs.start + ri)
     from impress_gui.core.formats.writers import export_xy
 
@@ -295,6 +363,33 @@ def make_cast(height: np.ndarray, spec: GridSpec, params: CastParams,
     verts, tris, volume = solid_from_grid(x, y, z, base_z)
     if cancel is not None:
         cancel.check()
+    decimation: dict = {"method": "sample", "step_cells": step}
+    if quadric:
+        decimation = {"method": "quadric", "requested": "quadric",
+                      "input_step_cells": step, "input_triangles": int(len(tris))}
+        if len(tris) <= params.max_triangles:
+            decimation["note"] = "the grid mesh already fits the triangle cap: not decimated"
+        else:
+            report(progress, 0.5, f"quadric decimation of {len(tris)} triangles to "
+                                  f"{params.max_triangles}")
+            qv, qt = quadric_decimate(verts, tris, params.max_triangles)
+            qvol = signed_volume(qv, qt) if len(qt) else 0.0
+            if len(qt) and closed_and_oriented(qt) and qvol > 0:
+                verts, tris, volume = qv, qt, qvol
+            else:  # never seen; a mesh that is not a closed outward solid is not written
+                step = choose_step(rows, cols, params.max_triangles)
+                ri, ci = _samples(rows, step), _samples(cols, step)
+                jj, ii = np.meshgrid(cs.start + ci, rs.start + ri)
+                x, y = export_xy(spec, ii.astype(np.float64), jj.astype(np.float64))
+                z = filled[np.ix_(ri, ci)].astype(np.float32).astype(np.float64)
+                if params.positive:
+                    x, z = -x, -z
+                verts, tris, volume = solid_from_grid(x, y, z, base_z)
+                decimation = {"method": "sample", "requested": "quadric", "step_cells": step,
+                              "note": "the quadric decimation's result was not a closed, "
+                                      "outward solid: every step-th cell sampled instead"}
+        if cancel is not None:
+            cancel.check()
     p = spec.pixel_mm
     crop_export = [spec.x0_mm + cs.start * p, -(spec.y0_mm + (rs.stop - 1) * p),
                    spec.x0_mm + (cs.stop - 1) * p, -(spec.y0_mm + rs.start * p)]
@@ -305,7 +400,104 @@ def make_cast(height: np.ndarray, spec: GridSpec, params: CastParams,
                           "crop_mm is x0,y0,x1,y1 of the cell centres in the export frame"}
     report(progress, 1.0, "mesh ready")
     return CastMesh(verts, tris, params, region_doc, step, int(missing.sum()),
-                    int(missing[np.ix_(ri, ci)].sum()), (len(ri), len(ci)), base_z, volume)
+                    int(missing[np.ix_(ri, ci)].sum()), (len(ri), len(ci)), base_z, volume,
+                    decimation)
+
+
+# ----- verification --------------------------------------------------------------------------
+def verify_mesh(mesh: CastMesh, cancel: CancelToken | None = None) -> dict:
+    """open3d's checks of the mesh as it will be written (the same float32 vertices and
+    triangles), and numpy's: closed and consistently wound, positive volume. Returns the
+    sidecar's ``checks``; ``ok`` is False when any check failed."""
+    import open3d as o3d
+
+    v, t = mesh.vertices, mesh.triangles
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v.astype(np.float64)),
+                                  o3d.utility.Vector3iVector(t.astype(np.int32)))
+    out: dict = {"by": f"open3d {o3d.__version__} and numpy"}
+    out["edge_manifold"] = bool(m.is_edge_manifold(allow_boundary_edges=False))
+    if cancel is not None:
+        cancel.check()
+    out["vertex_manifold"] = bool(m.is_vertex_manifold())
+    if cancel is not None:
+        cancel.check()
+    out["orientable"] = bool(m.is_orientable())
+    if cancel is not None:
+        cancel.check()
+    out["closed_consistently_wound"] = closed_and_oriented(t)
+    out["volume_positive"] = bool(signed_volume(v, t) > 0)
+    if len(t) <= SELF_INTERSECTION_MAX_TRIANGLES:
+        si = bool(m.is_self_intersecting())
+        out["self_intersection"] = {"tested": True, "self_intersecting": si}
+        out["watertight"] = bool(m.is_watertight())  # open3d: manifold, no self-intersection
+    else:
+        out["self_intersection"] = {
+            "tested": False,
+            "reason": f"open3d's test is quadratic in the triangles (about 45 s for 90 000 "
+                      f"on two cores); run up to {SELF_INTERSECTION_MAX_TRIANGLES}"}
+        if (mesh.decimation or {}).get("method", "sample") == "sample":
+            out["self_intersection"]["by_construction"] = (
+                "a height field over a rectangle of the grid, every surface vertex above a flat "
+                "base, vertical walls: no two triangles can cross")
+        out["watertight"] = None
+    checked = [out[k] for k in ("edge_manifold", "vertex_manifold", "orientable",
+                                "closed_consistently_wound", "volume_positive")]
+    if out["self_intersection"]["tested"]:
+        checked.append(not out["self_intersection"]["self_intersecting"])
+    out["ok"] = all(checked)
+    return out
+
+
+def surface_deviation(mesh: CastMesh, height: np.ndarray, spec: GridSpec) -> dict:
+    """How far the mesh's top surface lies from the heightmap: a ray cast straight down (open3d)
+    at every cell with data of the region (every ``stride``-th row and column above
+    :data:`DEVIATION_MAX_RAYS` cells), the hit's height against the cell's float32 value (in
+    the cast's frame: ``(-x, y, -h)`` for the positive). Rays on the region's outer edge are
+    moved 0.001 cell inwards (a ray along a boundary edge may miss)."""
+    import open3d as o3d
+
+    (r0, r1), (c0, c1) = mesh.region["rows"], mesh.region["cols"]
+    n = (r1 - r0) * (c1 - c0)
+    stride = max(1, math.ceil(math.sqrt(n / DEVIATION_MAX_RAYS)))
+    ii, jj = np.mgrid[r0:r1:stride, c0:c1:stride]
+    h = np.asarray(height[ii, jj], np.float32).astype(np.float64)
+    ok = np.isfinite(h)
+    from impress_gui.core.formats.writers import export_xy
+
+    x, y = export_xy(spec, ii[ok].astype(np.float64), jj[ok].astype(np.float64))
+    h = h[ok]
+    eps = 1e-3 * spec.pixel_mm
+    xa, ya = export_xy(spec, np.array([r0, r1 - 1], np.float64), np.array([c0, c1 - 1],
+                                                                         np.float64))
+    x = np.clip(x, xa.min() + eps, xa.max() - eps)
+    y = np.clip(y, ya.min() + eps, ya.max() - eps)
+    if mesh.params.positive:
+        x, h = -x, -h
+    doc: dict = {"method": "rays cast straight down (open3d RaycastingScene) at the cells with "
+                           "data, hit height minus the cell's height",
+                 "stride_cells": stride, "cells": int(h.size)}
+    if h.size == 0:
+        return doc | {"missed": 0}
+    scene = o3d.t.geometry.RaycastingScene()
+    tensor = o3d.core.Tensor.from_numpy
+    scene.add_triangles(tensor(np.ascontiguousarray(mesh.vertices, np.float32)),
+                        tensor(np.ascontiguousarray(mesh.triangles, np.uint32)))
+    z0 = float(mesh.vertices[:, 2].max()) + 1.0
+    rays = np.zeros((h.size, 6), np.float32)
+    rays[:, 0], rays[:, 1], rays[:, 2], rays[:, 5] = x, y, z0, -1.0
+    t = scene.cast_rays(tensor(rays))["t_hit"].numpy().astype(np.float64)
+    hit = np.isfinite(t)
+    d = np.abs((z0 - t[hit]) - h[hit])
+    if d.size == 0:
+        return doc | {"missed": int((~hit).sum())}
+    return doc | {
+        "missed": int((~hit).sum()),
+        "max_mm": round(float(d.max()), 6),
+        "rms_mm": round(float(np.sqrt(np.mean(d * d))), 6),
+        "p99_mm": round(float(np.quantile(d, 0.99)), 6),
+        "within_tolerance_fraction": round(float(np.mean(d <= SURFACE_TOLERANCE_MM)), 6),
+        "tolerance_mm": SURFACE_TOLERANCE_MM,
+    }
 
 
 # ----- files ---------------------------------------------------------------------------------
@@ -437,6 +629,7 @@ def cast_document(mesh: CastMesh, spec: GridSpec, source: Mapping, heightmap_sha
             "surface_vertices": list(mesh.surface_shape),
             "step_cells": mesh.step,
             "vertex_spacing_mm": round(mesh.step * spec.pixel_mm, 9),
+            "decimation": mesh.decimation or {"method": "sample", "step_cells": mesh.step},
             "closed": True,
             "orientation": "counter-clockwise seen from outside (outward normals)",
             "base_z_mm": round(mesh.base_z_mm, 6),
@@ -448,10 +641,13 @@ def cast_document(mesh: CastMesh, spec: GridSpec, source: Mapping, heightmap_sha
 
 def write_cast(recon: str | Path, output: str | Path, params: CastParams,
                progress: ProgressCallback | None = None,
-               cancel: CancelToken | None = None) -> dict:
+               cancel: CancelToken | None = None, context: Mapping | None = None) -> dict:
     """Make the cast of a reconstruction folder and write it to ``output`` (.stl, .ply or
     .obj) with its sidecar ``output + ".json"``; both atomically. Returns the sidecar's
-    document. Every check (folder, output, parameters) is made before any work."""
+    document. Every check (folder, output, parameters) is made before any work; the mesh is
+    verified (:func:`verify_mesh`, recorded as ``checks``; a failure writes nothing) and its
+    surface measured against the heightmap (``surface_deviation``). ``context`` (e.g. the
+    viewer's case and its signature) is recorded as ``export``."""
     from impress_gui.core.base.fileio import atomic_write_bytes, dumps_json, sha256_file
     from impress_gui.core.base.outdir import check_output_file
     from impress_gui.core.base.progress import sub_progress
@@ -482,10 +678,24 @@ def write_cast(recon: str | Path, output: str | Path, params: CastParams,
         raise FormatError(f"{folder / HEIGHTMAP_FILE} is not the heightmap metadata.json "
                           "records (its SHA-256 differs): it changed after processing; process "
                           "the scan again", code=codes.E_CAST_HASH)
-    mesh = make_cast(data.height_mm, data.spec, params, sub_progress(progress, 0.1, 0.8),
+    mesh = make_cast(data.height_mm, data.spec, params, sub_progress(progress, 0.1, 0.6),
                      cancel)
+    report(progress, 0.6, "checking the mesh (open3d)")
+    checks = verify_mesh(mesh, cancel)
+    if not checks["ok"]:
+        failed = [k for k, v in checks.items() if v is False] or ["self-intersection"]
+        raise ImpressError(f"the cast failed its checks ({', '.join(failed)}): nothing was "
+                           "written; please report this", code=codes.E_INTERNAL)
+    report(progress, 0.8, "measuring the surface against the heightmap")
+    deviation = surface_deviation(mesh, data.height_mm, data.spec)
+    if cancel is not None:
+        cancel.check()
     doc = cast_document(mesh, data.spec, source, tif_sha, fmt)
-    report(progress, 0.8, f"writing {out.name}")
+    doc["checks"] = checks
+    doc["surface_deviation"] = deviation
+    if context:
+        doc["export"] = dict(context)
+    report(progress, 0.9, f"writing {out.name}")
     payload = cast_bytes(mesh, fmt, doc)
     if cancel is not None:
         cancel.check()

@@ -1,17 +1,18 @@
 """The viewer's exports: heightmap TIFF, X3P, PLY, figure PNG, profile CSV/PNG, the HTML
-report and the 3D view. Files are written atomically in the background and recorded in the
-session's project (outputs, with their SHA-256, and log)."""
+report, the digital cast (STL/PLY/OBJ) and the 3D view. Files are written atomically in the
+background and recorded in the session's project (outputs, with their SHA-256, and log)."""
 
 from __future__ import annotations
 
 import hashlib
 import platform
+from collections.abc import Callable
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QObject, Signal
+from PySide6.QtCore import QObject, QRectF, Signal
 from PySide6.QtWidgets import QWidget
 
 from impress_gui.core.base.fileio import atomic_write_bytes
@@ -45,6 +46,7 @@ FILTERS = {
     "csv": "CSV (*.csv)",
     "html": "HTML report (*.html)",
     "pdf": "PDF report (*.pdf)",
+    "mesh": "Mesh (*.stl *.ply *.obj);;STL (*.stl);;PLY mesh (*.ply);;OBJ (*.obj)",
 }
 
 
@@ -94,8 +96,11 @@ class ViewerExports(QObject):
         messenger: Messenger,
         dialogs: Dialogs,
         parent: QObject | None = None,
+        view_rect: Callable[[], QRectF] | None = None,
     ) -> None:
         super().__init__(parent)
+        self.view_rect = view_rect  # the map's visible region (rail frame, mm)
+        self.cast_dialog = None
         self.session = session
         self.layers = layers
         self.recon = layers.recon
@@ -506,6 +511,82 @@ class ViewerExports(QObject):
 
         return make
 
+    # ----- digital cast --------------------------------------------------------------------------
+    def visible_crop(self) -> tuple[float, float, float, float] | None:
+        """The map's visible region in the export frame (x0, y0, x1, y1 mm; y = -rail Y)."""
+        if self.view_rect is None:
+            return None
+        r = self.view_rect()
+        if r.width() <= 0 or r.height() <= 0:
+            return None
+        x0, x1 = sorted((r.left(), r.right()))
+        y0, y1 = sorted((r.top(), r.bottom()))
+        return float(x0), float(-y1), float(x1), float(-y0)
+
+    def open_cast_dialog(self):
+        """Show the digital cast's options (not blocking); Choose the file... asks for the file
+        and writes the cast (:meth:`export_cast`). Returns the dialog (None without data)."""
+        from impress_gui.ui.viewer.cast_dialog import CastDialog
+
+        if not self._need_data():
+            return None
+        if self.recon.data.folder is None:
+            self.messenger.info("Digital cast", "The cast is made from a reconstruction folder "
+                                "and this map has none: open the reconstruction's folder.")
+            return None
+        if self.cast_dialog is not None:
+            self.cast_dialog.close()
+            self.cast_dialog.deleteLater()
+        parent = self.parent() if isinstance(self.parent(), QWidget) else None
+        dlg = CastDialog(self.visible_crop(), parent)
+        dlg.accepted.connect(lambda: self.export_cast(params=dlg.params()))
+        self.cast_dialog = dlg
+        dlg.open()
+        return dlg
+
+    def export_cast(self, path=None, params=None) -> bool:
+        """Write the digital cast of the open reconstruction (``params``: a
+        :class:`~impress_gui.core.measure.cast.CastParams`, the defaults if None) with
+        ``write_cast``, the code of ``impress cast``, in the background; the mesh and its
+        record go into the project's outputs."""
+        from impress_gui.core.base.outdir import check_output_file
+        from impress_gui.core.measure.cast import SUFFIXES, CastParams, write_cast
+
+        if not self._need_data():
+            return False
+        folder = self.recon.data.folder
+        if folder is None:
+            self.messenger.info("Digital cast", "The cast is made from a reconstruction folder "
+                                "and this map has none.")
+            return False
+        if not (p := self._path(path, "Export a digital cast", "mesh", ".stl")):
+            return False
+        params = params or CastParams()
+        proj = self.session.project
+        context = {"by": "the viewer's export", "case_id": proj.case_id or None,
+                   "evidence_id": proj.evidence_id or None,
+                   "case_record": _case_signature(proj)}
+        inputs = self._inputs()
+
+        def task(progress, cancel):
+            # never over the evidence (the folder's own files are checked by write_cast)
+            check_output_file(p, inputs=inputs, formats=None)
+            return write_cast(folder, p, params, progress, cancel, context)
+
+        def done(doc: dict) -> None:
+            fmt = SUFFIXES.get(p.suffix.lower(), "mesh")
+            proj.add_output(p, f"cast-{fmt}", sha256=doc["mesh"]["sha256"])
+            proj.add_output(p.with_name(p.name + ".json"), "cast-record")
+            self.written.emit()
+            m, dev = doc["mesh"], doc.get("surface_deviation") or {}
+            text = f"Digital cast written to {p} ({m['triangles']} triangles"
+            if "max_mm" in dev:
+                text += f"; surface within {dev['max_mm']:.3f} mm of the heightmap"
+            self.status.emit(text + ")")
+
+        return self.tasks.run("Writing the digital cast", task, done,
+                              "Cannot write the digital cast")
+
     # ----- 3D ------------------------------------------------------------------------------------
     def open_3d(self) -> Surface3DWindow | None:
         if not self._need_data():
@@ -526,6 +607,9 @@ class ViewerExports(QObject):
         return win
 
     def shutdown(self) -> None:
+        if self.cast_dialog is not None:
+            self.cast_dialog.close()
+            self.cast_dialog = None
         for w in self.windows:
             w.shutdown()
             w.close()

@@ -24,8 +24,15 @@ from pathlib import Path
 
 import numpy as np
 from PySide6.QtCore import Qt, Signal
-from PySide6.QtGui import QUndoStack
-from PySide6.QtWidgets import QHBoxLayout, QScrollArea, QSplitter, QVBoxLayout, QWidget
+from PySide6.QtGui import QAction, QUndoStack
+from PySide6.QtWidgets import (
+    QHBoxLayout,
+    QPushButton,
+    QScrollArea,
+    QSplitter,
+    QVBoxLayout,
+    QWidget,
+)
 
 from impress_gui.core.formats.writers import contribution_png
 from impress_gui.core.measure import readings as M
@@ -126,7 +133,9 @@ class ViewerTab(QWidget):
             self.messenger,
             self.dialogs,
             self,
+            view_rect=lambda: self.map.vb.viewRect(),
         )
+        self._add_cast_action()
         self._connect()
         self.set_mode("pan")
         s = self.session
@@ -179,6 +188,20 @@ class ViewerTab(QWidget):
         split.addWidget(scroll)
         split.setStretchFactor(0, 3)
         split.setStretchFactor(1, 1)
+
+    def _add_cast_action(self) -> None:
+        """Export > Digital cast: an action (for a menu) and its button in the export panel,
+        beside "3D view..."."""
+        self.cast_action = QAction("Digital cast (STL/PLY/OBJ)...", self)
+        self.cast_action.setStatusTip("A watertight mesh of the impression (or the outsole's "
+                                      "positive) for a 3D printer")
+        self.cast_action.triggered.connect(lambda _checked=False: self.actions.open_cast_dialog())
+        button = QPushButton("Digital cast...")
+        button.setToolTip(self.cast_action.statusTip())
+        button.clicked.connect(lambda _checked=False: self.cast_action.trigger())
+        n = len(self.exports.buttons)  # the panel's buttons fill two columns
+        self.exports.buttons["cast"] = button
+        self.exports.layout().addWidget(button, n // 2, n % 2)
 
     def _connect(self) -> None:
         """What the tab itself follows: modes, clicks and the cursor; the parts' signals."""
