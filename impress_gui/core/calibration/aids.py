@@ -555,7 +555,15 @@ def propose_calibration_frames(video, sample_step: int | None = None,
     step = sample_step or max(1, n // 400)
     frames, rows = _stripe_profiles(video, step, progress, cancel)
     h, w = video.read(0).shape[:2]
-    runs = {name: _target_run(frames, rows[name], h, w) for name in LASERS}
+    return propose_from_profiles(frames, rows, w, h)
+
+
+def propose_from_profiles(frames: np.ndarray, rows: dict[str, np.ndarray], w: int,
+                          h: int) -> dict[str, int]:
+    """:func:`propose_calibration_frames` from the stripes already found: ``rows[laser]`` is
+    ``(len(frames), w)``, the stripe's row per sampled frame and column (NaN: none)."""
+    frames = np.asarray(frames)
+    runs = {name: _target_run(frames, np.asarray(rows[name], float), h, w) for name in LASERS}
     if any(r is None for r in runs.values()):
         return _propose_by_displacement(frames, rows)
     return _choose_frames(runs, w, h)
