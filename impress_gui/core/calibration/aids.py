@@ -210,9 +210,7 @@ def _stripe_profiles(video, step: int, progress: ProgressCallback | None,
     try:
         rois = auto_rois(probe, margin_px=max(12, probe[0].shape[0] // 4))
     except InputError:
-        # a dim laser (unsaturated on the soil) is missed by the bands' bright-pixel count:
-        # search every row for both
-        rois = {name: (0, probe[0].shape[0]) for name in LASERS}
+        rois = _dim_rois(probe)
     params = StripeParams(rois=rois)
     rows: dict[str, list] = {name: [] for name in LASERS}
     frames = []
@@ -228,6 +226,29 @@ def _stripe_profiles(video, step: int, progress: ProgressCallback | None,
             rows[name].append(np.asarray(res.rows, float))
         report(progress, k / n, f"scanning frame {k}")
     return np.array(frames), {name: np.array(v) for name, v in rows.items()}
+
+
+def _dim_rois(probe: list[np.ndarray]) -> dict[str, tuple[int, int]]:
+    """Bands of rows for the lasers when :func:`auto_rois` misses a dim one (unsaturated on
+    the soil, too few bright pixels): each laser's stripe searched in every row of the sample
+    frames, its band around its most frequent row, the two bands split halfway between."""
+    h = probe[0].shape[0]
+    params = StripeParams()
+    peaks = {}
+    for name in LASERS:
+        found = np.concatenate([detect_band_blooming(name, f, 0, params).rows for f in probe])
+        found = found[np.isfinite(found)]
+        if found.size < 0.1 * probe[0].shape[1] * len(probe):
+            raise InputError(f"the {name} laser's stripe is not visible in the sampled frames",
+                             code=codes.E_NO_STRIPE)
+        hist = np.convolve(np.bincount(found.astype(int), minlength=h), np.ones(9), "same")
+        peaks[name] = int(np.argmax(hist))
+    lo, hi = sorted(LASERS, key=lambda n: peaks[n])
+    if peaks[hi] - peaks[lo] < 0.1 * h:
+        raise InputError("the two lasers' stripes cannot be told apart in the sampled frames",
+                         code=codes.E_NO_STRIPE)
+    cut = (peaks[lo] + peaks[hi]) // 2
+    return {lo: (max(0, peaks[lo] - h // 3), cut), hi: (cut, min(h, peaks[hi] + h // 3))}
 
 
 def _ground_rows(rows: np.ndarray, h: int) -> np.ndarray:
