@@ -16,6 +16,9 @@ SYSTEM_PACKAGES+=(libx11-6 libx11-xcb1 libxcb1 libxcb-cursor0 libxcb-icccm4 libx
   libxcb-keysyms1 libxcb-randr0 libxcb-render0 libxcb-render-util0 libxcb-shape0 libxcb-shm0
   libxcb-sync1 libxcb-util1 libxcb-xfixes0 libxcb-xinerama0 libxcb-xkb1 libxkbcommon-x11-0
   libxext6 libxrender1 libxi6 libsm6 libice6 libfreetype6)
+# an OpenGL context on an X display (the GPU 3D view, also under Xvfb): Mesa's GLX and EGL
+# vendor libraries and its DRI drivers (llvmpipe, the software rasteriser, when there is no GPU)
+SYSTEM_PACKAGES+=(libglx0 libglx-mesa0 libegl-mesa0 libgl1-mesa-dri libxcb-glx0)
 # Xvfb: the test suite starts the window on a virtual X display with the xcb platform
 SYSTEM_PACKAGES+=(xvfb)
 missing=()
