@@ -193,3 +193,13 @@ def test_a_left_shoe_stays_left(tmp_path, suffix):
         # relief up either way: the sole lies below the ground (negative) / stands on the
         # cast above the ground's level (positive)
         assert (v[sole, 2].mean() < v[top & ~sole, 2].mean()) != positive
+
+
+def test_a_strided_deviation_sees_between_the_samples(recon, tmp_path, monkeypatch):
+    """On a large map the deviation is measured on every k-th cell, k prime to the sampling
+    step: never only on the sampled cells, where a sampled surface is exact."""
+    monkeypatch.setattr(C, "DEVIATION_MAX_RAYS", 10000)  # 54 864 cells: stride 3 at first
+    doc = C.write_cast(recon, tmp_path / "s.stl", C.CastParams(max_triangles=13200))
+    step, dev = doc["mesh"]["step_cells"], doc["surface_deviation"]
+    assert step == 3 and dev["stride_cells"] == 4  # 3 would land on the samples only
+    assert dev["max_mm"] > 1.0 and dev["within_tolerance_fraction"] < 0.999

@@ -451,7 +451,8 @@ def verify_mesh(mesh: CastMesh, cancel: CancelToken | None = None) -> dict:
 def surface_deviation(mesh: CastMesh, height: np.ndarray, spec: GridSpec) -> dict:
     """How far the mesh's top surface lies from the heightmap: a ray cast straight down (open3d)
     at every cell with data of the region (every ``stride``-th row and column above
-    :data:`DEVIATION_MAX_RAYS` cells), the hit's height against the cell's float32 value (in
+    :data:`DEVIATION_MAX_RAYS` cells, ``stride`` prime to the mesh's sampling step so that the
+    cells between the samples count too), the hit's height against the cell's float32 value (in
     the cast's frame: ``(-x, y, -h)`` for the positive). Rays on the region's outer edge are
     moved 0.001 cell inwards (a ray along a boundary edge may miss)."""
     import open3d as o3d
@@ -459,6 +460,8 @@ def surface_deviation(mesh: CastMesh, height: np.ndarray, spec: GridSpec) -> dic
     (r0, r1), (c0, c1) = mesh.region["rows"], mesh.region["cols"]
     n = (r1 - r0) * (c1 - c0)
     stride = max(1, math.ceil(math.sqrt(n / DEVIATION_MAX_RAYS)))
+    while stride > 1 and math.gcd(stride, mesh.step) != 1:
+        stride += 1  # never only the sampled cells (where a sampled surface is exact)
     ii, jj = np.mgrid[r0:r1:stride, c0:c1:stride]
     h = np.asarray(height[ii, jj], np.float32).astype(np.float64)
     ok = np.isfinite(h)
