@@ -13,6 +13,7 @@ a plain sentence (the technical reason in its tooltip).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QPointF, Qt, Signal
@@ -338,7 +339,10 @@ def surface_mesh(
         k = np.clip((zz - lo) / max(hi - lo, 1e-6) * 255, 0, 255).astype(np.int64)
         base = lut[k, :3]
     filled = np.where(ok, z, np.nanmean(z) if ok.any() else 0.0) * exaggeration
-    g_row, g_col = np.gradient(filled, cell) if min(z.shape) > 1 else (np.zeros_like(z),) * 2
+    g_row = g_col = np.zeros_like(filled)
+    if min(z.shape) > 1:
+        grads = np.gradient(filled, cell)
+        g_row, g_col = grads[0], grads[1]
     nx, ny = -g_col[ok], g_row[ok]  # (x, up the map): the grid's rows run down the map
     shade = (nx * GL_LIGHT[0] + ny * GL_LIGHT[1] + GL_LIGHT[2]) / np.sqrt(nx * nx + ny * ny + 1)
     shade = 0.35 + 0.65 * np.clip(shade, 0.0, 1.0)
@@ -491,8 +495,9 @@ class Surface3DWindow(QWidget):
         # from below the map's bottom edge, a little to the left: the map as on screen, tilted
         self.azimuth, self.elevation, self.zoom = 200.0, 40.0, 1.0
         self.frames = 0
-        self.worker: LatestOnly | None = None
-        self.gl = None
+        self.worker: Any = None  # the software view's LatestOnly
+        self.gl: Any = None  # the OpenGL view (a GLViewWidget)
+        self.view: Any = None  # the widget showing the surface (a QLabel or self.gl)
         self.mesh: dict = {}
         self._placed = False
         v = QVBoxLayout(self)
