@@ -31,9 +31,8 @@ import math
 import time
 from pathlib import Path
 
-import numpy as np
-
 import common
+import numpy as np
 
 # the cached random-rig scans at 640x360 are valid for the current simulator; common.SIM_KEY
 # differs only because of simulator options these scans do not use
@@ -144,7 +143,7 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
 
     tries = 0
     counts = dict.fromkeys(KINDS, 0)
-    while tries < 60 * per_kind and min(counts.values()) < per_kind:
+    while tries < 25 * per_kind and min(counts.values()) < per_kind:
         tries += 1
         x, y = rig.random_point(rng)
         if not rig.clean_disk(x, y, radius):
@@ -182,7 +181,7 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
             tprof = M.line_profile(rig.truth, spec, (x, y), (x3, y3), 1.0)
             ba, bb = (1.0, 5.0), (17.0, 21.0)
             ea = M.line_profile(rig.edge.astype(np.float32), spec, (x, y), (x3, y3), 2.0)
-            clean = lambda band: np.nanmax(  # noqa: E731
+            clean = lambda band, ea=ea: np.nanmax(  # noqa: E731
                 np.where((ea.distance_mm >= band[0] - 0.5) & (ea.distance_mm <= band[1] + 0.5),
                          ea.height_mm, 0.0)) == 0.0
             if counts["step height"] < per_kind and clean(ba) and clean(bb):
@@ -265,7 +264,6 @@ def main() -> None:
     rows: list[dict] = []
     for seed in seeds:
         for draw in range(args.draws):
-            t0 = time.perf_counter()
             try:
                 rig = Rig(seed, draw, args.noise_px, args.trials)
             except Exception as exc:  # noqa: BLE001 - a rig the product refuses is a result

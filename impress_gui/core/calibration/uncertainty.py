@@ -295,9 +295,11 @@ def calibration_key(cal, target: TargetModel, sigma_px: float, n: int, seed: int
 
 
 def calibration_ensemble(cal, target: TargetModel, click_sigma_px: float | None = None,
-                         n: int = DEFAULT_TRIALS, seed: int = DEFAULT_SEED) -> CalibrationEnsemble:
+                         n: int = DEFAULT_TRIALS, seed: int = DEFAULT_SEED,
+                         cancel=None) -> CalibrationEnsemble:
     """The Monte Carlo trials of ``cal`` (fitted with ``target``); ``click_sigma_px`` None:
-    :func:`click_sigma`. Deterministic (``seed``) and cached."""
+    :func:`click_sigma`. Deterministic (``seed``) and cached. ``cancel``: a
+    :class:`~impress_gui.core.base.progress.CancelToken` checked before each trial."""
     if click_sigma_px is None:
         sigma, source = click_sigma(cal)
     else:
@@ -315,6 +317,8 @@ def calibration_ensemble(cal, target: TargetModel, click_sigma_px: float | None 
     refine = all(f.method == "stripe-fit" for f in cal.planes.values())
     results = [_trial(cal, target, picks, segs, rng, 0.0, dt, refine)]
     for _ in range(n):
+        if cancel is not None:
+            cancel.check()
         try:
             results.append(_trial(cal, target, picks, segs, rng, sigma, dt, refine))
         except CalibrationError:  # a trial the solver refuses is left out (counted)
@@ -327,7 +331,7 @@ def calibration_ensemble(cal, target: TargetModel, click_sigma_px: float | None 
                          np.array([r[2] for r in rs]), np.ones(len(rs)))
 
     base, trials = params(results[:1]), params(results[1:])
-    if trials.size < max(10, n // 2):
+    if trials.size < max(2, n // 2):
         raise CalibrationError("the calibration's Monte Carlo failed in most trials")
     arr = np.array([[r[3], r[4], r[5]] for r in results[1:]])
     summary = {"trials": trials.size, "refused": n - trials.size,

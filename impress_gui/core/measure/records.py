@@ -138,8 +138,8 @@ def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None
     """Leading ``# key: value`` lines of ``provenance`` (software version, the open
     reconstruction's hashes), then one row per measurement: number, id, kind, label, note,
     points, every value (with the uncertainties ``u_c_*_mm`` and ``U_k2_*_mm`` when measured
-    with them), and the layer and heightmap SHA-256 it was measured on; when any measurement
-    has an uncertainty budget, a last column ``uncertainty_budget`` holds it as JSON."""
+    with them), the budgets as JSON in a column ``uncertainty_budget`` (only when a measurement
+    has one), and the layer and heightmap SHA-256 it was measured on."""
     value_keys: list[str] = []
     n_pts = 0
     for m in measurements:
@@ -154,8 +154,8 @@ def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None
     buf.write(csv_header(provenance))
     w = csv.writer(buf, lineterminator="\n")
     with_budget = any(m.get("uncertainty") for m in measurements)
-    w.writerow(head + value_keys + ["layer", "heightmap_sha256"]
-               + (["uncertainty_budget"] if with_budget else []))
+    w.writerow(head + value_keys + (["uncertainty_budget"] if with_budget else [])
+               + ["layer", "heightmap_sha256"])
     for k, m in enumerate(measurements, 1):
         row = [k, m.get("id", ""), m.get("kind", ""), m.get("label", ""), m.get("note", "")]
         pts = list(m.get("points_mm", []))
@@ -164,9 +164,9 @@ def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None
         vals = m.get("values", {})
         row += [_fmt(vals.get(key)) for key in value_keys]
         params = m.get("params") or {}
-        row += [params.get("layer") or "", params.get("heightmap_sha256") or ""]
         if with_budget:
             b = m.get("uncertainty")
             row.append(json.dumps(b, separators=(",", ":"), sort_keys=True) if b else "")
+        row += [params.get("layer") or "", params.get("heightmap_sha256") or ""]
         w.writerow(row)
     return buf.getvalue()

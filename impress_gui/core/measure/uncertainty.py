@@ -42,6 +42,8 @@ import numpy as np
 from impress_gui.core.reconstruction.grid import GridSpec
 
 K = 2.0
+#: the largest ring (mm) over which the scatter of nearby means is taken for a difference
+RING_MAX_MM = 15.0
 SPEED_FLOOR_REL = 0.001  # the servo's own speed regulation, as a relative half-width
 LASER_NAMES = ("green", "red")
 
@@ -150,6 +152,9 @@ class UncertaintyContext:
     level_support: Sequence | None = None  # (x, y) points the plane was fitted to
     notes: list = field(default_factory=list)
     laser: str | None = None  # the heights are one laser's ("green", "red"), not fused
+    #: the scanner's lateral sampling (mm) across the scan (one camera column) and along it
+    #: (one frame's travel); None: unknown
+    sampling_mm: tuple[float, float] | None = None
 
     @classmethod
     def for_calibration(cls, height, spec, cal=None, target=None, contribution=None,
@@ -175,7 +180,8 @@ class UncertaintyContext:
         return cls(height, spec, contribution, ens,
                    None if cal is None else float(cal.speed_mm_s),
                    None if cal is None else float(cal.implied_speed_mm_s),
-                   validation=validation, level_plane=level_plane, notes=notes)
+                   validation=validation, level_plane=level_plane, notes=notes,
+                   sampling_mm=None if cal is None else lateral_sampling(cal))
 
     # ----- helpers ---------------------------------------------------------------------------
     def lasers_at(self, x, y) -> list[tuple[str, float]]:
@@ -218,6 +224,14 @@ class UncertaintyContext:
             return None
         rel = abs((self.implied_speed_mm_s or self.speed_mm_s) / self.speed_mm_s - 1.0)
         return max(rel, SPEED_FLOOR_REL)
+
+
+def lateral_sampling(cal) -> tuple[float, float]:
+    """The scanner's lateral sampling at the reference plane: one camera column across the
+    scan (depth / focal length) and one frame's travel along it (speed / frame rate)."""
+    z = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
+    k = cal.intrinsics.camera_matrix
+    return abs(z) / float(k[0, 0]), float(cal.speed_mm_s) / float(cal.fps)
 
 
 def _cell(spec: GridSpec, x: float, y: float) -> tuple[int, int]:
@@ -275,7 +289,7 @@ def patch_noise(height: np.ndarray, spec: GridSpec, x: float, y: float, radius_m
 
 
 def disk_repeatability(height: np.ndarray, spec: GridSpec, x: float, y: float,
-                       radius_mm: float) -> tuple[float, int]:
+                       radius_mm: float, ring_mm: float | None = None) -> tuple[float, int]:
     """The scatter of a disk mean at this scale: the means of the disk at ``(x, y)`` and of 8
     disks of the same radius on a ring around it (3 radii + 0.5 mm away, radius at least
     0.5 mm) about a plane through them; ``(SD, disks used)``. It sees errors correlated over
@@ -284,7 +298,7 @@ def disk_repeatability(height: np.ndarray, spec: GridSpec, x: float, y: float,
     from impress_gui.core.measure.readings import readout
 
     r = max(radius_mm, 0.5)
-    ring = 3 * r + 0.5
+    ring = max(3 * r + 0.5, ring_mm or 0.0)
     pts = [(x, y)] + [(x + ring * math.cos(a), y + ring * math.sin(a))
                       for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)]
     vals = []
@@ -351,7 +365,8 @@ def _grid_component(ctx: UncertaintyContext, sens_mm_per_mm: float, n_coords: fl
                      f"cell {ctx.spec.pixel_mm:g} mm, half-width {ctx.spec.pixel_mm / 2:g} mm")
 
 
-def point_noise(ctx: UncertaintyContext, readout) -> tuple[float, str]:
+def point_noise(ctx: UncertaintyContext, readout, ring_mm: float | None = None
+                ) -> tuple[float, str]:
     """The surface noise of one point reading (mean over its radius): the larger of the
     standard error of its cells (effective count) and the scatter of such means nearby
     (:func:`disk_repeatability`); its standard uncertainty and how it was found."""
@@ -362,7 +377,7 @@ def point_noise(ctx: UncertaintyContext, readout) -> tuple[float, str]:
     else:
         n_eff, n = 1.0, 1
     se = sigma / math.sqrt(max(n_eff, 1.0)) if math.isfinite(sigma) else math.nan
-    rep, k = disk_repeatability(ctx.height, ctx.spec, x, y, readout.radius_mm)
+    rep, k = disk_repeatability(ctx.height, ctx.spec, x, y, readout.radius_mm, ring_mm)
     u = float(np.nanmax([se, rep])) if np.isfinite([se, rep]).any() else math.nan
     how = (f"cells: SD {sigma:.4f} mm, n {n}, effective n {n_eff:.1f}, standard error "
            f"{se:.4f} mm; {k} neighbouring means scatter {rep:.4f} mm; the larger taken")
@@ -465,7 +480,8 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
     if d is not None:
         dh = d[2]
         comps += _cal_component(dh[:, :3] @ w - dh[:, 3], "depth below the plane", ctx)
-    us = np.array([point_noise(ctx, r)[0] for r in (*support, readout)])
+    ring = min(RING_MAX_MM, float(np.median(np.hypot(pts[:, 0] - x, pts[:, 1] - y))))
+    us = np.array([point_noise(ctx, r, ring)[0] for r in (*support, readout)])
     u = float(math.sqrt(np.nansum((np.append(w, 1.0) * us) ** 2)))
     comps.append(Component("surface noise", "means at the point and the three plane points", "A",
                            "normal", u, "mm", 1.0, u,
@@ -499,8 +515,8 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
         noise = []
         for p in (a, b):
             _, _, _, gx, gy = patch_noise(ctx.height, ctx.spec, p.x_mm, p.y_mm, p.radius_mm)
-            noise.append((point_noise(ctx, p)[0], math.hypot(gx, gy) if math.isfinite(gx)
-                          else 0.0))
+            noise.append((point_noise(ctx, p, min(xy, RING_MAX_MM))[0],
+                           math.hypot(gx, gy) if math.isfinite(gx) else 0.0))
         u_noise = math.sqrt(sum(u * u for u, _ in noise if math.isfinite(u)))
         slope = math.sqrt(sum(g * g for _, g in noise))
         dz = r.dz_mm
@@ -620,8 +636,9 @@ def width_budget(ctx: UncertaintyContext, profile, width) -> Budget:
     us = []
     for dd in ds:
         i = int(np.clip(np.searchsorted(profile.distance_mm, dd), 2, len(profile.height_mm) - 3))
-        seg = np.asarray(profile.height_mm[i - 2:i + 3], float)
-        slope = abs(np.nanmean(np.diff(seg))) / max(1e-9, float(np.median(
+        seg = np.diff(np.asarray(profile.height_mm[i - 2:i + 3], float))
+        seg = seg[np.isfinite(seg)]
+        slope = (abs(float(seg.mean())) if seg.size else 0.0) / max(1e-9, float(np.median(
             np.diff(profile.distance_mm))))
         sg, _, _ = series_noise(_band_values(profile, (dd - 1.0, dd + 1.0)))
         sg = sg if math.isfinite(sg) else 0.0
@@ -630,6 +647,16 @@ def width_budget(ctx: UncertaintyContext, profile, width) -> Budget:
     comps.append(Component("surface noise", "positions of the crossings", "A", "normal", u, "mm",
                            1.0, u, "height noise near each crossing over the wall's slope"))
     comps.append(_grid_component(ctx, 1.0, 2.0, "positions of the two crossings"))
+    if ctx.sampling_mm is not None:
+        s_mm = math.hypot(ux * ctx.sampling_mm[0], uy * ctx.sampling_mm[1])
+        u1 = s_mm / math.sqrt(3.0)
+        comps.append(Component("lateral sampling", "where each wall lies between two samples",
+                               "B", "rectangular", u1, "mm", math.sqrt(2.0),
+                               math.sqrt(2.0) * u1,
+                               f"one sample along the profile {s_mm:.3f} mm (a camera column "
+                               f"{ctx.sampling_mm[0]:.3f} mm across the scan, a frame's travel "
+                               f"{ctx.sampling_mm[1]:.3f} mm along it), half-width one sample "
+                               "per wall"))
     return Budget("width at level", width.width_mm, tuple(comps), notes=_notes(ctx))
 
 

@@ -10,8 +10,9 @@ from __future__ import annotations
 from PySide6.QtCore import QObject, QRectF, Signal
 from PySide6.QtGui import QUndoStack
 
-from impress_gui.core.base.errors import ImpressError
+from impress_gui.core.base.errors import Cancelled, ImpressError
 from impress_gui.core.measure import readings as M
+from impress_gui.core.measure import uncertainty as U
 from impress_gui.core.project.project import Project
 from impress_gui.session.session import Session
 from impress_gui.ui.messages import Messenger
@@ -28,6 +29,7 @@ from impress_gui.ui.viewer.undo import (
     LevellingChange,
     RemoveMeasurement,
 )
+from impress_gui.ui.worker import LatestOnly
 
 
 class Levelling(QObject):
@@ -184,6 +186,110 @@ class Levelling(QObject):
             )
 
 
+class UncertaintyProvider(QObject):
+    """What the viewer's readings' uncertainty budgets are computed from
+    (:class:`~impress_gui.core.measure.uncertainty.UncertaintyContext`): the heights measured,
+    the lasers' contributions, the levelling plane, and the Monte Carlo of the project's scene
+    calibration with its target model (the project's, or the built-in one), computed once per
+    calibration in the background; ``ready`` fires when it is there. Until then (and without a
+    calibration) budgets are made without the calibration component, and say so."""
+
+    ready = Signal()
+
+    def __init__(self, session: Session, layers: LayerDisplay, parent: QObject | None = None,
+                 trials: int | None = None) -> None:
+        super().__init__(parent)
+        self.session = session
+        self.layers = layers
+        self.trials = trials
+        self._ensembles: dict = {}  # calibration key -> ensemble, or the reason it failed
+        self._running: object | None = None
+        self.worker = LatestOnly(self, "uncertainty")
+        self.worker.finished.connect(self._on_done)
+        self.worker.failed.connect(lambda title, msg: self._on_done((self._running, msg)))
+
+    def _calibration(self):
+        from impress_gui.core.calibration.target import default_target
+
+        p = self.session.project
+        cal = p.calibration
+        if cal is None:
+            return None, None, None
+        target = p.target if p.target is not None else default_target()
+        return cal, target, (id(cal), id(target) if p.target is not None else "builtin")
+
+    def _on_done(self, result) -> None:
+        key, ens = result
+        self._ensembles[key] = ens
+        if self._running == key:
+            self._running = None
+        self.ready.emit()
+
+    def start(self) -> None:
+        """Start the calibration's Monte Carlo when it is neither done nor running."""
+        cal, target, key = self._calibration()
+        if cal is None or key in self._ensembles or self._running == key:
+            return
+        from impress_gui.core.calibration import uncertainty as CU
+
+        kw = {} if self.trials is None else {"n": self.trials}
+
+        def task(_progress, cancel, cal=cal, target=target, key=key):
+            try:
+                return key, CU.calibration_ensemble(cal, target, cancel=cancel, **kw)
+            except Cancelled:
+                raise
+            except Exception as exc:  # noqa: BLE001 - the component is left out, with why
+                return key, f"{type(exc).__name__}: {exc}"
+
+        self._running = key
+        self.worker.submit(task)
+
+    def is_busy(self) -> bool:
+        return self.worker.is_running()
+
+    def context(self) -> U.UncertaintyContext | None:
+        """The context for a reading now (None without a reconstruction)."""
+        recon = self.layers.recon
+        data = recon.data
+        if data is None:
+            return None
+        key = self.layers.measure_key()
+        cal, _target, ck = self._calibration()
+        notes = []
+        ens = None
+        if cal is None:
+            notes.append("no scene calibration in the project: the calibration component "
+                          "is missing")
+        else:
+            got = self._ensembles.get(ck)
+            if got is None:
+                self.start()
+                notes.append("the calibration's Monte Carlo is still running: the calibration "
+                             "component is missing from this budget")
+            elif isinstance(got, str):
+                notes.append(f"calibration component not evaluated: {got}")
+            else:
+                ens = got
+        if recon.plane is not None:
+            notes.append("levelled map: the levelling plane's own calibration error is not "
+                         "subtracted (the calibration component is the unlevelled height's)")
+        contribution = data.layers.get("contribution") if key == "fused" else None
+        ctx = U.UncertaintyContext(
+            self.layers.height(), data.spec, contribution, ens,
+            None if cal is None else float(cal.speed_mm_s),
+            None if cal is None else float(cal.implied_speed_mm_s),
+            None, recon.plane, None, notes)
+        if key in ("green", "red"):
+            ctx.laser = key
+        if cal is not None:
+            ctx.sampling_mm = U.lateral_sampling(cal)
+        return ctx
+
+    def shutdown(self) -> None:
+        self.worker.shutdown()
+
+
 class MeasurementList(QObject):
     """The project's measurements (rulers and annotations): made from the ruler and clicks,
     shown in ``table`` and on the map, edited and deleted there. Each change is in the
@@ -213,6 +319,10 @@ class MeasurementList(QObject):
         self.layers = layers
         self.ruler = ruler
         self.messenger = messenger
+        self.uncertainty = UncertaintyProvider(session, layers, self)
+        ruler.uncertainty = self.uncertainty
+        self.uncertainty.ready.connect(ruler.show_uncertainty)
+        table.details_button.clicked.connect(self.show_details)
         tools.add_ruler_button.clicked.connect(lambda: self.add_ruler_measurement())
         table.edited.connect(self._on_table_edited)
         table.show_button.clicked.connect(self.show_selected)
@@ -250,8 +360,11 @@ class MeasurementList(QObject):
         if self.ruler.step is not None and self.ruler.profile is not None:
             values |= M.step_values(self.ruler.step)
             params["bands_mm"] = self.ruler.bands()
+        budgets = self.ruler.budgets()
+        values = U.with_uncertainty(values, budgets)
         return M.new_measurement(
-            "ruler", self.ruler.points(), values, label=label, params=params
+            "ruler", self.ruler.points(), values, label=label, params=params,
+            uncertainty=U.budgets_json(budgets),
         )
 
     def add_ruler_measurement(self, label: str = "") -> dict | None:
@@ -265,12 +378,15 @@ class MeasurementList(QObject):
     def add_marker(self, x: float, y: float, label: str = "") -> dict:
         r = self.layers.readout(x, y, self.tools.radius.value())
         n = sum(1 for m in self.project.measurements if m.get("kind") == "annotation") + 1
+        ctx = self.uncertainty.context()
+        budgets = {} if ctx is None or not r.has_data else {"": U.height_budget(ctx, r)}
         m = M.new_measurement(
             "annotation",
             [(x, y)],
-            {"height_mm": r.height_mm},
+            U.with_uncertainty({"height_mm": r.height_mm}, budgets),
             label=label or f"mark {n}",
             params=self.params(),
+            uncertainty=U.budgets_json(budgets),
         )
         self.add(m)
         return m
@@ -386,6 +502,14 @@ class MeasurementList(QObject):
         new = self.ruler_record()
         if new is not None:
             self.edit(row, points_mm=new["points_mm"], values=new["values"], params=new["params"])
+
+    def show_details(self) -> None:
+        """The selected measurement's uncertainty budgets in a window of their own."""
+        row = self.table.selected_row()
+        if row is None:
+            self.messenger.info("Uncertainty", "Select a measurement in the list first.")
+            return
+        self.table.show_details(self.project.measurements[row], row + 1)
 
     def delete_selected(self) -> None:
         row = self.table.selected_row()

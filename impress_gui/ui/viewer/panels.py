@@ -9,11 +9,13 @@ from PySide6.QtWidgets import (
     QAbstractItemView,
     QButtonGroup,
     QComboBox,
+    QDialog,
     QDoubleSpinBox,
     QGridLayout,
     QGroupBox,
     QHBoxLayout,
     QLabel,
+    QPlainTextEdit,
     QPushButton,
     QSlider,
     QTableWidget,
@@ -23,6 +25,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from impress_gui.core.measure.uncertainty import budgets_text
 from impress_gui.ui.viewer.map import legend_html
 
 LAYERS = (
@@ -242,14 +245,18 @@ class MeasurementTable(QGroupBox):
         self.clear_button = QPushButton("Clear all")
         self.clear_button.setToolTip("Delete every measurement (Edit > Undo brings them back)")
         self.export_button = QPushButton("Export CSV...")
+        self.details_button = QPushButton("Uncertainty...")
+        self.details_button.setToolTip("The selected measurement's uncertainty budget: each "
+                                       "component, its standard uncertainty and sensitivity")
         for b in (self.show_button, self.update_button, self.delete_button):
             row.addWidget(b)
         v.addLayout(row)
         row = QHBoxLayout()  # a second row: the panel stays narrow enough to show them all
-        for b in (self.clear_button, self.export_button):
+        for b in (self.details_button, self.clear_button, self.export_button):
             row.addWidget(b)
         v.addLayout(row)
         self._filling = False
+        self.details_dialog: QDialog | None = None
 
     def fill(self, measurements: list[dict]) -> None:
         self._filling = True
@@ -268,9 +275,33 @@ class MeasurementTable(QGroupBox):
                 if c in (2, 4):
                     flags |= Qt.ItemFlag.ItemIsEditable
                 item.setFlags(flags)
+                if c == 3 and m.get("uncertainty"):
+                    item.setToolTip(budgets_text(m["uncertainty"]))
                 self.table.setItem(r, c, item)
         self.table.resizeColumnsToContents()
         self._filling = False
+
+    def show_details(self, m: dict, number: int) -> QDialog:
+        """A window with measurement ``number``'s uncertainty budgets (``m``'s record)."""
+        if self.details_dialog is not None:
+            self.details_dialog.close()
+        d = QDialog(self)
+        d.setWindowTitle(f"Uncertainty budget of measurement {number}")
+        lay = QVBoxLayout(d)
+        text = QPlainTextEdit(d)
+        text.setReadOnly(True)
+        budgets = m.get("uncertainty")
+        text.setPlainText(budgets_text(budgets) if budgets else
+                          "This measurement was recorded without an uncertainty budget.")
+        lay.addWidget(text)
+        close = QPushButton("Close", d)
+        close.clicked.connect(d.close)
+        lay.addWidget(close)
+        d.resize(720, 360)
+        d.text = text
+        self.details_dialog = d
+        d.show()
+        return d
 
     def selected_row(self) -> int | None:
         rows = self.table.selectionModel().selectedRows()
@@ -288,17 +319,30 @@ def _mm(v) -> str:
     return "-" if v is None else f"{v:.3f} mm"
 
 
+def _u(v: dict, key: str) -> str:
+    """`` (± U)`` of a value whose expanded uncertainty is recorded as ``key``."""
+    u = v.get(key)
+    return "" if u is None else f" (± {u:.3f})"
+
+
 def summary(m: dict) -> str:
-    """One line of a measurement's main values."""
+    """One line of a measurement's main values, each with its expanded uncertainty (k = 2)
+    in brackets when it was measured with one."""
     v = m.get("values", {})
     kind = m.get("kind")
     if kind == "ruler":
-        text = f"xy {_mm(v.get('xy_mm'))}, 3D {_mm(v.get('d3_mm'))}, dz {_mm(v.get('dz_mm'))}"
+        text = (f"xy {_mm(v.get('xy_mm'))}{_u(v, 'U_k2_xy_mm')}, 3D {_mm(v.get('d3_mm'))}"
+                f"{_u(v, 'U_k2_3d_mm')}, dz {_mm(v.get('dz_mm'))}{_u(v, 'U_k2_dz_mm')}")
         if "step_mm" in v:
             text += f"; step {_mm(v.get('step_mm'))} ± {_mm(v.get('step_sd_mm'))}"
+            text += "" if v.get("U_k2_step_mm") is None else \
+                f" (U {v['U_k2_step_mm']:.3f} mm)"
+        if any(k.startswith("U_k2") for k in v):
+            text += " [U: k=2]"
         return text
     if kind in ("point", "annotation"):
-        return f"height {_mm(v.get('height_mm'))}"
+        return f"height {_mm(v.get('height_mm'))}{_u(v, 'U_k2_mm')}" + (
+            " [U: k=2]" if v.get("U_k2_mm") is not None else "")
     if kind == "plane":
         return f"tilt {v.get('tilt_deg', 0):.3f}°, RMS {_mm(v.get('rms_mm'))}"
     return ""

@@ -150,7 +150,16 @@ class ProfilePlot(pg.PlotWidget):
     def bands(self) -> dict[str, tuple[float, float]]:
         return {name: tuple(float(v) for v in r.getRegion()) for name, r in self.regions.items()}
 
-    def show_step(self, step: StepHeight | None) -> None:
+    def show_step(self, step: StepHeight | None, budget=None) -> None:
+        """The bands' means (± their SD) on the plot; with the step's uncertainty ``budget``
+        the plot's title states the step ± U (k = 2) and its tooltip the budget."""
+        if step is None or budget is None or not math.isfinite(step.difference_mm):
+            self.setTitle(None)
+            self.setToolTip("")
+        else:
+            self.setTitle(f"step B - A {step.difference_mm:+.3f} mm {budget.short()}",
+                          size="9pt")
+            self.setToolTip(budget.text())
         for name in ("A", "B"):
             stats = None if step is None else (step.a if name == "A" else step.b)
             label, line = self.labels[name], self.means[name]

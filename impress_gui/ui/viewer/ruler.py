@@ -1,6 +1,7 @@
 """The viewer's ruler and its depth profile: a draggable ruler on the map, its readings, the
 profile along it (averaging width) computed in the background on the full-resolution heights,
-and the step height between two reference bands the user places on the profile."""
+and the step height between two reference bands the user places on the profile. Each reading
+is shown with its expanded uncertainty (k = 2); its budget is the label's tooltip."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import math
 from PySide6.QtCore import QObject, Signal
 
 from impress_gui.core.measure import readings as M
+from impress_gui.core.measure import uncertainty as U
 from impress_gui.ui.viewer.layers import LayerDisplay
 from impress_gui.ui.viewer.map import MapView
 from impress_gui.ui.viewer.panels import ToolPanel
@@ -40,6 +42,9 @@ class RulerProfile(QObject):
         self.tools = tools
         self.profile: M.Profile | None = None
         self.step: M.StepHeight | None = None
+        #: where the budgets' context comes from (an UncertaintyProvider; None: no budgets)
+        self.uncertainty = None
+        self.step_budget: U.Budget | None = None
         self.profiler = LatestOnly(self, "profile")
         self.profiler.finished.connect(self._on_profile)
         tools.settings_changed.connect(self.update_profile)
@@ -57,6 +62,9 @@ class RulerProfile(QObject):
     def clear(self) -> None:
         self.map.clear_ruler()
         self.profile = self.step = None
+        self.step_budget = None
+        self.tools.ruler_text.setToolTip("")
+        self.tools.step_text.setToolTip("")
         self.plot.set_profile(None)
         self.plot.show_step(None)
         self.tools.ruler_text.setText("Ruler: choose Ruler and click two points")
@@ -75,15 +83,42 @@ class RulerProfile(QObject):
             self.tools.radius.value(),
         )
 
+    def ruler_budgets(self, r: M.RulerResult | None = None) -> dict[str, U.Budget]:
+        """The budgets of the ruler's readings (``xy``, ``3d``, ``dz``); {} without a context."""
+        r = r or self.result()
+        ctx = None if self.uncertainty is None or r is None else self.uncertainty.context()
+        return {} if ctx is None else U.ruler_budgets(ctx, r)
+
+    def budgets(self) -> dict[str, U.Budget]:
+        """Every reading's budget as it is shown: the ruler's, and the step's when placed."""
+        out = self.ruler_budgets()
+        if self.step is not None and self.step_budget is not None:
+            out["step"] = self.step_budget
+        return out
+
+    def show_uncertainty(self) -> None:
+        """The calibration's Monte Carlo arrived: the readings again, with it."""
+        if self.step is not None:
+            self.update_step(emit=False)
+        else:
+            self.show_reading()
+
     def show_reading(self) -> None:
-        """The ruler's length, 3D length and height difference beside it and in the panel."""
+        """The ruler's length, 3D length and height difference beside it and in the panel,
+        each with its expanded uncertainty U (k = 2); the budgets in the tooltip."""
         r = self.result()
         if r is None:
             return
-        dz = "no data" if math.isnan(r.dz_mm) else f"{r.dz_mm:+.3f} mm"
-        d3 = "-" if math.isnan(r.d3_mm) else f"{r.d3_mm:.3f} mm"
-        text = f"xy {r.xy_mm:.3f} mm | 3D {d3} | dz {dz}"
-        self.tools.ruler_text.setText(f"Ruler: {text}")
+        b = self.ruler_budgets(r)
+
+        def pm(key: str) -> str:
+            return f" (± {b[key].U_mm:.3f})" if key in b and math.isfinite(b[key].U_mm) else ""
+
+        dz = "no data" if math.isnan(r.dz_mm) else f"{r.dz_mm:+.3f} mm{pm('dz')}"
+        d3 = "-" if math.isnan(r.d3_mm) else f"{r.d3_mm:.3f} mm{pm('3d')}"
+        text = f"xy {r.xy_mm:.3f} mm{pm('xy')} | 3D {d3} | dz {dz}"
+        self.tools.ruler_text.setText(f"Ruler: {text}" + (" [± U, k=2]" if b else ""))
+        self.tools.ruler_text.setToolTip("\n\n".join(x.text() for x in b.values()))
         self.map.decorate_ruler(
             text,
             self.tools.width.value(),
@@ -123,6 +158,8 @@ class RulerProfile(QObject):
             return
         if not self.plot.bands_placed():
             self.step = None
+            self.step_budget = None
+            self.tools.step_text.setToolTip("")
             self.plot.show_step(None)
             todo = " and ".join(n for n in ("A", "B") if n not in self.plot.placed)
             self.tools.step_text.setText(
@@ -136,19 +173,31 @@ class RulerProfile(QObject):
         bands = self.plot.bands()
         self.step = M.step_height(self.profile, bands["A"], bands["B"])
         s = self.step
-        self.plot.show_step(s)
+        ctx = None if self.uncertainty is None else self.uncertainty.context()
+        self.step_budget = (None if ctx is None or not math.isfinite(s.difference_mm)
+                            else U.step_budget(ctx, self.profile, s, bands["A"], bands["B"]))
+        self.plot.show_step(s, self.step_budget)
         self.tools.step_text.setStyleSheet("font-weight: bold")
+        unc = ("" if self.step_budget is None else
+               f"\nStep uncertainty U (k=2): {self.step_budget.short()} "
+               f"(u_c {self.step_budget.u_c_mm:.3f} mm; ± above: the bands' SD)")
         self.tools.step_text.setText(
             f"A {s.a.mean_mm:.3f} ± {s.a.sd_mm:.3f} mm (n {s.a.n}), B {s.b.mean_mm:.3f} ± "
             f"{s.b.sd_mm:.3f} mm (n {s.b.n})\nStep B - A: {s.difference_mm:+.3f} ± "
-            f"{s.sd_mm:.3f} mm"
+            f"{s.sd_mm:.3f} mm" + unc
         )
+        self.tools.step_text.setToolTip("" if self.step_budget is None
+                                        else self.step_budget.text())
         self.show_reading()
         if emit:
             self.profile_changed.emit()
 
     def is_busy(self) -> bool:
+        """The profile is being computed (the calibration's Monte Carlo, which can take a
+        minute, is not waited for: the readings are shown again when it arrives)."""
         return self.profiler.is_running()
 
     def shutdown(self) -> None:
         self.profiler.shutdown()
+        if self.uncertainty is not None:
+            self.uncertainty.shutdown()

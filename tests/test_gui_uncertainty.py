@@ -1,0 +1,127 @@
+"""The viewer shows every reading with its expanded uncertainty (issue 22), read off the real
+widgets (pytest-qt, offscreen) on the flat 640x360 scan reconstructed with its calibration: the
+ruler's readings and the step with "± U", the budget (with the calibration's Monte Carlo) in
+their tooltips, the measurement list's value with "± U" and its budget one click away, and the
+exported CSV's columns."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import re
+
+import pytest
+from measure_scans import guard_pyside_none
+from PySide6.QtCore import Qt
+from PySide6.QtTest import QTest
+
+from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.calibration.target import TargetModel
+from impress_gui.core.project.project import Project
+from impress_gui.ui import pyside_fix
+from impress_gui.ui.messages import Messenger
+from impress_gui.ui.viewer.tab import ViewerTab
+
+pyside_fix.guard()
+guard_pyside_none()
+pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
+              pytest.mark.usefixtures("no_stray_python_threads")]
+
+
+class FakeDialogs:
+    answer = ""
+
+    def open_file(self, title, filters, start=""):
+        return self.answer
+
+    save_file = open_file
+
+    def directory(self, title, start=""):
+        return self.answer
+
+
+@pytest.fixture(scope="module")
+def flat_recon(flat_scan, flat_calibration, tmp_path_factory):
+    from impress_gui.core.reconstruction.pipeline import process_files
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams
+
+    out = tmp_path_factory.mktemp("flat-recon") / "recon"
+    process_files(flat_scan / "scan.mp4", flat_calibration, out, ProcessParams())
+    return out
+
+
+def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calibration,
+                                                    flat_recon, tmp_path):
+    project = Project(case_id="U-1")
+    project.set_calibration(SceneCalibration.load(flat_calibration))
+    project.set_target(TargetModel.load(flat_scan / "target.json"))
+    v = ViewerTab(Messenger(None), FakeDialogs())
+    qtbot.addWidget(v)
+    v.resize(1400, 900)
+    v.show()
+    qtbot.waitExposed(v)
+    try:
+        v.measurements.uncertainty.trials = 8  # a quick Monte Carlo for the test
+        v.set_project(project)
+        with qtbot.waitSignal(v.loaded, timeout=60000):
+            v.open_reconstruction(flat_recon)
+        spec = v.data.spec
+        xc = spec.x0_mm + spec.shape[1] * spec.pixel_mm / 2
+        yc = spec.y0_mm + spec.shape[0] * spec.pixel_mm / 2
+        v.tools.radius.setValue(0.5)
+        v.tools.width.setValue(1.0)
+        with qtbot.waitSignal(v.profile_changed, timeout=20000):
+            v.set_ruler((xc - 12.0, yc), (xc + 12.0, yc))
+        # the Monte Carlo runs in the background, then the readings are shown again with it
+        qtbot.waitUntil(lambda: "calibration |" in v.tools.ruler_text.toolTip(), timeout=180000)
+        text = v.tools.ruler_text.text()
+        budgets = v.ruler.budgets()
+        r = v.ruler_result()
+        assert f"xy {r.xy_mm:.3f} mm (± {budgets['xy'].U_mm:.3f})" in text
+        assert f"(± {budgets['dz'].U_mm:.3f})" in text and "k=2" in text
+        u_xy = float(re.search(r"xy [\d.]+ mm \(± ([\d.]+)\)", text).group(1))
+        assert 0 < u_xy < 2.0
+        tip = v.tools.ruler_text.toolTip()
+        for name in ("calibration", "rail speed", "grid resolution", "surface noise"):
+            assert name in tip
+        # the step between two bands, with its U
+        with qtbot.waitSignal(v.profile_changed, timeout=20000):
+            v.set_bands((2.0, 6.0), (16.0, 20.0))
+        st = v.tools.step_text.text()
+        m = re.search(r"Step uncertainty U \(k=2\): ± ([\d.]+) mm", st)
+        assert m and float(m.group(1)) == pytest.approx(v.ruler.step_budget.U_mm, abs=1e-3)
+        assert "calibration" in v.tools.step_text.toolTip()
+        assert "k=2" in v.profile_plot.plotItem.titleLabel.text
+        # the measurement list: value with ± U, the budget in the tooltip and one click away
+        rec = v.add_ruler_measurement("across")
+        assert rec["values"]["U_k2_xy_mm"] == pytest.approx(budgets["xy"].U_mm, abs=1e-4)
+        cell = v.table.table.item(0, 3)
+        assert f"(± {rec['values']['U_k2_xy_mm']:.3f})" in cell.text()
+        assert "U " in cell.text() and "calibration" in cell.toolTip()
+        v.table.table.selectRow(0)
+        QTest.mouseClick(v.table.details_button, Qt.MouseButton.LeftButton)
+        dlg = v.table.details_dialog
+        assert dlg is not None and dlg.isVisible()
+        body = dlg.text.toPlainText()
+        assert "ruler xy" in body and "step height B - A" in body and "U = 2 u_c" in body
+        dlg.close()
+        # a marker: its height with U
+        mk = v.add_marker(xc, yc + 5.0)
+        assert mk["values"]["U_k2_mm"] > 0 and "(± " in v.table.table.item(1, 3).text()
+        # the CSV carries u_c, U and the budget
+        path = tmp_path / "m.csv"
+        with qtbot.waitSignal(v.tasks.done, timeout=60000,
+                              check_params_cb=lambda _w, outcome: outcome == "finished"):
+            assert v.actions.export_measurements_csv(path)
+        rows = list(csv.DictReader(io.StringIO("\n".join(
+            line for line in path.read_text().splitlines() if not line.startswith("#")))))
+        assert float(rows[0]["U_k2_xy_mm"]) == pytest.approx(rec["values"]["U_k2_xy_mm"],
+                                                             abs=1e-4)
+        assert float(rows[0]["u_c_step_mm"]) > 0 and float(rows[1]["U_k2_mm"]) > 0
+        doc = json.loads(rows[0]["uncertainty_budget"])
+        assert "calibration" in {c["name"] for c in doc["xy"]["components"]}
+        assert rows[0]["heightmap_sha256"]  # still the last column
+    finally:
+        v.shutdown()
+        v.messenger.close_all()
