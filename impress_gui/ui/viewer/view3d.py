@@ -568,8 +568,13 @@ class Surface3DWindow(QWidget):
                                           glOptions="opaque")
         self.grid_item = gl.GLLinePlotItem(mode="lines", width=1.0, antialias=True,
                                            glOptions="translucent")
-        self.axes_item = gl.GLLinePlotItem(mode="lines", width=3.0, antialias=False,
-                                           glOptions="opaque")
+        from OpenGL import GL
+
+        # the axes over everything, as in the software view (they start at the surface's lowest
+        # corner, often under the surface)
+        self.axes_item = gl.GLLinePlotItem(
+            mode="lines", width=3.0, antialias=False,
+            glOptions={GL.GL_DEPTH_TEST: False, GL.GL_BLEND: False, GL.GL_CULL_FACE: False})
         from PySide6.QtGui import QColor, QFont
 
         font = QFont()
@@ -617,9 +622,9 @@ class Surface3DWindow(QWidget):
                      "length_mm": length, "grid_mm": spacing, "frame": FRAME_TEXT}
         self.legend.setText(f"Axes x (red), y (green), z (blue): {num} each; grid squares "
                             f"{spacing:g} mm. Frame: {FRAME_TEXT}.")
-        if not self._placed:
+        if not self._placed or not self._placed_by_user:
             self._placed = True
-            self._place_camera()
+            self._place_camera()  # the whole surface, also at a new exaggeration
         self.gl.update()
 
     def _place_camera(self) -> None:
