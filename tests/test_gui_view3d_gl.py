@@ -224,11 +224,42 @@ def gpu_main(out: Path) -> None:
                 img.save(str(out / f"{k}_{name}.png"))
                 about["views"].append(name)
             win.grab().save(str(out / f"{k}_window.png"))
+            if k == 0:  # drag turns the view, the wheel zooms
+                about["interaction"] = interact(app, win)
         about["frames"] = win.frames
         win.close()
         win.deleteLater()
         app.processEvents()
     (out / "result.json").write_text(json.dumps(result, indent=1))
+
+
+def interact(app, win) -> dict:
+    """Drag across the OpenGL view and turn the wheel over it: the azimuth and the camera's
+    distance before and after."""
+    from PySide6.QtCore import QPoint, QPointF, Qt
+    from PySide6.QtGui import QWheelEvent
+    from PySide6.QtTest import QTest
+
+    gl = win.gl
+    before = {"azimuth": win.azimuth, "distance": gl.opts["distance"]}
+    start = gl.rect().center()
+    QTest.mousePress(gl, Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier, start)
+    for dx in range(10, 110, 10):
+        QTest.mouseMove(gl, start + QPoint(dx, 0))
+    QTest.mouseRelease(gl, Qt.MouseButton.LeftButton, Qt.KeyboardModifier.NoModifier,
+                       start + QPoint(100, 0))
+    frames = win.frames
+    end = time.monotonic() + 10
+    while win.frames == frames and time.monotonic() < end:
+        app.processEvents()
+    turned = {"azimuth": win.azimuth}
+    pos = QPointF(start)
+    wheel = QWheelEvent(pos, gl.mapToGlobal(pos), QPoint(0, 0), QPoint(0, 240),
+                        Qt.MouseButton.NoButton, Qt.KeyboardModifier.NoModifier,
+                        Qt.ScrollPhase.NoScrollPhase, False)
+    app.sendEvent(gl, wheel)
+    app.processEvents()
+    return {"before": before, "turned": turned, "distance": gl.opts["distance"]}
 
 
 def read_rgb(path: Path) -> np.ndarray:
@@ -264,6 +295,10 @@ def test_the_gpu_view_under_xvfb(x_display, tmp_path):
             lit = np.abs(img - np.array([40, 40, 48])).sum(axis=2) > 30
             assert 0.15 < lit.mean() < 0.95, (k, name, lit.mean())
             assert img[lit].std(axis=0).max() > 10, (k, name)
+    # dragging to the right turns the surface (the eye goes round it), the wheel zooms in
+    moved = result["windows"][0]["interaction"]
+    assert abs((moved["turned"]["azimuth"] - moved["before"]["azimuth"] + 180) % 360 - 180) > 20
+    assert moved["distance"] < 0.9 * moved["before"]["distance"]
     # chirality: seen from straight above at azimuth 180 (the camera's view of the ground) the
     # red block is in the upper left; from azimuth 0 in the lower right. The camera looks at
     # the surface's centre (the frame's centre); the block's centre is 8 mm left of it (x) and
