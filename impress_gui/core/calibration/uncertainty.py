@@ -182,8 +182,9 @@ def model_picks(cal, target: TargetModel) -> Picks:
     corners = cal.corners_fit_mm(target)
     uv1 = cal.project_rail(corners, 0.0)
     uv2 = cal.project_rail(corners, _pose_travel(cal))
-    return Picks("", cal.t1, cal.t2, {c: tuple(map(float, p)) for c, p in zip(CORNER_NAMES, uv1)},
-                 {c: tuple(map(float, p)) for c, p in zip(CORNER_NAMES, uv2)})
+    return Picks("", cal.t1, cal.t2,
+                 {c: (float(p[0]), float(p[1])) for c, p in zip(CORNER_NAMES, uv1)},
+                 {c: (float(p[0]), float(p[1])) for c, p in zip(CORNER_NAMES, uv2)})
 
 
 def check_target(cal, target: TargetModel, tol_mm: float = 3.0) -> None:
@@ -255,7 +256,8 @@ def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, ref
     if sigma_px > 0:
         noisy = {}
         for key in ("corners_t1", "corners_t2"):
-            noisy[key] = {c: tuple(np.add(v, rng.normal(0.0, sigma_px, 2)))
+            noisy[key] = {c: (float(v[0] + rng.normal(0.0, sigma_px)),
+                              float(v[1] + rng.normal(0.0, sigma_px)))
                           for c, v in getattr(picks, key).items()}
         picks = Picks("", picks.t1, picks.t2, noisy["corners_t1"], noisy["corners_t2"])
     rms = {la: float(cal.planes[la].rms_mm) for la in LASERS} if sigma_px > 0 else None

@@ -36,10 +36,15 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from impress_gui.core.measure.surface import Plane
 from impress_gui.core.reconstruction.grid import GridSpec
+
+if TYPE_CHECKING:
+    from impress_gui.core.calibration.uncertainty import CalibrationEnsemble
 
 K = 2.0
 #: the largest ring (mm) over which the scatter of nearby means is taken for a difference
@@ -144,11 +149,11 @@ class UncertaintyContext:
     height: np.ndarray
     spec: GridSpec
     contribution: np.ndarray | None = None
-    ensemble: object | None = None  # CalibrationEnsemble
+    ensemble: CalibrationEnsemble | None = None
     speed_mm_s: float | None = None
     implied_speed_mm_s: float | None = None
     validation: Mapping | None = None
-    level_plane: object | None = None  # the levelling Plane the heights are relative to
+    level_plane: Plane | None = None  # the levelling plane the heights are relative to
     level_support: Sequence | None = None  # (x, y) points the plane was fitted to
     notes: list = field(default_factory=list)
     laser: str | None = None  # the heights are one laser's ("green", "red"), not fused
@@ -200,18 +205,19 @@ class UncertaintyContext:
         """Per Monte Carlo trial, how the cells ``(x, y)`` with heights ``h`` (the measured,
         unlevelled heights) move: ``(dx, dy, dh)`` each ``(S, N)``; weighted over the lasers
         that made each cell."""
-        if self.ensemble is None:
+        ens = self.ensemble
+        if ens is None:
             return None
         x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, h))
         h = np.where(np.isfinite(h), h, 0.0)
-        s = self.ensemble.n_trials
+        s = ens.n_trials
         out = [np.zeros((s, len(x))) for _ in range(3)]
         for n, (xi, yi) in enumerate(zip(x, y)):
             for laser, w in self.lasers_at(xi, yi):
-                d = self.ensemble.deltas(xi, yi, h[n], laser)
+                d = ens.deltas(xi, yi, h[n], laser)
                 for o, v in zip(out, d):
                     o[:, n] += w * v[:, 0]
-        return tuple(out)
+        return out[0], out[1], out[2]
 
     def raw_height(self, x, y, h):
         """The unlevelled height of a levelled reading (the calibration moves raw heights)."""
@@ -335,6 +341,8 @@ def _cal_component(samples: np.ndarray | None, what: str, ctx: UncertaintyContex
     if samples is None:
         return []
     e = ctx.ensemble
+    if e is None:
+        return []
     u = float(np.std(samples, ddof=1))
     return [Component("calibration", what, "A", f"Monte Carlo, {e.n_trials} trials", u, "mm",
                       1.0, u, f"click noise {e.click_sigma_px:.2f} px ({e.sigma_source}); "
@@ -452,12 +460,16 @@ def _plane_deltas(ctx: UncertaintyContext, x: float, y: float) -> np.ndarray:
     """How the levelling plane at ``(x, y)`` moves per trial: the plane through its support
     points (``ctx.level_support``) as the trials move them; without support points the plane
     is taken not to move (the calibration component is then that of the unlevelled height)."""
-    pl = ctx.level_plane
-    if not ctx.level_support:
-        return np.zeros(ctx.ensemble.n_trials)
-    pts = np.asarray(ctx.level_support, float)[:, :2]
-    raw = pl.at(pts[:, 0], pts[:, 1])
-    dx, dy, dh = ctx.calibration_deltas(pts[:, 0], pts[:, 1], raw)
+    pl, ens = ctx.level_plane, ctx.ensemble
+    if ens is None:
+        return np.zeros(0)
+    d = None
+    if ctx.level_support and pl is not None:
+        pts = np.asarray(ctx.level_support, float)[:, :2]
+        d = ctx.calibration_deltas(pts[:, 0], pts[:, 1], pl.at(pts[:, 0], pts[:, 1]))
+    if d is None:
+        return np.zeros(ens.n_trials)
+    dh = d[2]
     a = np.column_stack([pts[:, 0], pts[:, 1], np.ones(len(pts))])
     coef = np.linalg.lstsq(a, dh.T, rcond=None)[0]  # (3, S)
     return coef[0] * x + coef[1] * y + coef[2]
@@ -469,7 +481,7 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
     from impress_gui.core.measure.surface import plane_from_points
 
     pts = np.array([[s.x_mm, s.y_mm, s.height_mm] for s in support], float)
-    plane = plane_from_points(pts)
+    plane = plane_from_points(pts.tolist())
     x, y, h = readout.x_mm, readout.y_mm, readout.height_mm
     depth = float(plane.at(x, y) - h)
     m = np.column_stack([pts[:, 0], pts[:, 1], np.ones(3)])
