@@ -87,11 +87,17 @@ def test_the_software_view_can_be_chosen(monkeypatch, qtbot):
     from impress_gui.ui.viewer.view3d import RENDERER_ENV, Surface3DWindow, opengl_check
 
     monkeypatch.setenv(RENDERER_ENV, "software")
-    assert opengl_check() == ("Software rendering was chosen.", f"{RENDERER_ENV}=software")
+    assert opengl_check() == ("OpenGL is switched off.", f"{RENDERER_ENV}=software")
     h, tex = scene()
-    win = Surface3DWindow(h, SPEC, tex, renderer="software")
+    win = Surface3DWindow(h, SPEC, tex)
     qtbot.addWidget(win)
-    assert win.renderer == "software" and win.message.text().startswith("Software rendering")
+    assert win.renderer == "software"
+    assert win.message.text().startswith("OpenGL is switched off. Software rendering")
+    assert win.message.toolTip() == f"{RENDERER_ENV}=software"
+    monkeypatch.delenv(RENDERER_ENV)
+    win2 = Surface3DWindow(h, SPEC, tex, renderer="software")
+    qtbot.addWidget(win2)
+    assert win2.renderer == "software" and win2.message.text().startswith("Software rendering")
 
 
 def test_pyopengl_is_installed():

@@ -264,7 +264,7 @@ def opengl_check() -> tuple[str, str]:
 
     platform = QGuiApplication.platformName()
     if os.environ.get(RENDERER_ENV, "").strip().lower() == "software":
-        return "Software rendering was chosen.", f"{RENDERER_ENV}=software"
+        return "OpenGL is switched off.", f"{RENDERER_ENV}=software"
     if platform in NO_GL_PLATFORMS:
         return "This display has no OpenGL.", f"Qt platform {platform!r} has no OpenGL windows"
     if platform not in _gl_checked:
