@@ -591,8 +591,10 @@ class Surface3DWindow(QWidget):
         e = self.exaggeration.value()
         m = surface_mesh(self.height_mm, self.spec, self.colours, e)
         self.mesh = m
-        self.surface_item.setMeshData(vertexes=m["vertexes"], faces=m["faces"],
-                                      vertexColors=m["colors"])
+        if len(m["faces"]):
+            self.surface_item.setMeshData(vertexes=m["vertexes"], faces=m["faces"],
+                                          vertexColors=m["colors"])
+        self.surface_item.setVisible(bool(len(m["faces"])))  # no heights: nothing to draw
         (x0, y0, z0), (sx, sy, _sz) = m["lows"], m["spans"]
         length = nice_length(0.3 * max(sx, sy))
         spacing = nice_length(max(sx, sy) / 8)
