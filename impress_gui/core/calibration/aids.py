@@ -202,15 +202,21 @@ def refine_corner(rgb: np.ndarray, uv_px, radius_px: int | None = None) -> Corne
 def _stripe_profiles(video, step: int, progress: ProgressCallback | None,
                      cancel: CancelToken) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Every ``step``-th frame's stripe rows per laser and column: ``(frames, {laser: (K, W)})``
-    (NaN where a column has no stripe). The regions of interest are widened to a quarter of
-    the image height so that the stripe displaced by the target stays inside them; the stripe
-    is detected with the calibration's fallback for a stripe blooming on the light target."""
+    (NaN where a column has no stripe). Each laser's band of rows reaches from the other
+    laser's band to the picture's edge, so that the stripe displaced by a tall target stays
+    inside it; the stripe is detected with the calibration's fallback for a stripe blooming on
+    the light target."""
     n = video.frame_count
     probe = [video.read(int(k)) for k in np.linspace(0, n - 1, 6).astype(int)]
+    h = probe[0].shape[0]
     try:
-        rois = auto_rois(probe, margin_px=max(12, probe[0].shape[0] // 4))
+        rois = auto_rois(probe, margin_px=max(12, h // 4))
     except InputError:
         rois = _dim_rois(probe)
+    # the bands reach the picture's edges on their outer sides (a tall target can displace a
+    # stripe further than a margin); their inner sides stay apart
+    lo, hi = sorted(LASERS, key=lambda name: rois[name][0])
+    rois = {lo: (0, rois[lo][1]), hi: (rois[hi][0], h)}
     params = StripeParams(rois=rois)
     rows: dict[str, list] = {name: [] for name in LASERS}
     frames = []
@@ -248,7 +254,7 @@ def _dim_rois(probe: list[np.ndarray]) -> dict[str, tuple[int, int]]:
         raise InputError("the two lasers' stripes cannot be told apart in the sampled frames",
                          code=codes.E_NO_STRIPE)
     cut = (peaks[lo] + peaks[hi]) // 2
-    return {lo: (max(0, peaks[lo] - h // 3), cut), hi: (cut, min(h, peaks[hi] + h // 3))}
+    return {lo: (0, cut), hi: (cut, h)}
 
 
 def _ground_rows(rows: np.ndarray, h: int) -> np.ndarray:
@@ -516,7 +522,11 @@ def _choose_frames(runs: dict[str, dict], w: int, h: int) -> dict[str, int]:
     m_good = 0.08 * min(w, h)
     out = {}
     for key, run in (("t1", g), ("t2", r)):
-        f0, f1 = int(run["frames"][0]), int(run["frames"][-1])
+        # the frames with the stripe across both faces (each over its whole width)
+        f0 = max(int(run["frames"][0]), *(run["faces"][f]["ends"][0][0] for f in run["faces"]))
+        f1 = min(int(run["frames"][-1]), *(run["faces"][f]["ends"][1][0] for f in run["faces"]))
+        if f1 < f0:
+            f0, f1 = int(run["frames"][0]), int(run["frames"][-1])
         ks = np.arange(f0, f1 + 1)
         frac = np.minimum(ks - f0, f1 - ks) / max(f1 - f0, 1)
         if v is None or not seen:
@@ -526,7 +536,7 @@ def _choose_frames(runs: dict[str, dict], w: int, h: int) -> dict[str, int]:
                                  axis=1)
             margin = np.minimum.reduce([pts[..., 0].min(axis=1), w - pts[..., 0].max(axis=1),
                                         pts[..., 1].min(axis=1), h - pts[..., 1].max(axis=1)])
-            score = np.minimum.reduce([margin / m_good, frac / 0.12, np.ones_like(frac)])
+            score = np.minimum.reduce([margin / m_good, frac / 0.2, np.ones_like(frac)])
         top = np.flatnonzero(score >= score.max() - 1e-9)
         early = (key == "t1") == green_first
         out[key] = int(ks[top[0]] if early else ks[top[-1]])
