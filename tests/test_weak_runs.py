@@ -94,3 +94,40 @@ def test_the_ratio_is_a_recorded_checked_parameter():
     with pytest.raises(InputError):
         ProcessParams(weak_run_ratio=1.5).validate()
     assert long_run_columns(1920) == 32 and long_run_columns(320) == 8
+
+
+# ----- a stripe saturating its own channel on soil of its own colour ---------------------------
+ORANGE_SOIL = (235, 183, 133)  # light orange soil under random rig 4's red stripe (frame 120)
+GREENISH_SOIL = (150, 190, 90)
+RED_LASER = (1.0, 0.118, 0.177)  # random rig 4's red laser: green/blue crosstalk
+GREEN_LASER = (0.26, 1.0, 0.26)
+
+
+def test_a_red_stripe_saturated_on_orange_soil_is_found_and_not_taken_for_green():
+    from dataclasses import replace
+
+    from test_calibration_blooming import _frame
+
+    from impress_gui.core.reconstruction.stripes import StripeParams, detect_band
+
+    rgb = _frame([(20.3, 0.05, 4.3, RED_LASER)], background=ORANGE_SOIL)
+    assert rgb[20:23, 10, 0].min() >= 250  # red saturated in the core
+    before = detect_band("red", rgb, 0, replace(StripeParams(), min_headroom_lean=np.inf), None)
+    res = detect_band("red", rgb, 0, StripeParams(), None)
+    # the chroma of the light it adds leans away from red: refused by the chroma test alone
+    assert before.found.mean() < 0.1
+    assert res.found.mean() > 0.9
+    true_rows = 20.3 + 0.05 * np.arange(rgb.shape[1])
+    assert np.nanmax(np.abs(res.rows - true_rows)) < 0.3
+    # the rescue never makes a detector take the other laser's stripe: on this soil and on
+    # greenish soil, dim to blooming, it finds no more of it than the chroma test alone (the
+    # regions of interest keep the other stripe out of a laser's rows in the product)
+    off = replace(StripeParams(), min_headroom_lean=np.inf)
+    for soil in (ORANGE_SOIL, GREENISH_SOIL):
+        for laser, colour in (("red", GREEN_LASER), ("green", RED_LASER)):
+            for power in (0.5, 1.4, 4.3):
+                f = _frame([(20.3, 0.05, power, colour)], background=soil)
+                with_rescue = detect_band(laser, f, 0, StripeParams(), None).found.mean()
+                without = detect_band(laser, f, 0, off, None).found.mean()
+                assert with_rescue <= without + 0.02, (soil, laser, power)
+    assert detect_band("green", rgb, 0, StripeParams(), None).found.mean() < 0.05

@@ -90,9 +90,34 @@ def _window(y, c, centre, k, rr, sig):
     return top, wsum, (acc / wsum) if wsum > 0 else np.nan
 
 
+@_jit
+def _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch):
+    """``stripes.headroom_lean`` of column ``c``'s window of rows ``rr`` (``n`` rows); ``ch``
+    is the laser's RGB channel (0 red, 1 green), the other laser's is ``1 - ch``. -inf when the
+    other laser's channel is saturated (>= 250) in any of the window's rows."""
+    a = _rgb(float(y[rr[0], c]), float(cb[rr[0] >> sh, cc]), float(cr[rr[0] >> sh, cc]))
+    b = _rgb(float(y[rr[n - 1], c]), float(cb[rr[n - 1] >> sh, cc]),
+             float(cr[rr[n - 1] >> sh, cc]))
+    oc = 1 - ch
+    bg_c = 0.5 * (a[ch] + b[ch])
+    bg_o = 0.5 * (a[oc] + b[oc])
+    hc = max(255.0 - bg_c, 8.0)
+    ho = max(255.0 - bg_o, 8.0)
+    if a[oc] >= 250.0 or b[oc] >= 250.0:
+        return -np.inf
+    total = 0.0
+    for j in range(1, n - 1):
+        r = rr[j]
+        px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+        if px[oc] >= 250.0:
+            return -np.inf
+        total += (px[ch] - bg_c) / hc - (px[oc] - bg_o) / ho
+    return total
+
+
 @_kernel(
     "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), Tuple((int64[:], int64)), "
-    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64)), "
+    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64)), "
     "Tuple((boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64)), "
     "UniTuple(int64[:], 2), Tuple((float64[:], float32[:])))"
 )
@@ -105,8 +130,8 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     * ``band = (band_start, band_height)``: rows searched in each column;
     * ``laser = (sign, ch, o1, o2)``: +1 red / -1 green (the chroma lean), the laser's RGB
       channel and the other two;
-    * ``peak = (min_peak, k, max_width, max_wrong_lean)``: the peak tests (``k``: the half
-      window);
+    * ``peak = (min_peak, k, max_width, max_wrong_lean, min_headroom_lean)``: the peak tests
+      (``k``: the half window);
     * ``colour = (use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut,
       lut_margin)``: the method's colour tests; ``lut`` is a (64, 64) table or an empty
       (0, 0) array;
@@ -115,7 +140,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     y, cb, cr, s = frame
     band_start, band_height = band
     sign, ch, o1, o2 = laser
-    min_peak, k, max_width, max_wrong_lean = peak
+    min_peak, k, max_width, max_wrong_lean, min_headroom_lean = peak
     use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut, lut_margin = colour
     sdiv, hdiv = hsv
     rows_out, strength_out = out
@@ -206,7 +231,10 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
                 lean += sign * (float(cr[rr[j] >> sh, cc]) - bg)
                 nh += 1
         if lean / max(nh, 1) <= -max_wrong_lean:
-            continue
+            # a stripe saturating its own channel on a surface of its colour: the headroom
+            # shares decide (stripes.headroom_lean)
+            if not _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch) >= min_headroom_lean:
+                continue
         # 4. the method's colour test on the central rows
         colour = False
         for j in range(k - 3, k + 4):

@@ -48,6 +48,9 @@ class StripeParams:
     lut_margin: int = 6
     min_tint: int = 12
     max_wrong_lean: float = 4.0  # chroma units: the halo leaning to the other laser's colour
+    # ... unless the stripe used more of its own channel's headroom than of the other laser's
+    # (summed shares over the window's rows; see headroom_lean); inf: never
+    min_headroom_lean: float = 0.3
     max_width_px: int = 20
 
     def validate(self, height: int | None = None) -> None:
@@ -152,7 +155,7 @@ class StripeDetector:
             (np.ascontiguousarray(band_start, dtype=np.int64), int(band_height)),
             (1 if name == "red" else -1, _CH[name], o1, o2),
             (float(params.min_peak), int(params.half_window_px), int(params.max_width_px),
-             float(params.max_wrong_lean)),
+             float(params.max_wrong_lean), float(params.min_headroom_lean)),
             (method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
              np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
              int(params.min_value), method == "combined", float(params.min_tint), table,
@@ -252,7 +255,15 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
     cr_bg = 0.5 * (crw[0] + crw[-1])
     halo = (sig > 0.2 * top) & (sig < 0.65 * top)
     lean = (sign * (crw - cr_bg) * halo).sum(axis=0) / np.maximum(halo.sum(axis=0), 1)
-    ok &= lean > -params.max_wrong_lean  # only a clear lean to the other colour refuses
+    # ... except when the stripe saturates its own channel on a surface of its own colour (a
+    # red stripe on orange soil): it can only add the other channels there, which shifts the
+    # chroma away from its colour. Then the share of each channel's headroom the stripe used
+    # decides (:func:`headroom_lean`): its own channel's share must exceed the other laser's.
+    wrong = lean <= -params.max_wrong_lean
+    if wrong.any():
+        hl = headroom_lean(name, planes.rgb(rr[:, wrong], cols[None, wrong]))
+        wrong[wrong] = hl < params.min_headroom_lean
+    ok &= ~wrong  # only a clear lean to the other colour refuses
     # the method's colour test on the central rows (a white core sits between coloured halo)
     core = slice(k - 3, k + 4)
     rgb = planes.rgb(rr[core], cols[None, :])  # (7, W, 3)
@@ -268,6 +279,22 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
     ok &= colour.any(axis=0)
     out_rows = np.where(ok, centre, np.nan)
     return StripeResult(out_rows, np.where(ok, top, 0).astype(np.float32))
+
+
+def headroom_lean(name: str, win_rgb: np.ndarray) -> np.ndarray:
+    """How far the light in windows of rows leans to laser ``name``'s colour, whatever the
+    surface's own colour: ``win_rgb`` is ``(2k+1, N, 3)`` (rows of each column's window); the
+    background is the mean of the two end rows; over the inner rows, the share of each
+    channel's headroom above the background (255 - background, at least 8) that the light
+    used, this laser's channel minus the other laser's, summed; -inf where the other laser's
+    channel is saturated (>= 250) in any row: light that saturates both channels cannot be
+    told apart (a green laser with red crosstalk saturates red on orange soil too)."""
+    c, o = _CH[name], _CH["red" if name == "green" else "green"]
+    win = np.asarray(win_rgb, np.float64)
+    bg = 0.5 * (win[0] + win[-1])
+    share = (win[1:-1] - bg) / np.maximum(255.0 - bg, 8.0)
+    lean = (share[..., c] - share[..., o]).sum(axis=0)
+    return np.where((win[..., o] >= 250.0).any(axis=0), -np.inf, lean)
 
 
 def detect_band(name: str, rgb_band: np.ndarray, row0: int, params: StripeParams,
