@@ -193,3 +193,15 @@ def test_a_bad_name_gives_a_coded_message(qtbot, window, tmp_path):
     assert "Traceback" not in text and not window.messenger.last_box.detailedText()
     assert not (tmp_path / "cast.step").exists() and len(v.project.outputs) == n_outputs
     assert np.isfinite(v.data.layers["fused"]).any()  # the viewer still shows its data
+
+
+def test_the_file_menu_exports_the_cast(qtbot, window):
+    """File > Export > Digital cast is the viewer's own action (it opens the same dialog)."""
+    file_menu = next(a.menu() for a in window.menuBar().actions() if a.text() == "&File")
+    export = next(a.menu() for a in file_menu.actions() if a.text() == "&Export")
+    assert window.viewer_tab.cast_action in export.actions()
+    export.actions()[0].trigger()
+    dlg = window.viewer_tab.actions.cast_dialog
+    assert dlg is not None
+    qtbot.waitExposed(dlg)
+    dlg.reject()

@@ -191,6 +191,10 @@ class MainWindow(QMainWindow):
             "Re-hash the video and check the project log",
         )
         m.addSeparator()
+        export = m.addMenu("&Export")
+        # the viewer's digital cast (its own action: enabled with the viewer's exports)
+        export.addAction(self.viewer_tab.cast_action)
+        m.addSeparator()
         act(m, "&Quit", self.close, QKeySequence.StandardKey.Quit)
         self._build_edit_menu(act)
         view = self.menuBar().addMenu("&View")
