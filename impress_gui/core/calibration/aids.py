@@ -211,6 +211,9 @@ def _stripe_profiles(video, step: int, progress: ProgressCallback | None,
     h = probe[0].shape[0]
     try:
         rois = auto_rois(probe, margin_px=max(12, h // 4))
+        a, b = sorted(rois.values())
+        if a[1] > b[0]:  # overlapping bands: one laser's light counted in the other's
+            raise InputError("overlapping bands", code=codes.E_NO_STRIPE)
     except InputError:
         rois = _dim_rois(probe)
     # the bands reach the picture's edges on their outer sides (a tall target can displace a
@@ -236,23 +239,33 @@ def _stripe_profiles(video, step: int, progress: ProgressCallback | None,
 
 def _dim_rois(probe: list[np.ndarray]) -> dict[str, tuple[int, int]]:
     """Bands of rows for the lasers when :func:`auto_rois` misses a dim one (unsaturated on
-    the soil, too few bright pixels): each laser's stripe searched in every row of the sample
-    frames, its band around its most frequent row, the two bands split halfway between."""
+    the soil, too few bright pixels) or mixes them up: each laser's stripe searched in every
+    row of the sample frames, its most frequent row (where both detectors find the same
+    stripe, it is the one found more often's, and the other takes its next most frequent row
+    elsewhere), the two bands split halfway between."""
     h = probe[0].shape[0]
     params = StripeParams()
-    peaks = {}
+    hists = {}
     for name in LASERS:
         found = np.concatenate([detect_band_blooming(name, f, 0, params).rows for f in probe])
         found = found[np.isfinite(found)]
         if found.size < 0.1 * probe[0].shape[1] * len(probe):
             raise InputError(f"the {name} laser's stripe is not visible in the sampled frames",
                              code=codes.E_NO_STRIPE)
-        hist = np.convolve(np.bincount(found.astype(int), minlength=h), np.ones(9), "same")
-        peaks[name] = int(np.argmax(hist))
+        hists[name] = np.convolve(np.bincount(found.astype(int), minlength=h), np.ones(9),
+                                  "same")[:h]
+    peaks = {name: int(np.argmax(hist)) for name, hist in hists.items()}
+    g, r = peaks["green"], peaks["red"]
+    if abs(g - r) < 0.1 * h:
+        keep = "green" if hists["green"][g] >= hists["red"][r] else "red"
+        other = "red" if keep == "green" else "green"
+        hist = hists[other].copy()
+        hist[max(0, peaks[keep] - h // 10):peaks[keep] + h // 10 + 1] = 0
+        if hist.max() <= 0:
+            raise InputError("the two lasers' stripes cannot be told apart in the sampled "
+                             "frames", code=codes.E_NO_STRIPE)
+        peaks[other] = int(np.argmax(hist))
     lo, hi = sorted(LASERS, key=lambda n: peaks[n])
-    if peaks[hi] - peaks[lo] < 0.1 * h:
-        raise InputError("the two lasers' stripes cannot be told apart in the sampled frames",
-                         code=codes.E_NO_STRIPE)
     cut = (peaks[lo] + peaks[hi]) // 2
     return {lo: (0, cut), hi: (cut, h)}
 
