@@ -38,7 +38,8 @@ def _sim_geometry(scan: Path):
 
 def test_proposed_frames_show_the_target_on_a_rig_moving_up_the_image(up_rig_scan):
     from impress_gui.core.formats.video import open_video
-    from impress_gui.sim.simulate import _stripe_on_faces, project_rail, target_world_corners
+    from impress_gui.sim.simulate import (_stripe_on_faces, make_motion, project_rail,
+                                          target_world_corners)
 
     truth, cfg, rig, target, pose = _sim_geometry(up_rig_scan)
     assert abs(abs(truth["random_rig"]["roll_deg"]) - 180) < 15  # the motion runs up the image
@@ -53,6 +54,8 @@ def test_proposed_frames_show_the_target_on_a_rig_moving_up_the_image(up_rig_sca
         assert np.all((uv > 1.0) & (uv < [cfg.width - 1.0, cfg.height - 1.0])), (key, k, uv)
         # the stripe across both top faces, clear of their ends
         assert _stripe_on_faces(rig, laser, target, pose, travel, 2.0), (key, k)
+        # at the rail's constant speed (not in its ramps)
+        assert make_motion(cfg).constant_speed(truth["frame_times_s"][k]), (key, k)
     sim = truth["calibration_frames"]
     assert prop["t1"] < prop["t2"]  # green leads on this rig, as in the simulator's frames
     # far enough apart for parallax: at least half the simulator's own spacing

@@ -507,7 +507,14 @@ def _target_run(frames: np.ndarray, rows: np.ndarray, h: int, w: int) -> dict | 
             "low": levels["low"], "high": levels["high"]}
 
 
-def _choose_frames(runs: dict[str, dict], w: int, h: int) -> dict[str, int]:
+#: the rail accelerates and brakes at the ends of a scan: proposed frames keep this far (s)
+#: from the video's first and last frame when they can (the calibration assumes the constant
+#: speed between t1 and t2)
+RAMP_GUARD_S = 0.6
+
+
+def _choose_frames(runs: dict[str, dict], w: int, h: int,
+                   usable: tuple[int, int] | None = None) -> dict[str, int]:
     """t1 (green) and t2 (red) inside their lasers' runs on the target: where the corners,
     predicted from the ends of each top face's stripe as the stripes enter and leave it, moved
     with the target's image velocity (from the delay between the two stripes), are well inside
@@ -550,6 +557,10 @@ def _choose_frames(runs: dict[str, dict], w: int, h: int) -> dict[str, int]:
             margin = np.minimum.reduce([pts[..., 0].min(axis=1), w - pts[..., 0].max(axis=1),
                                         pts[..., 1].min(axis=1), h - pts[..., 1].max(axis=1)])
             score = np.minimum.reduce([margin / m_good, frac / 0.2, np.ones_like(frac)])
+        if usable is not None:
+            # frames in the rail's ramps only when nothing else shows the target
+            score = np.where((ks >= usable[0]) & (ks <= usable[1]), score,
+                             np.minimum(score, 0.0) - 1.0)
         top = np.flatnonzero(score >= score.max() - 1e-9)
         early = (key == "t1") == green_first
         out[key] = int(ks[top[0]] if early else ks[top[-1]])
@@ -599,18 +610,20 @@ def propose_calibration_frames(video, sample_step: int | None = None,
     step = sample_step or max(1, n // 400)
     frames, rows = _stripe_profiles(video, step, progress, cancel)
     h, w = video.read(0).shape[:2]
-    return propose_from_profiles(frames, rows, w, h)
+    guard = int(np.ceil(RAMP_GUARD_S * float(getattr(video, "fps", 0.0) or 30.0)))
+    return propose_from_profiles(frames, rows, w, h, (guard, n - 1 - guard))
 
 
-def propose_from_profiles(frames: np.ndarray, rows: dict[str, np.ndarray], w: int,
-                          h: int) -> dict[str, int]:
+def propose_from_profiles(frames: np.ndarray, rows: dict[str, np.ndarray], w: int, h: int,
+                          usable: tuple[int, int] | None = None) -> dict[str, int]:
     """:func:`propose_calibration_frames` from the stripes already found: ``rows[laser]`` is
-    ``(len(frames), w)``, the stripe's row per sampled frame and column (NaN: none)."""
+    ``(len(frames), w)``, the stripe's row per sampled frame and column (NaN: none);
+    ``usable``: the frames at constant speed (others only when nothing else will do)."""
     frames = np.asarray(frames)
     runs = {name: _target_run(frames, np.asarray(rows[name], float), h, w) for name in LASERS}
     if any(r is None for r in runs.values()):
         return _propose_by_displacement(frames, rows)
-    return _choose_frames(runs, w, h)
+    return _choose_frames(runs, w, h, usable)
 
 
 def _rays_meet_edges(intr: Intrinsics, rotation: np.ndarray, travel_mm: float,
