@@ -38,8 +38,12 @@ def _sim_geometry(scan: Path):
 
 def test_proposed_frames_show_the_target_on_a_rig_moving_up_the_image(up_rig_scan):
     from impress_gui.core.formats.video import open_video
-    from impress_gui.sim.simulate import (_stripe_on_faces, make_motion, project_rail,
-                                          target_world_corners)
+    from impress_gui.sim.simulate import (
+        _stripe_on_faces,
+        make_motion,
+        project_rail,
+        target_world_corners,
+    )
 
     truth, cfg, rig, target, pose = _sim_geometry(up_rig_scan)
     assert abs(abs(truth["random_rig"]["roll_deg"]) - 180) < 15  # the motion runs up the image
