@@ -186,3 +186,84 @@ def texture_split(s, ax, ay, ref, spec: GridSpec, max_gap: float):
     if d[0] < 0:
         cells_first, cells_second = cells_second, cells_first
     return ((0, a_end), (0, b_start), cells_first), ((b_start, n), (a_end, n), cells_second)
+
+
+def _stripe_mask(rgb: np.ndarray) -> np.ndarray:
+    """The pixels of a frame on or near either laser's stripe (each stripe found in every row
+    of the frame, widened by its halo)."""
+    from impress_gui.core.reconstruction.stripes import LASERS, StripeParams, detect_band_blooming
+
+    h, w = rgb.shape[:2]
+    params = StripeParams()
+    half = max(3, int(round(0.012 * h)))
+    mask = np.zeros((h, w), bool)
+    cols = np.arange(w)
+    for name in LASERS:
+        rows = detect_band_blooming(name, rgb, 0, params).rows
+        ok = np.isfinite(rows)
+        for d in range(-half, half + 1):
+            r = np.clip(np.rint(rows[ok]).astype(int) + d, 0, h - 1)
+            mask[r, cols[ok]] = True
+    return mask
+
+
+def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: GridSpec,
+                      cal: SceneCalibration, first: tuple[float, np.ndarray],
+                      last: tuple[float, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The texture at the scan's ends, where the heightmap reaches further than the texture
+    row (the lasers lead and trail the image's centre): each cell with a height but no
+    colour, before the texture's first row or after its last (per column of the grid), is
+    projected - at its height -
+    into the first (``first``) or last (``last``) processed frame, ``(camera travel in mm,
+    RGB frame)``, and its colour sampled there (bilinear, on the distorted frame as the texture
+    row is); cells that fall on the frame's laser stripes are left without colour, as are
+    interior cells without colour (shadows). Returns the texture
+    (a copy) and the cells filled. Deterministic; occlusion is not checked (at the ends the
+    surface is seen from close to straight above)."""
+    from scipy.ndimage import map_coordinates
+
+    tex = np.array(texture_rgb, copy=True)
+    filled = np.zeros(tex.shape[:2], bool)
+    covered = tex.any(axis=2)
+    if not covered.any():
+        return tex, filled
+    # per column the texture's first and last row (the row's footprint may cross the grid
+    # obliquely): cells before the first or after the last are at the scan's ends
+    n_rows = covered.shape[0]
+    idx = np.arange(n_rows)[:, None]
+    first_row = np.where(covered, idx, n_rows).min(axis=0)
+    last_row = np.where(covered, idx, -1).max(axis=0)
+    before = idx < first_row[None, :]
+    after = idx > last_row[None, :]
+    has = covered.any(axis=0)[None, :]
+    want = np.isfinite(height_mm) & ~covered & has & (before | after)
+    ii, jj = np.nonzero(want)
+    if not len(ii):
+        return tex, filled
+    x = spec.x0_mm + jj * spec.pixel_mm
+    y = spec.y0_mm + ii * spec.pixel_mm
+    z = cal.reference_depth(x, y) - height_mm[ii, jj]
+    pts = np.column_stack([x, y, z])
+    (s_a, img_a), (s_b, img_b) = sorted([first, last], key=lambda e: e[0])
+    # cells before the texture's first row (lower Y) lie towards the frame of lower travel
+    start = before[ii, jj]
+    for sel, (travel, img) in ((start, (s_a, img_a)), (~start, (s_b, img_b))):
+        if not sel.any():
+            continue
+        uv = cal.project_rail(pts[sel], float(travel))
+        h, w = img.shape[:2]
+        ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) \
+            & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+        # not on the frame's laser stripes (the stripes lie at the ends of the heights)
+        near = _stripe_mask(img)
+        ok &= ~near[np.clip(np.rint(uv[:, 1]), 0, h - 1).astype(int),
+                    np.clip(np.rint(uv[:, 0]), 0, w - 1).astype(int)]
+        if not ok.any():
+            continue
+        coords = [uv[ok, 1], uv[ok, 0]]
+        cols = np.stack([map_coordinates(img[..., c].astype(np.float32), coords, order=1)
+                         for c in range(3)], axis=1)
+        ti, tj = ii[sel][ok], jj[sel][ok]
+        tex[ti, tj] = np.clip(cols + 0.5, 0, 255).astype(tex.dtype)
+        filled[ti, tj] = True
+    return tex, filled
