@@ -644,20 +644,28 @@ def width_budget(ctx: UncertaintyContext, profile, width) -> Budget:
         w = np.hypot(xs[1] - xs[0] + dx[:, 1] - dx[:, 0], ys[1] - ys[0] + dy[:, 1] - dy[:, 0])
         comps += _cal_component(w - width.width_mm, "distance between the crossings", ctx)
     comps += _speed_component(ctx, width.width_mm * uy * uy)
-    # each crossing: the height noise over the profile's slope there moves it
+    # each crossing: the height noise over the wall's slope moves it, but never beyond the two
+    # samples with data that bracket it (the crossing is found between them)
     us = []
+    d_all = np.asarray(profile.distance_mm, float)
+    h_all = np.asarray(profile.height_mm, float)
+    ok = np.flatnonzero(np.isfinite(h_all))
     for dd in ds:
-        i = int(np.clip(np.searchsorted(profile.distance_mm, dd), 2, len(profile.height_mm) - 3))
-        seg = np.diff(np.asarray(profile.height_mm[i - 2:i + 3], float))
-        seg = seg[np.isfinite(seg)]
-        slope = (abs(float(seg.mean())) if seg.size else 0.0) / max(1e-9, float(np.median(
-            np.diff(profile.distance_mm))))
+        before, after = ok[d_all[ok] <= dd], ok[d_all[ok] > dd]
+        if not before.size or not after.size:
+            us.append(math.nan)
+            continue
+        i0, i1 = before[-1], after[0]
+        gap = float(d_all[i1] - d_all[i0])
+        slope = abs(float(h_all[i1] - h_all[i0])) / max(gap, 1e-9)
         sg, _, _ = series_noise(_band_values(profile, (dd - 1.0, dd + 1.0)))
         sg = sg if math.isfinite(sg) else 0.0
-        us.append(sg / max(slope, 0.05) if slope > 0 else math.nan)
+        shift = sg / slope if slope > 0 else math.inf
+        us.append(min(shift, gap / math.sqrt(3.0)))
     u = math.hypot(*us)
     comps.append(Component("surface noise", "positions of the crossings", "A", "normal", u, "mm",
-                           1.0, u, "height noise near each crossing over the wall's slope"))
+                           1.0, u, "height noise near each crossing over the wall's slope, at "
+                           "most the spacing of the samples that bracket it (rectangular)"))
     comps.append(_grid_component(ctx, 1.0, 2.0, "positions of the two crossings"))
     if ctx.sampling_mm is not None:
         s_mm = math.hypot(ux * ctx.sampling_mm[0], uy * ctx.sampling_mm[1])
