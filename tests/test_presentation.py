@@ -230,3 +230,22 @@ def test_report_shows_parameters_as_tables_not_python_dicts():
     assert "<table class='inner'><tr><th>method</th><td>combined</td></tr>" in html
     assert "<th>texture</th><td>yes</td>" in html and "<th>grid mm</th><td>0.1000</td>" in html
     assert "<td>12, 480</td>" in html and "&lt;b&gt;x&lt;/b&gt;" in html
+
+
+def test_report_measurements_keep_a_readable_table_whatever_their_values():
+    """A measurement's values are one cell (a small table of their own), not one column each:
+    with a ruler's five values and their uncertainties as columns, the PDF's A4 table broke
+    its words letter by letter (the label "slot width" was no longer in the text)."""
+    from impress_gui.core.formats.figures import report_html
+
+    values = {f"value_{k}_mm": 0.1 * k for k in range(12)}
+    html = report_html(
+        case={"case_id": "C-1"}, reconstruction={}, calibration=None,
+        measurements=[{"kind": "ruler", "label": "slot width", "note": "",
+                       "points_mm": [[1.0, 2.0], [3.0, 4.0]], "values": values}],
+        images=[], inputs={}, created_utc="2026-11-25",
+    )
+    head = html[html.index("<h2>Measurements</h2>"):]
+    head = head[:head.index("</tr>")]
+    assert head.count("<th>") == 6  # #, kind, label, note, points, values
+    assert "<th>value 11 mm</th><td>1.1000</td>" in html and "slot width" in html

@@ -586,15 +586,15 @@ def report_html(
 ) -> str:
     """The case report as one HTML document (PNG images embedded as data URLs), rendered from
     :data:`REPORT_TEMPLATE` with every value escaped."""
-    keys: list[str] = []
-    for m in measurements:
-        keys += [k for k in m.get("values", {}) if k not in keys]
+    # one row per measurement, its values as a small table of their own: a column per value
+    # (a ruler has five, each reading its uncertainties too) squeezes an A4 page's table until
+    # its words break letter by letter
     rows = []
     for n, m in enumerate(measurements, 1):
         pts = "; ".join(f"({p[0]:.2f}, {p[1]:.2f})" for p in m.get("points_mm", []))
-        cells = [str(n), m.get("kind", ""), m.get("label", ""), m.get("note", ""), pts]
-        cells += [_v(m.get("values", {}).get(k)) for k in keys]
-        rows.append([str(c) for c in cells])
+        cells = [str(n), m.get("kind", ""), m.get("label", ""), m.get("note", ""), pts,
+                 _v(dict(m.get("values", {})))]
+        rows.append([c if hasattr(c, "__html__") else str(c) for c in cells])
     return _report_template().render(
         case=case,
         signature=case.get("signature"),
@@ -602,7 +602,7 @@ def report_html(
         reconstruction=reconstruction,
         calibration=calibration,
         levelling=levelling,
-        head=["#", "kind", "label", "note", "points (mm)", *keys],
+        head=["#", "kind", "label", "note", "points (mm)", "values"],
         measurements=rows,
         images=[(caption, base64.b64encode(png).decode("ascii")) for caption, png in images],
         created_utc=created_utc,
