@@ -75,6 +75,9 @@ def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calib
             v.set_ruler((xc - 12.0, yc), (xc + 12.0, yc))
         # the Monte Carlo runs in the background, then the readings are shown again with it
         qtbot.waitUntil(lambda: "calibration |" in v.tools.ruler_text.toolTip(), timeout=180000)
+        # what the Monte Carlo says of the calibration, in the status line
+        assert v.measurements.uncertainty.summary_text.startswith("Calibration uncertainty (8 ")
+        assert "tilt ±" in v.measurements.uncertainty.summary_text
         text = v.tools.ruler_text.text()
         budgets = v.ruler.budgets()
         r = v.ruler_result()

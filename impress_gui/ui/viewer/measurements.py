@@ -195,11 +195,15 @@ class UncertaintyProvider(QObject):
     calibration) budgets are made without the calibration component, and say so."""
 
     ready = Signal()
+    status = Signal(str)
+    #: a calibration whose Monte Carlo tilt spread (1 SD, degrees) exceeds this is called poor
+    POOR_TILT_DEG = 0.25
 
     def __init__(self, session: Session, layers: LayerDisplay, parent: QObject | None = None,
                  trials: int | None = None) -> None:
         super().__init__(parent)
         self.session = session
+        self.summary_text = ""  # what the last Monte Carlo says of the calibration
         self.layers = layers
         self.trials = trials
         self._ensembles: dict = {}  # calibration key -> ensemble, or the reason it failed
@@ -223,6 +227,19 @@ class UncertaintyProvider(QObject):
         self._ensembles[key] = ens
         if self._running == key:
             self._running = None
+        if isinstance(ens, str):
+            self.summary_text = f"Calibration uncertainty not evaluated: {ens}"
+        else:
+            sm = ens.summary
+            poor = sm["tilt_sd_deg"] > self.POOR_TILT_DEG
+            self.summary_text = (
+                f"Calibration uncertainty ({ens.n_trials} trials, clicks ± "
+                f"{ens.click_sigma_px:.2f} px): tilt ± {sm['tilt_sd_deg']:.2f}°, roll ± "
+                f"{sm['roll_sd_deg']:.2f}°, laser planes ± {sm['green_plane_angle_sd_deg']:.2f}° "
+                f"/ ± {sm['red_plane_angle_sd_deg']:.2f}° (1 SD)"
+                + ("; POOR: absolute heights far from the target are uncertain by millimetres - "
+                   "mark the corners again more precisely" if poor else ""))
+        self.status.emit(self.summary_text)
         self.ready.emit()
 
     def start(self) -> None:
@@ -320,6 +337,7 @@ class MeasurementList(QObject):
         self.ruler = ruler
         self.messenger = messenger
         self.uncertainty = UncertaintyProvider(session, layers, self)
+        self.uncertainty.status.connect(self.status)
         ruler.uncertainty = self.uncertainty
         self.uncertainty.ready.connect(ruler.show_uncertainty)
         table.details_button.clicked.connect(self.show_details)
