@@ -20,7 +20,12 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from impress_gui.core.base import codes
-from impress_gui.core.base.errors import InputError, ReconstructionError, VideoError
+from impress_gui.core.base.errors import (
+    ImpressError,
+    InputError,
+    ReconstructionError,
+    VideoError,
+)
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.formats.video import VideoSource
@@ -34,7 +39,7 @@ from impress_gui.core.reconstruction.stripes import (
     StripeDetector,
     StripeParams,
 )
-from impress_gui.core.reconstruction.texture import RowSpool, reference_coeffs
+from impress_gui.core.reconstruction.texture import RowSpool, fill_texture_ends, reference_coeffs
 
 
 @dataclass(frozen=True)
@@ -473,7 +478,9 @@ def _process(run: _Run) -> Reconstruction:
     t_finish = time.perf_counter()
     report(run.progress, 0.93, "finishing the maps and the texture")
     finisher.finish()
+    end_cells = _texture_ends(run, tab, finisher, warnings)
     stats = _stats(run, tab, tally, finisher, loop_s, t_finish)
+    stats["texture_end_cells_filled"] = end_cells
     report(run.progress, 1.0, "done")
     if finisher.broken:
         stats["finished_after_loop"] = finisher.broken
@@ -548,6 +555,26 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
             report(run.progress, 0.05 + 0.85 * i / n_total,
                    f"frame {i}/{n_total} ({i / max(el, 1e-9):.1f} frames/s)")
     return tally
+
+
+def _texture_ends(run: _Run, tab: _Tables, finisher: RowFinisher, warnings: list[str]) -> int:
+    """Colour the cells at the scan's ends that the texture row never passed over (the lasers
+    lead and trail the image's centre) from the first and last processed frames
+    (:func:`~impress_gui.core.reconstruction.texture.fill_texture_ends`, in place). Returns
+    the cells filled; a frame that cannot be read leaves them black, with a warning."""
+    if finisher.tex is None:
+        return 0
+    ends = []
+    try:
+        for k in (run.start, run.stop - 1):
+            ends.append((float(tab.travel[k]), run.video.read(int(k))))
+    except ImpressError as exc:
+        warnings.append(f"the texture's ends were left without colour: frame {k} could not "
+                        f"be read again ({exc.code})")
+        return 0
+    _, filled = fill_texture_ends(finisher.tex, finisher.fused, tab.spec, run.cal, ends[0],
+                                  ends[1], inplace=True)
+    return int(filled.sum())
 
 
 def _stripe_warnings(run: _Run, tally: _Tally) -> list[str]:

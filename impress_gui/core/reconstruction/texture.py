@@ -209,7 +209,8 @@ def _stripe_mask(rgb: np.ndarray) -> np.ndarray:
 
 def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: GridSpec,
                       cal: SceneCalibration, first: tuple[float, np.ndarray],
-                      last: tuple[float, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+                      last: tuple[float, np.ndarray], inplace: bool = False
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """The texture at the scan's ends, where the heightmap reaches further than the texture
     row (the lasers lead and trail the image's centre): each cell with a height but no
     colour, before the texture's first row or after its last (per column of the grid), is
@@ -218,11 +219,12 @@ def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: Grid
     RGB frame)``, and its colour sampled there (bilinear, on the distorted frame as the texture
     row is); cells that fall on the frame's laser stripes are left without colour, as are
     interior cells without colour (shadows). Returns the texture
-    (a copy) and the cells filled. Deterministic; occlusion is not checked (at the ends the
-    surface is seen from close to straight above)."""
+    (a copy, or ``texture_rgb`` itself filled when ``inplace``) and the cells filled.
+    Deterministic; occlusion is not checked (at the ends the surface is seen from close to
+    straight above). Memory: a few boolean grids, no integer grid."""
     from scipy.ndimage import map_coordinates
 
-    tex = np.array(texture_rgb, copy=True)
+    tex = texture_rgb if inplace else np.array(texture_rgb, copy=True)
     filled = np.zeros(tex.shape[:2], bool)
     covered = tex.any(axis=2)
     if not covered.any():
@@ -230,14 +232,18 @@ def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: Grid
     # per column the texture's first and last row (the row's footprint may cross the grid
     # obliquely): cells before the first or after the last are at the scan's ends
     n_rows = covered.shape[0]
+    has_col = covered.any(axis=0)
+    first_row = np.where(has_col, covered.argmax(axis=0), n_rows)
+    last_row = np.where(has_col, n_rows - 1 - covered[::-1].argmax(axis=0), -1)
     idx = np.arange(n_rows)[:, None]
-    first_row = np.where(covered, idx, n_rows).min(axis=0)
-    last_row = np.where(covered, idx, -1).max(axis=0)
     before = idx < first_row[None, :]
-    after = idx > last_row[None, :]
-    has = covered.any(axis=0)[None, :]
-    want = np.isfinite(height_mm) & ~covered & has & (before | after)
+    want = before | (idx > last_row[None, :])
+    want &= ~covered
+    want &= has_col[None, :]
+    want &= np.isfinite(height_mm)
+    del covered
     ii, jj = np.nonzero(want)
+    del want
     if not len(ii):
         return tex, filled
     x = spec.x0_mm + jj * spec.pixel_mm
