@@ -230,8 +230,8 @@ def _stripe_profiles(video, step: int, progress: ProgressCallback | None,
         frames.append(k)
         for name in LASERS:
             # a laser saturates on the light target: the calibration's blooming fallback
-            a, b = params.rois[name]
-            res = detect_band_blooming(name, rgb[a:b], a, params)
+            r0, r1 = params.rois[name]
+            res = detect_band_blooming(name, rgb[r0:r1], r0, params)
             rows[name].append(np.asarray(res.rows, float))
         report(progress, k / n, f"scanning frame {k}")
     return np.array(frames), {name: np.array(v) for name, v in rows.items()}
@@ -426,15 +426,15 @@ def _end_points(rows: np.ndarray, a0: int, b0: int) -> np.ndarray:
 def _l_runs(frames: np.ndarray, d: np.ndarray, floor: float, w: int) -> dict | None:
     """The longest and highest run of sampled frames showing the same L (either sign of the
     displacement): ``{"sign", "idx" (sample indices), "l" (their L's)}``."""
-    best = None
+    best: dict | None = None
     for sign in (1.0, -1.0):
-        found = [_l_profiles(sign * d[i], floor, w) for i in range(len(frames))]
+        found: list[dict] = [_l_profiles(sign * d[i], floor, w) or {} for i in range(len(frames))]
         # group consecutive samples with the same L (orientation, and levels within a tenth
         # of the run's: the top faces are level, the rail parallel to the ground; a stripe
         # sliding down a riser changes level from frame to frame) into runs
         runs: list[list[int]] = []
         for i, q in enumerate(found):
-            if q is None:
+            if not q:
                 continue
             if runs:
                 hi = float(np.median([found[j]["high"] for j in runs[-1]]))
@@ -450,7 +450,7 @@ def _l_runs(frames: np.ndarray, d: np.ndarray, floor: float, w: int) -> dict | N
             if len(run) < 3:
                 continue
             score = len(run) * float(np.median([found[i]["high"] for i in run]))
-            if best is None or score > best["score"]:
+            if best is None or score > float(best["score"]):
                 best = {"score": score, "sign": sign, "idx": run, "l": [found[i] for i in run]}
     return best
 
@@ -620,8 +620,9 @@ def propose_from_profiles(frames: np.ndarray, rows: dict[str, np.ndarray], w: in
     ``(len(frames), w)``, the stripe's row per sampled frame and column (NaN: none);
     ``usable``: the frames at constant speed (others only when nothing else will do)."""
     frames = np.asarray(frames)
-    runs = {name: _target_run(frames, np.asarray(rows[name], float), h, w) for name in LASERS}
-    if any(r is None for r in runs.values()):
+    found = {name: _target_run(frames, np.asarray(rows[name], float), h, w) for name in LASERS}
+    runs = {name: r for name, r in found.items() if r is not None}
+    if len(runs) < len(LASERS):
         return _propose_by_displacement(frames, rows)
     return _choose_frames(runs, w, h, usable)
 

@@ -226,13 +226,13 @@ def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: Grid
 
     tex = texture_rgb if inplace else np.array(texture_rgb, copy=True)
     filled = np.zeros(tex.shape[:2], bool)
-    covered = tex.any(axis=2)
+    covered = np.asarray(tex.any(axis=2), bool)
     if not covered.any():
         return tex, filled
     # per column the texture's first and last row (the row's footprint may cross the grid
     # obliquely): cells before the first or after the last are at the scan's ends
     n_rows = covered.shape[0]
-    has_col = covered.any(axis=0)
+    has_col = np.asarray(covered.any(axis=0), bool)
     first_row = np.where(has_col, covered.argmax(axis=0), n_rows)
     last_row = np.where(has_col, n_rows - 1 - covered[::-1].argmax(axis=0), -1)
     idx = np.arange(n_rows)[:, None]
