@@ -34,9 +34,8 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
 import bench_random_rigs as R
+import numpy as np
 from common import calibrate
 
 from impress_gui.core.base.errors import ImpressError
@@ -68,7 +67,7 @@ def _crossings(profile_t: np.ndarray, profile_h: np.ndarray) -> list[float]:
             continue
         level = 0.5 * (t[:3].mean() + t[-3:].mean())
 
-        def cross(p):
+        def cross(p, level=level):
             s = np.sign(p - level)
             k = np.flatnonzero(s[:-1] * s[1:] <= 0)
             if len(k) != 1:

@@ -4,6 +4,7 @@ dropped before they become wild points; the stripe itself is kept."""
 import numpy as np
 import pytest
 
+from impress_gui.core.base.errors import InputError
 from impress_gui.core.reconstruction.compiled import kernels
 from impress_gui.core.reconstruction.reconstruct import (
     CONNECT_PX,
@@ -11,7 +12,6 @@ from impress_gui.core.reconstruction.reconstruct import (
     long_run_columns,
 )
 from impress_gui.core.reconstruction.stripes import prune_weak_runs_numpy
-from impress_gui.core.base.errors import InputError
 
 
 def _stripe(w=640, seed=0):
@@ -81,7 +81,7 @@ def test_nothing_is_dropped_without_a_long_piece_or_with_ratio_zero():
 
 def test_kernel_equals_numpy_on_random_stripes():
     rng = np.random.default_rng(5)
-    for trial in range(40):
+    for _trial in range(40):
         w = int(rng.integers(20, 700))
         rows = np.cumsum(rng.choice([0.0, 0.5, 1.0, 30.0], size=w, p=[0.5, 0.3, 0.15, 0.05]))
         rows[rng.random(w) < 0.1] = np.nan
