@@ -180,3 +180,34 @@ def test_readings_budgets_and_the_csv_carry_the_uncertainty(flat):
     assert rows[1]["uncertainty_budget"] == "" and rows[1]["U_k2_xy_mm"] == ""
     # a CSV of measurements without budgets is as before: no budget column
     assert "uncertainty_budget" not in M.measurements_csv([old])
+
+
+def test_other_relief_nearby_is_not_taken_for_noise():
+    """Slots 6 mm deep beside the reading (the viewer's screenshot: a step across slot 1 read
+    -6.387 +- 6.462 mm and a ruler's dz +- 15.9 mm, the neighbouring profiles and disks lying
+    on other slots and walls): neighbours over other relief are left out of the scatter, so the
+    noise component stays at the surface's own level; on a plain noisy plane nothing changes."""
+    spec = GridSpec(0.0, 0.0, 0.1, (600, 600))
+    rng = np.random.default_rng(3)
+    x = spec.xs()[None, :] + np.zeros(spec.shape)
+    y = spec.ys()[:, None] + np.zeros(spec.shape)
+    slots = (np.floor(x / 4.0) % 2 == 1) & (y > 15.0) & (y < 45.0)  # 2 mm slots every 4 mm
+    h = (np.where(slots, -6.0, 0.0) + rng.normal(0, 0.02, spec.shape)).astype(np.float32)
+    ctx = U.UncertaintyContext(h, spec)
+    # a step from the ridge at x 2-3 mm into the slot at x 4.5-5.5 mm, on y = 30 mm
+    p = M.line_profile(h, spec, (1.0, 30.0), (7.0, 30.0), 1.0)
+    a, b = (1.0, 2.0), (3.6, 4.4)
+    s = M.step_height(p, a, b)
+    assert abs(s.difference_mm + 6.0) < 0.05
+    noise = next(c.u_mm for c in U.step_budget(ctx, p, s, a, b).components
+                 if c.name == "surface noise")
+    assert noise < 0.05, noise
+    # a ruler across three slots: its dz's noise is that of the two ends, not of the slots
+    r = M.ruler(h, spec, (2.5, 30.0), (18.5, 30.0), 0.5)
+    dz = U.ruler_budgets(ctx, r)["dz"]
+    noise = next(c.u_mm for c in dz.components if c.name == "surface noise")
+    assert noise < 0.05, noise
+    # on a plain noisy plane the scatter of the neighbours is still used
+    spec2, h2 = _noisy_plane(0.05)
+    rep, k = U.disk_repeatability(h2, spec2, 20.0, 20.0, 0.5)
+    assert k == 9 and 0.0 < rep < 0.05

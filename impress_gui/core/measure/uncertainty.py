@@ -294,13 +294,51 @@ def patch_noise(height: np.ndarray, spec: GridSpec, x: float, y: float, radius_m
     return sigma, max(1.0, n / factor), n, float(coef[0]), float(coef[1])
 
 
+#: a neighbouring reading more than this many robust SDs (and 0.05 mm) off the fit through the
+#: others is other relief (a wall, another slot), not this reading's noise
+RELIEF_SIGMAS = 3.0
+#: and so is one more than this far (mm) from the reading itself (half the neighbours can lie
+#: on other relief, e.g. across slots, where no fit separates them)
+RELIEF_MM = 0.3
+
+
+def _consistent_scatter(design: np.ndarray, values: np.ndarray, min_keep: int
+                        ) -> tuple[float, int]:
+    """The residual SD of ``values`` about a least-squares fit (columns of ``design``), the
+    reading itself (row 0) always kept, neighbours that are other relief dropped one at a
+    time (the worst first while it lies more than RELIEF_SIGMAS robust SDs, and 0.05 mm, off
+    the fit of the rest), and any more than RELIEF_MM from the reading itself.
+    ``(SD, readings used)``; NaN when fewer than ``min_keep`` remain
+    consistent: the neighbourhood is too structured to say anything about the noise, and the
+    cells' own standard error stands alone."""
+    keep = np.abs(values - values[0]) <= RELIEF_MM
+    if keep.sum() < min_keep:
+        return math.nan, int(keep.sum())
+    p = design.shape[1]
+    while True:
+        coef, *_ = np.linalg.lstsq(design[keep], values[keep], rcond=None)
+        res = values - design @ coef
+        dof = int(keep.sum()) - p
+        if dof < 1:
+            return math.nan, int(keep.sum())
+        robust = 1.4826 * float(np.median(np.abs(res[keep])))
+        worst = int(np.argmax(np.where(keep, np.abs(res), -1.0)))
+        if worst != 0 and abs(res[worst]) > max(RELIEF_SIGMAS * robust, 0.05):
+            keep[worst] = False
+            if keep.sum() < min_keep:
+                return math.nan, int(keep.sum())
+            continue
+        return float(np.sqrt(np.sum(res[keep] ** 2) / dof)), int(keep.sum())
+
+
 def disk_repeatability(height: np.ndarray, spec: GridSpec, x: float, y: float,
                        radius_mm: float, ring_mm: float | None = None) -> tuple[float, int]:
     """The scatter of a disk mean at this scale: the means of the disk at ``(x, y)`` and of 8
     disks of the same radius on a ring around it (3 radii + 0.5 mm away, radius at least
     0.5 mm) about a plane through them; ``(SD, disks used)``. It sees errors correlated over
-    more than the disk (one stripe's offset, a frame's) that the cells' own scatter cannot,
-    and, on a curved or textured surface, some relief too (it then overstates)."""
+    more than the disk (one stripe's offset, a frame's) that the cells' own scatter cannot.
+    Neighbours on other relief (a wall, another slot) are left out
+    (:func:`_consistent_scatter`); with fewer than 6 consistent disks the result is NaN."""
     from impress_gui.core.measure.readings import readout
 
     r = max(radius_mm, 0.5)
@@ -312,13 +350,11 @@ def disk_repeatability(height: np.ndarray, spec: GridSpec, x: float, y: float,
         rd = readout(height, spec, px, py, r)
         if rd.n_valid >= max(3, rd.n_cells // 2):
             vals.append((px, py, rd.height_mm))
-    if len(vals) < 6:
+    if len(vals) < 6 or vals[0][:2] != (x, y):
         return math.nan, len(vals)
     v = np.array(vals)
-    a = np.column_stack([v[:, 0], v[:, 1], np.ones(len(v))])
-    coef, *_ = np.linalg.lstsq(a, v[:, 2], rcond=None)
-    res = v[:, 2] - a @ coef
-    return float(np.sqrt(np.sum(res**2) / (len(v) - 3))), len(v)
+    a = np.column_stack([v[:, 0] - x, v[:, 1] - y, np.ones(len(v))])
+    return _consistent_scatter(a, v[:, 2], 6)
 
 
 def series_noise(values: np.ndarray) -> tuple[float, float, int]:
@@ -604,7 +640,9 @@ def step_budget(ctx: UncertaintyContext, profile, step, band_a, band_b) -> Budge
 
 def _step_repeatability(ctx: UncertaintyContext, profile, band_a, band_b) -> tuple[float, int]:
     """The scatter of the step on parallel profiles beside this one (offsets of one profile
-    width plus 0.5 mm, three on each side) about a line across them: ``(SD, profiles)``."""
+    width plus 0.5 mm, three on each side) about a line across them: ``(SD, profiles)``;
+    profiles over other relief are left out (:func:`_consistent_scatter`), NaN with fewer than
+    5 consistent ones."""
     from impress_gui.core.measure.readings import line_profile, step_height
 
     L = profile.length_mm
@@ -622,11 +660,12 @@ def _step_repeatability(ctx: UncertaintyContext, profile, band_a, band_b) -> tup
         if math.isfinite(s.difference_mm):
             offs.append(o)
             steps.append(s.difference_mm)
-    if len(steps) < 5:
+    if len(steps) < 5 or 0.0 not in offs:
         return math.nan, len(steps)
-    coef = np.polyfit(offs, steps, 1)
-    res = np.array(steps) - np.polyval(coef, offs)
-    return float(np.sqrt(np.sum(res**2) / (len(steps) - 2))), len(steps)
+    order = np.argsort(np.abs(np.array(offs)), kind="stable")  # this profile first
+    o = np.array(offs)[order]
+    a = np.column_stack([o, np.ones(len(o))])
+    return _consistent_scatter(a, np.array(steps)[order], 5)
 
 
 def width_budget(ctx: UncertaintyContext, profile, width) -> Budget:
