@@ -4,7 +4,7 @@ inputs and show results; :class:`~impress_gui.ui.viewer.tab.ViewerTab` does the 
 
 from __future__ import annotations
 
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import QSize, Qt, Signal
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QButtonGroup,
@@ -17,6 +17,7 @@ from PySide6.QtWidgets import (
     QLabel,
     QPlainTextEdit,
     QPushButton,
+    QScrollArea,
     QSlider,
     QTableWidget,
     QTableWidgetItem,
@@ -218,6 +219,36 @@ class ToolPanel(QGroupBox):
 
     def set_mode(self, key: str) -> None:
         self.mode_buttons[key].setChecked(True)
+
+
+class SidePanelScroll(QScrollArea):
+    """The viewer's side panels in a scroll area that scrolls only vertically and is never
+    narrower than its panels need: its (minimum) width is the panels' minimum width plus the
+    vertical scroll bar and the frame, so nothing is cut off at the right (the panels were
+    440 px wide in a 414 px viewport at 1920x1080: the step's uncertainty line, the spin
+    boxes' arrows and the group boxes' right edges were clipped)."""
+
+    def __init__(self, panel: QWidget, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setWidget(panel)
+        self.setWidgetResizable(True)
+        self.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+
+    def _chrome(self) -> int:
+        """What the scroll area takes of its width besides the panel."""
+        return self.verticalScrollBar().sizeHint().width() + 2 * self.frameWidth()
+
+    def minimumSizeHint(self) -> QSize:
+        hint = super().minimumSizeHint()
+        w = self.widget()
+        if w is None:
+            return hint
+        return QSize(max(hint.width(), w.minimumSizeHint().width() + self._chrome()),
+                     hint.height())
+
+    def sizeHint(self) -> QSize:
+        hint = super().sizeHint()
+        return QSize(max(hint.width(), self.minimumSizeHint().width()), hint.height())
 
 
 class MeasurementTable(QGroupBox):

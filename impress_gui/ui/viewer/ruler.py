@@ -20,6 +20,11 @@ from impress_gui.ui.worker import LatestOnly
 Point = tuple[float, float]
 
 
+def _pm_mm(u: float) -> str:
+    """``± 0.123 mm`` (``± -`` when not finite)."""
+    return f"± {u:.3f} mm" if math.isfinite(u) else "± -"
+
+
 class RulerProfile(QObject):
     """The ruler on ``map_view``, measured on ``layers``' heights with the tool panel's radius
     and width; its profile in ``plot``. ``profile_changed`` fires when the profile or the step
@@ -179,7 +184,7 @@ class RulerProfile(QObject):
         self.plot.show_step(s, self.step_budget)
         self.tools.step_text.setStyleSheet("font-weight: bold")
         unc = ("" if self.step_budget is None else
-               f"\nStep uncertainty U (k=2): {self.step_budget.short()} "
+               f"\nStep uncertainty U (k=2): {_pm_mm(self.step_budget.U_mm)} "
                f"(u_c {self.step_budget.u_c_mm:.3f} mm; ± above: the bands' SD)")
         self.tools.step_text.setText(
             f"A {s.a.mean_mm:.3f} ± {s.a.sd_mm:.3f} mm (n {s.a.n}), B {s.b.mean_mm:.3f} ± "

@@ -28,7 +28,6 @@ from PySide6.QtGui import QAction, QUndoStack
 from PySide6.QtWidgets import (
     QHBoxLayout,
     QPushButton,
-    QScrollArea,
     QSplitter,
     QVBoxLayout,
     QWidget,
@@ -50,7 +49,13 @@ from impress_gui.ui.viewer.layers import (
 )
 from impress_gui.ui.viewer.map import RAIL_TEXT, MapView
 from impress_gui.ui.viewer.measurements import Levelling, MeasurementList
-from impress_gui.ui.viewer.panels import DisplayPanel, ExportPanel, MeasurementTable, ToolPanel
+from impress_gui.ui.viewer.panels import (
+    DisplayPanel,
+    ExportPanel,
+    MeasurementTable,
+    SidePanelScroll,
+    ToolPanel,
+)
 from impress_gui.ui.viewer.profile import ProfilePlot
 from impress_gui.ui.viewer.ruler import RulerProfile
 
@@ -180,12 +185,11 @@ class ViewerTab(QWidget):
         self.exports = ExportPanel()
         for w in (self.display, self.tools, self.table, self.exports):
             sv.addWidget(w)
-        scroll = QScrollArea()
-        scroll.setWidget(side)
-        scroll.setWidgetResizable(True)
-        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
-        scroll.setMinimumWidth(430)
+        # never narrower than the panels (no horizontal scrolling: a narrower viewport cut
+        # off their right edge)
+        self.side_scroll = scroll = SidePanelScroll(side)
         split.addWidget(scroll)
+        split.setCollapsible(1, False)
         split.setStretchFactor(0, 3)
         split.setStretchFactor(1, 1)
 
