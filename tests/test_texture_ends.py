@@ -22,6 +22,7 @@ def flat_recon(tmp_path_factory):
     from impress_gui.core.calibration.target import TargetModel
     from impress_gui.core.formats.video import open_video
     from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
+    from impress_gui.core.reconstruction.texture import end_frame_indices
     from impress_gui.sim.simulate import SimConfig, simulate
 
     scan = tmp_path_factory.mktemp("texends") / "flat"
@@ -34,8 +35,12 @@ def flat_recon(tmp_path_factory):
                               Picks.load(scan / "picks.json"), truth["speed_mm_s"])
         rec = reconstruct(v, cal, ProcessParams(grid_mm=0.5))
         travel = cal.travel_mm(np.asarray(v.times_s))
-        k0, k1 = rec.frames[0], rec.frames[1] - 1  # the first and last processed frames
-        ends = [(float(travel[k]), v.read(int(k))) for k in (k0, k1)]
+        # the frames reconstruct samples at each end: the first (last) processed frame and
+        # one a little further in, whose stripes have left the ground under the end frame's
+        picks = end_frame_indices(cal, travel, *rec.frames)
+        assert picks[0][0] == rec.frames[0] and picks[1][0] == rec.frames[1] - 1
+        assert len(picks[0]) == len(picks[1]) == 2
+        ends = [[(float(travel[k]), v.read(int(k))) for k in p] for p in picks]
         # the same run with the texture row's colours only (the ends' fill left out)
         import impress_gui.core.reconstruction.reconstruct as R
 
@@ -151,3 +156,73 @@ def test_the_filled_colours_match_the_albedo(flat_recon):
         assert c0 > 0.3 and abs(bias) < 10, (c0, bias)
         # ... and in its place: no shift along the scan agrees better
         assert c0 >= max(corr(sel, d)[0] for d in (-3.0, -2.0, 2.0, 3.0)) - 0.02
+
+
+def _end_zones(row_only: np.ndarray, height: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cells at the scan's ends the texture row never reached (per column of the grid,
+    before its first row or after its last): those with a height, and those without one that
+    lie between the heights' end and the texture's (the lasers' shadow of a tall face)."""
+    cov = row_only.any(axis=2)
+    fin = np.isfinite(height)
+    n = cov.shape[0]
+    idx = np.arange(n)[:, None]
+    has = cov.any(axis=0)[None, :]
+    first = np.where(cov, idx, n).min(axis=0)[None, :]
+    last = np.where(cov, idx, -1).max(axis=0)[None, :]
+    h_first = np.where(fin, idx, n).min(axis=0)[None, :]
+    h_last = np.where(fin, idx, -1).max(axis=0)[None, :]
+    before, after = idx < first, idx > last
+    ends = has & (before | after)
+    shadow = ends & ~fin & ((before & (idx >= h_first)) | (after & (idx <= h_last)))
+    return ends & fin, shadow
+
+
+def _block_albedo(scan, truth, cal, rec, tex, sel, block_mm=5.0):
+    """Mean luminance of ``tex`` and of the simulator's albedo over the cells ``sel`` in
+    ``block_mm`` blocks (blocks at least half covered): their correlation and mean bias."""
+    import cv2
+
+    albedo = cv2.cvtColor(cv2.imread(str(scan / "truth_texture.png")), cv2.COLOR_BGR2RGB)
+    hm, sp = truth["heightmap"], rec.spec
+    ii, jj = np.nonzero(sel)
+    y = sp.y0_mm + ii * sp.pixel_mm + float(truth["travel_mm"][cal.t1])
+    x = sp.x0_mm + jj * sp.pixel_mm
+    ti = np.rint((y - hm["y0_mm"]) / hm["pixel_mm"]).astype(int)
+    tj = np.rint((x - hm["x0_mm"]) / hm["pixel_mm"]).astype(int)
+    ok = (ti >= 0) & (ti < albedo.shape[0]) & (tj >= 0) & (tj < albedo.shape[1])
+    ii, jj, ti, tj = ii[ok], jj[ok], ti[ok], tj[ok]
+    block = int(block_mm / sp.pixel_mm)
+    key = (ii // block) * 10_000 + jj // block
+    _, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+    a = np.bincount(inv, _lum(tex[ii, jj])) / cnt
+    b = np.bincount(inv, _lum(albedo[ti, tj])) / cnt
+    full = cnt >= 0.5 * block * block
+    return float(np.corrcoef(a[full], b[full])[0, 1]), float(np.mean(a[full] - b[full])), \
+        int(full.sum())
+
+
+def test_no_black_under_the_end_frames_stripes_or_in_the_targets_shadow(flat_recon):
+    """The black patches at the scan's start (issue 21): the first frame's laser stripes lie
+    on the first cells with heights, which its stripe mask left black; and the ground the
+    lasers cannot see before and after the L target's high face (no heights) stayed black
+    though the camera sees it. Now the cells under the end frame's stripes are sampled in a
+    frame a little further in, the shadow at the reference as the texture row maps it inside
+    the scan: next to nothing stays black at the ends, and the colours are the albedo's."""
+    from impress_gui.core.reconstruction.texture import fill_texture_ends
+
+    scan, truth, cal, rec, ends = flat_recon
+    with_h, shadow = _end_zones(rec.row_only_texture, rec.height_mm)
+    black = ~rec.texture_rgb.any(axis=2)
+    # with one frame per end (before): the cells under its stripes stay black
+    one, _ = fill_texture_ends(rec.row_only_texture, rec.height_mm, rec.spec, cal,
+                               ends[0][:1], ends[1][:1])
+    black_one = ~one.any(axis=2)
+    # measured on this scan: 78528 end cells with heights, none black (one frame per end:
+    # 4743 black, 6 %); 4399 cells of shadow, none black (before: all)
+    assert with_h.sum() > 1000 and black[with_h].mean() < 0.005, black[with_h].sum()
+    assert black_one[with_h].mean() > 0.02  # the stripes' cells: the second frame filled them
+    assert shadow.sum() > 500 and black[shadow].mean() < 0.02, black[shadow].sum()
+    # the shadow's colours are the ground's albedo (measured: correlation 0.99 over 45 blocks
+    # of 5 mm, 6 grey levels darker)
+    c, bias, n = _block_albedo(scan, truth, cal, rec, rec.texture_rgb, shadow)
+    assert n >= 10 and c > 0.8 and abs(bias) < 10, (c, bias, n)

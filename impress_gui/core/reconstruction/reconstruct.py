@@ -39,7 +39,12 @@ from impress_gui.core.reconstruction.stripes import (
     StripeDetector,
     StripeParams,
 )
-from impress_gui.core.reconstruction.texture import RowSpool, fill_texture_ends, reference_coeffs
+from impress_gui.core.reconstruction.texture import (
+    RowSpool,
+    end_frame_indices,
+    fill_texture_ends,
+    reference_coeffs,
+)
 
 
 @dataclass(frozen=True)
@@ -559,17 +564,22 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
 
 def _texture_ends(run: _Run, tab: _Tables, finisher: RowFinisher, warnings: list[str]) -> int:
     """Colour the cells at the scan's ends that the texture row never passed over (the lasers
-    lead and trail the image's centre) from the first and last processed frames
+    lead and trail the image's centre) from the first and last processed frames, and for the
+    cells under those frames' laser stripes from a frame a little further into the scan
     (:func:`~impress_gui.core.reconstruction.texture.fill_texture_ends`, in place). Returns
     the cells filled; a frame that cannot be read leaves them black, with a warning."""
     if finisher.tex is None:
         return 0
-    ends = []
+    ends: list[list[tuple[float, np.ndarray]]] = []
+    kk = run.start
     try:
-        for k in (run.start, run.stop - 1):
-            ends.append((float(tab.travel[k]), run.video.read(int(k))))
+        for picks in end_frame_indices(run.cal, tab.travel, run.start, run.stop):
+            frames = []
+            for kk in picks:
+                frames.append((float(tab.travel[kk]), run.video.read(int(kk))))
+            ends.append(frames)
     except ImpressError as exc:
-        warnings.append(f"the texture's ends were left without colour: frame {k} could not "
+        warnings.append(f"the texture's ends were left without colour: frame {kk} could not "
                         f"be read again ({exc.code})")
         return 0
     _, filled = fill_texture_ends(finisher.tex, finisher.fused, tab.spec, run.cal, ends[0],

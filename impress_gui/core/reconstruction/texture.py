@@ -188,6 +188,15 @@ def texture_split(s, ax, ay, ref, spec: GridSpec, max_gap: float):
     return ((0, a_end), (0, b_start), cells_first), ((b_start, n), (a_end, n), cells_second)
 
 
+#: an end frame: ``(camera travel in mm, RGB frame)``
+EndFrame = tuple[float, np.ndarray]
+
+
+def _stripe_half_px(h: int) -> int:
+    """Half the height (image rows) of the band masked around a laser's stripe."""
+    return max(3, int(round(0.012 * h)))
+
+
 def _stripe_mask(rgb: np.ndarray) -> np.ndarray:
     """The pixels of a frame on or near either laser's stripe (each stripe found in every row
     of the frame, widened by its halo)."""
@@ -195,7 +204,7 @@ def _stripe_mask(rgb: np.ndarray) -> np.ndarray:
 
     h, w = rgb.shape[:2]
     params = StripeParams()
-    half = max(3, int(round(0.012 * h)))
+    half = _stripe_half_px(h)
     mask = np.zeros((h, w), bool)
     cols = np.arange(w)
     for name in LASERS:
@@ -207,21 +216,70 @@ def _stripe_mask(rgb: np.ndarray) -> np.ndarray:
     return mask
 
 
+def stripe_clear_travel(cal: SceneCalibration, travel_mm: float) -> float:
+    """How far (mm) the camera must travel from ``travel_mm`` before the laser stripes of its
+    frame have moved off the ground they covered there: the masked band around a stripe
+    (:func:`_stripe_mask`) on the reference surface below the picture's centre, 1.5 times.
+    The cells under an end frame's stripes are coloured from a frame that far into the scan
+    (:func:`fill_texture_ends`)."""
+    h = int(cal.intrinsics.image_size[1])
+    band_px = 2 * _stripe_half_px(h) + 1
+    y = float(travel_mm)
+    z = float(cal.reference_depth(np.array(0.0), np.array(y)))
+    uv = cal.project_rail(np.array([[0.0, y, z], [0.0, y + 1.0, z]]), y)
+    px_per_mm = float(np.hypot(*(uv[1] - uv[0])))
+    if not np.isfinite(px_per_mm) or px_per_mm <= 0:
+        return float("nan")
+    return 1.5 * band_px / px_per_mm
+
+
+def end_frame_indices(cal: SceneCalibration, travel: np.ndarray, start: int, stop: int
+                      ) -> tuple[list[int], list[int]]:
+    """The frames :func:`fill_texture_ends` samples at each end of frames ``start .. stop -
+    1`` (``travel``: the camera travel of every frame, mm): the end frame itself, then the
+    nearest frame inside the run whose laser stripes have moved off the ground under the end
+    frame's (:func:`stripe_clear_travel`), when there is one."""
+
+    def picks(k: int, inward: range) -> list[int]:
+        clear = stripe_clear_travel(cal, float(travel[k]))
+        if np.isfinite(clear):
+            for kk in inward:
+                if abs(float(travel[kk]) - float(travel[k])) >= clear:
+                    return [k, kk]
+        return [k]
+
+    last = stop - 1
+    return picks(start, range(start + 1, stop)), picks(last, range(last - 1, start - 1, -1))
+
+
+def _end_frames(end) -> list[EndFrame]:
+    """An end's frames, in the order they are tried: one ``(travel, frame)`` or a sequence."""
+    if isinstance(end, tuple) and len(end) == 2 and np.ndim(end[1]) == 3:
+        return [(float(end[0]), end[1])]
+    return [(float(t), img) for t, img in end]
+
+
 def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: GridSpec,
-                      cal: SceneCalibration, first: tuple[float, np.ndarray],
-                      last: tuple[float, np.ndarray], inplace: bool = False
+                      cal: SceneCalibration, first, last, inplace: bool = False
                       ) -> tuple[np.ndarray, np.ndarray]:
     """The texture at the scan's ends, where the heightmap reaches further than the texture
-    row (the lasers lead and trail the image's centre): each cell with a height but no
-    colour, before the texture's first row or after its last (per column of the grid), is
-    projected - at its height -
-    into the first (``first``) or last (``last``) processed frame, ``(camera travel in mm,
-    RGB frame)``, and its colour sampled there (bilinear, on the distorted frame as the texture
-    row is); cells that fall on the frame's laser stripes are left without colour, as are
-    interior cells without colour (shadows). Returns the texture
-    (a copy, or ``texture_rgb`` itself filled when ``inplace``) and the cells filled.
-    Deterministic; occlusion is not checked (at the ends the surface is seen from close to
-    straight above). Memory: a few boolean grids, no integer grid."""
+    row (the lasers lead and trail the image's centre): each cell without colour before the
+    texture's first row or after its last (per column of the grid) is projected into the
+    first (``first``) or last (``last``) processed frame, ``(camera travel in mm, RGB frame)``,
+    and its colour sampled there (bilinear, on the distorted frame as the texture row is).
+    Cells with a height are projected at their height; cells without one that lie between
+    the heights' end and the texture's (a laser's shadow, e.g. before the L target's high
+    face) at the reference, as the texture row maps them inside the scan.
+
+    ``first`` and ``last`` may each be a sequence of frames, tried in order: a cell that falls
+    on a frame's laser stripes (or outside it) is sampled in the next one. The stripes of the
+    very first frame lie on the first cells with heights, so reconstruct passes a second
+    frame a little further into the scan (:func:`stripe_clear_travel`); cells on the stripes
+    of every frame given are left without colour, as are interior cells without colour
+    (shadows). Returns the texture (a copy, or ``texture_rgb`` itself filled when
+    ``inplace``) and the cells filled. Deterministic; occlusion is not checked (at the ends
+    the surface is seen from close to straight above). Memory: a few boolean grids, no
+    integer grid."""
     from scipy.ndimage import map_coordinates
 
     tex = texture_rgb if inplace else np.array(texture_rgb, copy=True)
@@ -235,41 +293,51 @@ def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: Grid
     has_col = np.asarray(covered.any(axis=0), bool)
     first_row = np.where(has_col, covered.argmax(axis=0), n_rows)
     last_row = np.where(has_col, n_rows - 1 - covered[::-1].argmax(axis=0), -1)
+    # and the heights' first and last row: cells without a height between them and the
+    # texture's are inside the scan
+    finite = np.isfinite(height_mm)
+    has_h = np.asarray(finite.any(axis=0), bool)
+    h_first = np.where(has_h, finite.argmax(axis=0), n_rows)
+    h_last = np.where(has_h, n_rows - 1 - finite[::-1].argmax(axis=0), -1)
     idx = np.arange(n_rows)[:, None]
     before = idx < first_row[None, :]
-    want = before | (idx > last_row[None, :])
+    after = idx > last_row[None, :]
+    want = (before & (finite | (idx >= h_first[None, :]))) \
+        | (after & (finite | (idx <= h_last[None, :])))
     want &= ~covered
     want &= has_col[None, :]
-    want &= np.isfinite(height_mm)
-    del covered
+    del covered, after
     ii, jj = np.nonzero(want)
     del want
     if not len(ii):
         return tex, filled
     x = spec.x0_mm + jj * spec.pixel_mm
     y = spec.y0_mm + ii * spec.pixel_mm
-    z = cal.reference_depth(x, y) - height_mm[ii, jj]
+    hv = height_mm[ii, jj]
+    z = cal.reference_depth(x, y) - np.where(np.isfinite(hv), hv, 0.0)
     pts = np.column_stack([x, y, z])
-    (s_a, img_a), (s_b, img_b) = sorted([first, last], key=lambda e: e[0])
-    # cells before the texture's first row (lower Y) lie towards the frame of lower travel
+    ends = sorted([_end_frames(first), _end_frames(last)], key=lambda e: e[0][0])
+    # cells before the texture's first row (lower Y) lie towards the frames of lower travel
     start = before[ii, jj]
-    for sel, (travel, img) in ((start, (s_a, img_a)), (~start, (s_b, img_b))):
-        if not sel.any():
-            continue
-        uv = cal.project_rail(pts[sel], float(travel))
-        h, w = img.shape[:2]
-        ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) \
-            & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
-        # not on the frame's laser stripes (the stripes lie at the ends of the heights)
-        near = _stripe_mask(img)
-        ok &= ~near[np.clip(np.rint(uv[:, 1]), 0, h - 1).astype(int),
-                    np.clip(np.rint(uv[:, 0]), 0, w - 1).astype(int)]
-        if not ok.any():
-            continue
-        coords = [uv[ok, 1], uv[ok, 0]]
-        cols = np.stack([map_coordinates(img[..., c].astype(np.float32), coords, order=1)
-                         for c in range(3)], axis=1)
-        ti, tj = ii[sel][ok], jj[sel][ok]
-        tex[ti, tj] = np.clip(cols + 0.5, 0, 255).astype(tex.dtype)
-        filled[ti, tj] = True
+    for sel0, frames in ((start, ends[0]), (~start, ends[1])):
+        todo = np.flatnonzero(sel0)
+        for travel, img in frames:
+            if not len(todo):
+                break
+            uv = cal.project_rail(pts[todo], float(travel))
+            h, w = img.shape[:2]
+            ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) \
+                & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+            # not on the frame's laser stripes (the stripes lie at the ends of the heights)
+            near = _stripe_mask(img)
+            ok &= ~near[np.clip(np.rint(uv[:, 1]), 0, h - 1).astype(int),
+                        np.clip(np.rint(uv[:, 0]), 0, w - 1).astype(int)]
+            if ok.any():
+                coords = [uv[ok, 1], uv[ok, 0]]
+                cols = np.stack([map_coordinates(img[..., c].astype(np.float32), coords,
+                                                 order=1) for c in range(3)], axis=1)
+                ti, tj = ii[todo[ok]], jj[todo[ok]]
+                tex[ti, tj] = np.clip(cols + 0.5, 0, 255).astype(tex.dtype)
+                filled[ti, tj] = True
+            todo = todo[~ok]
     return tex, filled
