@@ -26,9 +26,10 @@ truth ("world") y is the rail y plus the travel at calibration frame t1.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, TypedDict, TypeVar
+from types import SimpleNamespace
+from typing import TYPE_CHECKING, Any, TypedDict, TypeVar
 
 import numpy as np
 
@@ -36,6 +37,9 @@ from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.measure import readings as M
 from impress_gui.core.reconstruction.grid import GridSpec
+
+if TYPE_CHECKING:
+    from impress_gui.core.measure.uncertainty import UncertaintyContext
 
 SPEC_FORMAT = "impress.validation-spec"
 KINDS = ("width", "edge_distance", "step")
@@ -152,6 +156,17 @@ class Result:
     measured_mm: float
     error_mm: float  # measured - nominal (NaN when the measurement failed)
     note: str = ""
+    #: the reading's stated uncertainty (k = 2 expanded and combined standard), NaN when
+    #: no budget was computed (issue 22)
+    U_mm: float = math.nan  # noqa: N815 - the GUM's symbol
+    u_c_mm: float = math.nan
+
+    @property
+    def covered(self) -> bool | None:
+        """Whether the true error lies within the stated U (None: no error or no U)."""
+        if not (math.isfinite(self.error_mm) and math.isfinite(self.U_mm)):
+            return None
+        return abs(self.error_mm) <= self.U_mm
 
     def to_json(self) -> dict[str, Any]:
         r = self.reading
@@ -165,6 +180,9 @@ class Result:
             "nominal_mm": r.nominal_mm,
             "measured_mm": _num(self.measured_mm),
             "error_mm": _num(self.error_mm),
+            "u_c_mm": _num(self.u_c_mm),
+            "U_k2_mm": _num(self.U_mm),
+            "covered": self.covered,
             "note": self.note,
             "start_mm": list(r.start_mm),
             "end_mm": list(r.end_mm),
@@ -204,8 +222,11 @@ def levelled_crop(
     return M.levelled(sub, sspec, plane), sspec, plane
 
 
-#: levelled crops kept between readings that share a level region
-LevelCache = dict[tuple[str, LevelRegion], tuple[np.ndarray, GridSpec]]
+#: levelled crops (heights, grid, levelling plane) kept between readings sharing a region
+LevelCache = dict[tuple[str, LevelRegion], tuple[np.ndarray, GridSpec, M.Plane]]
+#: makes the uncertainty context of a reading from the (cropped, maybe levelled) heights it is
+#: measured on, their grid and the levelling plane (None: not levelled)
+ContextFactory = Callable[[np.ndarray, GridSpec, "M.Plane | None"], "UncertaintyContext"]
 
 _T = TypeVar("_T")
 
@@ -233,19 +254,26 @@ def _edge(profile: M.Profile, e: Edge) -> float:
 
 
 def measure_reading(
-    height: np.ndarray, spec: GridSpec, r: Reading, cache: LevelCache | None = None
+    height: np.ndarray,
+    spec: GridSpec,
+    r: Reading,
+    cache: LevelCache | None = None,
+    context: ContextFactory | None = None,
 ) -> Result:
     """Make one reading on a heightmap (float32 mm, NaN = no data) with its grid. ``cache``
-    keeps levelled regions between readings that share one."""
+    keeps levelled regions between readings that share one. With ``context``, the reading's
+    uncertainty budget (:mod:`impress_gui.core.measure.uncertainty`) is computed as the viewer
+    computes it, and the result carries its U (k = 2)."""
+    plane: M.Plane | None = None
     try:
         if r.level is not None:
             key = ("level", r.level)
             if cache is not None and key in cache:
-                h, sspec = cache[key]
+                h, sspec, plane = cache[key]
             else:
-                h, sspec, _ = levelled_crop(height, spec, r.level)
+                h, sspec, plane = levelled_crop(height, spec, r.level)
                 if cache is not None:
-                    cache[key] = (h, sspec)
+                    cache[key] = (h, sspec, plane)
         else:
             pad = r.profile_width_mm + 1.0
             xs, ys = (r.start_mm[0], r.end_mm[0]), (r.start_mm[1], r.end_mm[1])
@@ -253,32 +281,82 @@ def measure_reading(
                 height, spec, (min(xs) - pad, max(xs) + pad), (min(ys) - pad, max(ys) + pad)
             )
         prof = M.line_profile(h, sspec, r.start_mm, r.end_mm, r.profile_width_mm)
+        budget_of: Callable[[UncertaintyContext], Any]
         if r.kind == "step":
-            s = M.step_height(
-                prof, _required(r.band_a_mm, "band_a_mm", r), _required(r.band_b_mm, "band_b_mm", r)
-            )
+            band_a = _required(r.band_a_mm, "band_a_mm", r)
+            band_b = _required(r.band_b_mm, "band_b_mm", r)
+            s = M.step_height(prof, band_a, band_b)
             value, note = abs(s.difference_mm), f"bands n={s.a.n}/{s.b.n}"
+
+            def budget_of(ctx):
+                from impress_gui.core.measure import uncertainty as U
+
+                return U.step_budget(ctx, prof, s, band_a, band_b)
         elif r.kind == "width":
             a = M.band_stats(prof, _required(r.band_a_mm, "band_a_mm", r))
             b = M.band_stats(prof, _required(r.band_b_mm, "band_b_mm", r))
             level = 0.5 * (a.mean_mm + b.mean_mm)
-            value = M.width_at_level(prof, level, _required(r.around_mm, "around_mm", r)).width_mm
+            w = M.width_at_level(prof, level, _required(r.around_mm, "around_mm", r))
+            value = w.width_mm
             note = f"at level {level:.3f} mm"
+
+            def budget_of(ctx):
+                from impress_gui.core.measure import uncertainty as U
+
+                return U.width_budget(ctx, prof, w)
         elif r.kind == "edge_distance":
             e0, e1 = (_edge(prof, e) for e in r.edges)
             value, note = abs(e1 - e0), ""
+            levels = [
+                0.5 * (M.band_stats(prof, e.band_low_mm).mean_mm
+                       + M.band_stats(prof, e.band_high_mm).mean_mm)
+                for e in r.edges
+            ]
+            # two edges found as level crossings, like a width's two walls (each at its own
+            # level; the budget takes their mean level for the calibration's movement)
+            pair = SimpleNamespace(left_mm=min(e0, e1), right_mm=max(e0, e1),
+                                   level_mm=float(np.mean(levels)), width_mm=value)
+
+            def budget_of(ctx):
+                from impress_gui.core.measure import uncertainty as U
+
+                return U.width_budget(ctx, prof, pair)
         else:
             raise InputError(f"unknown measurement kind {r.kind!r}", code=codes.E_VAL_SPEC)
     except InputError as exc:
         return Result(r, math.nan, math.nan, f"failed: {exc}")
     if not math.isfinite(value):
         return Result(r, math.nan, math.nan, "failed: no data at the measuring position")
-    return Result(r, float(value), float(value - r.nominal_mm), note)
+    big_u = u_c = math.nan
+    if context is not None:
+        budget = budget_of(context(h, sspec, plane))
+        big_u, u_c = float(budget.U_mm), float(budget.u_c_mm)
+    return Result(r, float(value), float(value - r.nominal_mm), note, big_u, u_c)
 
 
-def measure_all(height: np.ndarray, spec: GridSpec, readings: Sequence[Reading]) -> list[Result]:
+def measure_all(
+    height: np.ndarray,
+    spec: GridSpec,
+    readings: Sequence[Reading],
+    context: ContextFactory | None = None,
+) -> list[Result]:
     cache: LevelCache = {}
-    return [measure_reading(height, spec, r, cache) for r in readings]
+    return [measure_reading(height, spec, r, cache, context) for r in readings]
+
+
+def coverage(results: Sequence[Result]) -> dict[str, dict[str, Any]]:
+    """Per reading kind (and ``"all"``): how many readings have both a true error and a stated
+    U (k = 2), and the share whose error lies within it (the target is about 95 %)."""
+    out: dict[str, dict[str, Any]] = {}
+    for kind in [*KINDS, "all"]:
+        flags = [r.covered for r in results if kind == "all" or r.reading.kind == kind]
+        known = [f for f in flags if f is not None]
+        if not known:
+            continue
+        n_in = int(sum(known))
+        out[kind] = {"n": len(known), "covered": n_in,
+                     "share": round(n_in / len(known), 4)}
+    return out
 
 
 # ----- the simulator's blocks: readings from the truth features ------------------------------

@@ -71,6 +71,16 @@ def format_table(record: dict) -> str:
             f"{'PASS' if acc.get('z_ok') else 'FAIL'}"
             + ("" if acc.get("all_placements") else "  (not all six placements were run)")
         )
+    cov = record.get("uncertainty_coverage") or {}
+    if cov:
+        parts = [
+            f"{k.replace('_', ' ')} {c['covered']}/{c['n']} ({100 * c['share']:.1f} %)"
+            for k, c in cov.items()
+        ]
+        lines.append(
+            "Stated uncertainty (k = 2) covers the true error: " + ", ".join(parts)
+            + " (about 95 % expected)"
+        )
     if "flat" in record:
         f = record["flat"]
         lines.append(

@@ -303,10 +303,45 @@ def _flat_region(
     return xr, (float(ys[rows[0]]), float(ys[rows[-1]]))
 
 
-def _measure_item(item: str, rec: ReconData, truth: dict[str, Any], group: str) -> dict[str, Any]:
+def uncertainty_contexts(
+    rec: ReconData, calibration: Path | None, target: Path | None
+) -> V.ContextFactory:
+    """The uncertainty context of each validation reading, as the viewer would make it for the
+    same cells: the reconstruction's calibration (its Monte Carlo computed once, cached), the
+    target it was fitted with, the lasers' contribution codes cropped like the heights."""
+    from impress_gui.core.calibration.scene import SceneCalibration
+    from impress_gui.core.calibration.target import TargetModel
+    from impress_gui.core.measure.uncertainty import UncertaintyContext
+
+    cal = SceneCalibration.load(calibration) if calibration is not None else None
+    model = TargetModel.load(target) if target is not None else None
+    contribution = rec.layers.get("contribution")
+    p = rec.spec.pixel_mm
+
+    def make(h, sspec, plane):
+        c = None
+        if contribution is not None:
+            i0 = int(round((sspec.y0_mm - rec.spec.y0_mm) / p))
+            j0 = int(round((sspec.x0_mm - rec.spec.x0_mm) / p))
+            c = contribution[i0 : i0 + sspec.shape[0], j0 : j0 + sspec.shape[1]]
+        return UncertaintyContext.for_calibration(h, sspec, cal, model, c, level_plane=plane)
+
+    return make
+
+
+def _measure_item(
+    item: str,
+    rec: ReconData,
+    truth: dict[str, Any],
+    group: str,
+    context: V.ContextFactory | None = None,
+) -> dict[str, Any]:
     if item in V.PLACEMENT_BY_KEY:
         readings = V.blocks_readings(truth, group)
-        return {"results": V.measure_all(rec.height_mm, rec.spec, readings), "readings": readings}
+        return {
+            "results": V.measure_all(rec.height_mm, rec.spec, readings, context),
+            "readings": readings,
+        }
     if item == "flat":
         xr, yr = _flat_region(rec, truth)
         return {"flat": VDI.flatness(rec.height_mm, rec.spec, xr, yr).to_json()}
@@ -344,6 +379,8 @@ def _header(kind: str) -> dict[str, Any]:
 def _finish(record: dict[str, Any], results: list[V.Result], groups: list[str]) -> dict[str, Any]:
     summary = V.summarise(results, groups)
     record["readings"] = [r.to_json() for r in results]
+    # issue 22: do the stated uncertainties (k = 2) cover the true errors?
+    record["uncertainty_coverage"] = V.coverage(results)
     record["summary"] = {g: {ax: s.to_json() for ax, s in v.items()} for g, v in summary.items()}
     ov = summary["Overall"]
     record["acceptance"] = {
@@ -458,8 +495,13 @@ def run_simulated(
         )
         report(part, 0.98, f"{title}: measuring")
         truth = json.loads((scan / "truth.json").read_text())
-        rec = load_reconstruction(out / "runs" / item / "reconstruction", layers=("fused",))
-        measured = _measure_item(item, rec, truth, title)
+        rec = load_reconstruction(
+            out / "runs" / item / "reconstruction", layers=("fused", "contribution")
+        )
+        context = uncertainty_contexts(
+            rec, out / "runs" / item / "calibration.json", scan / "target.json"
+        )
+        measured = _measure_item(item, rec, truth, title, context)
         del rec
         if not cfg.keep_reconstructions:
             info["reconstruction"]["pruned"] = prune_reconstruction(out / "runs" / item / "reconstruction")
