@@ -27,16 +27,17 @@ pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
 
 SPEC = GridSpec(0.0, 0.0, 0.2, (200, 300))  # 60 x 40 mm
 STEP_MM = 2.0
+NOISE_MM = 0.1  # SD of the map's noise
 
 
 def step_recon(folder):
     """A reconstruction folder (heightmap and metadata, as ``impress process`` writes them)
-    of a plane with a 2 mm step up half-way across x, with a little noise."""
+    of a plane with a 2 mm step up half-way across x, with 0.1 mm of noise."""
     import tifffile
 
     rng = np.random.default_rng(21)
     h = np.where(np.arange(SPEC.shape[1])[None, :] >= SPEC.shape[1] // 2, STEP_MM, 0.0)
-    h = (h + rng.normal(0, 0.02, SPEC.shape)).astype(np.float32)
+    h = (h + rng.normal(0, NOISE_MM, SPEC.shape)).astype(np.float32)
     folder.mkdir(parents=True, exist_ok=True)
     tifffile.imwrite(folder / "heightmap.tif", h)
     sha = hashlib.sha256((folder / "heightmap.tif").read_bytes()).hexdigest()

@@ -35,6 +35,7 @@ from PySide6.QtWidgets import (
 
 from impress_gui.core.formats.writers import contribution_png
 from impress_gui.core.measure import readings as M
+from impress_gui.core.measure import uncertainty as U
 from impress_gui.core.project.project import Project
 from impress_gui.session.session import Session
 from impress_gui.ui.messages import Dialogs, Messenger
@@ -107,6 +108,7 @@ class ViewerTab(QWidget):
         self.session = session if session is not None else Session()
         self.mode = "pan"
         self._pending: list[tuple[float, float]] = []  # the ruler's first click
+        self._cursor: tuple[float, float] | None = None  # where the readout was read (mm)
         self.tasks = TaskBar(self.messenger, self, name="viewer-task")
         self.tasks.status.connect(self.status)
         self._build_ui()
@@ -223,6 +225,7 @@ class ViewerTab(QWidget):
         self.levelling.status.connect(self.status)
         self.measurements.changed.connect(self._on_project_edited)
         self.measurements.status.connect(self.status)
+        self.measurements.uncertainty.ready.connect(self._show_readout_again)
         self.actions.written.connect(self._on_project_edited)
         self.actions.status.connect(self.status)
         a, b = self.actions, self.exports.buttons
@@ -436,7 +439,9 @@ class ViewerTab(QWidget):
                 view.set_crosshair(x_mm, y_mm)
 
     def _on_left_map(self) -> None:
+        self._cursor = None
         self.tools.readout.setText("Cursor: outside the map")
+        self.tools.readout.setToolTip("")
         for view in (self.map, self.texture_map):
             view.set_crosshair(None)
 
@@ -444,23 +449,44 @@ class ViewerTab(QWidget):
     def readout_at(self, x_mm: float, y_mm: float) -> M.Readout:
         return self.layers.readout(x_mm, y_mm, self.tools.radius.value())
 
+    def readout_budget(self, r: M.Readout) -> U.Budget | None:
+        """The uncertainty budget of the height read at the cursor (as a marker's there would
+        be, :func:`~impress_gui.core.measure.uncertainty.height_budget`); None without data."""
+        if not r.has_data:
+            return None
+        ctx = self.measurements.uncertainty.context()
+        return None if ctx is None else U.height_budget(ctx, r)
+
     def show_readout(self, x_mm: float, y_mm: float) -> None:
+        """The height under the cursor with its expanded uncertainty U (k = 2), and the spread
+        (SD) of the cells averaged, labelled as such; the budget in the tooltip."""
         if self.data is None:
             return
+        self._cursor = (x_mm, y_mm)
         r = self.readout_at(x_mm, y_mm)
         where = f"x {x_mm:.2f} mm, y {y_mm:.2f} mm"
+        budget = None
         if r.n_cells == 0:
             text = f"{where}: outside the map"
         elif not r.has_data:
             text = f"{where}: no data"
         else:
-            text = (
-                f"{where}: height {r.height_mm:.3f} mm (SD {r.sd_mm:.3f}, {r.n_valid} of "
-                f"{r.n_cells} cells)"
-            )
+            budget = self.readout_budget(r)
+            u = "" if budget is None else (
+                f" ± {budget.U_mm:.3f} mm (U, k=2)" if np.isfinite(budget.U_mm)
+                else " ± - (U, k=2)")
+            spread = f"spread SD {r.sd_mm:.3f} mm, " if r.n_valid > 1 else ""
+            text = (f"{where}: height {r.height_mm:.3f} mm{u} ({spread}{r.n_valid} of "
+                    f"{r.n_cells} cells)")
         if self.plane is not None:
             text += " [levelled]"
         self.tools.readout.setText(text)
+        self.tools.readout.setToolTip("" if budget is None else budget.text())
+
+    def _show_readout_again(self) -> None:
+        """The calibration's Monte Carlo arrived: the cursor's reading again, with it."""
+        if self._cursor is not None and self.data is not None:
+            self.show_readout(*self._cursor)
 
     # ----- modes and clicks -----------------------------------------------------------------------
     def set_mode(self, mode: str) -> None:
