@@ -18,6 +18,7 @@ from PySide6.QtWidgets import (
     QPlainTextEdit,
     QPushButton,
     QScrollArea,
+    QSizePolicy,
     QSlider,
     QTableWidget,
     QTableWidgetItem,
@@ -109,6 +110,10 @@ class DisplayPanel(QGroupBox):
             s.valueChanged.connect(
                 lambda _v: self.light_changed.emit(self.azimuth.value(), self.elevation.value())
             )
+        # the spin boxes may be narrower than their preferred width (their minimum shows a
+        # value with its unit): the panel then fits the side panel's 430 px
+        for s in (self.lo, self.hi, self.azimuth, self.elevation):
+            s.setSizePolicy(QSizePolicy.Policy.Preferred, QSizePolicy.Policy.Fixed)
         rows = (("Layer", self.layer), ("Colours", self.cmap))
         for r, (text, w) in enumerate(rows):
             g.addWidget(QLabel(text), r, 0)
@@ -224,12 +229,15 @@ class ToolPanel(QGroupBox):
 class SidePanelScroll(QScrollArea):
     """The viewer's side panels in a scroll area that scrolls only vertically and is never
     narrower than its panels need: its (minimum) width is the panels' minimum width plus the
-    vertical scroll bar and the frame, so nothing is cut off at the right (the panels were
-    440 px wide in a 414 px viewport at 1920x1080: the step's uncertainty line, the spin
-    boxes' arrows and the group boxes' right edges were clipped)."""
+    vertical scroll bar and the frame (and at least ``min_width``), so nothing is cut off at
+    the right (the panels were 440 px wide in a 414 px viewport at 1920x1080: the step's
+    uncertainty line, the spin boxes' arrows and the group boxes' right edges were
+    clipped)."""
 
-    def __init__(self, panel: QWidget, parent: QWidget | None = None) -> None:
+    def __init__(self, panel: QWidget, min_width: int = 430,
+                 parent: QWidget | None = None) -> None:
         super().__init__(parent)
+        self.min_width = min_width
         self.setWidget(panel)
         self.setWidgetResizable(True)
         self.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
@@ -241,10 +249,8 @@ class SidePanelScroll(QScrollArea):
     def minimumSizeHint(self) -> QSize:
         hint = super().minimumSizeHint()
         w = self.widget()
-        if w is None:
-            return hint
-        return QSize(max(hint.width(), w.minimumSizeHint().width() + self._chrome()),
-                     hint.height())
+        need = 0 if w is None else w.minimumSizeHint().width() + self._chrome()
+        return QSize(max(hint.width(), self.min_width, need), hint.height())
 
     def sizeHint(self) -> QSize:
         hint = super().sizeHint()
