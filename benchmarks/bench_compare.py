@@ -13,7 +13,12 @@ Then ``impress compare``: A with B (residual RMS, 95th percentile of |A - B| ove
 the recovered turn), A with C (the region at the cut: its depth and length against the truth),
 and A with B's outsole (B's map inverted and mirrored, compared with --mirror --invert).
 
+The difference is measured along A's surface normal (``impress compare``'s default); with
+``--metric vertical`` as the height difference. For each pair the 95th percentile of |A - B| is
+also split by A's slope (flats: |grad A| < 0.2; walls: |grad A| > 1).
+
 Usage: .venv/bin/python benchmarks/bench_compare.py [--resolution 1920x1080] [--speed 13.138]
+       [--metric normal|vertical]
 """
 
 from __future__ import annotations
@@ -91,6 +96,27 @@ def compare(a: Path, b: Path, out: Path, *extra: str) -> tuple[dict, float]:
     return json.loads((out / "compare.json").read_text()), time.perf_counter() - t0
 
 
+def by_slope(out: Path) -> None:
+    """The 95th percentile of |A - B| on A's flats and walls, and the walls' share of the
+    cells above the whole map's 95th percentile."""
+    import tifffile
+
+    from impress_gui.core.compare.difference import slope
+    from impress_gui.core.compare.surfaces import Surface
+
+    a = tifffile.imread(out / "a.tif")
+    v = np.abs(tifffile.imread(out / "difference.tif").astype(np.float64))
+    px = json.loads((out / "compare.json").read_text())["grid"]["pixel_mm"]
+    g = slope(Surface(a, 0.0, 0.0, px, -px))
+    ok = np.isfinite(v) & np.isfinite(g)
+    v, g = v[ok], g[ok]
+    p95 = np.percentile(v, 95)
+    flat, wall = g < 0.2, g > 1.0
+    print(f"{'':<22s} flats ({flat.mean():.0%} of cells) p95 {np.percentile(v[flat], 95):.4f}, "
+          f"walls ({wall.mean():.0%}) p95 {np.percentile(v[wall], 95):.4f}; the walls hold "
+          f"{(wall & (v > p95)).sum() / max(1, (v > p95).sum()):.0%} of the cells above the p95")
+
+
 def s1(scan: Path) -> float:
     t = json.loads((scan / "truth.json").read_text())
     return t["travel_mm"][t["calibration_frames"]["t1"]]
@@ -100,12 +126,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--resolution", default="1920x1080")
     ap.add_argument("--speed", default="13.138")
+    ap.add_argument("--metric", default="normal", choices=("normal", "vertical"))
     args = ap.parse_args()
     runs = {n: scan_and_recon(n, args.resolution, args.speed) for n in SCANS}
-    work = CACHE / f"compare-out-{args.resolution}"
+    work = CACHE / f"compare-out-{args.resolution}" / args.metric
     work.mkdir(parents=True, exist_ok=True)
     (scan_a, rec_a), (_, rec_b), (_, rec_c) = runs["a"], runs["b"], runs["c"]
-    print(f"\nimpress compare at {args.resolution}, speed {args.speed} mm/s, grid 0.1 mm")
+    print(f"\nimpress compare at {args.resolution}, speed {args.speed} mm/s, grid 0.1 mm, "
+          f"--metric {args.metric}")
     print(f"{'pair':<22s} {'turn deg':>9s} {'RMS mm':>8s} {'p95 mm':>8s} {'overlap':>8s} "
           f"{'time s':>7s}")
     rows = [("A-B", rec_b, (), 20.0), ("A-C (cut)", rec_c, (), -12.0),
@@ -113,11 +141,13 @@ def main() -> None:
              ("--mirror", "--invert"), 20.0)]
     docs = {}
     for label, other, extra, turn in rows:
-        doc, dt = compare(rec_a, other, work / label.split()[0].replace("(", ""), *extra)
+        doc, dt = compare(rec_a, other, work / label.split()[0].replace("(", ""), *extra,
+                          "--metric", args.metric)
         docs[label] = doc
         r, d = doc["registration"], doc["difference"]
         print(f"{label:<22s} {r['rotation_about_z_deg']:9.4f} {r['residual_rms_mm']:8.4f} "
               f"{d['p95_abs_mm']:8.4f} {r['overlap']:8.3f} {dt:7.1f}   (true turn {turn:+g})")
+        by_slope(work / label.split()[0].replace("(", ""))
     # the cut: in A's export frame (A is unposed: the shoe's frame is A's rail frame)
     cx, cy = CUT["x_mm"], -(CUT["y_mm"] - s1(scan_a))
     items = docs["A-C (cut)"]["regions"]["items"]

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -278,7 +279,16 @@ def test_command_writes_files_independent_readers_read(recons, tmp_path, capsys)
     b_on = tifffile.imread(out1 / "b_on_a.tif")
     assert diff.dtype == np.float32 and diff.shape == tuple(doc["grid"]["shape"])
     ok = np.isfinite(diff)
-    assert np.array_equal(diff[ok], (a_win - b_on)[ok])
+    # the default metric: along A's normal, (A - B) / sqrt(1 + |grad A|^2); checked with
+    # numpy's central differences where a cell's four neighbours have data
+    assert doc["difference"]["metric"] == doc["parameters"]["metric"] == "normal"
+    assert "normal" in doc["difference"]["definition"]
+    gy, gx = np.gradient(a_win.astype(np.float64), doc["grid"]["pixel_mm"])
+    inner = ok & np.isfinite(gx) & np.isfinite(gy)
+    want = (a_win.astype(np.float64) - b_on) / np.sqrt(1 + gx * gx + gy * gy)
+    assert inner.sum() > 0.9 * ok.sum()
+    assert np.allclose(diff[inner], want[inner], atol=1e-6, rtol=1e-5)
+    assert np.all(np.abs(diff[ok]) <= np.abs(a_win - b_on)[ok] + 1e-6)
     assert np.percentile(np.abs(diff[ok]), 50) < 0.01
     # the difference's grid is A's: its cell [0, 0] lies on one of A's cells
     g = doc["grid"]
@@ -290,6 +300,38 @@ def test_command_writes_files_independent_readers_read(recons, tmp_path, capsys)
     assert len(near) == 1 and near[0]["deepest_mm"] < -0.3
     html = (out1 / "report.html").read_text()
     assert _sha(recons["a"] / "heightmap.tif") in html and "residual RMS" in html
+    assert "Signed distance along A&#39;s surface normal" in html
+
+
+def test_command_vertical_metric(recons, tmp_path, capsys):
+    """``--metric vertical``: the difference is A - B itself, and the record says so; over the
+    overlap its 95th percentile is above the normal one (the walls)."""
+    import tifffile
+
+    out_v, out_n = tmp_path / "vertical", tmp_path / "normal"
+    assert main(["compare", str(recons["a"]), str(recons["c"]), "--metric", "vertical", "-o",
+                 str(out_v)]) == 0
+    assert "(vertical)" in capsys.readouterr().out
+    assert main(["compare", str(recons["a"]), str(recons["c"]), "-o", str(out_n)]) == 0
+    doc_v = json.loads((out_v / "compare.json").read_text())
+    doc_n = json.loads((out_n / "compare.json").read_text())
+    assert doc_v["difference"]["metric"] == doc_v["parameters"]["metric"] == "vertical"
+    diff = tifffile.imread(out_v / "difference.tif")
+    a_win, b_on = tifffile.imread(out_v / "a.tif"), tifffile.imread(out_v / "b_on_a.tif")
+    ok = np.isfinite(diff)
+    assert np.array_equal(diff[ok], (a_win - b_on)[ok])
+    assert doc_v["registration"]["matrix_b_to_a"] == doc_n["registration"]["matrix_b_to_a"]
+    assert doc_n["difference"]["p95_abs_mm"] < doc_v["difference"]["p95_abs_mm"]
+    assert "Vertical difference A - B" in (out_v / "report.html").read_text()
+    with pytest.raises(SystemExit) as exit_:
+        main(["compare", str(recons["a"]), str(recons["c"]), "--metric", "sideways", "-o",
+              str(tmp_path / "no")])
+    assert exit_.value.code == 2 and "[E-USAGE]" in capsys.readouterr().err
+    assert not (tmp_path / "no").exists()
+    with pytest.raises(InputError) as err:
+        compare(load_surface(recons["a"]), load_surface(recons["c"]),
+                CompareParams(metric="sideways"))
+    assert err.value.code == "E-COMPARE-OPTION"
 
 
 def test_command_reads_a_point_cloud_and_makes_a_mean(recons, tmp_path):
@@ -516,15 +558,18 @@ def test_one_profile_across_both_maps(cmp_ac):
 
 
 def test_steep_walls_are_not_outlined_unless_asked():
-    """On a 0.2 mm grid every tread wall differs by more than 0.25 mm after resampling (one cell
-    of lateral misplacement there is more than that): outlined, they hide the cut among ~200
-    regions. Left out (the default), the cut is the one region, its depth and length read
-    within the acceptance's 0.05 and 0.2 mm."""
+    """On a 0.2 mm grid every tread wall differs vertically by more than 0.25 mm after
+    resampling (one cell of lateral misplacement there is more than that): outlined, they hide
+    the cut among ~200 regions. Left out (the default), the cut is the one region, its depth
+    and length read within the acceptance's 0.05 and 0.2 mm. Along A's normal (the default
+    metric) a lateral misplacement moves the wall by at most itself: outlining the walls too
+    adds at most a few small regions (measured: one, 0.28 mm, on a wall), and the cut reads
+    the same."""
     from impress_gui.core.compare.difference import outline, steep_walls
 
     a = truth_surface(shoe_relief(0.2, 1))
     c = truth_surface(shoe_relief(0.2, 1, POSE_C, CUT))
-    cmp = compare(a, c)
+    cmp = compare(a, c, CompareParams(metric="vertical"))
     everything, _ = outline(cmp.diff, cmp.a, 0.25, walls=True)
     regions, edge = outline(cmp.diff, cmp.a, 0.25)
     assert len(everything) > 50
@@ -533,3 +578,84 @@ def test_steep_walls_are_not_outlined_unless_asked():
     assert abs(cut.max_depth_mm - CUT.depth_mm) <= 0.05
     assert abs(cut.length_mm - CUT.length_mm) <= 0.2
     assert edge.any() and not (edge & steep_walls(cmp.a, 0.25)).any()
+    normal = compare(a, c)
+    with_walls, _ = outline(normal.diff, normal.a, 0.25, walls=True)
+    assert 1 <= len(with_walls) <= 3, [r.to_json() for r in with_walls]
+    cut_n = with_walls[0]  # the largest
+    assert np.hypot(cut_n.centroid_mm[0] - cut.centroid_mm[0],
+                    cut_n.centroid_mm[1] - cut.centroid_mm[1]) < 0.5
+    assert abs(cut_n.max_depth_mm - CUT.depth_mm) <= 0.05
+    assert abs(cut_n.length_mm - CUT.length_mm) <= 0.2
+    assert all(r.area_mm2 < 0.2 * cut_n.area_mm2 for r in with_walls[1:])
+
+
+def plane(sx: float, sy: float, dz: float = 0.0, dx: float = 0.0, n: int = 60) -> Surface:
+    """The plane z = sx (x - dx) + sy y + dz on an n x n grid of 0.1 mm (row 0 at y = 0, y
+    falling with the row)."""
+    p = 0.1
+    ii, jj = np.mgrid[0:n, 0:n]
+    x, y = jj * p, -ii * p
+    return Surface((sx * (x - dx) + sy * y + dz).astype(np.float64), 0.0, 0.0, p, -p)
+
+
+@pytest.mark.parametrize("sx, sy", [(0.3, 0.0), (3.0, 0.0), (2.0, -1.5), (0.0, 8.0)])
+def test_normal_metric_on_planes(sx, sy):
+    """Two parallel planes: the normal metric is their distance (geometry, not the code's
+    formula): B 0.1 mm lower gives 0.1 cos(angle); B moved 0.05 mm along x gives
+    0.05 sx / sqrt(1 + sx^2 + sy^2); the vertical metric gives 0.1 and 0.05 sx."""
+    from impress_gui.core.compare.difference import difference, resample
+
+    a = plane(sx, sy)
+    tilt = math.atan(math.hypot(sx, sy))
+    for b, vertical, distance in (
+            (plane(sx, sy, dz=-0.1), 0.1, 0.1 * math.cos(tilt)),
+            (plane(sx, sy, dx=0.05), 0.05 * sx,
+             0.05 * abs(sx) / math.sqrt(1 + sx * sx + sy * sy))):
+        b_on = resample(a, b, np.eye(4))
+        ok = np.isfinite(b_on)
+        assert ok.all()
+        d_n, d_v = difference(a, b_on), difference(a, b_on, "vertical")
+        assert np.allclose(d_v[ok], vertical, atol=2e-6)
+        assert np.allclose(d_n[ok], distance, atol=2e-6)
+
+
+def test_normal_metric_is_the_distance_to_a_on_walls(truths):
+    """The true relief and the same relief moved 0.05 mm across and 0.03 mm along (every point
+    moves by 0.058 mm): the normal metric agrees with the exact distance from B's points to
+    A's triangulated surface (open3d) and stays near 0.058 mm on the tread walls, where the
+    vertical difference reaches 0.3 mm and more."""
+    import open3d as o3d
+
+    from impress_gui.core.compare.difference import difference, resample, slope
+
+    a = truths["a"]
+    win = a.crop((slice(1500, 2300), slice(500, 1300)))  # the tread, 80 x 80 mm
+    moved = Surface(a.height_mm, a.x0_mm + 0.05, a.y0_mm - 0.03, a.pixel_mm, a.y_step_mm)
+    b_on = resample(win, moved, np.eye(4))
+    h = win.height_mm.astype(np.float64)
+    rows, cols = h.shape
+    ii, jj = np.mgrid[0:rows, 0:cols]
+    x, y = win.xy(ii, jj)
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    q0, q1 = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+    q2, q3 = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    tris = np.vstack([np.column_stack([q0, q2, q1]), np.column_stack([q1, q2, q3])])
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor(np.column_stack([x.ravel(), y.ravel(), h.ravel()]).astype(np.float32)),
+        o3d.core.Tensor(tris.astype(np.uint32)))
+    ok = np.isfinite(b_on)
+    ok[:2], ok[-2:], ok[:, :2], ok[:, -2:] = False, False, False, False
+    exact = scene.compute_distance(o3d.core.Tensor(
+        np.column_stack([x[ok], y[ok], b_on[ok]]).astype(np.float32))).numpy()
+    normal = np.abs(difference(win, b_on))[ok]
+    vertical = np.abs(difference(win, b_on, "vertical"))[ok]
+    walls = slope(win)[ok] > 1.0
+    assert 0.05 < walls.mean() < 0.2
+    err = normal - exact
+    assert abs(np.median(err)) < 1e-4 and np.percentile(np.abs(err), 99) < 0.02
+    assert np.percentile(np.abs(err[walls]), 99) < 0.025
+    assert np.percentile(normal[walls], 99) < 0.1 < np.percentile(vertical[walls], 95)
+    assert np.percentile(vertical, 95) > 2.5 * np.percentile(normal, 95)
+    flat = slope(win)[ok] < 0.05
+    assert np.allclose(normal[flat], vertical[flat], rtol=0.002, atol=1e-6)

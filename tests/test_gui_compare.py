@@ -95,11 +95,30 @@ def test_compare_panel_compares_outlines_and_writes(panel, folders, qtbot, tmp_p
     assert np.all(np.abs(rise[prof.distance_mm < 1.0]) < 0.05)
     xs, ys = panel.curve_b.getData()
     assert len(xs) == len(prof.distance_mm)
+    # the difference along A's normal by default; vertical chosen: measured again without
+    # registering again, the map is A - B itself and its 95th percentile larger (the walls)
+    assert cmp.metric == "normal" == panel.difference_metric()
+    assert "along A's surface normal" in panel.result_label.text()
+    panel.view_combo.setCurrentIndex(0)
+    with qtbot.waitSignal(panel.compared, timeout=60_000) as blocker:
+        panel.metric_combo.setCurrentIndex(panel.metric_combo.findData("vertical"))
+    vert = blocker.args[0]
+    assert vert is panel.comparison and vert.metric == "vertical"
+    assert vert.registration is cmp.registration and vert.b_on_a is cmp.b_on_a
+    ok = np.isfinite(vert.diff)
+    assert np.array_equal(vert.diff[ok], (cmp.a.height_mm - cmp.b_on_a)[ok])
+    assert vert.stats.p95_abs_mm > cmp.stats.p95_abs_mm
+    assert "vertical" in panel.result_label.text()
+    assert panel.shown_image() is vert.diff
+    flip = cmp.a.y_step_mm > 0
+    shown = np.asarray(panel.image.image)
+    assert np.array_equal(shown, vert.diff[::-1] if flip else vert.diff, equal_nan=True)
     out = tmp_path / "cmp"
     with qtbot.waitSignal(panel.written, timeout=120_000):
         panel.write_to(out)
     doc = json.loads((out / "compare.json").read_text())
     assert doc["parameters"]["threshold_mm"] == 1.5
+    assert doc["parameters"]["metric"] == doc["difference"]["metric"] == "vertical"
     assert np.allclose(doc["registration"]["matrix_b_to_a"], cmp.registration.matrix,
                        atol=1e-6)
     # the report also as PDF, read back by pypdf (not written here): the registration's figures
@@ -203,6 +222,8 @@ def test_a_written_comparison_goes_into_the_case_record(folders, qtbot, tmp_path
     assert details["inputs"] == doc["inputs"]
     assert details["registration"]["matrix_b_to_a"] == doc["registration"]["matrix_b_to_a"]
     assert details["parameters"]["threshold_mm"] == doc["parameters"]["threshold_mm"]
+    assert details["difference"]["metric"] == doc["difference"]["metric"] == "normal"
+    assert details["difference"]["p95_abs_mm"] == doc["difference"]["p95_abs_mm"]
 
 
 def test_the_window_has_the_compare_tab_over_its_session(qtbot, tmp_path, folders):

@@ -9,6 +9,7 @@ from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from impress_gui.core.compare.difference import DEFAULT_METRIC, METRICS
     from impress_gui.core.compare.record import DEFAULT_THRESHOLD_MM
     from impress_gui.core.compare.register import RegistrationParams
     from impress_gui.core.compare.surfaces import DEFAULT_PLY_PIXEL_MM
@@ -33,6 +34,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threshold-mm", type=float, default=DEFAULT_THRESHOLD_MM,
                    help=f"outline the regions where |A - B| exceeds this (default "
                    f"{DEFAULT_THRESHOLD_MM:g})")
+    p.add_argument("--metric", choices=METRICS, default=DEFAULT_METRIC,
+                   help="the difference: 'normal' is the signed distance along A's surface "
+                   "normal, as inspection software's deviation maps measure it (a tread wall's "
+                   "small lateral misplacement no longer reads as a large difference); "
+                   "'vertical' is the height difference A - B along z (default "
+                   f"{DEFAULT_METRIC})")
     p.add_argument("--outline-walls", action="store_true",
                    help="outline differences on A's steep walls too (left out by default: one "
                    "cell of lateral misplacement there exceeds the threshold)")
@@ -64,14 +71,17 @@ def run(args: argparse.Namespace) -> int:
                              max_distance_mm=args.max_distance_mm)
     params = CompareParams(registration=reg, threshold_mm=args.threshold_mm,
                            outline_walls=args.outline_walls,
-                           ply_pixel_mm=args.ply_grid_mm, mean=args.mean)
+                           ply_pixel_mm=args.ply_grid_mm, mean=args.mean,
+                           metric=args.metric)
     doc = write_comparison(args.inputs, args.output, params, progress_printer())
     r, d = doc["registration"], doc["difference"]
     print(f"comparison written to {args.output}")
     print(f"  registration: turn {r['rotation_about_z_deg']:.3f} deg, residual RMS "
           f"{r['residual_rms_mm']:.4f} mm, overlap {r['overlap']:.3f}"
           f"{' (B mirrored)' if r['mirror'] else ''}{' (B inverted)' if r['invert'] else ''}")
-    print(f"  difference A - B over {d['overlap_cells']} cells: median {d['median_mm']:+.4f} "
+    what = "along A's normal" if d["metric"] == "normal" else "vertical"
+    print(f"  difference A - B ({what}) over {d['overlap_cells']} cells: median "
+          f"{d['median_mm']:+.4f} "
           f"mm, 95th percentile of |A - B| {d['p95_abs_mm']:.4f} mm")
     print(f"  {doc['regions']['count']} region(s) beyond {doc['regions']['threshold_mm']:g} mm")
     for k, reg_ in enumerate(doc["regions"]["items"][:5], 1):

@@ -6,8 +6,20 @@ B is resampled onto A's grid through the registration ``M`` (B -> A): for a cell
 (``(x_B, y_B)`` = the xy of ``M^-1 (x, y, z)``, ``z`` = the z of ``M (x_B, y_B, h_B(x_B,
 y_B))``, three rounds from A's own height: exact for a turn about the vertical, converging
 fast for the small tilts between two scans); ``h_B`` is bilinear (NaN next to cells without
-data). The difference is ``A - B``
-in mm (positive where A is higher), NaN where either has no data.
+data).
+
+The difference is signed, positive where A is higher, NaN where either has no data, in mm, by
+one of two metrics (:data:`METRICS`):
+
+- ``normal`` (the default): the distance from B's point above the cell to A's tangent plane
+  there, along A's surface normal: ``(A - B) / sqrt(1 + |grad A|^2)``, A's gradient from its
+  grid (central differences, one-sided next to cells without data). This is what deviation
+  maps of inspection software measure (CloudCompare's cloud-to-mesh distance, GOM Inspect's
+  surface comparison): on a flat it is ``A - B`` (to first order in the slope); on a steep
+  wall a small lateral misplacement - or the grid's sampling of the wall - no longer turns
+  into a large difference, since a lateral shift ``d`` of a wall changes the normal distance
+  by at most ``d``;
+- ``vertical``: ``A - B``, the difference of heights along z.
 
 Regions: the 8-connected cells with ``|A - B| > threshold``; for each its area, its deepest
 value (signed, and its magnitude), a robust depth (the 90th percentile of ``|A - B|``), its
@@ -75,10 +87,66 @@ def resample(a: Surface, b: Surface, matrix: np.ndarray, rounds: int = 3,
     return out
 
 
-def difference(a: Surface, b_on_a: np.ndarray) -> np.ndarray:
-    """``A - B`` (float32 mm), NaN where either has no data."""
+METRICS = ("normal", "vertical")
+DEFAULT_METRIC = "normal"
+METRIC_TEXT = {
+    "normal": "signed distance along A's surface normal: (A - B) / sqrt(1 + |grad A|^2), "
+              "positive where A is higher",
+    "vertical": "vertical difference A - B (along z), positive where A is higher",
+}
+
+
+def _axis_gradient(h: np.ndarray, step: float, axis: int) -> np.ndarray:
+    """d h / d axis: central differences, one-sided where a neighbour has no data, NaN where
+    both have none."""
+    h = np.moveaxis(h, axis, 0)
+    if h.shape[0] < 2:
+        return np.moveaxis(np.zeros(h.shape), 0, axis)
+    fwd = np.full(h.shape, np.nan)
+    bwd = np.full(h.shape, np.nan)
+    fwd[:-1] = (h[1:] - h[:-1]) / step
+    bwd[1:] = fwd[:-1]
     with np.errstate(invalid="ignore"):
-        return (a.height_mm.astype(np.float32) - b_on_a).astype(np.float32)
+        central = (fwd + bwd) / 2
+    g = np.where(np.isfinite(central), central, np.where(np.isfinite(fwd), fwd, bwd))
+    return np.moveaxis(g, 0, axis)
+
+
+def slope(a: Surface) -> np.ndarray:
+    """``|grad A|`` (dimensionless, float64) on A's grid; NaN where A has no data or no
+    neighbour with data."""
+    h = np.asarray(a.height_mm, np.float64)
+    gy = _axis_gradient(h, abs(a.y_step_mm), 0)
+    gx = _axis_gradient(h, a.pixel_mm, 1)
+    return np.hypot(gx, gy)
+
+
+def normal_factor(a: Surface) -> np.ndarray:
+    """``1 / sqrt(1 + |grad A|^2)`` (float64): the cosine of the angle between A's normal and
+    the vertical; 1 (the vertical difference) where A's slope is unknown."""
+    g = slope(a)
+    return np.where(np.isfinite(g), 1.0 / np.sqrt(1.0 + np.nan_to_num(g) ** 2), 1.0)
+
+
+def check_metric(metric: str) -> None:
+    if metric not in METRICS:
+        from impress_gui.core.base import codes
+        from impress_gui.core.base.errors import InputError
+
+        raise InputError(f"the metric must be one of {', '.join(METRICS)} (got {metric!r})",
+                         code=codes.E_COMPARE_OPTION)
+
+
+def difference(a: Surface, b_on_a: np.ndarray, metric: str = DEFAULT_METRIC) -> np.ndarray:
+    """The signed difference (float32 mm, positive where A is higher), NaN where either has no
+    data: along A's normal (``metric="normal"``) or vertical (``"vertical"``, ``A - B``); see
+    the module's docstring."""
+    check_metric(metric)
+    with np.errstate(invalid="ignore"):
+        d = a.height_mm.astype(np.float64) - np.asarray(b_on_a, np.float64)
+        if metric == "normal":
+            d = d * normal_factor(a)
+    return d.astype(np.float32)
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,9 @@
 every file made in memory and written atomically into a hidden folder that replaces ``OUT``
 at the end (:class:`~impress_gui.core.base.outdir.OutputFolder`). The folder holds
 
-- ``difference.tif`` - float32 ``A - B`` in mm on A's window (NaN outside the overlap);
+- ``difference.tif`` - float32 ``A - B`` in mm on A's window (NaN outside the overlap): by
+  default the signed distance along A's surface normal, or the vertical difference
+  (``CompareParams.metric``; :mod:`.difference`);
 - ``a.tif``, ``b_on_a.tif`` - A's window and B resampled onto it (float32 mm);
 - ``difference.png`` - the difference with a diverging colour scale (blue: B higher, red: A
   higher) and the threshold's outlines; ``histogram.png``;
@@ -35,8 +37,11 @@ from impress_gui.core.base import codes
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report, sub_progress
 from impress_gui.core.compare.difference import (
+    DEFAULT_METRIC,
+    METRIC_TEXT,
     DiffStats,
     Region,
+    check_metric,
     difference,
     outline,
     resample,
@@ -54,6 +59,8 @@ FILES = ("difference.tif", "a.tif", "b_on_a.tif", "difference.png", "histogram.p
          "mean.tif", "std.tif", "count.tif", RECORD_FILE, "report.html", "report.pdf")
 DEFAULT_THRESHOLD_MM = 0.25
 MAX_FIGURE_PX = 1600
+METRIC_SHORT = {"normal": "along A's normal", "vertical": "vertical"}
+SCALE_LABEL = {"normal": "A-B normal mm", "vertical": "A-B mm"}
 FRAME = ("right-handed, in mm: the export frame of input A (x = rail X, y = -rail Y, z up); "
          "B is moved onto A by matrix_b_to_a")
 
@@ -67,9 +74,11 @@ class CompareParams:
     histogram_half_range_mm: float = 1.0
     ply_pixel_mm: float = DEFAULT_PLY_PIXEL_MM
     mean: bool = False
+    metric: str = DEFAULT_METRIC  # difference.METRICS: along A's normal, or vertical
 
     def check(self) -> None:
         self.registration.check()
+        check_metric(self.metric)
         for name, lo, hi in (("threshold_mm", 0.0, 100.0), ("min_region_mm2", 0.0, 1e6),
                              ("histogram_half_range_mm", 0.0, 100.0),
                              ("ply_pixel_mm", 0.0, 10.0)):
@@ -82,7 +91,7 @@ class CompareParams:
         return {"registration": self.registration.to_json(), "threshold_mm": self.threshold_mm,
                 "min_region_mm2": self.min_region_mm2, "outline_walls": self.outline_walls,
                 "histogram_half_range_mm": self.histogram_half_range_mm,
-                "ply_pixel_mm": self.ply_pixel_mm, "mean": self.mean}
+                "ply_pixel_mm": self.ply_pixel_mm, "mean": self.mean, "metric": self.metric}
 
 
 @dataclass(frozen=True)
@@ -94,6 +103,22 @@ class Comparison:
     stats: DiffStats
     regions: list[Region]
     outline: np.ndarray
+    metric: str = DEFAULT_METRIC  # how diff was measured (difference.METRICS)
+
+
+def derive(a: Surface, b_on_a: np.ndarray, registration: Registration,
+           params: CompareParams) -> Comparison:
+    """The difference of A's window and B resampled onto it by ``params.metric``, its figures
+    and the regions beyond ``params.threshold_mm``."""
+    params.check()
+    diff = difference(a, b_on_a, params.metric)
+    stats = statistics(diff, a, params.histogram_half_range_mm)
+    if stats.cells < 100:
+        raise InputError(f"after registration A and B share {stats.cells} cells: no difference map",
+                 code=codes.E_COMPARE_NO_OVERLAP)
+    regions, edge = outline(diff, a, params.threshold_mm, params.min_region_mm2,
+                            walls=params.outline_walls)
+    return Comparison(a, b_on_a, diff, registration, stats, regions, edge, params.metric)
 
 
 def compare(a: Surface, b: Surface, params: CompareParams = CompareParams(),
@@ -105,15 +130,9 @@ def compare(a: Surface, b: Surface, params: CompareParams = CompareParams(),
     win = a.crop(reg.window())
     b_on = resample(win, b, reg.matrix, progress=sub_progress(progress, 0.6, 0.9),
                     cancel=cancel)
-    diff = difference(win, b_on)
-    stats = statistics(diff, win, params.histogram_half_range_mm)
-    if stats.cells < 100:
-        raise InputError(f"after registration A and B share {stats.cells} cells: no difference map",
-                 code=codes.E_COMPARE_NO_OVERLAP)
-    regions, edge = outline(diff, win, params.threshold_mm, params.min_region_mm2,
-                            walls=params.outline_walls)
+    cmp = derive(win, b_on, reg, params)
     report(progress, 1.0, "compared")
-    return Comparison(win, b_on, diff, reg, stats, regions, edge)
+    return cmp
 
 
 # ----- figures -------------------------------------------------------------------------------
@@ -160,7 +179,8 @@ def _text(img, s, org, scale=0.45, colour=(0, 0, 0)) -> None:
     cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
 
 
-def difference_png(cmp: Comparison, half_range_mm: float, title: str) -> bytes:
+def difference_png(cmp: Comparison, half_range_mm: float, title: str,
+                   scale_label: str = "A-B mm") -> bytes:
     from impress_gui.core.formats.images import png_bytes
 
     d, step = _display(cmp.diff, cmp.a)
@@ -182,11 +202,11 @@ def difference_png(cmp: Comparison, half_range_mm: float, title: str) -> bytes:
         y = top + int(round((half_range_mm - v) / (2 * half_range_mm) * (h - 1)))
         img[y, bx + 20 : bx + 26] = 0
         _text(img, f"{v:+.3g}", (bx + 28, min(top + h, max(top + 10, y + 4))), 0.4)
-    _text(img, "A-B mm", (bx, top + h + 8 if h > 60 else top + h), 0.4)
+    _text(img, scale_label, (bx, top + h + 8 if h > 60 else top + h), 0.4)
     return png_bytes(img)
 
 
-def histogram_png(stats: DiffStats, threshold_mm: float) -> bytes:
+def histogram_png(stats: DiffStats, threshold_mm: float, what: str = "A - B") -> bytes:
     from impress_gui.core.formats.images import png_bytes
 
     counts = np.asarray(stats.histogram_counts, np.float64)
@@ -212,7 +232,7 @@ def histogram_png(stats: DiffStats, threshold_mm: float) -> bytes:
         if lo < v < hi:
             x = left + int(round((v - lo) / (hi - lo) * pw))
             img[top:top + ph:3, x] = (0, 160, 0)
-    _text(img, "A - B (mm); bar height: square root of the cell count; green: the threshold",
+    _text(img, f"{what} (mm); bar height: square root of the cell count; green: the threshold",
           (left, 20), 0.42)
     return png_bytes(img)
 
@@ -248,7 +268,9 @@ def record_document(cmp: Comparison, b: Surface, params: CompareParams, colour_m
         "frame": {"units": "mm", "handedness": "right", "description": FRAME},
         "registration": cmp.registration.to_json(),
         "grid": cmp.a.grid_json(),
-        "difference": {**cmp.stats.to_json(), "sign": "A - B (positive: A higher)",
+        "difference": {**cmp.stats.to_json(), "metric": params.metric,
+                       "definition": METRIC_TEXT[params.metric],
+                       "sign": "A - B (positive: A higher)",
                        "colour_half_range_mm": colour_mm},
         "regions": {"threshold_mm": params.threshold_mm,
                     "steep_walls": "outlined" if params.outline_walls else (
@@ -284,6 +306,7 @@ code{font-size:85%}</style></head><body>
 <h2>Registration (B onto A)</h2>
 {{ table(registration) }}
 <h2>Difference A - B over the overlap</h2>
+<p>{{ metric }}.</p>
 {{ table(difference) }}
 <h2>Regions beyond {{ threshold }} mm (largest first{% if regions|length == 20 %}, the first 20
 {% endif %})</h2>
@@ -328,6 +351,10 @@ def _src_rows(src: dict) -> list[tuple[str, str]]:
     return rows
 
 
+def _sentence(s: str) -> str:
+    return s[:1].upper() + s[1:]
+
+
 def report_html(doc: dict, files: dict, images: Sequence[tuple[str, bytes]]) -> str:
     import base64
 
@@ -353,9 +380,10 @@ def report_html(doc: dict, files: dict, images: Sequence[tuple[str, bytes]]) -> 
         ("point pairs", _fmt(doc["parameters"]["registration"]["pairs"])),
     ]
     d = doc["difference"]
-    difference_rows = [(k.replace("_", " "), _fmt(d[k])) for k in
-                       ("overlap_cells", "overlap_share_of_a", "mean_mm", "median_mm", "rms_mm",
-                        "p95_abs_mm", "p99_abs_mm", "max_abs_mm", "colour_half_range_mm")]
+    difference_rows = [("metric", d.get("metric", "vertical"))] + [
+        (k.replace("_", " "), _fmt(d[k])) for k in
+        ("overlap_cells", "overlap_share_of_a", "mean_mm", "median_mm", "rms_mm", "p95_abs_mm",
+         "p99_abs_mm", "max_abs_mm", "colour_half_range_mm")]
     mean = None
     if "mean_track" in doc:
         mean = [(k.replace("_", " "), _fmt(v)) for k, v in doc["mean_track"].items()]
@@ -364,7 +392,9 @@ def report_html(doc: dict, files: dict, images: Sequence[tuple[str, bytes]]) -> 
     return tpl.render(
         version=__version__, frame=doc["frame"]["description"],
         inputs=list(doc["inputs"].items()), registration=registration,
-        difference=difference_rows, threshold=doc["regions"]["threshold_mm"],
+        difference=difference_rows,
+        metric=_sentence(str(d.get("definition", METRIC_TEXT["vertical"]))),
+        threshold=doc["regions"]["threshold_mm"],
         regions=doc["regions"]["items"][:20], mean=mean,
         files=sorted(files.items()),
         images=[(c, base64.b64encode(p).decode("ascii")) for c, p in images])
@@ -433,16 +463,19 @@ def write_comparison(inputs: Sequence[str | Path], output: str | Path,
                           sub_progress(progress, 0.8, 0.85), cancel)
     report(progress, 0.85, "figures and report")
     p_mm = cmp.a.pixel_mm
+    what = METRIC_SHORT[params.metric]
     colour_mm = colour_range(cmp.stats, params.threshold_mm)
     payload: dict[str, bytes] = {
-        "difference.tif": _tif(cmp.diff, p_mm, "A - B (mm), NaN outside the overlap; grid in "
-                               "compare.json"),
+        "difference.tif": _tif(cmp.diff, p_mm, f"A - B (mm), {what}, NaN outside the "
+                               "overlap; grid in compare.json"),
         "a.tif": _tif(cmp.a.height_mm.astype(np.float32), p_mm, "A (mm), its compared window"),
         "b_on_a.tif": _tif(cmp.b_on_a, p_mm, "B moved onto A and resampled on A's grid (mm)"),
         "difference.png": difference_png(cmp, colour_mm,
-                                         f"A - B, mm (+-{colour_mm:g}); green: |A - B| > "
-                                         f"{params.threshold_mm:g} mm"),
-        "histogram.png": histogram_png(cmp.stats, params.threshold_mm),
+                                         f"A - B {what}, mm (+-{colour_mm:g}); green: "
+                                         f"|A - B| > {params.threshold_mm:g} mm",
+                                         SCALE_LABEL[params.metric]),
+        "histogram.png": histogram_png(cmp.stats, params.threshold_mm,
+                                       f"A - B {what}"),
     }
     if mean is not None:
         payload["mean.tif"] = _tif(mean.mean_mm, p_mm, "mean track (mm)")
@@ -454,8 +487,8 @@ def write_comparison(inputs: Sequence[str | Path], output: str | Path,
     ha = cmp.a.height_mm
     fin = ha[np.isfinite(ha)]
     vr = (float(np.percentile(fin, 1)), float(np.percentile(fin, 99))) if fin.size else (0, 1)
-    images = [("Difference A - B (mm)", payload["difference.png"]),
-              ("Histogram of A - B", payload["histogram.png"]),
+    images = [(f"Difference A - B {what} (mm)", payload["difference.png"]),
+              (f"Histogram of A - B {what}", payload["histogram.png"]),
               ("A (grey: height)", map_png(ha, cmp.a, vr)),
               ("B moved onto A (grey: height, same scale)", map_png(cmp.b_on_a, cmp.a, vr))]
     if cancel is not None:

@@ -35,13 +35,20 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from impress_gui.core.compare.difference import PairProfile, outline, pair_profile
+from impress_gui.core.compare.difference import (
+    DEFAULT_METRIC,
+    METRICS,
+    PairProfile,
+    outline,
+    pair_profile,
+)
 from impress_gui.core.compare.record import (
     DEFAULT_THRESHOLD_MM,
     CompareParams,
     Comparison,
     colour_range,
     compare,
+    derive,
     diverging_lut,
     write_comparison,
 )
@@ -50,6 +57,8 @@ from impress_gui.core.compare.surfaces import Surface, load_surface
 from impress_gui.ui.worker import LatestOnly, Worker
 
 VIEWS = ("difference A - B", "A", "B moved onto A", "B over A", "A | B side by side")
+#: the difference's metric (core.compare.difference.METRICS) as the selector shows it
+METRIC_LABELS = {"normal": "along A's surface normal", "vertical": "vertical (heights)"}
 FLICKER_MS = 500
 
 
@@ -91,6 +100,9 @@ class ComparePanel(QWidget):
         self._outliner = LatestOnly(self, "compare-outline")
         self._outliner.finished.connect(self._on_outlined)
         self._outliner.failed.connect(self._on_failed)
+        self._remeasurer = LatestOnly(self, "compare-metric")
+        self._remeasurer.finished.connect(self._on_remeasured)
+        self._remeasurer.failed.connect(self._on_failed)
 
         self.a_edit, self.b_edit = QLineEdit(), QLineEdit()
         self.a_edit.setPlaceholderText("A: reconstruction folder, .x3p or .ply")
@@ -103,6 +115,14 @@ class ComparePanel(QWidget):
         self.threshold_spin.setSingleStep(0.05)
         self.threshold_spin.setSuffix(" mm")
         self.threshold_spin.setValue(DEFAULT_THRESHOLD_MM)
+        self.metric_combo = QComboBox()
+        for m in METRICS:
+            self.metric_combo.addItem(METRIC_LABELS[m], m)
+        self.metric_combo.setCurrentIndex(METRICS.index(DEFAULT_METRIC))
+        self.metric_combo.setToolTip(
+            "along A's normal: the signed distance from B to A's surface, as deviation maps "
+            "measure it (a tread wall's small lateral misplacement stays small); vertical: the "
+            "difference of heights A - B")
         self.compare_button = QPushButton("Compare")
         self.pairs_check = QCheckBox("pick point pairs (A left, B right)")
         self.clear_pairs_button = QPushButton("Clear pairs")
@@ -138,6 +158,7 @@ class ComparePanel(QWidget):
         flags.addWidget(self.mirror_check)
         flags.addWidget(self.invert_check)
         form.addRow("", flags)
+        form.addRow("difference A - B", self.metric_combo)
         form.addRow("outline |A - B| above", self.threshold_spin)
         buttons = QHBoxLayout()
         buttons.addWidget(self.compare_button)
@@ -217,6 +238,7 @@ class ComparePanel(QWidget):
         self.pairs_check.toggled.connect(self._set_pairs_mode)
         self.clear_pairs_button.clicked.connect(self.clear_pairs)
         self.threshold_spin.valueChanged.connect(self._reoutline)
+        self.metric_combo.currentIndexChanged.connect(self._remeasure)
         self.view_combo.currentIndexChanged.connect(self._show)
         self.opacity_slider.valueChanged.connect(self._show)
         self.flicker_check.toggled.connect(self._set_flicker)
@@ -226,7 +248,12 @@ class ComparePanel(QWidget):
         pairs = tuple(self.pairs) if len(self.pairs) >= 3 else None
         reg = RegistrationParams(mirror=self.mirror_check.isChecked(),
                                  invert=self.invert_check.isChecked(), pairs=pairs)
-        return CompareParams(registration=reg, threshold_mm=float(self.threshold_spin.value()))
+        return CompareParams(registration=reg, threshold_mm=float(self.threshold_spin.value()),
+                             metric=self.difference_metric())
+
+    def difference_metric(self) -> str:
+        """The difference's metric chosen (``normal`` or ``vertical``)."""
+        return str(self.metric_combo.currentData())
 
     def start_compare(self) -> None:
         if self._worker.is_running():
@@ -365,6 +392,7 @@ class ComparePanel(QWidget):
         self._worker.shutdown()
         self._writer.shutdown()
         self._outliner.shutdown()
+        self._remeasurer.shutdown()
 
     def closeEvent(self, event) -> None:  # noqa: N802 - Qt override
         self.shutdown()
@@ -388,14 +416,10 @@ class ComparePanel(QWidget):
         self.view_box_b.setYLink(self.view_box)
         self.compare_button.setEnabled(True)
         self.write_button.setEnabled(True)
-        reg, st = cmp.registration, cmp.stats
+        reg = cmp.registration
         self.status_label.setText("compared")
         self.status.emit(f"compared: residual RMS {reg.rms_mm:.4f} mm, overlap {reg.overlap:.3f}")
-        self.result_label.setText(
-            f"turn {reg.rotation_deg():.3f}°, residual RMS {reg.rms_mm:.4f} mm, overlap "
-            f"{reg.overlap:.3f}; A - B over {st.cells} cells: median {st.median_mm:+.4f} mm, "
-            f"95th percentile of |A - B| {st.p95_abs_mm:.4f} mm; {len(cmp.regions)} region(s) "
-            f"above {self.threshold_spin.value():g} mm")
+        self._describe(cmp)
         self._edges = cmp.outline
         self.profile, self._clicks = None, []
         self.curve_a.setData([], [])
@@ -403,6 +427,33 @@ class ComparePanel(QWidget):
         self.line.setData([], [])
         self._show()
         self.view_box.autoRange(padding=0.02)
+        self.compared.emit(cmp)
+
+    def _describe(self, cmp: Comparison) -> None:
+        reg, st = cmp.registration, cmp.stats
+        self.result_label.setText(
+            f"turn {reg.rotation_deg():.3f}°, residual RMS {reg.rms_mm:.4f} mm, overlap "
+            f"{reg.overlap:.3f}; A - B {METRIC_LABELS[cmp.metric]} over {st.cells} cells: "
+            f"median {st.median_mm:+.4f} mm, 95th percentile of |A - B| {st.p95_abs_mm:.4f} mm; "
+            f"{len(cmp.regions)} region(s) above {self.threshold_spin.value():g} mm")
+
+    def _remeasure(self) -> None:
+        """The chosen metric applied to the current comparison (the registration and B's
+        resampling kept; the figures and regions measured again)."""
+        cmp = self.comparison
+        if cmp is None or cmp.metric == self.difference_metric():
+            return
+        params = self.params()
+        self._remeasurer.submit(
+            lambda progress, cancel: derive(cmp.a, cmp.b_on_a, cmp.registration, params))
+
+    def _on_remeasured(self, cmp: Comparison) -> None:
+        if cmp.metric != self.difference_metric():
+            return  # a later choice is on its way
+        self.comparison = cmp
+        self._edges = cmp.outline
+        self._describe(cmp)
+        self._show()
         self.compared.emit(cmp)
 
     def _reoutline(self) -> None:
@@ -489,6 +540,8 @@ class ComparePanel(QWidget):
                                                  "rotation_about_z_deg", "residual_rms_mm",
                                                  "overlap") if k in reg},
             "parameters": doc.get("parameters"),
+            "difference": {k: (doc.get("difference") or {}).get(k) for k in
+                           ("metric", "definition", "median_mm", "p95_abs_mm", "rms_mm")},
         })
         self.changed.emit()
 
