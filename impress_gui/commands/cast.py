@@ -71,7 +71,12 @@ def run(args: argparse.Namespace) -> int:
     if "max_mm" in dev:
         print(f"  surface vs heightmap: max {dev['max_mm']:.4f} mm, RMS {dev['rms_mm']:.4f} mm, "
               f"{100 * dev['within_tolerance_fraction']:.2f} % of {dev['cells']} cells within "
-              f"{dev['tolerance_mm']:g} mm")
+              f"{dev['tolerance_mm']:g} mm (vertical)")
+    if "normal" in dev:
+        n = dev["normal"]
+        print(f"  surface vs heightmap along the normal (closest point): max {n['max_mm']:.4f} "
+              f"mm, RMS {n['rms_mm']:.4f} mm, {100 * n['within_tolerance_fraction']:.2f} % "
+              f"within {dev['tolerance_mm']:g} mm")
     si = chk["self_intersection"]
     print("  checks (open3d): edge- and vertex-manifold, orientable, closed, outward"
           + ("; no self-intersection" if si["tested"] else "; self-intersection not tested "

@@ -37,8 +37,21 @@ under ``max_triangles``:
 orientable; no self-intersection when small enough for open3d's quadratic test), checks with
 numpy that every edge is shared by exactly two triangles wound opposite ways (closed,
 consistently oriented) and that the volume is positive (outward), and measures how far the
-surface lies from the heightmap (rays cast straight down on the cells with data); all of it
-goes into the sidecar. Everything is deterministic: the same inputs give the same bytes.
+surface lies from the heightmap on the cells with data: vertically (rays cast straight down) and
+along the normal (each cell's closest-point distance to the top surface, what inspection
+software reports; a wall cut across between two samples is its height off vertically, but only
+a fraction of a cell along the normal); all of it goes into the sidecar.
+
+Measured on the sample case's whole region (557 x 281 mm, 15.7 million cells, 960x540) at the
+default cap of 2 million triangles, the share of the cells within 0.02 mm: sampling (every 4th
+cell) 83.7 % vertically, 84.6 % along the normal (RMS 0.019 mm, max 0.70 mm); quadric 90.3 % and
+91.2 % (RMS 0.014 mm). Along the normal most of the cells beyond 0.02 mm are on flat ground
+(86 % of them with sampling): the heightmap's own relief at 0.3-0.5 mm scale (a cell differs
+from the mean of its 4 x 4 neighbourhood by more than 0.02 mm on 3.7 % of the flat cells), which
+one vertex per 16 cells cannot follow. Keeping every cell on slopes above 1 and every 6th cell
+elsewhere (1.17 million vertices, a Delaunay surface) gives 100 % on the walls but 78 % on flat
+ground, 75.9 % in all. The issue's 0.02 mm at every cell holds at full resolution (a crop with
+a cap about twice its cells), not for a whole shoe within 2 million triangles. Everything is deterministic: the same inputs give the same bytes.
 """
 
 from __future__ import annotations
@@ -448,9 +461,24 @@ def verify_mesh(mesh: CastMesh, cancel: CancelToken | None = None) -> dict:
     return out
 
 
+def surface_triangles(mesh: CastMesh) -> np.ndarray:
+    """A mask of the mesh's top-surface triangles: those with an area seen from above (the
+    side walls are vertical) and not lying in the base's plane."""
+    v = mesh.vertices.astype(np.float64)
+    t = mesh.triangles
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    area_xy = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1])
+                           - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    base = float(np.float32(mesh.base_z_mm))
+    on_base = (a[:, 2] == base) & (b[:, 2] == base) & (c[:, 2] == base)
+    return (area_xy > 1e-12) & ~on_base
+
+
 def surface_deviation(mesh: CastMesh, height: np.ndarray, spec: GridSpec) -> dict:
     """How far the mesh's top surface lies from the heightmap: a ray cast straight down (open3d)
-    at every cell with data of the region (every ``stride``-th row and column above
+    at every cell with data of the region (the vertical distance; and, under ``normal``, the
+    same cells' closest-point distance to the mesh, which a wall between two samples does not
+    turn into the wall's height) (every ``stride``-th row and column above
     :data:`DEVIATION_MAX_RAYS` cells, ``stride`` prime to the mesh's sampling step so that the
     cells between the samples count too), the hit's height against the cell's float32 value (in
     the cast's frame: ``(-x, y, -h)`` for the positive). Rays on the region's outer edge are
@@ -491,6 +519,24 @@ def surface_deviation(mesh: CastMesh, height: np.ndarray, spec: GridSpec) -> dic
     t = scene.cast_rays(tensor(rays))["t_hit"].numpy().astype(np.float64)
     hit = np.isfinite(t)
     d = np.abs((z0 - t[hit]) - h[hit])
+    # the same cells' distance to the top surface itself (its closest point: along the
+    # normal); the solid's side walls and base are left out, or a cell on the region's edge
+    # would find the side wall beside it
+    top = surface_triangles(mesh)
+    surface = o3d.t.geometry.RaycastingScene()
+    surface.add_triangles(tensor(np.ascontiguousarray(mesh.vertices, np.float32)),
+                          tensor(np.ascontiguousarray(mesh.triangles[top], np.uint32)))
+    pts = np.ascontiguousarray(np.column_stack([x, y, h]), np.float32)
+    dn = surface.compute_distance(tensor(pts)).numpy().astype(np.float64)
+    doc["normal"] = {
+        "method": "closest-point distance from each cell's point (x, y, h) to the mesh "
+                  "(open3d RaycastingScene.compute_distance): the distance along the surface's "
+                  "normal, as inspection software measures a mesh against a point cloud",
+        "max_mm": round(float(dn.max()), 6),
+        "rms_mm": round(float(np.sqrt(np.mean(dn * dn))), 6),
+        "p99_mm": round(float(np.quantile(dn, 0.99)), 6),
+        "within_tolerance_fraction": round(float(np.mean(dn <= SURFACE_TOLERANCE_MM)), 6),
+    }
     if d.size == 0:
         return doc | {"missed": int((~hit).sum())}
     return doc | {
