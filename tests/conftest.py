@@ -26,6 +26,51 @@ def pytest_configure(config):
     subprocess.run([sys.executable, "-c", "import impress_gui.core.reconstruction.kernels"], check=True)
 
 
+#: the test files that take longest on a clean clone (they render and reconstruct scans),
+#: longest first. ``./test.sh`` hands whole files to its two workers in collection order
+#: (``--dist loadfile --no-loadscope-reorder``): these start first, each on its own worker,
+#: and the short files fill in at the end, so that neither worker is left with a long file
+#: while the other is idle. The files sharing a session scan (``flat_scan``, ``letter_scan``)
+#: come after the independent ones, so that the scan is ready when the second worker needs it.
+LONG_FILES = (
+    "test_compare.py",
+    "test_validate.py",
+    "test_hostile_inputs.py",
+    "test_cast.py",
+    "test_uncertainty.py",
+    "test_cast_acceptance.py",
+    "test_random_rig.py",
+    "test_gui_compare.py",
+    "test_export_frame.py",
+    "test_calibration.py",
+    "test_reconstruct.py",
+    "test_gui_calibration.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        rank = {name: i for i, name in enumerate(LONG_FILES)}
+        items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: files whole
+
+
+_FILE_SECONDS: dict[str, float] = {}
+
+
+def pytest_runtest_logreport(report):
+    """Seconds spent in each test file (setup, call and teardown, module fixtures included)."""
+    path = report.nodeid.split("::")[0]
+    _FILE_SECONDS[path] = _FILE_SECONDS.get(path, 0.0) + report.duration
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    if config.getoption("durations", None) is None or not _FILE_SECONDS:
+        return
+    terminalreporter.write_sep("=", "slowest files (all phases)")
+    for path, s in sorted(_FILE_SECONDS.items(), key=lambda kv: -kv[1])[:25]:
+        terminalreporter.write_line(f"{s:8.1f}s  {path}")
+
+
 def _new_threads(before: set, ignore_dummy: bool) -> set:
     import threading
 
@@ -55,37 +100,161 @@ def no_stray_python_threads():
     assert _new_threads(before, ignore_dummy=True) == set()
 
 
-def _simulate(out: Path, **kw) -> Path:
+def shared_folder(tmp_path_factory, name: str, build) -> Path:
+    """A folder made once per test run by ``build(folder)`` and shared by every module and
+    every pytest-xdist worker of the run: the first to need it builds it (under a file lock),
+    the others wait for it and reuse it. Not kept between runs (each run makes it afresh)."""
+    import fcntl
+    import shutil
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the run's folder, above each worker's own
+    root = root / "shared"
+    root.mkdir(exist_ok=True)
+    final, done = root / name, root / f"{name}.complete"
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            shutil.rmtree(final, ignore_errors=True)
+            build(final)
+            done.write_text("ok\n")
+    return final
+
+
+def simulate_scan(out: Path, **kw) -> Path:
+    """Render ``SimConfig(**kw)`` into ``out`` (one worker process)."""
     from impress_gui.sim.simulate import SimConfig, simulate
 
     simulate(SimConfig(**kw), out, workers=1)
     return out
 
 
-@pytest.fixture(scope="session")
-def flat_scan(tmp_path_factory) -> Path:
-    """A short simulated scan of the flat preset at 640x360 (H.264), with its ground truth."""
-    return _simulate(tmp_path_factory.mktemp("flat") / "scan", preset="flat", length_mm=100.0,
-                     width=640, height=360)
-
-
-@pytest.fixture(scope="session")
-def flat_calibration(flat_scan, tmp_path_factory) -> Path:
-    """The scene calibration of ``flat_scan`` from its exact picks."""
+def calibrate_scan(scan: Path, out: Path, video: Path | None = None) -> Path:
+    """The scene calibration of a simulated ``scan`` (of ``video``: by default the scan's own)
+    from its exact picks, saved as ``out``."""
     from impress_gui.core.calibration.geometry import Intrinsics
     from impress_gui.core.calibration.picks import Picks
     from impress_gui.core.calibration.scene import calibrate_scene
     from impress_gui.core.calibration.target import TargetModel
     from impress_gui.core.formats.video import open_video
 
-    truth = json.loads((flat_scan / "truth.json").read_text())
-    with open_video(flat_scan / "scan.mp4") as v:
-        cal = calibrate_scene(v, Intrinsics.load(flat_scan / "intrinsics.json"),
-                              TargetModel.load(flat_scan / "target.json"),
-                              Picks.load(flat_scan / "picks.json"), truth["speed_mm_s"])
-    path = tmp_path_factory.mktemp("cal") / "calibration.json"
-    cal.save(path)
-    return path
+    truth = json.loads((scan / "truth.json").read_text())
+    with open_video(video or scan / truth["video"]) as v:
+        cal = calibrate_scene(v, Intrinsics.load(scan / "intrinsics.json"),
+                              TargetModel.load(scan / "target.json"),
+                              Picks.load(scan / "picks.json"), truth["speed_mm_s"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    cal.save(out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def flat_scan(tmp_path_factory) -> Path:
+    """A short simulated scan of the flat preset at 640x360 (H.264), with its ground truth
+    (rendered once per run, shared by the workers)."""
+    return shared_folder(tmp_path_factory, "flat-scan", lambda out: simulate_scan(
+        out, preset="flat", length_mm=100.0, width=640, height=360))
+
+
+@pytest.fixture(scope="session")
+def flat_calibration(flat_scan, tmp_path_factory) -> Path:
+    """The scene calibration of ``flat_scan`` from its exact picks."""
+    folder = shared_folder(tmp_path_factory, "flat-cal",
+                           lambda out: calibrate_scan(flat_scan, out / "calibration.json"))
+    return folder / "calibration.json"
+
+
+@pytest.fixture(scope="session")
+def flat_recon(flat_scan, flat_calibration, tmp_path_factory) -> Path:
+    """``flat_scan`` reconstructed with the default parameters (a folder, as ``impress
+    process`` writes it)."""
+    def build(out: Path) -> None:
+        from impress_gui.core.reconstruction.pipeline import process_files
+        from impress_gui.core.reconstruction.reconstruct import ProcessParams
+
+        process_files(flat_scan / "scan.mp4", flat_calibration, out, ProcessParams())
+
+    return shared_folder(tmp_path_factory, "flat-recon", build)
+
+
+@pytest.fixture(scope="session")
+def cast_recon(tmp_path_factory) -> Path:
+    """A reconstruction folder (heightmap and metadata) of test_cast's synthetic letter F on a
+    wavy ground, for the digital cast's tests; they only read it."""
+    from test_cast import synthetic_height, write_recon
+
+    return write_recon(tmp_path_factory.mktemp("cast") / "recon", synthetic_height())
+
+
+@pytest.fixture(scope="session")
+def letter_scan(tmp_path_factory) -> tuple[Path, Path]:
+    """(scan folder, reconstruction folder) of the simulator's raised letter F, small and
+    quick (640x360 at 10 frames/s; the reconstruction on a 0.5 mm grid)."""
+    def build(base: Path) -> None:
+        from impress_gui.core.reconstruction.pipeline import process_files
+        from impress_gui.core.reconstruction.reconstruct import ProcessParams
+
+        scan = simulate_scan(base / "scan", preset="letter", length_mm=190.0, width=640,
+                             height=360, fps=10.0, grid_mm=0.2)
+        calibrate_scan(scan, base / "calibration.json")
+        process_files(scan / "scan.mp4", base / "calibration.json", base / "recon",
+                      ProcessParams(grid_mm=0.5))
+
+    base = shared_folder(tmp_path_factory, "letter", build)
+    return base / "scan", base / "recon"
+
+XVFB_SCREEN = (1280, 800)
+
+
+@pytest.fixture
+def x_display(tmp_path):
+    """A fresh virtual X server (Xvfb, a 1280x800 screen) on a display number it picks itself
+    (``-displayfd``): ``":N"``. Skipped where Xvfb is not installed."""
+    import select
+    import shutil
+    import subprocess
+    import time
+
+    xvfb = shutil.which("Xvfb")
+    if xvfb is None:
+        pytest.skip("Xvfb is not installed (scripts/bootstrap.sh installs it: apt-get install xvfb)")
+    log = tmp_path / "xvfb.log"
+    r, w = os.pipe()
+    with log.open("wb") as log_file:
+        proc = subprocess.Popen(
+            [xvfb, "-displayfd", str(w), "-screen", "0", f"{XVFB_SCREEN[0]}x{XVFB_SCREEN[1]}x24",
+             "-nolisten", "tcp", "-noreset"],
+            pass_fds=(w,),
+            stdout=subprocess.DEVNULL,
+            stderr=log_file,
+        )
+    os.close(w)
+    try:
+        text = b""
+        deadline = time.monotonic() + 30
+        while not text.endswith(b"\n") and time.monotonic() < deadline:
+            ready, _, _ = select.select([r], [], [], deadline - time.monotonic())
+            if not ready:
+                break
+            chunk = os.read(r, 64)
+            if not chunk:  # Xvfb closed the pipe: it did not start
+                break
+            text += chunk
+        if not text.strip().isdigit():
+            proc.kill()
+            proc.wait(timeout=10)
+            pytest.fail(f"Xvfb did not start: {log.read_text(errors='replace')[-2000:]}")
+        yield f":{int(text)}"
+    finally:
+        os.close(r)
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=10)
 
 
 from impress_gui.sim.truth import truth_on_grid  # noqa: E402,F401  (used by test modules)

@@ -74,9 +74,7 @@ def write_recon(folder, height: np.ndarray, spec: GridSpec = SPEC, record_hash: 
     return folder
 
 
-@pytest.fixture(scope="module")
-def recon(tmp_path_factory):
-    return write_recon(tmp_path_factory.mktemp("cast") / "recon", synthetic_height())
+# ``cast_recon`` (conftest.py): a reconstruction folder of :func:`synthetic_height`
 
 
 def read_mesh(path):
@@ -116,9 +114,9 @@ def raycast_heights(mesh, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 # ----- the solid ---------------------------------------------------------------------------
 @pytest.mark.parametrize("positive", [False, True])
 @pytest.mark.parametrize("suffix", [".stl", ".ply", ".obj"])
-def test_watertight_outward_solid_in_every_format(recon, tmp_path, positive, suffix):
+def test_watertight_outward_solid_in_every_format(cast_recon, tmp_path, positive, suffix):
     out = tmp_path / f"cast{suffix}"
-    doc = C.write_cast(recon, out, C.CastParams(positive=positive, max_triangles=20000))
+    doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive, max_triangles=20000))
     mesh = read_mesh(out)
     volume = check_solid(mesh)
     assert len(mesh.triangles) == doc["mesh"]["triangles"] <= 20000
@@ -134,11 +132,11 @@ def test_watertight_outward_solid_in_every_format(recon, tmp_path, positive, suf
         assert np.allclose(np.linalg.norm(raw["n"], axis=1), 1, atol=1e-5)
 
 
-def test_full_resolution_surface_lies_on_the_heightmap(recon, tmp_path):
+def test_full_resolution_surface_lies_on_the_heightmap(cast_recon, tmp_path):
     height = synthetic_height()
     for positive in (False, True):
         out = tmp_path / f"full{positive}.stl"
-        doc = C.write_cast(recon, out, C.CastParams(positive=positive))
+        doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive))
         assert doc["mesh"]["step_cells"] == 1
         mesh = read_mesh(out)
         check_solid(mesh, full=False)
@@ -159,10 +157,10 @@ def test_full_resolution_surface_lies_on_the_heightmap(recon, tmp_path):
         assert top.sum() == doc["mesh"]["surface_vertices"][0] * doc["mesh"]["surface_vertices"][1]
 
 
-def test_decimated_surface_keeps_heightmap_values_at_its_vertices(recon, tmp_path):
+def test_decimated_surface_keeps_heightmap_values_at_its_vertices(cast_recon, tmp_path):
     height = synthetic_height()
     out = tmp_path / "small.ply"
-    doc = C.write_cast(recon, out, C.CastParams(max_triangles=30000))
+    doc = C.write_cast(cast_recon, out, C.CastParams(max_triangles=30000))
     step = doc["mesh"]["step_cells"]
     assert step > 1
     r0, r1 = doc["region"]["rows"]
@@ -186,10 +184,10 @@ def test_decimated_surface_keeps_heightmap_values_at_its_vertices(recon, tmp_pat
     assert np.max(np.abs(z - height[iy, jx][sel])) <= 0.05
 
 
-def test_region_holes_and_base(recon, tmp_path):
+def test_region_holes_and_base(cast_recon, tmp_path):
     height = synthetic_height()
     out = tmp_path / "c.stl"
-    doc = C.write_cast(recon, out, C.CastParams(base_mm=3.5))
+    doc = C.write_cast(cast_recon, out, C.CastParams(base_mm=3.5))
     # default region: the bounding box of the cells with data (rows 6.., cols ..-4)
     assert doc["region"]["rows"] == [6, SPEC.shape[0]]
     assert doc["region"]["cols"] == [0, SPEC.shape[1] - 4]
@@ -215,13 +213,13 @@ def test_region_holes_and_base(recon, tmp_path):
     assert np.nanmin(ring) - 1e-3 <= z.min() and z.max() <= np.nanmax(ring) + 1e-3
     assert np.max(np.abs(z - ground(x, y))) < 0.15  # the smooth ground continues
     # the positive: base below the lowest point of the turned-over surface
-    doc = C.write_cast(recon, tmp_path / "p.stl", C.CastParams(positive=True, base_mm=3.5))
+    doc = C.write_cast(cast_recon, tmp_path / "p.stl", C.CastParams(positive=True, base_mm=3.5))
     assert doc["mesh"]["base_z_mm"] == pytest.approx(-float(np.nanmax(region)) - 3.5, abs=1e-4)
 
 
-def test_crop_in_the_export_frame(recon, tmp_path):
+def test_crop_in_the_export_frame(cast_recon, tmp_path):
     x0, y0, x1, y1 = 110.0, -90.0, 140.2, -60.0
-    doc = C.write_cast(recon, tmp_path / "c.stl", C.CastParams(crop_mm=(x1, y1, x0, y0)))
+    doc = C.write_cast(cast_recon, tmp_path / "c.stl", C.CastParams(crop_mm=(x1, y1, x0, y0)))
     box = doc["mesh"]["bounding_box"]
     assert box["min_mm"][:2] == pytest.approx([110.0, -90.0])
     assert box["max_mm"][:2] == pytest.approx([140.0, -60.0])  # cell centres inside the crop
@@ -230,8 +228,8 @@ def test_crop_in_the_export_frame(recon, tmp_path):
 
 
 @pytest.mark.parametrize("cap", [20, 1000, 12345, 100000])
-def test_triangle_cap(recon, tmp_path, cap):
-    doc = C.write_cast(recon, tmp_path / "c.stl", C.CastParams(max_triangles=cap))
+def test_triangle_cap(cast_recon, tmp_path, cap):
+    doc = C.write_cast(cast_recon, tmp_path / "c.stl", C.CastParams(max_triangles=cap))
     n = doc["mesh"]["triangles"]
     assert n <= cap
     rows, cols = doc["region"]["cells"]
@@ -272,9 +270,9 @@ def _best_iou(mask: np.ndarray, letter: np.ndarray) -> tuple[float, int]:
 
 
 @pytest.mark.parametrize("positive", [False, True])
-def test_a_raised_letter_keeps_its_handedness(recon, tmp_path, positive):
+def test_a_raised_letter_keeps_its_handedness(cast_recon, tmp_path, positive):
     out = tmp_path / "f.stl"
-    C.write_cast(recon, out, C.CastParams(positive=positive, max_triangles=400000))
+    C.write_cast(cast_recon, out, C.CastParams(positive=positive, max_triangles=400000))
     mask = _relief_mask(read_mesh(out))
     s = np.arange(-16, 16.01, 0.5)
     x, y = np.meshgrid(s, s[::-1])  # row 0 = the largest y, as the mask
@@ -288,11 +286,11 @@ def test_a_raised_letter_keeps_its_handedness(recon, tmp_path, positive):
         assert iou_m > 0.85 and rot_m == 0 and iou_f < 0.7
 
 
-def test_positive_is_the_rotation_of_the_poured_cast(recon, tmp_path):
+def test_positive_is_the_rotation_of_the_poured_cast(cast_recon, tmp_path):
     """Every surface vertex of the positive is the rotation by 180 deg about y of the same
     cell's vertex in the negative: (x, y, z) -> (-x, y, -z)."""
-    neg = C.write_cast(recon, tmp_path / "n.ply", C.CastParams(max_triangles=50000))
-    pos = C.write_cast(recon, tmp_path / "p.ply", C.CastParams(positive=True,
+    neg = C.write_cast(cast_recon, tmp_path / "n.ply", C.CastParams(max_triangles=50000))
+    pos = C.write_cast(cast_recon, tmp_path / "p.ply", C.CastParams(positive=True,
                                                                max_triangles=50000))
     vn = np.asarray(read_mesh(tmp_path / "n.ply").vertices)
     vp = np.asarray(read_mesh(tmp_path / "p.ply").vertices)
@@ -305,21 +303,21 @@ def test_positive_is_the_rotation_of_the_poured_cast(recon, tmp_path):
 
 
 # ----- provenance and reproducibility --------------------------------------------------------
-def test_same_input_same_bytes_and_the_record(recon, tmp_path):
+def test_same_input_same_bytes_and_the_record(cast_recon, tmp_path):
     params = C.CastParams(positive=True, base_mm=4.0, max_triangles=50000,
                           crop_mm=(105.0, -100.0, 150.0, -50.0))
     for suffix in (".stl", ".ply", ".obj"):
         a, b = tmp_path / f"a{suffix}", tmp_path / "again" / f"a{suffix}"
-        C.write_cast(recon, a, params)
-        C.write_cast(recon, b, params)
+        C.write_cast(cast_recon, a, params)
+        C.write_cast(cast_recon, b, params)
         assert a.read_bytes() == b.read_bytes()
         assert (tmp_path / f"a{suffix}.json").read_bytes() == \
             (tmp_path / "again" / f"a{suffix}.json").read_bytes()
-        C.write_cast(recon, a, params)  # replacing its own output
+        C.write_cast(cast_recon, a, params)  # replacing its own output
     data = (tmp_path / "a.stl").read_bytes()
     doc = C.read_cast_document(tmp_path / "a.stl.json")
-    meta_sha = hashlib.sha256((recon / "metadata.json").read_bytes()).hexdigest()
-    tif_sha = hashlib.sha256((recon / "heightmap.tif").read_bytes()).hexdigest()
+    meta_sha = hashlib.sha256((cast_recon / "metadata.json").read_bytes()).hexdigest()
+    tif_sha = hashlib.sha256((cast_recon / "heightmap.tif").read_bytes()).hexdigest()
     src = doc["inputs"]["reconstruction"]
     assert src["metadata_json_sha256"] == meta_sha and src["heightmap_tif_sha256"] == tif_sha
     assert doc["mesh"]["sha256"] == hashlib.sha256(data).hexdigest()
@@ -339,9 +337,9 @@ def test_same_input_same_bytes_and_the_record(recon, tmp_path):
     assert meta_sha in ply_head and "parameters.base_mm: 4.0" in ply_head
 
 
-def test_command_line(recon, tmp_path, capsys):
+def test_command_line(cast_recon, tmp_path, capsys):
     out = tmp_path / "shoe.stl"
-    assert main(["cast", str(recon), "-o", str(out), "--positive", "--base-mm", "2",
+    assert main(["cast", str(cast_recon), "-o", str(out), "--positive", "--base-mm", "2",
                  "--max-triangles", "40000", "--crop", "105,-100,150,-50"]) == 0
     text = capsys.readouterr().out
     assert "cast written to" in text and "positive" in text
@@ -361,32 +359,34 @@ def _fails(capsys, argv, code) -> None:
     assert f"[{code}]" in err and "Traceback" not in err
 
 
-def test_bad_inputs_give_their_codes(recon, tmp_path, capsys):
+def test_bad_inputs_give_their_codes(cast_recon, tmp_path, capsys):
     out = str(tmp_path / "o.stl")
     _fails(capsys, ["cast", str(tmp_path / "nowhere"), "-o", out], "E-CAST-NO-RECON")
-    _fails(capsys, ["cast", str(recon / "heightmap.tif"), "-o", out], "E-CAST-NOT-FOLDER")
+    _fails(capsys, ["cast", str(cast_recon / "heightmap.tif"), "-o", out], "E-CAST-NOT-FOLDER")
     (tmp_path / "empty").mkdir()
     _fails(capsys, ["cast", str(tmp_path / "empty"), "-o", out], "E-FILE-MISSING")
     nan = write_recon(tmp_path / "nan", np.full((20, 30), np.nan, np.float32),
                       GridSpec(0.0, 0.0, 0.5, (20, 30)))
     _fails(capsys, ["cast", str(nan), "-o", out], "E-CAST-NO-DATA")
-    _fails(capsys, ["cast", str(recon), "-o", out, "--base-mm", "-1"], "E-CAST-BASE")
-    _fails(capsys, ["cast", str(recon), "-o", out, "--base-mm", "0"], "E-CAST-BASE")
-    _fails(capsys, ["cast", str(recon), "-o", out, "--base-mm", "nan"], "E-USAGE")
-    _fails(capsys, ["cast", str(recon), "-o", out, "--max-triangles", "10"], "E-CAST-TRIANGLES")
-    _fails(capsys, ["cast", str(recon), "-o", out, "--crop", "0,0,5,5"], "E-CAST-CROP")
-    _fails(capsys, ["cast", str(recon), "-o", out, "--crop", "1,2,3"], "E-USAGE")
-    _fails(capsys, ["cast", str(recon), "-o", str(tmp_path / "o.step")], "E-CAST-SUFFIX")
-    _fails(capsys, ["cast", str(recon), "-o", str(recon)], "E-OUTPUT-HOLDS-INPUT")
-    _fails(capsys, ["cast", str(recon), "-o", str(recon / "cast.stl")], "E-OUTPUT-HOLDS-INPUT")
-    _fails(capsys, ["cast", str(recon), "-o", str(recon / "heightmap.tif")],
+    _fails(capsys, ["cast", str(cast_recon), "-o", out, "--base-mm", "-1"], "E-CAST-BASE")
+    _fails(capsys, ["cast", str(cast_recon), "-o", out, "--base-mm", "0"], "E-CAST-BASE")
+    _fails(capsys, ["cast", str(cast_recon), "-o", out, "--base-mm", "nan"], "E-USAGE")
+    _fails(capsys, ["cast", str(cast_recon), "-o", out, "--max-triangles", "10"],
+           "E-CAST-TRIANGLES")
+    _fails(capsys, ["cast", str(cast_recon), "-o", out, "--crop", "0,0,5,5"], "E-CAST-CROP")
+    _fails(capsys, ["cast", str(cast_recon), "-o", out, "--crop", "1,2,3"], "E-USAGE")
+    _fails(capsys, ["cast", str(cast_recon), "-o", str(tmp_path / "o.step")], "E-CAST-SUFFIX")
+    _fails(capsys, ["cast", str(cast_recon), "-o", str(cast_recon)], "E-OUTPUT-HOLDS-INPUT")
+    _fails(capsys, ["cast", str(cast_recon), "-o", str(cast_recon / "cast.stl")],
+           "E-OUTPUT-HOLDS-INPUT")
+    _fails(capsys, ["cast", str(cast_recon), "-o", str(cast_recon / "heightmap.tif")],
            "E-OUTPUT-HOLDS-INPUT")
     (tmp_path / "dir.stl").mkdir()
-    _fails(capsys, ["cast", str(recon), "-o", str(tmp_path / "dir.stl")], "E-OUTPUT-NOT-FILE")
+    _fails(capsys, ["cast", str(cast_recon), "-o", str(tmp_path / "dir.stl")], "E-OUTPUT-NOT-FILE")
     (tmp_path / "other.stl.json").write_text('{"format": "someone.else"}')
-    _fails(capsys, ["cast", str(recon), "-o", str(tmp_path / "other.stl")], "E-OUTPUT-EXISTS")
+    _fails(capsys, ["cast", str(cast_recon), "-o", str(tmp_path / "other.stl")], "E-OUTPUT-EXISTS")
     assert not (tmp_path / "o.stl").exists() and not (tmp_path / "other.stl").exists()
-    assert sorted(p.name for p in recon.iterdir()) == ["heightmap.tif", "metadata.json"]
+    assert sorted(p.name for p in cast_recon.iterdir()) == ["heightmap.tif", "metadata.json"]
     # a heightmap changed after processing
     bad = write_recon(tmp_path / "changed", synthetic_height())
     h = synthetic_height()
@@ -396,7 +396,7 @@ def test_bad_inputs_give_their_codes(recon, tmp_path, capsys):
     tifffile.imwrite(bad / "heightmap.tif", h)
     _fails(capsys, ["cast", str(bad), "-o", out], "E-CAST-HASH")
     # a crop holding only cells without data
-    _fails(capsys, ["cast", str(recon), "-o", out, "--crop", "138,-48,142,-50.9"],
+    _fails(capsys, ["cast", str(cast_recon), "-o", out, "--crop", "138,-48,142,-50.9"],
            "E-CAST-NO-DATA")
 
 
@@ -423,31 +423,7 @@ def test_fill_is_exact_on_known_cells_and_smooth():
 
 
 # ----- a real reconstruction: the simulator's raised letter F ----------------------------------
-@pytest.fixture(scope="module")
-def letter_scan(tmp_path_factory):
-    """(scan folder, reconstruction folder) of the letter preset (small and quick: ~25 s)."""
-    from impress_gui.core.calibration.geometry import Intrinsics
-    from impress_gui.core.calibration.picks import Picks
-    from impress_gui.core.calibration.scene import calibrate_scene
-    from impress_gui.core.calibration.target import TargetModel
-    from impress_gui.core.formats.video import open_video
-    from impress_gui.core.reconstruction.pipeline import process_files
-    from impress_gui.core.reconstruction.reconstruct import ProcessParams
-    from impress_gui.sim.simulate import SimConfig, simulate
-
-    base = tmp_path_factory.mktemp("letter")
-    scan = base / "scan"
-    simulate(SimConfig(preset="letter", length_mm=190.0, width=640, height=360, fps=10.0,
-                       grid_mm=0.2), scan, workers=1)
-    truth = json.loads((scan / "truth.json").read_text())
-    with open_video(scan / "scan.mp4") as v:
-        cal = calibrate_scene(v, Intrinsics.load(scan / "intrinsics.json"),
-                              TargetModel.load(scan / "target.json"),
-                              Picks.load(scan / "picks.json"), truth["speed_mm_s"])
-    cal.save(base / "calibration.json")
-    process_files(scan / "scan.mp4", base / "calibration.json", base / "recon",
-                  ProcessParams(grid_mm=0.5))
-    return scan, base / "recon"
+# (``letter_scan``: the scan and its reconstruction, made once a run by conftest.py)
 
 
 def _raster(x: np.ndarray, y: np.ndarray, raster_mm: float = 0.5) -> np.ndarray:
@@ -469,16 +445,16 @@ def test_simulated_letter_cast(letter_scan, tmp_path, positive):
 
     from impress_gui.sim.truth import truth_on_grid
 
-    scan, recon = letter_scan
-    g = json.loads((recon / "metadata.json").read_text())["grid"]
+    scan, cast_recon = letter_scan
+    g = json.loads((cast_recon / "metadata.json").read_text())["grid"]
     spec = GridSpec(g["x0_mm"], g["y0_mm"], g["pixel_mm"], tuple(g["shape"]))
-    height = tifffile.imread(recon / "heightmap.tif")
+    height = tifffile.imread(cast_recon / "heightmap.tif")
     truth = truth_on_grid(scan, spec)
     ii, jj = np.nonzero((truth > 3.0) & (truth < 8.5))  # the 6 mm letter, not the target
     lx, ly = export_xy(spec, ii, jj)
     crop = (lx.min() - 8, ly.min() - 8, lx.max() + 8, ly.max() + 8)
     out = tmp_path / "letter.stl"
-    doc = C.write_cast(recon, out, C.CastParams(positive=positive, crop_mm=crop))
+    doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive, crop_mm=crop))
     assert doc["mesh"]["step_cells"] == 1
     mesh = read_mesh(out)
     check_solid(mesh, full=doc["mesh"]["triangles"] < 40000)
@@ -504,16 +480,16 @@ def test_simulated_letter_cast(letter_scan, tmp_path, positive):
     assert iou > 0.75 and rot == 0 and iou_wrong < 0.6, (iou, rot, iou_wrong)
 
 
-def test_progress_and_cancel(recon, tmp_path):
+def test_progress_and_cancel(cast_recon, tmp_path):
     from impress_gui.core.base.errors import Cancelled
     from impress_gui.core.base.progress import CancelToken
 
     seen: list[float] = []
-    C.write_cast(recon, tmp_path / "a.stl", C.CastParams(max_triangles=5000),
+    C.write_cast(cast_recon, tmp_path / "a.stl", C.CastParams(max_triangles=5000),
                  progress=lambda f, _msg: seen.append(f))
     assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
     token = CancelToken()
     token.cancel()
     with pytest.raises(Cancelled):
-        C.write_cast(recon, tmp_path / "b.stl", C.CastParams(), cancel=token)
+        C.write_cast(cast_recon, tmp_path / "b.stl", C.CastParams(), cancel=token)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.stl", "a.stl.json"]

@@ -22,9 +22,7 @@ pytest.importorskip("open3d")
 TOL_MM = 0.02  # the issue's acceptance: the surface within 0.02 mm of the heightmap
 
 
-@pytest.fixture(scope="module")
-def recon(tmp_path_factory):
-    return write_recon(tmp_path_factory.mktemp("cast-acc") / "recon", synthetic_height())
+# ``cast_recon`` (conftest.py): a reconstruction folder of :func:`synthetic_height`
 
 
 def load(path):
@@ -49,10 +47,10 @@ def data_cells_deviation(mesh_path, height, doc) -> np.ndarray:
 
 @pytest.mark.parametrize("positive", [False, True])
 @pytest.mark.parametrize("suffix", [".stl", ".ply", ".obj"])
-def test_trimesh_reads_a_watertight_solid_with_positive_volume(recon, tmp_path, positive,
+def test_trimesh_reads_a_watertight_solid_with_positive_volume(cast_recon, tmp_path, positive,
                                                                suffix):
     out = tmp_path / f"cast{suffix}"
-    doc = C.write_cast(recon, out, C.CastParams(positive=positive, max_triangles=40000))
+    doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive, max_triangles=40000))
     mesh = load(out)
     assert mesh.is_watertight and mesh.is_winding_consistent and mesh.is_volume
     assert mesh.volume > 0 and mesh.volume == pytest.approx(doc["mesh"]["volume_mm3"],
@@ -66,9 +64,9 @@ def test_trimesh_reads_a_watertight_solid_with_positive_volume(recon, tmp_path, 
     assert "by_construction" in checks["self_intersection"]
 
 
-def test_small_casts_are_tested_for_self_intersection(recon, tmp_path):
+def test_small_casts_are_tested_for_self_intersection(cast_recon, tmp_path):
     for dec in ("sample", "quadric"):
-        doc = C.write_cast(recon, tmp_path / f"{dec}.stl",
+        doc = C.write_cast(cast_recon, tmp_path / f"{dec}.stl",
                            C.CastParams(max_triangles=5000, decimate=dec))
         si = doc["checks"]["self_intersection"]
         assert si == {"tested": True, "self_intersecting": False}
@@ -77,10 +75,10 @@ def test_small_casts_are_tested_for_self_intersection(recon, tmp_path):
 
 
 @pytest.mark.parametrize("positive", [False, True])
-def test_full_resolution_surface_within_0_02_mm(recon, tmp_path, positive):
+def test_full_resolution_surface_within_0_02_mm(cast_recon, tmp_path, positive):
     height = synthetic_height()
     out = tmp_path / "full.stl"
-    doc = C.write_cast(recon, out, C.CastParams(positive=positive))
+    doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive))
     assert doc["mesh"]["decimation"] == {"method": "sample", "step_cells": 1}
     d = data_cells_deviation(out, height, doc)
     assert d.size > 40000 and np.max(d) <= 1e-4  # float32 rounding only
@@ -91,14 +89,14 @@ def test_full_resolution_surface_within_0_02_mm(recon, tmp_path, positive):
 
 
 @pytest.mark.parametrize("positive", [False, True])
-def test_quadric_decimation_keeps_the_surface_within_0_02_mm(recon, tmp_path, positive):
+def test_quadric_decimation_keeps_the_surface_within_0_02_mm(cast_recon, tmp_path, positive):
     """At a quarter of the full-resolution count, the quadric mesh stays on the heightmap
     where every-k-th-cell sampling smears the letter's 2 mm walls."""
     height = synthetic_height()
     cap = 25000  # the full-resolution mesh has 111 598 triangles
     q = tmp_path / "q.ply"
-    doc = C.write_cast(recon, q, C.CastParams(positive=positive, max_triangles=cap,
-                                              decimate="quadric"))
+    doc = C.write_cast(cast_recon, q, C.CastParams(positive=positive, max_triangles=cap,
+                                                   decimate="quadric"))
     dec = doc["mesh"]["decimation"]
     assert dec["method"] == "quadric" and dec["input_step_cells"] == 1
     assert dec["input_triangles"] == 111598 and doc["mesh"]["triangles"] <= cap
@@ -112,18 +110,18 @@ def test_quadric_decimation_keeps_the_surface_within_0_02_mm(recon, tmp_path, po
     assert doc["checks"]["ok"] and "by_construction" not in doc["checks"]["self_intersection"]
     # sampling to the same cap: vertices on the cells, but the walls between them are not
     s = tmp_path / "s.ply"
-    sdoc = C.write_cast(recon, s, C.CastParams(positive=positive, max_triangles=cap))
+    sdoc = C.write_cast(cast_recon, s, C.CastParams(positive=positive, max_triangles=cap))
     assert sdoc["mesh"]["step_cells"] == 3
     assert sdoc["surface_deviation"]["max_mm"] > 1.0  # a 2 mm wall cut across
     assert np.max(data_cells_deviation(s, height, sdoc)) > 1.0
 
 
-def test_same_input_same_bytes_with_either_decimation(recon, tmp_path):
+def test_same_input_same_bytes_with_either_decimation(cast_recon, tmp_path):
     for dec in ("sample", "quadric"):
         params = C.CastParams(positive=True, max_triangles=20000, decimate=dec)
         a, b = tmp_path / f"a-{dec}.stl", tmp_path / "again" / f"a-{dec}.stl"
-        C.write_cast(recon, a, params)
-        C.write_cast(recon, b, params)
+        C.write_cast(cast_recon, a, params)
+        C.write_cast(cast_recon, b, params)
         assert a.read_bytes() == b.read_bytes()
         da = json.loads(a.with_name(a.name + ".json").read_text())
         db = json.loads(b.with_name(b.name + ".json").read_text())
@@ -137,7 +135,9 @@ def test_bad_decimation_is_refused():
 
 
 # ----- a left shoe stays left ----------------------------------------------------------------
-LEFT_SPEC = GridSpec(-60.0, -150.0, 0.5, (600, 240))  # 120 x 300 mm (rail frame)
+# 120 x 300 mm (rail frame) on a 1 mm grid: the sole's parts are tens of millimetres wide (a
+# finer grid only makes the full-resolution cast, 71 000 triangles here, slower to check)
+LEFT_SPEC = GridSpec(-60.0, -150.0, 1.0, (300, 120))
 TOE_MM = 3.0  # the big toe's pit, below the sole's 2 mm
 
 
@@ -148,7 +148,7 @@ def left_shoe_impression(spec: GridSpec = LEFT_SPEC) -> np.ndarray:
     medial, the arch cut in on the medial side. Heights in mm, cell [i, j] at
     ``export_xy``."""
     ii, jj = np.mgrid[0 : spec.shape[0], 0 : spec.shape[1]]
-    x, y = export_xy(spec, ii, jj)  # y from +150 (row 0) down to -149.5
+    x, y = export_xy(spec, ii, jj)  # y from +150 (row 0) down to -149
     fore = ((x - 8.0) / 45.0) ** 2 + ((y - 70.0) / 70.0) ** 2 <= 1
     heel = (x / 35.0) ** 2 + ((y + 95.0) / 45.0) ** 2 <= 1
     waist = (x > -30.0) & (x < 12.0) & (y > -100.0) & (y < 60.0)  # arch cut in at +x
@@ -195,11 +195,11 @@ def test_a_left_shoe_stays_left(tmp_path, suffix):
         assert (v[sole, 2].mean() < v[top & ~sole, 2].mean()) != positive
 
 
-def test_a_strided_deviation_sees_between_the_samples(recon, tmp_path, monkeypatch):
+def test_a_strided_deviation_sees_between_the_samples(cast_recon, tmp_path, monkeypatch):
     """On a large map the deviation is measured on every k-th cell, k prime to the sampling
     step: never only on the sampled cells, where a sampled surface is exact."""
     monkeypatch.setattr(C, "DEVIATION_MAX_RAYS", 10000)  # 54 864 cells: stride 3 at first
-    doc = C.write_cast(recon, tmp_path / "s.stl", C.CastParams(max_triangles=13200))
+    doc = C.write_cast(cast_recon, tmp_path / "s.stl", C.CastParams(max_triangles=13200))
     step, dev = doc["mesh"]["step_cells"], doc["surface_deviation"]
     assert step == 3 and dev["stride_cells"] == 4  # 3 would land on the samples only
     assert dev["max_mm"] > 1.0 and dev["within_tolerance_fraction"] < 0.999

@@ -20,32 +20,8 @@ RASTER_MM = 1.0
 BAND_MM = (3.0, 8.5)  # the letter is 6 mm high; the target's faces are 11 and 40 mm
 
 
-@pytest.fixture(scope="module")
-def letter(tmp_path_factory):
-    """(scan folder, reconstruction folder) of the letter preset (small and quick)."""
-    from impress_gui.core.calibration.geometry import Intrinsics
-    from impress_gui.core.calibration.picks import Picks
-    from impress_gui.core.calibration.scene import calibrate_scene
-    from impress_gui.core.calibration.target import TargetModel
-    from impress_gui.core.formats.video import open_video
-    from impress_gui.core.reconstruction.pipeline import process_files
-    from impress_gui.core.reconstruction.reconstruct import ProcessParams
-    from impress_gui.sim.simulate import SimConfig, simulate
-
-    base = tmp_path_factory.mktemp("letter")
-    scan = base / "scan"
-    simulate(SimConfig(preset="letter", length_mm=190.0, width=640, height=360, fps=10.0,
-                       grid_mm=0.2), scan, workers=1)
-    truth = json.loads((scan / "truth.json").read_text())
-    with open_video(scan / "scan.mp4") as v:
-        cal = calibrate_scene(v, Intrinsics.load(scan / "intrinsics.json"),
-                              TargetModel.load(scan / "target.json"),
-                              Picks.load(scan / "picks.json"), truth["speed_mm_s"])
-    cal_path = base / "calibration.json"
-    cal.save(cal_path)
-    out = base / "recon"
-    process_files(scan / "scan.mp4", cal_path, out, ProcessParams(grid_mm=0.5))
-    return scan, out
+# ``letter_scan`` (conftest.py): the scan of the letter preset and its reconstruction, made
+# once a run (test_cast.py uses the same)
 
 
 def _truth_points(scan, out) -> np.ndarray:
@@ -106,10 +82,10 @@ def _band(xyz: np.ndarray) -> np.ndarray:
     return xyz[(z > BAND_MM[0]) & (z < BAND_MM[1]), :2]
 
 
-def test_ply_read_by_plyfile_is_not_mirrored(letter):
+def test_ply_read_by_plyfile_is_not_mirrored(letter_scan):
     from plyfile import PlyData
 
-    scan, out = letter
+    scan, out = letter_scan
     ply = PlyData.read(str(out / "pointcloud.ply"))
     v = ply["vertex"]
     xyz = np.column_stack([v["x"], v["y"], v["z"]]).astype(float)
@@ -117,18 +93,18 @@ def test_ply_read_by_plyfile_is_not_mirrored(letter):
     _check(_chirality(_band(xyz), _truth_points(scan, out)))
 
 
-def test_ply_read_by_open3d_is_not_mirrored(letter):
+def test_ply_read_by_open3d_is_not_mirrored(letter_scan):
     import open3d as o3d
 
-    scan, out = letter
+    scan, out = letter_scan
     xyz = np.asarray(o3d.io.read_point_cloud(str(out / "pointcloud.ply")).points)
     _check(_chirality(_band(xyz), _truth_points(scan, out)))
 
 
-def test_x3p_read_by_surfalize_is_not_mirrored(letter):
+def test_x3p_read_by_surfalize_is_not_mirrored(letter_scan):
     from surfalize import Surface
 
-    scan, out = letter
+    scan, out = letter_scan
     s = Surface.load(str(out / "heightmap.x3p"))
     z_mm = np.asarray(s.data, float) * 1e-3  # surfalize: micrometres
     ii, jj = np.nonzero(np.isfinite(z_mm))
@@ -137,23 +113,23 @@ def test_x3p_read_by_surfalize_is_not_mirrored(letter):
     _check(_chirality(_band(xyz), _truth_points(scan, out)))
 
 
-def test_the_mirrored_convention_would_be_caught(letter):
+def test_the_mirrored_convention_would_be_caught(letter_scan):
     """The check itself can fail: the old left-handed PLY (y = +rail Y) is a mirror image."""
     from plyfile import PlyData
 
-    scan, out = letter
+    scan, out = letter_scan
     v = PlyData.read(str(out / "pointcloud.ply"))["vertex"]
     xyz = np.column_stack([v["x"], -np.asarray(v["y"]), v["z"]]).astype(float)
     scores = _chirality(_band(xyz), _truth_points(scan, out))
     assert scores["as is"] < 0.6 and scores["mirror y"] > 0.8, scores
 
 
-def test_every_tiff_carries_its_cell_size_and_sources(letter):
+def test_every_tiff_carries_its_cell_size_and_sources(letter_scan):
     """Issue 21 item 11: the TIFFs of `impress process` state their pixel size (read back by
     tifffile) and name their inputs' hashes."""
     import tifffile
 
-    _scan, out = letter
+    _scan, out = letter_scan
     meta = json.loads((out / "metadata.json").read_text())
     for name in ("heightmap.tif", "height_green.tif", "height_red.tif", "difference.tif",
                  "contribution.tif"):
@@ -165,14 +141,14 @@ def test_every_tiff_carries_its_cell_size_and_sources(letter):
             assert meta["inputs"]["video"]["sha256"] in page.description
 
 
-def test_tiffs_read_back_equal_by_pillow_and_tifffile(letter):
+def test_tiffs_read_back_equal_by_pillow_and_tifffile(letter_scan):
     """Issue 19: the float maps are deflate TIFFs with the floating-point predictor (chosen for
     size: 16 % smaller at the same speed); Pillow (libtiff, not written here) and tifffile read
     every one back to the same values, NaN cells included, and the PNG views agree with them."""
     import tifffile
     from PIL import Image
 
-    _scan, out = letter
+    _scan, out = letter_scan
     fused = None
     for name in ("heightmap.tif", "height_green.tif", "height_red.tif", "difference.tif",
                  "contribution.tif"):
@@ -194,13 +170,13 @@ def test_tiffs_read_back_equal_by_pillow_and_tifffile(letter):
     assert (grey[~ok] == 0).all()
 
 
-def test_writing_reports_progress_within_files(letter, tmp_path):
+def test_writing_reports_progress_within_files(letter_scan, tmp_path):
     """Issue 19: while the outputs are written the progress moves inside the slowest file (the
     X3P, by pieces of rows), not only when a file is finished, and never goes back."""
     from impress_gui.core.formats import writers
     from impress_gui.core.measure.readings import load_reconstruction
 
-    _scan, out = letter
+    _scan, out = letter_scan
     data = load_reconstruction(out)
     rec = _FakeRec(data)
     seen: list[tuple[float, str]] = []

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gui_helpers import FakeDialogs
 from PySide6.QtCore import QEvent, QPoint, QPointF, Qt
 from PySide6.QtGui import QMouseEvent
 from PySide6.QtTest import QTest
@@ -67,24 +68,6 @@ def truth(scan) -> dict:
 @pytest.fixture(scope="session")
 def true_picks(scan) -> dict:
     return json.loads((scan / "picks.json").read_text())
-
-
-class FakeDialogs:
-    """File choosers answered by the test: set ``answer`` before the action."""
-
-    def __init__(self) -> None:
-        self.answer = ""
-        self.asked: list[str] = []
-
-    def open_file(self, title, filters, start=""):
-        self.asked.append(title)
-        return self.answer
-
-    save_file = open_file
-
-    def directory(self, title, start=""):
-        self.asked.append(title)
-        return self.answer
 
 
 @pytest.fixture

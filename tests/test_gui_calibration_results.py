@@ -9,11 +9,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from gui_helpers import main_window
 from PySide6.QtCore import QPoint, Qt
 from PySide6.QtTest import QTest
 
 from impress_gui.ui import pyside_fix
-from impress_gui.ui.app import build_main_window, make_settings
 
 pyside_fix.guard()
 pytestmark = pytest.mark.qt_log_ignore("propagateSizeHints")
@@ -53,11 +53,7 @@ def needed_height(widget) -> int:
 
 
 def test_the_calibration_result_fits_1080_lines_without_scrolling(qtbot, tmp_path):
-    w = build_main_window(make_settings(tmp_path / "settings.ini"), with_motor=False)
-    try:
-        w.resize(1920, 1080)
-        w.show()
-        qtbot.waitExposed(w)
+    with main_window(qtbot, tmp_path, (1920, 1080)) as w:
         tab = w.calibration_tab
         w.tabs.setCurrentWidget(tab)
         res = tab.results
@@ -80,7 +76,3 @@ def test_the_calibration_result_fits_1080_lines_without_scrolling(qtbot, tmp_pat
         assert tab.view.height() > 400  # the frame keeps most of the height
         QTest.mouseClick(res.details_button, Qt.MouseButton.LeftButton)
         assert not res.details.isVisible()
-    finally:
-        w.shutdown()
-        w.close()
-        w.deleteLater()

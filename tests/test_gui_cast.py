@@ -13,12 +13,12 @@ import time
 
 import numpy as np
 import pytest
+from gui_helpers import main_window, open_in_viewer
 from PySide6.QtCore import QRectF, Qt
-from test_cast import SPEC, synthetic_height, write_recon
+from test_cast import SPEC
 
 from impress_gui.core.measure import cast as C
 from impress_gui.ui import pyside_fix
-from impress_gui.ui.app import build_main_window, make_settings
 
 pyside_fix.guard()
 trimesh = pytest.importorskip("trimesh")
@@ -27,48 +27,11 @@ pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
               pytest.mark.usefixtures("no_stray_python_threads")]
 
 
-class FakeDialogs:
-    """The file chooser's answers ("" = the user cancelled), and the questions asked."""
-
-    def __init__(self) -> None:
-        self.answer = ""
-        self.asked: list[str] = []
-
-    def save_file(self, title, filters, start=""):
-        self.asked.append(filters)
-        return self.answer
-
-    open_file = save_file
-
-    def directory(self, title, start=""):
-        return self.answer
-
-
-@pytest.fixture(scope="module")
-def recon(tmp_path_factory):
-    return write_recon(tmp_path_factory.mktemp("gui-cast") / "recon", synthetic_height())
-
-
 @pytest.fixture
-def window(qtbot, tmp_path, recon):
-    w = build_main_window(make_settings(tmp_path / "settings.ini"), with_motor=False)
-    try:
-        w.resize(1100, 700)
-        w.show()
-        qtbot.waitExposed(w)
-        v = w.viewer_tab
-        w.tabs.setCurrentWidget(v)
-        with qtbot.waitSignal(v.loaded, timeout=30000):
-            v.open_reconstruction(recon)
-        qtbot.waitUntil(lambda: not v.is_busy(), timeout=30000)
-        v.actions.dialogs = FakeDialogs()
+def window(qtbot, tmp_path, cast_recon):
+    with main_window(qtbot, tmp_path, (1100, 700)) as w:
+        open_in_viewer(qtbot, w, cast_recon)
         yield w
-    finally:
-        w.viewer_tab.tasks.shutdown()
-        w.messenger.close_all()
-        w.shutdown()
-        w.close()
-        w.deleteLater()
 
 
 def open_dialog(qtbot, v):
@@ -83,7 +46,7 @@ def files(folder) -> list[str]:
     return sorted(p.name for p in folder.iterdir())
 
 
-def test_digital_cast_from_the_viewer(qtbot, window, tmp_path, recon):
+def test_digital_cast_from_the_viewer(qtbot, window, tmp_path, cast_recon):
     v = window.viewer_tab
     assert v.cast_action.text() == "Digital cast (STL/PLY/OBJ)..."
     assert v.exports.buttons["cast"].isVisible()
@@ -108,7 +71,7 @@ def test_digital_cast_from_the_viewer(qtbot, window, tmp_path, recon):
     with qtbot.waitSignal(v.tasks.done, timeout=120000) as done:
         qtbot.mouseClick(dlg.ok_button, Qt.MouseButton.LeftButton)
     assert done.args == ["Writing the digital cast", "finished"]
-    assert "Mesh (*.stl *.ply *.obj)" in v.actions.dialogs.asked[-1]
+    assert "Mesh (*.stl *.ply *.obj)" in v.actions.dialogs.filters[-1]
     stl = out_dir / "outsole.stl"
     assert files(out_dir) == ["outsole.stl", "outsole.stl.json"]
     mesh = trimesh.load(str(stl), force="mesh")
@@ -127,11 +90,11 @@ def test_digital_cast_from_the_viewer(qtbot, window, tmp_path, recon):
     assert y0 - SPEC.pixel_mm <= lo[1] and hi[1] <= y1 + SPEC.pixel_mm
     assert doc["checks"]["ok"] and doc["export"]["by"] == "the viewer's export"
     assert doc["inputs"]["reconstruction"]["heightmap_tif_sha256"] == hashlib.sha256(
-        (recon / "heightmap.tif").read_bytes()).hexdigest()
+        (cast_recon / "heightmap.tif").read_bytes()).hexdigest()
     # the same file the command line writes with the same parameters (the record differs by
     # the viewer's context only)
     cli = tmp_path / "cli" / "outsole.stl"
-    C.write_cast(recon, cli, C.CastParams(positive=True, base_mm=3.5, max_triangles=30000,
+    C.write_cast(cast_recon, cli, C.CastParams(positive=True, base_mm=3.5, max_triangles=30000,
                                           crop_mm=tuple(doc["parameters"]["crop_mm"])))
     assert cli.read_bytes() == stl.read_bytes()
     # recorded in the case record: the mesh with its hash, and its record

@@ -12,6 +12,7 @@ import json
 import numpy as np
 import pytest
 from event_loop import EventLoopMonitor
+from gui_helpers import FakeDialogs
 from measure_scans import block_a_frames, blocks_scan, guard_pyside_none
 from PySide6.QtCore import Qt
 from PySide6.QtTest import QTest
@@ -26,19 +27,6 @@ pyside_fix.guard()
 guard_pyside_none()
 pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
               pytest.mark.usefixtures("no_stray_python_threads")]
-
-
-class FakeDialogs:
-    def __init__(self) -> None:
-        self.answer = ""
-
-    def open_file(self, title, filters, start=""):
-        return self.answer
-
-    save_file = open_file
-
-    def directory(self, title, start=""):
-        return self.answer
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,7 @@ import json
 import re
 
 import pytest
+from gui_helpers import FakeDialogs
 from measure_scans import guard_pyside_none
 from PySide6.QtCore import Qt
 from PySide6.QtTest import QTest
@@ -27,28 +28,6 @@ pyside_fix.guard()
 guard_pyside_none()
 pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
               pytest.mark.usefixtures("no_stray_python_threads")]
-
-
-class FakeDialogs:
-    answer = ""
-
-    def open_file(self, title, filters, start=""):
-        return self.answer
-
-    save_file = open_file
-
-    def directory(self, title, start=""):
-        return self.answer
-
-
-@pytest.fixture(scope="module")
-def flat_recon(flat_scan, flat_calibration, tmp_path_factory):
-    from impress_gui.core.reconstruction.pipeline import process_files
-    from impress_gui.core.reconstruction.reconstruct import ProcessParams
-
-    out = tmp_path_factory.mktemp("flat-recon") / "recon"
-    process_files(flat_scan / "scan.mp4", flat_calibration, out, ProcessParams())
-    return out
 
 
 def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calibration,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from gui_helpers import FakeDialogs
 from PySide6.QtCore import Qt
 from PySide6.QtGui import QKeySequence
 from PySide6.QtTest import QTest
@@ -25,14 +26,6 @@ from impress_gui.ui.app import build_main_window, make_settings
 pyside_fix.guard()
 pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
               pytest.mark.usefixtures("no_stray_python_threads")]
-
-
-class FakeDialogs:
-    def __init__(self) -> None:
-        self.answer = ""
-
-    def save_file(self, title, filters, start=""):
-        return self.answer
 
 
 def tilted_map():

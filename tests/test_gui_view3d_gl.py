@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import json
 import os
-import select
-import shutil
 import subprocess
 import sys
 import time
@@ -31,7 +29,6 @@ import pytest
 
 from impress_gui.core.reconstruction.grid import GridSpec
 
-XVFB = shutil.which("Xvfb")
 SPEC = GridSpec(-20.0, 100.0, 0.2, (300, 200))  # 40 mm across (x), 60 mm along the rail
 BLOCK = (slice(40, 120), slice(30, 90))  # rows 40-119 (the map's upper part), cols 30-89 (left)
 RED = (220, 30, 30)
@@ -152,45 +149,7 @@ def test_the_cameras_azimuth():
 
 
 # ----- the GPU view on a virtual X display ---------------------------------------------------
-@pytest.fixture
-def x_display(tmp_path):
-    """A fresh Xvfb on a display number it picks itself (``-displayfd``): ``":N"``."""
-    if XVFB is None:
-        pytest.skip("Xvfb is not installed (scripts/bootstrap.sh installs it: apt-get install xvfb)")
-    log = tmp_path / "xvfb.log"
-    r, w = os.pipe()
-    with log.open("wb") as log_file:
-        proc = subprocess.Popen(
-            [XVFB, "-displayfd", str(w), "-screen", "0", "1280x800x24", "-nolisten", "tcp",
-             "-noreset"],
-            pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=log_file,
-        )
-    os.close(w)
-    try:
-        text = b""
-        deadline = time.monotonic() + 30
-        while not text.endswith(b"\n") and time.monotonic() < deadline:
-            ready, _, _ = select.select([r], [], [], deadline - time.monotonic())
-            if not ready:
-                break
-            chunk = os.read(r, 64)
-            if not chunk:
-                break
-            text += chunk
-        if not text.strip().isdigit():
-            proc.kill()
-            proc.wait(timeout=10)
-            pytest.fail(f"Xvfb did not start: {log.read_text(errors='replace')[-2000:]}")
-        yield f":{int(text)}"
-    finally:
-        os.close(r)
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=10)
+# ``x_display`` (conftest.py): a fresh Xvfb, the test skipped where none is installed
 
 
 VIEWS = (("above180", 180.0, 90.0), ("above0", 0.0, 90.0), ("oblique", 200.0, 40.0))

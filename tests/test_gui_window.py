@@ -14,9 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gui_helpers import FakeDialogs
 from PySide6.QtGui import QImage
 from PySide6.QtWidgets import QMessageBox
-from test_gui_calibration import FakeDialogs, calibrate, load_video, render_scan, set_inputs
+from test_gui_calibration import calibrate, load_video, render_scan, set_inputs
 
 from impress_gui.core.base.errors import CalibrationError
 from impress_gui.core.project.project import LOG_FILE, PROJECT_FILE, read_log

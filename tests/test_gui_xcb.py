@@ -10,61 +10,16 @@ skipped only where Xvfb is not installed (scripts/bootstrap.sh installs it, so C
 from __future__ import annotations
 
 import os
-import select
-import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 
-XVFB = shutil.which("Xvfb")
-SIZE = (1280, 800)
+SIZE = (1280, 800)  # the screen conftest.x_display makes
 
 
-@pytest.fixture
-def x_display(tmp_path):
-    """A fresh Xvfb on a display number it picks itself (``-displayfd``): ``":N"``."""
-    if XVFB is None:
-        pytest.skip("Xvfb is not installed (scripts/bootstrap.sh installs it: apt-get install xvfb)")
-    log = tmp_path / "xvfb.log"
-    r, w = os.pipe()
-    with log.open("wb") as log_file:
-        proc = subprocess.Popen(
-            [XVFB, "-displayfd", str(w), "-screen", "0", f"{SIZE[0]}x{SIZE[1]}x24",
-             "-nolisten", "tcp", "-noreset"],
-            pass_fds=(w,),
-            stdout=subprocess.DEVNULL,
-            stderr=log_file,
-        )
-    os.close(w)
-    try:
-        text = b""
-        deadline = time.monotonic() + 30
-        while not text.endswith(b"\n") and time.monotonic() < deadline:
-            ready, _, _ = select.select([r], [], [], deadline - time.monotonic())
-            if not ready:
-                break
-            chunk = os.read(r, 64)
-            if not chunk:  # Xvfb closed the pipe: it did not start
-                break
-            text += chunk
-        if not text.strip().isdigit():
-            proc.kill()
-            proc.wait(timeout=10)
-            pytest.fail(f"Xvfb did not start: {log.read_text(errors='replace')[-2000:]}")
-        yield f":{int(text)}"
-    finally:
-        os.close(r)
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=10)
+# ``x_display`` (conftest.py): a fresh Xvfb of 1280x800 pixels, skipped where none is installed
 
 
 def read_png(path: Path) -> np.ndarray:

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+from conftest import calibrate_scan
 
 from impress_gui import cli
 
@@ -363,30 +364,31 @@ CASES: list[Case] = [
 
 @pytest.fixture(scope="module")
 def evidence(flat_scan, flat_calibration, tmp_path_factory) -> Path:
-    """The evidence every case starts from: the flat scan (MP4 and a short MTS), its
-    intrinsics, picks and calibrations."""
-    from impress_gui.core.calibration.geometry import Intrinsics
-    from impress_gui.core.calibration.picks import Picks
-    from impress_gui.core.calibration.scene import calibrate_scene
-    from impress_gui.core.calibration.target import TargetModel
-    from impress_gui.core.formats.video import open_video
-    from impress_gui.sim.simulate import SimConfig, simulate
-
+    """The evidence every case starts from: the flat scan (MP4, and the same as an MTS), its
+    intrinsics, picks and calibrations (one of each video)."""
     ev = tmp_path_factory.mktemp("evidence")
     for name in ("scan.mp4", "intrinsics.json", "picks.json", "target.json"):
         shutil.copy2(flat_scan / name, ev / name)
     shutil.copy2(flat_calibration, ev / "calibration.json")
-    mts = tmp_path_factory.mktemp("mts") / "scan"
-    simulate(SimConfig(preset="flat", length_mm=100.0, width=640, height=360,
-                       video_format="mts"), mts, workers=1)
-    shutil.copy2(mts / "scan.mts", ev / "scan.mts")
-    truth = json.loads((mts / "truth.json").read_text())
-    with open_video(mts / "scan.mts") as v:
-        cal = calibrate_scene(v, Intrinsics.load(mts / "intrinsics.json"),
-                              TargetModel.load(mts / "target.json"),
-                              Picks.load(mts / "picks.json"), truth["speed_mm_s"])
-    cal.save(ev / "mts_cal.json")
+    _mpegts_copy(flat_scan / "scan.mp4", ev / "scan.mts")
+    calibrate_scan(flat_scan, ev / "mts_cal.json", video=ev / "scan.mts")
     return ev
+
+
+def _mpegts_copy(mp4: Path, mts: Path) -> None:
+    """The MP4's H.264 stream, packet for packet, in an MPEG-TS container: the simulator's
+    ``video_format="mts"`` writes the same encoder's stream into the same container (the
+    same start time, the same 241 packets within a byte of each other's size), without
+    rendering the scan a second time."""
+    import av
+
+    with av.open(str(mp4)) as src, av.open(str(mts), "w", format="mpegts") as dst:
+        stream = src.streams.video[0]
+        out = dst.add_stream_from_template(stream)
+        for packet in src.demux(stream):
+            if packet.dts is not None:  # not the demuxer's final empty packet
+                packet.stream = out
+                dst.mux(packet)
 
 
 def _snapshot(root: Path, skip: Path | None) -> dict[str, str]:
