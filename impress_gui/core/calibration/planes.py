@@ -33,6 +33,18 @@ BLOOM_SWITCH = 0.25
 ROWS_CENTRE = "centre of mass above half maximum"
 ROWS_MIDPOINT = "midpoint of the half-maximum crossings"
 ROWS_BLOOMING = "blooming fallback (centre of mass)"
+#: the ground beside the target (its base plane) whose stripe points join each plane's fit:
+#: a ring this wide (mm) around the target's footprint, leaving out this margin (mm) along it
+GROUND_RING_MM = 30.0
+GROUND_MARGIN_MM = 3.0
+#: a ground point joins the fit when it lies within max(GROUND_GATE_RMS x the faces' fit
+#: RMS, GROUND_GATE_MM) of the plane fitted to the faces alone ...
+GROUND_GATE_RMS = 6.0
+GROUND_GATE_MM = 0.1
+#: ... and the ground is used at all when at least this many points and this share of the
+#: ground's points pass (a flat base plane); otherwise the faces alone give the plane
+GROUND_MIN_POINTS = 200
+GROUND_MIN_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -45,6 +57,10 @@ class LaserPlaneFit:
     heights_mm: tuple[float, ...]  # target-face heights the stripe was measured on
     method: str = "stripe-fit"
     stripe_rows: str = ""  # how the stripe's rows were estimated (ROWS_*; "" = not recorded)
+    #: stripe points on the ground beside the target (its base plane, height 0) in the fit;
+    #: ``ground_note`` says why none were used ("" = not recorded)
+    ground_points: int = 0
+    ground_note: str = ""
 
 
 def _face_polygons(calib_pose, target: TargetModel):
@@ -100,6 +116,89 @@ def stripe_uv_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.n
     return uv, np.column_stack([cols + c0, mid[cols]])
 
 
+def _ground_ring(target: TargetModel):
+    """The target's footprint polygons (object frame, xy) and the ring's outer rectangle."""
+    feet = [f.vertices_mm[:, :2] for f in target.top_faces()]
+    allv = np.concatenate(feet)
+    return feet, allv.min(0) - GROUND_RING_MM, allv.max(0) + GROUND_RING_MM
+
+
+def stripe_uv_on_ground(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
+                        pose, target: TargetModel, travel_mm: float, params=None,
+                        blooming: bool = False, midpoints: bool = False):
+    """Like :func:`stripe_uv_on_target`, over the image region of the ground ring around the
+    target (:data:`GROUND_RING_MM`); which of the positions lie on the ground is decided by
+    :func:`points_on_ground`."""
+    from impress_gui.core.reconstruction.stripes import (
+        Planes,
+        StripeParams,
+        detect_band,
+        detect_band_blooming,
+        half_max_midpoints,
+    )
+
+    r_o, t_o = pose
+    _, lo, hi = _ground_ring(target)
+    rect = np.array([[lo[0], lo[1], 0.0], [hi[0], lo[1], 0.0], [hi[0], hi[1], 0.0],
+                     [lo[0], hi[1], 0.0]])
+    uv = project_points(intr, rot, rect @ r_o.T + t_o, travel_mm)
+    h, w = rgb.shape[:2]
+    empty = np.zeros((0, 2))
+    if not np.isfinite(uv).all():
+        return (empty, empty) if midpoints else empty
+    r0 = int(max(0, np.floor(uv[:, 1].min()) - 8))
+    r1 = int(min(h, np.ceil(uv[:, 1].max()) + 8))
+    c0 = int(max(0, np.floor(uv[:, 0].min())))
+    c1 = int(min(w, np.ceil(uv[:, 0].max()) + 1))
+    if r1 - r0 < 10 or c1 - c0 < 10:
+        return (empty, empty) if midpoints else empty
+    params = params or StripeParams()
+    band = rgb[r0:r1, c0:c1]
+    res = (detect_band_blooming(laser, band, r0, params) if blooming
+           else detect_band(laser, band, r0, params, None))
+    cols = np.flatnonzero(res.found)
+    out = np.column_stack([cols + c0, res.rows[cols]])
+    if not midpoints:
+        return out
+    mid = half_max_midpoints(Planes.from_rgb(band).y, res.rows - r0, params.half_window_px) + r0
+    return out, np.column_stack([cols + c0, mid[cols]])
+
+
+def points_on_ground(rays: np.ndarray, pose, target: TargetModel, travel_mm: float
+                     ) -> np.ndarray:
+    """Intersect ideal-frame rays with the target's base plane (height 0) and keep the hits
+    in the ring around the target: outside its footprint by :data:`GROUND_MARGIN_MM`, within
+    :data:`GROUND_RING_MM`, and not hidden from the camera by the target. 3D points in the
+    camera-fixed ideal frame ``(N, 3)``."""
+    r_o, t_o = pose
+    feet, lo, hi = _ground_ring(target)
+    shift = np.array([0.0, travel_mm, 0.0])
+    n = r_o[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = ((t_o - shift) @ n) / (rays @ n)
+    hit = rays * t[:, None]
+    q = (hit + shift - t_o) @ r_o  # object frame
+    keep = ((t > 0) & (q[:, 0] > lo[0]) & (q[:, 0] < hi[0]) & (q[:, 1] > lo[1])
+            & (q[:, 1] < hi[1]))
+    for v in feet:
+        grown = v + GROUND_MARGIN_MM * np.sign(v - v.mean(0))
+        keep &= ~_inside_convex(grown, q[:, 0], q[:, 1])
+    # hidden: the line of sight from the ground point up to the camera passes through the
+    # target (sampled at 40 heights up to its top)
+    cam = (shift - t_o) @ r_o
+    top = max(float(f.vertices_mm[0, 2]) for f in target.top_faces())
+    idx = np.flatnonzero(keep)
+    qq = q[idx]
+    hidden = np.zeros(len(idx), bool)
+    rise = np.maximum(cam[2] - qq[:, 2], 1e-9)
+    for z in np.linspace(0.0, top, 41)[1:]:
+        pp = qq + (cam - qq) * (z / rise)[:, None]
+        hf = target.heightfield(pp[:, 0], pp[:, 1], grow_mm=GROUND_MARGIN_MM)
+        hidden |= np.isfinite(hf) & (hf >= pp[:, 2])
+    keep[idx[hidden]] = False
+    return hit[keep]
+
+
 def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: float):
     """Intersect ideal-frame rays with the target's top faces (seen from a frame whose camera
     travelled ``travel_mm``): 3D points in the camera-fixed ideal frame and face heights, for
@@ -138,9 +237,11 @@ def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: floa
     return rays[ok] * best_t[ok, None], best_h[ok], ok
 
 
-def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames) -> LaserPlaneFit:
-    """SVD plane through the stripe points with outlier rejection; refuse when the stripe did
-    not cross faces at two different heights (the plane would be undetermined)."""
+def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames,
+                    ground: np.ndarray | None = None) -> LaserPlaneFit:
+    """SVD plane through the stripe points (and the ``ground`` points, if any) with outlier
+    rejection; refuse when the stripe did not cross faces at two different heights (the plane
+    would be undetermined)."""
     levels = sorted({round(float(h), 3) for h in np.unique(heights)
                      if np.sum(heights == h) >= 10})
     if len(levels) < 2:
@@ -149,6 +250,8 @@ def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames) 
             f"(found {', '.join(f'{v:g} mm' for v in levels) or 'none'}); its plane is "
             "undetermined - choose a frame where it crosses both the low and the high face",
             code=codes.E_PLANE_UNDETERMINED)
+    if ground is not None and len(ground):
+        points = np.concatenate([points, ground])
     keep = np.ones(len(points), bool)
     for _ in range(4):
         plane, rms, _ = fit_plane(points[keep])
@@ -175,6 +278,13 @@ class StripeObservations:
     rays: dict[str, list]
     blooming: tuple[str, ...] = ()  # lasers detected with the blooming fallback
     rows: dict[str, str] = field(default_factory=dict)  # each laser's row estimator
+    #: each laser's stripe on the ground ring around the target, like ``rays``
+    ground: dict[str, list] = field(default_factory=dict)
+
+    def ground_points(self, name: str, rot: np.ndarray, pose_rt, frames) -> list:
+        """The stripe points on the ground beside the target in ``frames`` (per frame)."""
+        return [points_on_ground(rays @ rot.T, pose_rt, self.target, self.speed_mm_s * dt_k)
+                for k, dt_k, rays in self.ground.get(name, []) if k in frames]
 
     def points(self, name: str, rot: np.ndarray, pose_rt):
         """The stripe points on the target's faces, their heights and frames (only frames where
@@ -190,8 +300,11 @@ class StripeObservations:
                 used.append(k)
         return pts, hts, used
 
-    def fit_planes(self, rot: np.ndarray, pose_rt) -> dict[str, tuple[LaserPlaneFit, list]]:
-        """Each laser's plane fit and the stripe points (per frame) it was fitted to."""
+    def fit_planes(self, rot: np.ndarray, pose_rt, with_ground: bool = False
+                   ) -> dict[str, tuple[LaserPlaneFit, list]]:
+        """Each laser's plane fit and the stripe points on the faces (per frame) it was
+        fitted to. ``with_ground``: the stripe points on the ground beside the target join
+        the fit (:meth:`_with_ground`)."""
         out = {}
         for name, t_c in self.frames.items():
             pts, hts, used = self.points(name, rot, pose_rt)
@@ -202,16 +315,49 @@ class StripeObservations:
                     code=codes.E_PLANE_UNDETERMINED)
             # frames whose points disagree with the others (acceleration ramp, a passing
             # shadow) are dropped: their travel does not follow the constant speed
+            dropped: set[int] = set()
             if len(used) >= 4:
                 first = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
                 err = np.array([np.median(np.abs(first.plane.distance(p))) for p in pts])
                 good = err <= max(3 * np.median(err), 0.02)
+                dropped = {k for k, g in zip(used, good) if not g}
                 pts = [p for p, g in zip(pts, good) if g]
                 hts = [h for h, g in zip(hts, good) if g]
                 used = [k for k, g in zip(used, good) if g]
             fit = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
+            if with_ground:
+                # the ground in every frame observed, but those whose face points disagreed
+                frames = {k for k, _, _ in self.ground.get(name, [])} - dropped
+                fit = self._with_ground(name, fit, np.concatenate(pts), np.concatenate(hts),
+                                        rot, pose_rt, frames)
             out[name] = (replace(fit, stripe_rows=self.rows.get(name, "")), pts)
         return out
+
+    def _with_ground(self, name: str, fit: LaserPlaneFit, pts: np.ndarray, hts: np.ndarray,
+                     rot: np.ndarray, pose_rt, frames: set[int]) -> LaserPlaneFit:
+        """The plane refitted with the stripe points on the ground beside the target.
+
+        The target's faces span a few centimetres; a plane fitted to them alone is tilted by
+        the stripe's sub-pixel bias on each face and extrapolated across the picture and down
+        to the ground (random rigs: height biases of 0.01-0.02 mm, height-scale errors up to
+        0.4 %). The base plane the target stands on is height 0 of the map: its stripe points
+        pin the plane where most of the evidence lies. A ground point is kept when it lies
+        near the faces' plane (the ground is flat there), and the ground is used only when
+        enough of its points do; soil heaped or dug beside the target leaves it out."""
+        ground = self.ground_points(name, rot, pose_rt, frames)
+        g = np.concatenate(ground) if ground else np.zeros((0, 3))
+        if not len(g):
+            return replace(fit, ground_note="no stripe seen on the ground beside the target")
+        gate = max(GROUND_GATE_RMS * fit.rms_mm, GROUND_GATE_MM)
+        near = np.abs(fit.plane.distance(g)) <= gate
+        if near.sum() < GROUND_MIN_POINTS or near.mean() < GROUND_MIN_SHARE:
+            return replace(fit, ground_note=(
+                f"ground beside the target not used: {int(near.sum())} of {len(g)} stripe "
+                f"points within {gate:.3f} mm of the faces' plane (not flat there)"))
+        joint = fit_laser_plane(name, pts, hts, fit.frames, g[near])
+        return replace(joint, ground_points=int(near.sum()),
+                       ground_note=f"{int(near.sum())} of {len(g)} stripe points on the "
+                       "ground beside the target joined the faces' points")
 
 
 def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: TargetModel,
@@ -226,6 +372,7 @@ def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: Ta
     frames = {"green": picks.t1, "red": picks.t2}
     variants = (ROWS_CENTRE, ROWS_MIDPOINT, ROWS_BLOOMING)
     found: dict[str, dict[str, list]] = {v: {} for v in variants}
+    on_ground: dict[str, dict[str, list]] = {v: {} for v in variants}
     for i, (name, t_c) in enumerate(frames.items()):
         cancel.check()
         report(progress, 0.15 + 0.3 * i, f"{name} stripe on the target")
@@ -234,6 +381,7 @@ def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: Ta
         wanted = sorted(set(np.linspace(lo, hi - 1, max(1, plane_frames)).astype(int)) | {t_c})
         for v in variants:
             found[v][name] = []
+            on_ground[v][name] = []
         for k in wanted:
             cancel.check()
             dt_k = float(times[k] - times[picks.t1])
@@ -245,6 +393,12 @@ def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: Ta
             for v, uv in uvs.items():
                 if len(uv):
                     found[v][name].append((int(k), dt_k, intrinsics.rays(uv)))
+            g_com, g_mid = stripe_uv_on_ground(*args, midpoints=True)
+            guvs = {ROWS_CENTRE: g_com, ROWS_MIDPOINT: g_mid,
+                    ROWS_BLOOMING: stripe_uv_on_ground(*args, blooming=True)}
+            for v, uv in guvs.items():
+                if len(uv):
+                    on_ground[v][name].append((int(k), dt_k, intrinsics.rays(uv)))
     # a blooming stripe (a saturated, nearly white core on the light target) escapes the
     # colour tests in most columns: a laser is detected with the fallback in all its frames
     # when the strict tests give less than BLOOM_SWITCH of the fallback's points on the faces
@@ -266,7 +420,8 @@ def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: Ta
             rows[name] = ROWS_MIDPOINT if rms[ROWS_MIDPOINT] < rms[ROWS_CENTRE] else ROWS_CENTRE
     return StripeObservations(target, v_true, frames,
                               {name: found[rows[name]][name] for name in frames},
-                              tuple(n for n in frames if rows[n] == ROWS_BLOOMING), rows)
+                              tuple(n for n in frames if rows[n] == ROWS_BLOOMING), rows,
+                              {name: on_ground[rows[name]][name] for name in frames})
 
 
 def _plane_rms(obs: StripeObservations, name: str, rot: np.ndarray, pose_rt) -> float:

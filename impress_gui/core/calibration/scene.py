@@ -42,6 +42,10 @@ __all__ = ["CALIBRATION_FORMAT", "PLANE_METHODS", "LaserPlaneFit", "SceneCalibra
 CALIBRATION_FORMAT = "impress.calibration"
 #: how the laser planes are found (recorded in each plane's ``method``)
 PLANE_METHODS = ("stripe-fit", "three-point")
+#: a laser plane fitted from stripe points whose heights span less than this (mm) is warned
+#: about (issue 18): the random rigs' targets step 10-25 mm, the default target 30 mm, and
+#: the ground beside the target adds height 0
+PLANE_SPAN_WARN_MM = 10.0
 
 
 @dataclass(frozen=True)
@@ -124,6 +128,8 @@ class SceneCalibration:
                     "rms_mm": f.rms_mm, "n_points": f.n_points, "frames": list(f.frames),
                     "heights_mm": list(f.heights_mm), "method": f.method}
                 | ({"stripe_rows": f.stripe_rows} if f.stripe_rows else {})
+                | ({"ground_points": f.ground_points, "ground_note": f.ground_note}
+                   if f.ground_note else {})
                 for n, f in self.planes.items()},
             "warnings": list(self.warnings),
             "inputs": self.inputs,
@@ -141,7 +147,8 @@ class SceneCalibration:
                     int(require(pd, "n_points", int, where)),
                     tuple(int(v) for v in pd.get("frames", [])),
                     tuple(float(v) for v in pd.get("heights_mm", [])),
-                    str(pd.get("method", "stripe-fit")), str(pd.get("stripe_rows", "")))
+                    str(pd.get("method", "stripe-fit")), str(pd.get("stripe_rows", "")),
+                    int(pd.get("ground_points", 0)), str(pd.get("ground_note", "")))
             for name in ("green", "red"):
                 if name not in planes:
                     raise FormatError(f"{where}the {name} laser plane is missing")
@@ -305,9 +312,12 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
         if refine_with_stripes:
             pose = refine_tilt(obs, planes0, intrinsics, target, picks, pose, speed_mm_s, dt,
                                click_sigma_px)
-            planes0 = obs.fit_planes(pose.rotation,
-                                     (pose.target_rotation, pose.target_translation_mm))
+        # the final planes: the faces' points and the ground's beside the target
+        planes0 = obs.fit_planes(pose.rotation,
+                                 (pose.target_rotation, pose.target_translation_mm),
+                                 with_ground=True)
         planes = {name: fit for name, (fit, _) in planes0.items()}
+        warnings += plane_span_warnings(planes)
         warnings += [f"the {name} stripe blooms (a saturated, nearly white core) on the "
                      "target: found there by the colour it adds to the surface against the "
                      "background, its core's colour being lost; check its plane's residual"
@@ -326,6 +336,22 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
         reprojection_rms_px=pose.reprojection_rms_px, planes=planes,
         warnings=tuple(warnings), inputs=dict(inputs or {}),
     )
+
+
+def plane_span_warnings(planes: dict[str, LaserPlaneFit]) -> list[str]:
+    """A warning per laser plane fitted from stripe points whose heights (the target's faces,
+    and the ground when its points joined) span less than :data:`PLANE_SPAN_WARN_MM`."""
+    out = []
+    for name, fit in planes.items():
+        levels = sorted(set(fit.heights_mm) | ({0.0} if fit.ground_points else set()))
+        span = levels[-1] - levels[0] if levels else 0.0
+        if span < PLANE_SPAN_WARN_MM:
+            out.append(
+                f"the {name} laser plane is fitted from heights spanning only {span:g} mm "
+                f"({', '.join(f'{h:g}' for h in levels)} mm): heights far from them are "
+                "extrapolated and may be scaled wrongly; use a target with a taller step or "
+                "flat ground beside it")
+    return out
 
 
 def _refuse_damaged(video, frames) -> None:
