@@ -194,13 +194,14 @@ class CalibrationResults(QGroupBox):
             if f is None:
                 v[name].setText("not fitted")
                 continue
+            ground = getattr(f, "ground_points", 0)  # any object with a plane fit's fields
             v[name].setText(
                 f"RMS {f.rms_mm:.3f} mm over {f.n_points} points in "
                 f"{len(f.frames)} frames (faces at "
                 f"{', '.join(f'{h:g}' for h in f.heights_mm)} mm"
-                + (f"; {f.ground_points} on the ground beside it)" if f.ground_points else ")")
+                + (f"; {ground} on the ground beside it)" if ground else ")")
             )
-            v[name].setToolTip(f.ground_note)
+            v[name].setToolTip(getattr(f, "ground_note", ""))
             v[name].setStyleSheet(
                 "color: #b00000; font-weight: bold" if f.rms_mm > PLANE_WARN_MM else ""
             )
