@@ -21,6 +21,7 @@ import errno
 import json
 import os
 import shutil
+import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -125,6 +126,15 @@ def _check_parent_writable(real: Path) -> None:
                           code=codes.E_OUTPUT_NOT_FOLDER)
     if not os.access(probe, os.W_OK | os.X_OK):
         raise WriteError(f"cannot write into {probe}: permission denied or read-only")
+    # os.access says yes to root everywhere, and knows nothing of read-only or pseudo file
+    # systems (/proc, a write-protected card): create and remove an empty file to be sure
+    # before any work is done (the output is made in this folder anyway)
+    try:
+        fd, name = tempfile.mkstemp(prefix=".impress-write-check-", dir=probe)
+    except OSError as exc:
+        raise WriteError(f"cannot write into {probe}: {exc.strerror or exc}") from None
+    os.close(fd)
+    os.unlink(name)
 
 
 def read_mark(folder: Path) -> dict | None:
