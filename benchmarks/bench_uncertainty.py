@@ -8,16 +8,24 @@ settings, and random readings of every kind are taken on the map with their budg
 Each reading's true value comes from the simulator's truth:
 
 - heights (point, step B - A, depth below a plane through three points, dz): the same
-  readings on the true heights under each reconstructed cell (sim.truth.truth_for_reconstruction,
-  as bench_random_rigs.py compares heights);
+  readings on the true height of the PHYSICAL point each reconstructed cell shows (its camera
+  ray at its time through the TRUE calibration: the simulator's rotation, laser planes and
+  target pose, core.calibration.uncertainty.map_points; Rig.physical_truth). Not the truth at
+  the same map coordinates (sim.truth.truth_for_reconstruction): the map's frame is the
+  calibration's own, turned against the true one by its tilt error, which at 0.5 px of click
+  noise puts the scene up to ~10 mm away along the scan (random rig 0, draw 1: 7.3 mm); an
+  examiner picks points by what the map shows, so a reading's measurand is the physical
+  points shown, and the same-cell truth charged the frame's shift to readings wherever it
+  carried a point across an edge (a depth error of 3.1 mm on flat blocks). The depth's plane
+  is taken through the supports' true positions, at the point's true position;
 - lengths (ruler xy and 3D, width at a level): the reading's end points taken to where they
-  truly are by the TRUE calibration (the simulator's rotation, laser planes and target pose,
-  through the same camera ray at the same time: core.calibration.uncertainty.map_points).
+  truly are by the true calibration (map_points).
 
 Coverage = the share of readings whose true error lies within their expanded uncertainty
 U (k = 2); the target is 93-97 % per reading kind. Readings on or near a height edge (a jump of
 more than 1 mm within 0.5 mm in the truth) are left out: there the measurand itself is not
-defined to better than a cell.
+defined to better than a cell. A cell the two lasers disagreed on is taken as the laser the
+fusion kept (the per-laser maps are given to the budgets too).
 
 Usage: .venv/bin/python benchmarks/bench_uncertainty.py [--seeds 0,1,2,3] [--draws 2]
        [--noise-px 0.5] [--trials 30] [--per-kind 25] [--json out.json]
@@ -88,18 +96,69 @@ class Rig:
         self.t_rec = time.perf_counter() - t0
         self.spec = rec.spec
         self.h = rec.height_mm
-        self.truth = truth_for_reconstruction(d, rec.spec, rec.height_mm, cal.reference_depth)
-        self.edge = common.edge_mask(self.truth, 5, 1.0)
+        self.same_cell_truth = truth_for_reconstruction(d, rec.spec, rec.height_mm,
+                                                        cal.reference_depth)
         t0 = time.perf_counter()
         self.ctx = UncertaintyContext.for_calibration(
             self.h, rec.spec, cal, TargetModel.load(d / "target.json"), rec.contribution,
-            trials=trials)
+            trials=trials, per_laser=rec.per_laser_mm)
         self.t_mc = time.perf_counter() - t0
         self.nominal = CalParams.of_calibration(cal)
         self.true = true_params(d, cal)
         self.contrib = rec.contribution
+        self.truth = self.physical_truth(rec)
+        self.edge = common.edge_mask(self.truth, 5, 1.0)
         self.ok = np.isfinite(self.h) & np.isfinite(self.truth) & ~self.edge
         self.cells = np.argwhere(self.ok)
+
+    def physical_truth(self, rec) -> np.ndarray:
+        """The true height of the physical point each reconstructed cell shows: the cell's
+        camera ray at its time through the TRUE calibration (map_points), the simulator's height
+        map read there (for a cell both lasers made, the mean over the two lasers' points; for
+        one where they disagreed, the laser the fusion kept). Not the truth at the same map
+        coordinates: the map's frame is the calibration's, turned against the true one by its
+        tilt and roll errors (0.5 px of click noise: up to ~9 mm along y at the scene), and a
+        point the examiner picks on the map is the physical point shown there."""
+        import tifffile
+
+        from impress_gui.core.calibration.uncertainty import map_points
+        from impress_gui.sim.truth import _turn_ideal_to_rail
+
+        truth = json.loads((self.dir / "truth.json").read_text())
+        turn = _turn_ideal_to_rail(truth)
+        hm = truth["heightmap"]
+        tmap = tifffile.imread(self.dir / hm["file"])
+        s1 = truth["travel_mm"][truth["calibration_frames"]["t1"]]
+        ii, jj = np.nonzero(np.isfinite(self.h))
+        x, y = self.spec.xs()[jj], self.spec.ys()[ii]
+        h = self.h[ii, jj].astype(float)
+        code = np.asarray(rec.contribution)[ii, jj]
+        wg = np.where(code == 1, 1.0, np.where(code == 2, 0.0, 0.5))
+        four = code == 4
+        if four.any():
+            g, r = (np.asarray(rec.per_laser_mm[n])[ii[four], jj[four]] for n in ("green", "red"))
+            wg[four] = np.where(np.abs(g - h[four]) <= np.abs(r - h[four]), 1.0, 0.0)
+        out_v = np.zeros(len(x))
+        ref = self.true.ref[0]
+        for name, w in (("green", wg), ("red", 1.0 - wg)):
+            for a in range(0, len(x), 500_000):
+                sl = slice(a, a + 500_000)
+                sel = np.flatnonzero(w[sl] > 0) + a
+                if not sel.size:
+                    continue
+                tx, ty, th = (v[0] for v in map_points(self.nominal, self.true, x[sel], y[sel],
+                                                       h[sel], name))
+                z = ref[0] + ref[1] * tx + ref[2] * ty - th
+                p = np.column_stack([tx, ty, z]) @ turn.T
+                ci = np.rint((p[:, 1] + s1 - hm["y0_mm"]) / hm["pixel_mm"]).astype(int)
+                cj = np.rint((p[:, 0] - hm["x0_mm"]) / hm["pixel_mm"]).astype(int)
+                inside = (ci >= 0) & (ci < tmap.shape[0]) & (cj >= 0) & (cj < tmap.shape[1])
+                v = np.full(sel.size, np.nan)
+                v[inside] = tmap[ci[inside], cj[inside]]
+                out_v[sel] += w[sel] * v
+        out = np.full(self.spec.shape, np.nan, np.float32)
+        out[ii, jj] = out_v
+        return out
 
     def to_true(self, x, y, h):
         """Map points to where they truly are (true ideal frame)."""
@@ -136,10 +195,13 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
     ctx, spec = rig.ctx, rig.spec
     radius = 0.5
 
-    def add(kind, budget, err):
+    def add(kind, budget, err, x, y):
         if math.isfinite(err) and math.isfinite(budget.U_mm):
+            _, _, _, gx, gy = U.patch_noise(rig.truth, spec, x, y, 1.0)
             out.append({"kind": kind, "err": float(err), "U": budget.U_mm, "u_c": budget.u_c_mm,
-                        "parts": {c.name: c.u_mm for c in budget.components}})
+                        "parts": {c.name: c.u_mm for c in budget.components},
+                        "x": x, "y": y, "slope": float(math.hypot(gx, gy)),
+                        "value": budget.value_mm})
 
     tries = 0
     counts = dict.fromkeys(KINDS, 0)
@@ -153,7 +215,7 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
             r = M.readout(rig.h, spec, x, y, radius)
             t = M.readout(rig.truth, spec, x, y, radius)
             if r.has_data and t.has_data:
-                add("height", U.height_budget(ctx, r), r.height_mm - t.height_mm)
+                add("height", U.height_budget(ctx, r), r.height_mm - t.height_mm, x, y)
                 counts["height"] += 1
         # ruler: a second point 10-60 mm away
         ang = rng.uniform(0, 2 * math.pi)
@@ -172,7 +234,7 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
                                        ("3d", "ruler 3D", r.d3_mm - math.hypot(xy_true, dz_true)),
                                        ("dz", "ruler dz", r.dz_mm - dz_true)):
                     if counts[kind] < per_kind:
-                        add(kind, b[key], err)
+                        add(kind, b[key], err, x, y)
                         counts[kind] += 1
         # a profile 24 mm long from the point, 1 mm wide: a step between bands and a width
         x3, y3 = x + 24 * math.cos(ang), y + 24 * math.sin(ang)
@@ -189,7 +251,7 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
                 ts = M.step_height(tprof, ba, bb)
                 if s.a.n >= 20 and s.b.n >= 20 and math.isfinite(ts.difference_mm):
                     add("step height", U.step_budget(ctx, prof, s, ba, bb),
-                        s.difference_mm - ts.difference_mm)
+                        s.difference_mm - ts.difference_mm, x, y)
                     counts["step height"] += 1
             if counts["width"] < per_kind:
                 th = tprof.height_mm
@@ -203,7 +265,8 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
                             ux, uy = (x3 - x) / 24, (y3 - y) / 24
                             pts = rig.to_true(x + tc * ux, y + tc * uy, [level, level])
                             w_true = math.hypot(pts[0, 1] - pts[0, 0], pts[1, 1] - pts[1, 0])
-                            add("width", U.width_budget(ctx, prof, w), w.width_mm - w_true)
+                            add("width", U.width_budget(ctx, prof, w), w.width_mm - w_true,
+                                x + around * ux, y + around * uy)
                             counts["width"] += 1
         # depth below a plane through three points 8-15 mm around
         if counts["depth"] < per_kind:
@@ -222,8 +285,14 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
                 t = M.readout(rig.truth, spec, x, y, radius)
                 if all(v.has_data for v in (*rs, *ts, r, t)):
                     b = U.depth_budget(ctx, r, rs)
-                    tp = M.plane_from_points([(v.x_mm, v.y_mm, v.height_mm) for v in ts])
-                    add("depth", b, b.value_mm - float(tp.at(x, y) - t.height_mm))
+                    # the true depth: the plane through the physical points, at the physical
+                    # point (their true positions; the map's are the calibration's)
+                    q = rig.to_true([v.x_mm for v in (*rs, r)], [v.y_mm for v in (*rs, r)],
+                                    [v.height_mm for v in (*rs, r)])
+                    tp = M.plane_from_points([(q[0, k], q[1, k], v.height_mm)
+                                              for k, v in enumerate(ts)])
+                    add("depth", b, b.value_mm - float(tp.at(q[0, 3], q[1, 3]) - t.height_mm),
+                        x, y)
                     counts["depth"] += 1
     return out
 

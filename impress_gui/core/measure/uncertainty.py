@@ -13,7 +13,12 @@ Components (docs/uncertainty.md says the same for a quality manager):
   of the scene calibration (:mod:`impress_gui.core.calibration.uncertainty`): each trial moves
   every cell the reading uses; the reading is recomputed per trial, so both ends of a ruler or
   both bands of a step move together and their common part cancels. Sensitivity 1 (the
-  component is already in mm). Absent (and said so) when no calibration is known.
+  component is already in mm). Absent (and said so) when no calibration is known. A trial
+  moves a cell as the laser that made it (both lasers' mean where they agreed; where they
+  disagreed, the laser whose value the fusion kept, when the per-laser maps are given:
+  ``per_laser``). A depth below three points is recomputed per trial with the points' moved
+  positions too (the plane read at a point shifted against its supports); a width at a level
+  moves each crossing along the profile by the trial's height error over the wall's slope.
 - **rail speed** (type B, rectangular): the travel along the scan scales with the rail speed.
   The half-width is the difference between the speed implied by the target and the one entered
   (a floor of 0.1 % for the motor's own regulation); sensitivity: the reading's change per
@@ -160,11 +165,15 @@ class UncertaintyContext:
     #: the scanner's lateral sampling (mm) across the scan (one camera column) and along it
     #: (one frame's travel); None: unknown
     sampling_mm: tuple[float, float] | None = None
+    #: the per-laser height maps ({"green": ..., "red": ...}, same grid as ``height``): with
+    #: them a cell where the lasers disagreed (code 4) is moved as the laser whose value the
+    #: fusion kept, not as their mean (the two lasers' calibration errors differ)
+    per_laser: Mapping | None = None
 
     @classmethod
     def for_calibration(cls, height, spec, cal=None, target=None, contribution=None,
-                        level_plane=None, validation=None, trials: int | None = None
-                        ) -> UncertaintyContext:
+                        level_plane=None, validation=None, trials: int | None = None,
+                        per_laser=None) -> UncertaintyContext:
         """A context with the calibration's Monte Carlo (computed once per calibration and
         cached; a target model that does not fit or a failing solve leave the component out,
         with a note)."""
@@ -186,7 +195,8 @@ class UncertaintyContext:
                    None if cal is None else float(cal.speed_mm_s),
                    None if cal is None else float(cal.implied_speed_mm_s),
                    validation=validation, level_plane=level_plane, notes=notes,
-                   sampling_mm=None if cal is None else lateral_sampling(cal))
+                   sampling_mm=None if cal is None else lateral_sampling(cal),
+                   per_laser=per_laser)
 
     # ----- helpers ---------------------------------------------------------------------------
     def lasers_at(self, x, y) -> list[tuple[str, float]]:
@@ -199,6 +209,11 @@ class UncertaintyContext:
         if not (0 <= i < self.spec.shape[0] and 0 <= j < self.spec.shape[1]):
             return [("green", 0.5), ("red", 0.5)]
         c = int(self.contribution[i, j])
+        if c == 4 and self.per_laser is not None:
+            f = float(np.asarray(self.raw_height(x, y, float(self.height[i, j]))))
+            kept = _kept_laser(f, self.per_laser, i, j)
+            if kept is not None:
+                return [(kept, 1.0)]
         return {1: [("green", 1.0)], 2: [("red", 1.0)]}.get(c, [("green", 0.5), ("red", 0.5)])
 
     def calibration_deltas(self, x, y, h) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -230,6 +245,16 @@ class UncertaintyContext:
             return None
         rel = abs((self.implied_speed_mm_s or self.speed_mm_s) / self.speed_mm_s - 1.0)
         return max(rel, SPEED_FLOOR_REL)
+
+
+def _kept_laser(f: float, per_laser: Mapping, i: int, j: int) -> str | None:
+    """Which laser's value the fusion kept at a cell where the lasers disagreed (the fused
+    (unlevelled) height ``f`` is one of the two): the one nearer; None if unknown."""
+    d = {n: abs(float(per_laser[n][i, j]) - f) for n in LASER_NAMES if n in per_laser}
+    d = {n: v for n, v in d.items() if math.isfinite(v)}
+    if not math.isfinite(f) or not d:
+        return None
+    return min(d, key=lambda n: d[n])
 
 
 def lateral_sampling(cal) -> tuple[float, float]:
@@ -526,8 +551,11 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
     xs, ys = np.append(pts[:, 0], x), np.append(pts[:, 1], y)
     d = ctx.calibration_deltas(xs, ys, np.append(pts[:, 2], h))
     if d is not None:
-        dh = d[2]
-        comps += _cal_component(dh[:, :3] @ w - dh[:, 3], "depth below the plane", ctx)
+        # per trial the four points move in height and across the map: the plane through the
+        # moved support points, evaluated at the moved point (a tilted plane read at a point
+        # shifted against its supports changes by the plane's slope times the shift)
+        comps += _cal_component(_trial_depths(xs, ys, np.append(pts[:, 2], h), d) - depth,
+                                "depth below the plane", ctx)
     ring = min(RING_MAX_MM, float(np.median(np.hypot(pts[:, 0] - x, pts[:, 1] - y))))
     us = np.array([point_noise(ctx, r, ring)[0] for r in (*support, readout)])
     u = float(math.sqrt(np.nansum((np.append(w, 1.0) * us) ** 2)))
@@ -537,6 +565,17 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
                            "the point (" + ", ".join(f"{v:+.2f}" for v in w) + ")"))
     comps += _method_component(ctx)
     return Budget("depth below a plane", depth, tuple(comps), notes=_notes(ctx))
+
+
+def _trial_depths(xs, ys, hs, d) -> np.ndarray:
+    """The depth of point 3 below the plane through points 0-2, per Monte Carlo trial, the
+    points moved by the trial's ``(dx, dy, dh)`` (each ``(S, 4)``)."""
+    dx, dy, dh = d
+    X, Y, H = xs[None] + dx, ys[None] + dy, hs[None] + dh
+    m = np.stack([X[:, :3], Y[:, :3], np.ones_like(X[:, :3])], axis=1)  # (S, 3 rows, 3 pts)
+    rhs = np.stack([X[:, 3], Y[:, 3], np.ones(len(X))], axis=1)[..., None]
+    w = np.linalg.solve(m, rhs)[..., 0]  # plane(P) = w . heights of the support
+    return np.einsum("sk,sk->s", w, H[:, :3]) - H[:, 3]
 
 
 def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
@@ -677,29 +716,48 @@ def width_budget(ctx: UncertaintyContext, profile, width) -> Budget:
     ds = np.array([width.left_mm, width.right_mm])
     xs, ys = x0 + ds * ux, y0 + ds * uy
     lev = np.full(2, width.level_mm)
+    # each crossing lies between the two samples with data that bracket it: their spacing and
+    # the wall's signed slope there (height per mm along the profile)
+    d_all = np.asarray(profile.distance_mm, float)
+    h_all = np.asarray(profile.height_mm, float)
+    ok = np.flatnonzero(np.isfinite(h_all))
+    gaps, slopes = [], []
+    for dd in ds:
+        before, after = ok[d_all[ok] <= dd], ok[d_all[ok] > dd]
+        if not before.size or not after.size:
+            gaps.append(math.nan)
+            slopes.append(math.nan)
+            continue
+        i0, i1 = before[-1], after[0]
+        gap = float(d_all[i1] - d_all[i0])
+        gaps.append(gap)
+        slopes.append(float(h_all[i1] - h_all[i0]) / max(gap, 1e-9))
     d = ctx.calibration_deltas(xs, ys, ctx.raw_height(xs, ys, lev))
     if d is not None:
-        dx, dy, _ = d
-        w = np.hypot(xs[1] - xs[0] + dx[:, 1] - dx[:, 0], ys[1] - ys[0] + dy[:, 1] - dy[:, 0])
-        comps += _cal_component(w - width.width_mm, "distance between the crossings", ctx)
+        dx, dy, dh = d
+        # a trial raises the surface at a crossing by dh: the level (a height on the map) is
+        # then crossed dh / slope earlier along a sloped wall (capped at the profile's length)
+        along = np.zeros_like(dh)
+        for k, g in enumerate(slopes):
+            if math.isfinite(g) and g != 0.0:
+                along[:, k] = np.clip(-dh[:, k] / g, -L, L)
+        px = xs[None] + dx + along * ux
+        py = ys[None] + dy + along * uy
+        w = np.hypot(px[:, 1] - px[:, 0], py[:, 1] - py[:, 0])
+        comps += _cal_component(w - width.width_mm, "distance between the crossings (each "
+                                "moved across the map, and along the profile by the height "
+                                "error over the wall's slope)", ctx)
     comps += _speed_component(ctx, width.width_mm * uy * uy)
     # each crossing: the height noise over the wall's slope moves it, but never beyond the two
     # samples with data that bracket it (the crossing is found between them)
     us = []
-    d_all = np.asarray(profile.distance_mm, float)
-    h_all = np.asarray(profile.height_mm, float)
-    ok = np.flatnonzero(np.isfinite(h_all))
-    for dd in ds:
-        before, after = ok[d_all[ok] <= dd], ok[d_all[ok] > dd]
-        if not before.size or not after.size:
+    for dd, gap, g in zip(ds, gaps, slopes):
+        if not math.isfinite(gap):
             us.append(math.nan)
             continue
-        i0, i1 = before[-1], after[0]
-        gap = float(d_all[i1] - d_all[i0])
-        slope = abs(float(h_all[i1] - h_all[i0])) / max(gap, 1e-9)
         sg, _, _ = series_noise(_band_values(profile, (dd - 1.0, dd + 1.0)))
         sg = sg if math.isfinite(sg) else 0.0
-        shift = sg / slope if slope > 0 else math.inf
+        shift = sg / abs(g) if g != 0 else math.inf
         us.append(min(shift, gap / math.sqrt(3.0)))
     u = math.hypot(*us)
     comps.append(Component("surface noise", "positions of the crossings", "A", "normal", u, "mm",
