@@ -116,3 +116,38 @@ def test_the_step_uncertainty_line_is_not_clipped_at_1920x1080(qtbot, window):
     assert v.tools.step_text in labels and v.tools.ruler_text in labels
     problems = {lab.text()[:40]: clipped(lab, view) for lab in labels}
     assert not {k: p for k, p in problems.items() if p}, problems
+
+
+def test_a_bold_wrapped_reading_gets_the_height_its_bold_lines_need(qtbot):
+    """The step's text is made bold by a style sheet set just before its text: its height
+    must be measured in the bold font (it was one wrapped line short in the measuring guide's
+    screenshot: the uncertainty line's end hidden behind the buttons below, in the full window
+    only; this checks the real tool panel alone in the side panel's scroll area, 430 px
+    wide, and the screenshot was looked at after the fix)."""
+    from PySide6.QtWidgets import QVBoxLayout, QWidget
+
+    from impress_gui.ui.viewer.panels import SidePanelScroll, ToolPanel
+
+    side = QWidget()
+    lay = QVBoxLayout(side)
+    tools = ToolPanel()
+    lay.addWidget(tools)
+    lay.addStretch(1)
+    scroll = SidePanelScroll(side)
+    qtbot.addWidget(scroll)
+    scroll.resize(430, 900)
+    scroll.show()
+    qtbot.waitExposed(scroll)
+    lab = tools.step_text
+    text = ("A 32.067 ± 0.017 mm (n 35), B 25.688 ± 0.033 mm (n 51)\nStep B - A: -6.380 ± "
+            "0.037 mm\nStep uncertainty U (k=2): ± 0.018 mm (u_c 0.009 mm; ± above: the "
+            "bands' SD)")
+    lab.setStyleSheet("font-weight: bold")
+    lab.setText(text)
+    qtbot.wait(50)
+    bold = lab.font()
+    assert bold.bold()
+    cr = lab.contentsRect()
+    need = QFontMetrics(bold).boundingRect(QRect(0, 0, cr.width(), 100000),
+                                           int(Qt.TextFlag.TextWordWrap), text)
+    assert need.height() <= cr.height(), (need.height(), cr.height())

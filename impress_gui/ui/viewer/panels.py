@@ -198,10 +198,10 @@ class ToolPanel(QGroupBox):
         g.addWidget(QLabel("Profile width"), 1, 0)
         g.addWidget(self.width, 1, 1)
         v.addLayout(g)
-        self.readout = QLabel("Cursor: -")
+        self.readout = WrapLabel("Cursor: -")
         self.readout.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
-        self.ruler_text = QLabel("Ruler: choose Ruler and click two points")
-        self.step_text = QLabel("Step (B - A): -")
+        self.ruler_text = WrapLabel("Ruler: choose Ruler and click two points")
+        self.step_text = WrapLabel("Step (B - A): -")
         for lab in (self.readout, self.ruler_text, self.step_text):
             lab.setWordWrap(True)
             lab.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
@@ -224,6 +224,36 @@ class ToolPanel(QGroupBox):
 
     def set_mode(self, key: str) -> None:
         self.mode_buttons[key].setChecked(True)
+
+
+class WrapLabel(QLabel):
+    """A word-wrapped label that is always as tall as its text needs at its width: a
+    QLabel's height-for-width is not honoured by every layout above it (the step's
+    uncertainty line was cut off below in the side panel at 1920x1080, one wrapped line
+    short)."""
+
+    def __init__(self, text: str = "", parent: QWidget | None = None) -> None:
+        super().__init__(text, parent)
+        self.setWordWrap(True)
+
+    def _fit(self) -> None:
+        # a style sheet set just before the text (the step's bold) is applied when the
+        # widget is polished: measure with the font it will be drawn in
+        self.ensurePolished()
+        if self.width() > 0:
+            self.setMinimumHeight(max(self.heightForWidth(self.width()), 0))
+
+    def setStyleSheet(self, sheet: str) -> None:  # noqa: N802 - Qt's name
+        super().setStyleSheet(sheet)
+        self._fit()
+
+    def setText(self, text: str) -> None:  # noqa: N802 - Qt's name
+        super().setText(text)
+        self._fit()
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 - Qt's name
+        super().resizeEvent(event)
+        self._fit()
 
 
 class SidePanelScroll(QScrollArea):
