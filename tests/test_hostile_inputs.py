@@ -236,7 +236,7 @@ CASES: list[Case] = [
     Case("video: MP4 cut to its first 2 kB", _proc(video="{box}/c0.mp4"), "E-VIDEO-OPEN",
          _cut("scan.mp4", "c0.mp4", 0.001)),
     Case("video: MP4 with 200 damaged bytes (0xff)", _proc(video="{box}/d1.mp4"),
-         "W-VIDEO-DAMAGED", _corrupt_packet("scan.mp4", "d1.mp4", 0.3)),
+         "W-VIDEO-DAMAGED", _corrupt_packet("scan.mp4", "d1.mp4", 0.35)),
     Case("video: MP4 with 200 damaged bytes (zeros)", _proc(video="{box}/d2.mp4"),
          "W-VIDEO-DAMAGED", _corrupt_packet("scan.mp4", "d2.mp4", 0.25, b"\0" * 200)),
     Case("video: MP4 with 200 damaged bytes (ramp)", _proc(video="{box}/d3.mp4"),
