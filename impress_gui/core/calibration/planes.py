@@ -78,13 +78,11 @@ def _face_polygons(calib_pose, target: TargetModel):
     return out
 
 
-def stripe_uv_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
-                        pose, target: TargetModel, travel_mm: float, params=None,
-                        blooming: bool = False, midpoints: bool = False):
-    """Sub-pixel stripe positions ``(N, 2)`` of one laser inside the target's image region
-    (``blooming``: with the fallback for a saturated stripe, ``detect_band_blooming``).
-    ``midpoints``: return ``(centre-of-mass positions, half-maximum midpoint positions)``, the
-    same columns re-estimated by :func:`~impress_gui.core.reconstruction.stripes.half_max_midpoints`."""
+def _stripe_uv_in_region(rgb: np.ndarray, laser: str, uv: np.ndarray, params=None,
+                         blooming: bool = False, midpoints: bool = False):
+    """Sub-pixel stripe positions ``(N, 2)`` of one laser in the image region spanned by the
+    projected points ``uv`` (``(M, 2)``; the rows widened by 8 px each way), as
+    :func:`stripe_uv_on_target` returns them."""
     from impress_gui.core.reconstruction.stripes import (
         Planes,
         StripeParams,
@@ -93,13 +91,11 @@ def stripe_uv_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.n
         half_max_midpoints,
     )
 
-    faces = _face_polygons(pose, target)
     h, w = rgb.shape[:2]
-    all_uv = np.concatenate([project_points(intr, rot, f[2], travel_mm) for f in faces])
-    r0 = int(max(0, np.floor(all_uv[:, 1].min()) - 8))
-    r1 = int(min(h, np.ceil(all_uv[:, 1].max()) + 8))
-    c0 = int(max(0, np.floor(all_uv[:, 0].min())))
-    c1 = int(min(w, np.ceil(all_uv[:, 0].max()) + 1))
+    r0 = int(max(0, np.floor(uv[:, 1].min()) - 8))
+    r1 = int(min(h, np.ceil(uv[:, 1].max()) + 8))
+    c0 = int(max(0, np.floor(uv[:, 0].min())))
+    c1 = int(min(w, np.ceil(uv[:, 0].max()) + 1))
     if r1 - r0 < 10 or c1 - c0 < 10:
         return (np.zeros((0, 2)), np.zeros((0, 2))) if midpoints else np.zeros((0, 2))
     params = params or StripeParams()
@@ -109,11 +105,23 @@ def stripe_uv_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.n
     else:
         res = detect_band(laser, band, r0, params, None)
     cols = np.flatnonzero(res.found)
-    uv = np.column_stack([cols + c0, res.rows[cols]])
+    out = np.column_stack([cols + c0, res.rows[cols]])
     if not midpoints:
-        return uv
+        return out
     mid = half_max_midpoints(Planes.from_rgb(band).y, res.rows - r0, params.half_window_px) + r0
-    return uv, np.column_stack([cols + c0, mid[cols]])
+    return out, np.column_stack([cols + c0, mid[cols]])
+
+
+def stripe_uv_on_target(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.ndarray,
+                        pose, target: TargetModel, travel_mm: float, params=None,
+                        blooming: bool = False, midpoints: bool = False):
+    """Sub-pixel stripe positions ``(N, 2)`` of one laser inside the target's image region
+    (``blooming``: with the fallback for a saturated stripe, ``detect_band_blooming``).
+    ``midpoints``: return ``(centre-of-mass positions, half-maximum midpoint positions)``, the
+    same columns re-estimated by :func:`~impress_gui.core.reconstruction.stripes.half_max_midpoints`."""
+    faces = _face_polygons(pose, target)
+    all_uv = np.concatenate([project_points(intr, rot, f[2], travel_mm) for f in faces])
+    return _stripe_uv_in_region(rgb, laser, all_uv, params, blooming, midpoints)
 
 
 def _ground_ring(target: TargetModel):
@@ -129,39 +137,15 @@ def stripe_uv_on_ground(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.n
     """Like :func:`stripe_uv_on_target`, over the image region of the ground ring around the
     target (:data:`GROUND_RING_MM`); which of the positions lie on the ground is decided by
     :func:`points_on_ground`."""
-    from impress_gui.core.reconstruction.stripes import (
-        Planes,
-        StripeParams,
-        detect_band,
-        detect_band_blooming,
-        half_max_midpoints,
-    )
-
     r_o, t_o = pose
     _, lo, hi = _ground_ring(target)
     rect = np.array([[lo[0], lo[1], 0.0], [hi[0], lo[1], 0.0], [hi[0], hi[1], 0.0],
                      [lo[0], hi[1], 0.0]])
     uv = project_points(intr, rot, rect @ r_o.T + t_o, travel_mm)
-    h, w = rgb.shape[:2]
-    empty = np.zeros((0, 2))
     if not np.isfinite(uv).all():
+        empty = np.zeros((0, 2))
         return (empty, empty) if midpoints else empty
-    r0 = int(max(0, np.floor(uv[:, 1].min()) - 8))
-    r1 = int(min(h, np.ceil(uv[:, 1].max()) + 8))
-    c0 = int(max(0, np.floor(uv[:, 0].min())))
-    c1 = int(min(w, np.ceil(uv[:, 0].max()) + 1))
-    if r1 - r0 < 10 or c1 - c0 < 10:
-        return (empty, empty) if midpoints else empty
-    params = params or StripeParams()
-    band = rgb[r0:r1, c0:c1]
-    res = (detect_band_blooming(laser, band, r0, params) if blooming
-           else detect_band(laser, band, r0, params, None))
-    cols = np.flatnonzero(res.found)
-    out = np.column_stack([cols + c0, res.rows[cols]])
-    if not midpoints:
-        return out
-    mid = half_max_midpoints(Planes.from_rgb(band).y, res.rows - r0, params.half_window_px) + r0
-    return out, np.column_stack([cols + c0, mid[cols]])
+    return _stripe_uv_in_region(rgb, laser, uv, params, blooming, midpoints)
 
 
 def points_on_ground(rays: np.ndarray, pose, target: TargetModel, travel_mm: float
