@@ -82,3 +82,38 @@ def test_the_table_states_the_coverage():
     line = next(x for x in text.splitlines() if x.startswith("Stated uncertainty"))
     n_in = sum(bool(r.covered) for r in res)
     assert f"all {n_in}/2" in line and "edge distance" in line and "step" in line
+
+
+def test_validation_contexts_carry_the_per_laser_maps_cropped_like_the_heights(tmp_path):
+    """Where the lasers disagreed (code 4) a validation reading's budget moves the cell as the
+    laser the fusion kept, as the viewer's does: the per-laser maps (here read from the result
+    folder, as they are not in memory) are cropped with the heights; without them, the mean."""
+    import dataclasses
+
+    import tifffile
+    from recon_data import recon_data_from_arrays
+
+    from impress_gui.core.formats.recon_files import LAYER_FILES
+    from impress_gui.validation.run import uncertainty_contexts
+
+    spec = GridSpec(0.0, 0.0, 0.1, (40, 60))
+    green = np.full(spec.shape, 1.0, np.float32)
+    red = np.full(spec.shape, 1.8, np.float32)
+    fused = green.copy()
+    fused[:, 40:] = red[:, 40:]  # x >= 4 mm: the fusion kept red; before, green
+    code = np.full(spec.shape, 4, np.uint8)
+    for name, arr in (("green", green), ("red", red)):
+        tifffile.imwrite(tmp_path / LAYER_FILES[name], arr)
+    rec = dataclasses.replace(recon_data_from_arrays(spec, fused, contribution=code),
+                              folder=tmp_path)
+    h, sspec = V.crop(fused, spec, (2.0, 5.5), (1.0, 3.0))
+    ctx = uncertainty_contexts(rec, None, None)(h, sspec, None)
+    assert ctx.per_laser is not None
+    assert all(m.shape == h.shape for m in ctx.per_laser.values())
+    assert ctx.lasers_at(5.0, 2.0) == [("red", 1.0)]
+    assert ctx.lasers_at(3.0, 2.0) == [("green", 1.0)]
+    # a reconstruction without the per-laser layers: None, no error, the lasers' mean
+    bare = uncertainty_contexts(recon_data_from_arrays(spec, fused, contribution=code),
+                                None, None)(h, sspec, None)
+    assert bare.per_laser is None
+    assert bare.lasers_at(5.0, 2.0) == [("green", 0.5), ("red", 0.5)]

@@ -308,23 +308,27 @@ def uncertainty_contexts(
 ) -> V.ContextFactory:
     """The uncertainty context of each validation reading, as the viewer would make it for the
     same cells: the reconstruction's calibration (its Monte Carlo computed once, cached), the
-    target it was fitted with, the lasers' contribution codes cropped like the heights."""
+    target it was fitted with, the lasers' contribution codes and the per-laser height maps
+    (where the lasers disagreed, the kept laser's calibration moves the cell; taken from
+    ``rec`` or its folder, None when absent) cropped like the heights."""
     from impress_gui.core.calibration.scene import SceneCalibration
     from impress_gui.core.calibration.target import TargetModel
-    from impress_gui.core.measure.uncertainty import UncertaintyContext
+    from impress_gui.core.measure.uncertainty import UncertaintyContext, per_laser_maps
 
     cal = SceneCalibration.load(calibration) if calibration is not None else None
     model = TargetModel.load(target) if target is not None else None
     contribution = rec.layers.get("contribution")
+    per_laser = per_laser_maps(rec) if contribution is not None else None
     p = rec.spec.pixel_mm
 
     def make(h, sspec, plane):
-        c = None
-        if contribution is not None:
-            i0 = int(round((sspec.y0_mm - rec.spec.y0_mm) / p))
-            j0 = int(round((sspec.x0_mm - rec.spec.x0_mm) / p))
-            c = contribution[i0 : i0 + sspec.shape[0], j0 : j0 + sspec.shape[1]]
-        return UncertaintyContext.for_calibration(h, sspec, cal, model, c, level_plane=plane)
+        i0 = int(round((sspec.y0_mm - rec.spec.y0_mm) / p))
+        j0 = int(round((sspec.x0_mm - rec.spec.x0_mm) / p))
+        window = (slice(i0, i0 + sspec.shape[0]), slice(j0, j0 + sspec.shape[1]))
+        c = None if contribution is None else contribution[window]
+        lasers = None if per_laser is None else {n: m[window] for n, m in per_laser.items()}
+        return UncertaintyContext.for_calibration(h, sspec, cal, model, c, level_plane=plane,
+                                                  per_laser=lasers)
 
     return make
 
@@ -496,7 +500,8 @@ def run_simulated(
         report(part, 0.98, f"{title}: measuring")
         truth = json.loads((scan / "truth.json").read_text())
         rec = load_reconstruction(
-            out / "runs" / item / "reconstruction", layers=("fused", "contribution")
+            out / "runs" / item / "reconstruction",
+            layers=("fused", "contribution", "green", "red"),
         )
         context = uncertainty_contexts(
             rec, out / "runs" / item / "calibration.json", scan / "target.json"

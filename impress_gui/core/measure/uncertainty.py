@@ -16,8 +16,9 @@ Components (docs/uncertainty.md says the same for a quality manager):
   component is already in mm). Absent (and said so) when no calibration is known. A trial
   moves a cell as the laser that made it (both lasers' mean where they agreed; where they
   disagreed, the laser whose value the fusion kept, when the per-laser maps are given:
-  ``per_laser``). A depth below three points is recomputed per trial with the points' moved
-  positions too (the plane read at a point shifted against its supports); a width at a level
+  ``per_laser``, which the viewer and ``impress validate`` take from the reconstruction with
+  :func:`per_laser_maps`). A depth below three points is recomputed per trial with the points'
+  moved positions too (the plane read at a point shifted against its supports); a width at a level
   moves each crossing along the profile by the trial's height error over the wall's slope.
 - **rail speed** (type B, rectangular): the travel along the scan scales with the rail speed.
   The half-width is the difference between the speed implied by the target and the one entered
@@ -39,8 +40,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -255,6 +258,49 @@ def _kept_laser(f: float, per_laser: Mapping, i: int, j: int) -> str | None:
     if not math.isfinite(f) or not d:
         return None
     return min(d, key=lambda n: d[n])
+
+
+def per_laser_maps(data) -> dict[str, np.ndarray] | None:
+    """The per-laser height maps of a reconstruction
+    (:class:`~impress_gui.core.measure.readings.ReconData`) for
+    :attr:`UncertaintyContext.per_laser`: its "green" and "red" layers when they are in memory,
+    else read from its folder's TIFF layers (only those two files). None when either is absent,
+    unreadable or not on the reconstruction's grid: the budget then moves a cell where the
+    lasers disagreed as their mean, as without the maps (no error)."""
+    layers = data.layers
+    out: dict[str, np.ndarray] = {n: layers[n] for n in LASER_NAMES if n in layers}
+    missing = [n for n in LASER_NAMES if n not in out]
+    if missing and data.folder is None:
+        return None
+    for n in missing:
+        arr = _read_layer(data.folder, n, tuple(data.spec.shape))
+        if arr is None:
+            return None
+        out[n] = arr
+    return out
+
+
+def _read_layer(folder, name: str, shape: tuple[int, int]) -> np.ndarray | None:
+    """One float32 height layer of a reconstruction folder; None if absent, damaged or not of
+    ``shape``."""
+    import tifffile
+
+    from impress_gui.core.base.fileio import open_regular
+    from impress_gui.core.formats.recon_files import LAYER_FILES
+
+    path = Path(folder) / LAYER_FILES[name]
+    try:
+        if not path.is_file():
+            return None
+        os.close(open_regular(path, "heightmap", 8 << 30))  # a regular file, not a FIFO
+        arr = tifffile.imread(path, maxworkers=1)
+    except Exception:  # noqa: BLE001 - an unreadable layer is as good as an absent one
+        return None
+    if arr.shape != shape:
+        return None
+    arr = np.asarray(arr, np.float32)
+    arr.setflags(write=False)
+    return arr
 
 
 def lateral_sampling(cal) -> tuple[float, float]:

@@ -7,6 +7,8 @@ Numbers come from :mod:`impress_gui.core.measure.readings`."""
 
 from __future__ import annotations
 
+import weakref
+
 from PySide6.QtCore import QObject, QRectF, Signal
 from PySide6.QtGui import QUndoStack
 
@@ -189,7 +191,9 @@ class Levelling(QObject):
 class UncertaintyProvider(QObject):
     """What the viewer's readings' uncertainty budgets are computed from
     (:class:`~impress_gui.core.measure.uncertainty.UncertaintyContext`): the heights measured,
-    the lasers' contributions, the levelling plane, and the Monte Carlo of the project's scene
+    the lasers' contributions and per-laser height maps (read from the reconstruction's folder
+    when they are not in memory: :func:`~impress_gui.core.measure.uncertainty.per_laser_maps`,
+    once per reconstruction), the levelling plane, and the Monte Carlo of the project's scene
     calibration with its target model (the project's, or the built-in one), computed once per
     calibration in the background; ``ready`` fires when it is there. Until then (and without a
     calibration) budgets are made without the calibration component, and say so."""
@@ -208,6 +212,7 @@ class UncertaintyProvider(QObject):
         self.trials = trials
         self._ensembles: dict = {}  # calibration key -> ensemble, or the reason it failed
         self._running: object | None = None
+        self._per_laser: tuple[weakref.ref, dict | None] | None = None  # (data, its maps)
         self.worker = LatestOnly(self, "uncertainty")
         self.worker.finished.connect(self._on_done)
         self.worker.failed.connect(lambda title, msg: self._on_done((self._running, msg)))
@@ -265,6 +270,12 @@ class UncertaintyProvider(QObject):
     def is_busy(self) -> bool:
         return self.worker.is_running()
 
+    def per_laser(self, data: M.ReconData) -> dict | None:
+        """The per-laser height maps of ``data`` (None when its folder lacks them)."""
+        if self._per_laser is None or self._per_laser[0]() is not data:
+            self._per_laser = (weakref.ref(data), U.per_laser_maps(data))
+        return self._per_laser[1]
+
     def context(self) -> U.UncertaintyContext | None:
         """The context for a reading now (None without a reconstruction)."""
         recon = self.layers.recon
@@ -297,6 +308,8 @@ class UncertaintyProvider(QObject):
             None if cal is None else float(cal.speed_mm_s),
             None if cal is None else float(cal.implied_speed_mm_s),
             None, recon.plane, None, notes)
+        if contribution is not None:
+            ctx.per_laser = self.per_laser(data)
         if key in ("green", "red"):
             ctx.laser = key
         if cal is not None:
