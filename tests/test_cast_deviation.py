@@ -4,8 +4,8 @@ A 2 mm step wall running along y on flat ground, cast with a triangle cap that m
 sample every k-th cell: the surface between two samples cuts across the wall. Every cell's
 expected distances come from plane geometry (the sampled surface is the polyline through the
 sampled cells, extruded along y, since nothing changes along y): the vertical distance is the
-polyline's height there minus the cell's; the normal distance is the point's distance to the
-polyline. The record's figures (``surface_deviation`` and its ``normal``) must be those. At full
+absolute difference between the polyline's height there and the cell's; the normal distance is
+the point's distance to the polyline. The record's figures (``surface_deviation`` and its ``normal``) must be those. At full
 resolution both are float rounding."""
 
 from __future__ import annotations

@@ -55,34 +55,56 @@ def run(args: argparse.Namespace) -> int:
     progress = progress_printer()
 
     doc = write_cast(args.reconstruction, args.output, params, progress)
-    m, holes = doc["mesh"], doc["holes"]
+    for line in summary_lines(doc, args.output):
+        print(line)
+    return 0
+
+
+def summary_lines(doc: dict, output: Path | str) -> list[str]:
+    """What ``impress cast`` prints about the cast it wrote (``doc``: its sidecar's record).
+    The record's optional parts may be absent (no cell measured; every vertical ray missed:
+    no vertical figures and no ``tolerance_mm``, docs/formats.md): said so, never a KeyError
+    after the files were written."""
+    from impress_gui.core.measure.cast import SURFACE_TOLERANCE_MM
+
+    m, holes = doc["mesh"], doc.get("holes") or {}
     box = m["bounding_box"]
     size = [hi - lo for lo, hi in zip(box["min_mm"], box["max_mm"], strict=True)]
-    print(f"cast written to {args.output} ({doc['parameters']['mode']}, {m['format']})")
-    print(f"  {m['triangles']} triangles, {m['vertices']} vertices, every {m['step_cells']} "
-          f"cell(s) ({m['vertex_spacing_mm']:g} mm); size {size[0]:.1f} x {size[1]:.1f} x "
-          f"{size[2]:.1f} mm; volume {m['volume_mm3'] / 1000:.1f} cm3")
-    dec, dev, chk = m["decimation"], doc["surface_deviation"], doc["checks"]
-    if dec["method"] == "quadric":
-        print(f"  quadric decimation of {dec['input_triangles']} triangles (every "
-              f"{dec['input_step_cells']} cell(s))")
+    lines = [f"cast written to {output} ({doc['parameters']['mode']}, {m['format']})",
+             f"  {m['triangles']} triangles, {m['vertices']} vertices, every {m['step_cells']} "
+             f"cell(s) ({m['vertex_spacing_mm']:g} mm); size {size[0]:.1f} x {size[1]:.1f} x "
+             f"{size[2]:.1f} mm; volume {m['volume_mm3'] / 1000:.1f} cm3"]
+    dec = m.get("decimation") or {}
+    dev, chk = doc.get("surface_deviation") or {}, doc.get("checks") or {}
+    if dec.get("method") == "quadric":
+        lines.append(f"  quadric decimation of {dec.get('input_triangles')} triangles (every "
+                     f"{dec.get('input_step_cells')} cell(s))")
     elif dec.get("note"):
-        print(f"  NOTE: {dec['note']}")
+        lines.append(f"  NOTE: {dec['note']}")
+    tol = dev.get("tolerance_mm", SURFACE_TOLERANCE_MM)  # the normal uses the same tolerance
+    cells, missed = dev.get("cells", 0), dev.get("missed", 0)
     if "max_mm" in dev:
-        print(f"  surface vs heightmap: max {dev['max_mm']:.4f} mm, RMS {dev['rms_mm']:.4f} mm, "
-              f"{100 * dev['within_tolerance_fraction']:.2f} % of {dev['cells']} cells within "
-              f"{dev['tolerance_mm']:g} mm (vertical)")
+        lines.append(f"  surface vs heightmap: max {dev['max_mm']:.4f} mm, RMS "
+                     f"{dev['rms_mm']:.4f} mm, {100 * dev['within_tolerance_fraction']:.2f} % of "
+                     f"{cells - missed} cells within {tol:g} mm (vertical)"
+                     + (f"; {missed} ray(s) missed the mesh" if missed else ""))
+    elif cells:
+        lines.append(f"  surface vs heightmap (vertical): all {missed} ray(s) missed the mesh; "
+                     "no vertical figures")
+    else:
+        lines.append("  surface vs heightmap: no cell with data was measured")
     if "normal" in dev:
         n = dev["normal"]
-        print(f"  surface vs heightmap along the normal (closest point): max {n['max_mm']:.4f} "
-              f"mm, RMS {n['rms_mm']:.4f} mm, {100 * n['within_tolerance_fraction']:.2f} % "
-              f"within {dev['tolerance_mm']:g} mm")
-    si = chk["self_intersection"]
-    print("  checks (open3d): edge- and vertex-manifold, orientable, closed, outward"
-          + ("; no self-intersection" if si["tested"] else "; self-intersection not tested "
-             "(large mesh)"))
-    if holes["filled_cells"]:
-        print(f"  NOTE: {holes['filled_cells']} cells without data were filled "
-              f"({holes['filled_vertices']} mesh vertices lie on filled cells)")
-    print(f"  record: {args.output}.json")
-    return 0
+        lines.append(f"  surface vs heightmap along the normal (closest point): max "
+                     f"{n['max_mm']:.4f} mm, RMS {n['rms_mm']:.4f} mm, "
+                     f"{100 * n['within_tolerance_fraction']:.2f} % of {cells} cells within "
+                     f"{tol:g} mm")
+    si = chk.get("self_intersection") or {}
+    lines.append("  checks (open3d and numpy): edge- and vertex-manifold, orientable, closed, "
+                 "outward" + ("; no self-intersection" if si.get("tested") else
+                              "; self-intersection not tested (large mesh)"))
+    if holes.get("filled_cells"):
+        lines.append(f"  NOTE: {holes['filled_cells']} cells without data were filled "
+                     f"({holes.get('filled_vertices', 0)} mesh vertices lie on filled cells)")
+    lines.append(f"  record: {output}.json")
+    return lines
