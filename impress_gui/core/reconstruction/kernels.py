@@ -19,6 +19,14 @@ import numpy as np
 from impress_gui.core.reconstruction.jit import helper as _jit
 from impress_gui.core.reconstruction.jit import kernel as _kernel
 
+# the sub-pixel refinement of the stripe's centre (``_window_refine``; numba freezes these at
+# compile time, and its cache is keyed on this file: they live here, the numpy reference in
+# ``stripes`` reads them from this module)
+REFINE_FLOOR = 0.1  # luma above this share of the peak counts
+REFINE_WIDTH = 0.9  # the window's half width: this many times the rows above half maximum
+REFINE_MIN_HALF = 1.5  # rows: the narrowest half width
+REFINE_ITERATIONS = 4
+
 HSV_SHIFT = 12
 
 
@@ -91,6 +99,46 @@ def _window(y, c, centre, k, rr, sig):
 
 
 @_jit
+def _window_refine(rr, sig, n, top, centre):
+    """``stripes.window_refine`` of one column: the centre of mass of the luma above a floor
+    (a tenth of the maximum, or the row just outside the estimate's window on either side
+    where that is brighter) in a window of fixed half width around the estimate
+    (fractional end weights), iterated; ``centre`` unchanged where that window would leave the
+    samples."""
+    wc = 0
+    for j in range(n):
+        if sig[j] > 0.5 * top:
+            wc += 1
+    hw = max(REFINE_MIN_HALF, REFINE_WIDTH * wc)
+    c = centre
+    for _ in range(REFINE_ITERATIONS):
+        if c - hw < rr[0] or c + hw > rr[n - 1]:
+            return centre
+        # the rows just outside the window on each side (the first with no weight)
+        floor = REFINE_FLOOR * top
+        for j in range(n):
+            if rr[j] > c + hw + 0.5:
+                floor = max(floor, sig[j])
+                break
+        for j in range(n - 1, -1, -1):
+            if rr[j] < c - hw - 0.5:
+                floor = max(floor, sig[j])
+                break
+        acc = 0.0
+        ws = 0.0
+        for j in range(n):
+            wt = min(max(hw + 0.5 - abs(rr[j] - c), 0.0), 1.0)
+            a = sig[j] - floor
+            if a > 0 and wt > 0:
+                ws += a * wt
+                acc += a * wt * rr[j]
+        if ws <= 0:
+            return centre
+        c = acc / ws
+    return c
+
+
+@_jit
 def _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch):
     """``stripes.headroom_lean`` of column ``c``'s window of rows ``rr`` (``n`` rows); ``ch``
     is the laser's RGB channel (0 red, 1 green), the other laser's is ``1 - ch``. -inf when the
@@ -117,7 +165,7 @@ def _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch):
 
 @_kernel(
     "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), Tuple((int64[:], int64)), "
-    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64)), "
+    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64)), "
     "Tuple((boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64)), "
     "UniTuple(int64[:], 2), Tuple((float64[:], float32[:])))"
 )
@@ -130,8 +178,9 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     * ``band = (band_start, band_height)``: rows searched in each column;
     * ``laser = (sign, ch, o1, o2)``: +1 red / -1 green (the chroma lean), the laser's RGB
       channel and the other two;
-    * ``peak = (min_peak, k, max_width, max_wrong_lean, min_headroom_lean)``: the peak tests
-      (``k``: the half window);
+    * ``peak = (min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine)``: the peak
+      tests (``k``: the half window) and whether the centre is refined
+      (``stripes.SUBPIXEL``: 1 ``window``, 0 ``half-max``);
     * ``colour = (use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut,
       lut_margin)``: the method's colour tests; ``lut`` is a (64, 64) table or an empty
       (0, 0) array;
@@ -140,7 +189,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     y, cb, cr, s = frame
     band_start, band_height = band
     sign, ch, o1, o2 = laser
-    min_peak, k, max_width, max_wrong_lean, min_headroom_lean = peak
+    min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine = peak
     use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut, lut_margin = colour
     sdiv, hdiv = hsv
     rows_out, strength_out = out
@@ -260,7 +309,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
             if colour:
                 break
         if colour:
-            rows_out[c] = centre
+            rows_out[c] = _window_refine(rr, sig, n, top, centre) if refine else centre
             strength_out[c] = top
 
 

@@ -12,7 +12,9 @@ Three methods share one sub-pixel stage:
 
 The peak is decided by colour but located on the sharpest signal, the luma (in 4:2:0 video the
 colour has half the vertical resolution): centre of mass of the background-subtracted luma above
-half of its maximum, in a window around the strongest laser pixel of the column.
+half of its maximum, in a window around the strongest laser pixel of the column; then (the
+default ``subpixel="window"``) refined by :func:`window_refine`, which is far less locked to
+the pixel grid.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from impress_gui.core.formats.video import Planes
 
 LASERS = ("green", "red")
 METHODS = ("combined", "hue", "lut")
+SUBPIXEL = ("window", "half-max")
 _CH = {"red": 0, "green": 1}  # laser channel in RGB
 _OTHERS = {"red": (1, 2), "green": (0, 2)}
 LUT_SHIFT = 2  # tables are 64 x 64 (channel values >> 2)
@@ -52,6 +55,9 @@ class StripeParams:
     # (summed shares over the window's rows; see headroom_lean); inf: never
     min_headroom_lean: float = 0.3
     max_width_px: int = 20
+    # the centre's sub-pixel estimate: "window" (window_refine) or "half-max" (the centre of
+    # mass above half maximum alone, as before 2026-11-25)
+    subpixel: str = "window"
 
     def validate(self, height: int | None = None) -> None:
         if self.method not in METHODS:
@@ -63,6 +69,9 @@ class StripeParams:
             if not (0 <= a < b) or (height is not None and b > height):
                 raise InputError(f"region of interest of the {name} laser (rows {a}..{b}) is "
                                  f"outside the image", code=codes.E_PARAM)
+        if self.subpixel not in SUBPIXEL:
+            raise InputError(f"unknown sub-pixel estimate {self.subpixel!r}; use one of "
+                             f"{', '.join(SUBPIXEL)}", code=codes.E_PARAM)
         if not 1 <= self.half_window_px <= 30 or self.min_peak <= 0:
             raise InputError("half_window_px must be 1..30 and min_peak positive", code=codes.E_PARAM)
 
@@ -155,7 +164,8 @@ class StripeDetector:
             (np.ascontiguousarray(band_start, dtype=np.int64), int(band_height)),
             (1 if name == "red" else -1, _CH[name], o1, o2),
             (float(params.min_peak), int(params.half_window_px), int(params.max_width_px),
-             float(params.max_wrong_lean), float(params.min_headroom_lean)),
+             float(params.max_wrong_lean), float(params.min_headroom_lean),
+             int(params.subpixel == "window")),
             (method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
              np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
              int(params.min_value), method == "combined", float(params.min_tint), table,
@@ -277,8 +287,55 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
     if method in ("lut", "combined") and lut is not None:
         colour |= lut.mask(name, np.clip(rgb + 0.5, 0, 255).astype(np.uint8), params.lut_margin)
     ok &= colour.any(axis=0)
+    if params.subpixel == "window":
+        centre = window_refine(rr, sig, top, centre)
     out_rows = np.where(ok, centre, np.nan)
     return StripeResult(out_rows, np.where(ok, top, 0).astype(np.float32))
+
+
+def window_refine(rr: np.ndarray, sig: np.ndarray, top: np.ndarray,
+                  centre: np.ndarray) -> np.ndarray:
+    """The stripe's centre refined per column (``rr``, ``sig``: ``(2k+1, W)`` rows and luma
+    above the window's minimum; ``top`` its maximum; ``centre`` the centre of mass above half
+    maximum): the centre of mass of the luma above a floor, weighted by a window of fixed half
+    width (0.9 x the rows above half maximum, at least 1.5) centred on the estimate, with
+    fractional weights at its ends, iterated 4 times. The floor is a tenth of the maximum, or
+    the row just outside that window on either side where it is brighter (a brighter surface
+    beside the stripe would otherwise pull the centre towards it). Measured against the
+    renderer's exact centres on six random rigs at 1080p (video decoded): the error's
+    dependence on the centre's sub-pixel position falls from 0.03-0.33 px (peak to peak,
+    median 0.1) to 0.01-0.09 px (median 0.04); that position is the same along a stripe that
+    runs along the rows, so the locking was a height bias on flat ground. A column whose window
+    would reach past the samples (a stripe wider than about 6 rows) keeps its first centre."""
+    from impress_gui.core.reconstruction.compiled import kernels
+
+    kn = kernels()
+    sig = sig.astype(np.float64)
+    rr = rr.astype(np.float64)
+    wc = (sig > 0.5 * top).sum(axis=0)
+    hw = np.maximum(kn.REFINE_MIN_HALF, kn.REFINE_WIDTH * wc)
+    c = centre.astype(np.float64)
+    keep = ~np.isfinite(c)
+    n = sig.shape[0]
+    cols = np.arange(sig.shape[1])
+    for _ in range(kn.REFINE_ITERATIONS):
+        keep |= (c - hw < rr[0]) | (c + hw > rr[-1])
+        dist = np.abs(rr - c)
+        # the rows just outside the window on each side (the first with no weight)
+        below = rr < c - hw - 0.5
+        after = rr > c + hw + 0.5
+        j_lo = np.where(below.any(axis=0), n - 1 - below[::-1].argmax(axis=0), -1)
+        j_hi = np.where(after.any(axis=0), after.argmax(axis=0), -1)
+        outer = np.maximum(np.where(j_lo >= 0, sig[np.maximum(j_lo, 0), cols], -np.inf),
+                           np.where(j_hi >= 0, sig[np.maximum(j_hi, 0), cols], -np.inf))
+        above = sig - np.maximum(kn.REFINE_FLOOR * top, outer)
+        wt = np.clip(hw + 0.5 - dist, 0.0, 1.0)
+        a = np.where((above > 0) & (wt > 0), above * wt, 0.0)
+        ws = a.sum(axis=0)
+        keep |= ~(ws > 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = np.where(keep, c, (a * rr).sum(axis=0) / ws)
+    return np.where(keep, centre, c)
 
 
 def headroom_lean(name: str, win_rgb: np.ndarray) -> np.ndarray:
