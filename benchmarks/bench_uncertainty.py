@@ -19,7 +19,11 @@ Each reading's true value comes from the simulator's truth:
   carried a point across an edge (a depth error of 3.1 mm on flat blocks). The depth's plane
   is taken through the supports' true positions, at the point's true position;
 - lengths (ruler xy and 3D, width at a level): the reading's end points taken to where they
-  truly are by the true calibration (map_points).
+  truly are by the true calibration (map_points). "width" is at a level fixed from outside the
+  profile (the truth's mid-height: a calibration's absolute height error moves its crossings);
+  "width (bands)" is measured as ``impress validate`` measures one, at half the step between a
+  band on the feature and one beside it on the same profile (the level moves with the surface;
+  its true value: the same bands on the true profile).
 
 Coverage = the share of readings whose true error lies within their expanded uncertainty
 U (k = 2); the target is 93-97 % per reading kind. Readings on or near a height edge (a jump of
@@ -46,7 +50,8 @@ import numpy as np
 # differs only because of simulator options these scans do not use
 common.SIM_KEY = "95a603848f"
 
-KINDS = ("height", "ruler xy", "ruler 3D", "ruler dz", "step height", "width", "depth")
+KINDS = ("height", "ruler xy", "ruler 3D", "ruler dz", "step height", "width", "width (bands)",
+         "depth")
 
 
 def true_params(scan_dir: Path, cal):
@@ -204,7 +209,7 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
                         "value": budget.value_mm})
 
     tries = 0
-    counts = dict.fromkeys(KINDS, 0)
+    counts = dict.fromkeys([k for k in KINDS if k != "width (bands)"], 0)
     while tries < 25 * per_kind and min(counts.values()) < per_kind:
         tries += 1
         x, y = rig.random_point(rng)
@@ -294,16 +299,92 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
                     add("depth", b, b.value_mm - float(tp.at(q[0, 3], q[1, 3]) - t.height_mm),
                         x, y)
                     counts["depth"] += 1
+    # widths between bands: random profiles across one whole feature are rare on these scenes
+    # (most are flat or cross one edge), so a pass of their own, each profile (60 mm) started
+    # before a random wall and run across it, the feature between its first two crossings (its
+    # own random stream: the readings above are as without it)
+    wrng = np.random.default_rng(int(rng.integers(2**32)))
+    edges = np.argwhere(rig.edge & np.isfinite(rig.truth))
+    n = 0
+    for _ in range(40 * per_kind if edges.size else 0):
+        if n >= per_kind:
+            break
+        # across a wall: from 2-10 mm before a random edge cell, along the truth's gradient
+        i, j = edges[wrng.integers(len(edges))]
+        ex, ey = spec.x0_mm + j * spec.pixel_mm, spec.y0_mm + i * spec.pixel_mm
+        _, _, _, gx, gy = U.patch_noise(rig.truth, spec, ex, ey, 1.0)
+        if not (math.isfinite(gx) and math.hypot(gx, gy) > 0):
+            continue
+        ang = math.atan2(gy, gx) + (math.pi if wrng.random() < 0.5 else 0.0)
+        back = wrng.uniform(2.0, 10.0)
+        x, y = ex - back * math.cos(ang), ey - back * math.sin(ang)
+        x3, y3 = x + 60 * math.cos(ang), y + 60 * math.sin(ang)
+        tprof = M.line_profile(rig.truth, spec, (x, y), (x3, y3), 1.0)
+        th = tprof.height_mm
+        if np.isfinite(th).mean() <= 0.5 or np.nanmax(th) - np.nanmin(th) <= 1.5:
+            continue
+        prof = M.line_profile(rig.h, spec, (x, y), (x3, y3), 1.0)
+        wb = _band_width(M, U, rig, ctx, prof, tprof, (x, y), (x3, y3))
+        if wb is not None:
+            add("width (bands)", *wb)
+            n += 1
     return out
 
 
+def _band_width(M, U, rig: Rig, ctx, prof, tprof, p0, p1):
+    """A width the way ``impress validate`` measures one: at half the step between a band on
+    the feature and one beside it, both on the measured profile (the level moves with the
+    surface); the truth's width at half the step between the same bands of the true profile,
+    its crossings taken to where they truly are. ``(budget, error, x, y)`` or None where the
+    true profile has no feature (between its first two crossings of its mid-height) with bands
+    on and beside it that hold no height edge and have data on both profiles."""
+    th = tprof.height_mm
+    tc = M.level_crossings(tprof, float((np.nanmax(th) + np.nanmin(th)) / 2))[:2]
+    if len(tc) != 2 or tc[1] - tc[0] <= 2.0:
+        return None
+    mid = float((tc[0] + tc[1]) / 2)
+    half = min(2.0, (tc[1] - tc[0]) / 2 - 1.0)
+    if half < 0.3:
+        return None
+    length = prof.length_mm
+    inside = (mid - half, mid + half)
+    edge = M.line_profile(rig.edge.astype(np.float32), rig.spec, p0, p1, 1.0)
+
+    def usable(b) -> bool:
+        sel = (prof.distance_mm >= b[0]) & (prof.distance_mm <= b[1])
+        return (b[1] - b[0] >= 1.0 and np.nanmax(edge.height_mm[sel]) == 0
+                and np.isfinite(prof.height_mm[sel]).mean() >= 0.9
+                and np.isfinite(th[sel]).mean() >= 0.9)
+
+    # beside the feature: 1-5 mm before its first crossing, else after its second
+    beside = [b for b in ((max(0.0, tc[0] - 5.0), tc[0] - 1.0),
+                          (tc[1] + 1.0, min(length, tc[1] + 5.0))) if usable(b)]
+    if not (usable(inside) and beside):
+        return None
+    bands = (inside, beside[0])
+    tlevel = float(np.mean([M.band_stats(tprof, b).mean_mm for b in bands]))
+    level = float(np.mean([M.band_stats(prof, b).mean_mm for b in bands]))
+    tcs = M.level_crossings(tprof, tlevel)
+    left, right = tcs[tcs <= mid], tcs[tcs > mid]
+    w = M.width_at_level(prof, level, mid)
+    if not (left.size and right.size and math.isfinite(w.width_mm)):
+        return None
+    ends = np.array([left.max(), right.min()])
+    (x0, y0), (x1, y1) = p0, p1
+    ux, uy = (x1 - x0) / length, (y1 - y0) / length
+    pts = rig.to_true(x0 + ends * ux, y0 + ends * uy, [tlevel, tlevel])
+    w_true = math.hypot(pts[0, 1] - pts[0, 0], pts[1, 1] - pts[1, 0])
+    b = U.width_budget(ctx, prof, w, level_bands=(bands, bands))
+    return b, w.width_mm - w_true, x0 + mid * ux, y0 + mid * uy
+
+
 def table(rows: list[dict]) -> str:
-    lines = [f"{'reading':<12} {'n':>4} {'within U':>9} {'median U':>9} {'median |e|':>10} "
+    lines = [f"{'reading':<13} {'n':>4} {'within U':>9} {'median U':>9} {'median |e|':>10} "
              f"{'rms e/u_c':>9}  largest components (median u_i, mm)"]
     for kind in KINDS:
         rr = [r for r in rows if r["kind"] == kind]
         if not rr:
-            lines.append(f"{kind:<12} {0:>4} {'-':>9}")
+            lines.append(f"{kind:<13} {0:>4} {'-':>9}")
             continue
         e = np.array([r["err"] for r in rr])
         u = np.array([r["U"] for r in rr])
@@ -312,7 +393,7 @@ def table(rows: list[dict]) -> str:
         names = sorted({n for r in rr for n in r["parts"]})
         med = {n: float(np.nanmedian([r["parts"].get(n, np.nan) for r in rr])) for n in names}
         parts = ", ".join(f"{n} {v:.3f}" for n, v in sorted(med.items(), key=lambda kv: -kv[1]))
-        lines.append(f"{kind:<12} {len(rr):>4} {cov:>8.1f}% {np.median(u):>9.3f} "
+        lines.append(f"{kind:<13} {len(rr):>4} {cov:>8.1f}% {np.median(u):>9.3f} "
                      f"{np.median(np.abs(e)):>10.3f} {np.sqrt(np.mean((e / uc) ** 2)):>9.2f}  "
                      f"{parts}")
     return "\n".join(lines)

@@ -293,8 +293,9 @@ def measure_reading(
 
                 return U.step_budget(ctx, prof, s, band_a, band_b)
         elif r.kind == "width":
-            a = M.band_stats(prof, _required(r.band_a_mm, "band_a_mm", r))
-            b = M.band_stats(prof, _required(r.band_b_mm, "band_b_mm", r))
+            bands = (_required(r.band_a_mm, "band_a_mm", r),
+                     _required(r.band_b_mm, "band_b_mm", r))
+            a, b = (M.band_stats(prof, band) for band in bands)
             level = 0.5 * (a.mean_mm + b.mean_mm)
             w = M.width_at_level(prof, level, _required(r.around_mm, "around_mm", r))
             value = w.width_mm
@@ -303,7 +304,8 @@ def measure_reading(
             def budget_of(ctx):
                 from impress_gui.core.measure import uncertainty as U
 
-                return U.width_budget(ctx, prof, w)
+                # the level is half the step between the bands: it moves with them
+                return U.width_budget(ctx, prof, w, level_bands=(bands, bands))
         elif r.kind == "edge_distance":
             e0, e1 = (_edge(prof, e) for e in r.edges)
             value, note = abs(e1 - e0), ""
@@ -312,15 +314,18 @@ def measure_reading(
                        + M.band_stats(prof, e.band_high_mm).mean_mm)
                 for e in r.edges
             ]
-            # two edges found as level crossings, like a width's two walls (each at its own
-            # level; the budget takes their mean level for the calibration's movement)
+            # two edges found as level crossings, like a width's two walls, each at its own
+            # level halfway between its two bands (which the budget moves with the surface)
             pair = SimpleNamespace(left_mm=min(e0, e1), right_mm=max(e0, e1),
                                    level_mm=float(np.mean(levels)), width_mm=value)
+            edge_bands = [(e.band_low_mm, e.band_high_mm) for e in r.edges]
+            if e0 > e1:
+                edge_bands.reverse()  # in the order of the crossings along the profile
 
             def budget_of(ctx):
                 from impress_gui.core.measure import uncertainty as U
 
-                return U.width_budget(ctx, prof, pair)
+                return U.width_budget(ctx, prof, pair, level_bands=edge_bands)
         else:
             raise InputError(f"unknown measurement kind {r.kind!r}", code=codes.E_VAL_SPEC)
     except InputError as exc:

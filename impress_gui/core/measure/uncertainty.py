@@ -19,7 +19,9 @@ Components (docs/uncertainty.md says the same for a quality manager):
   ``per_laser``, which the viewer and ``impress validate`` take from the reconstruction with
   :func:`per_laser_maps`). A depth below three points is recomputed per trial with the points'
   moved positions too (the plane read at a point shifted against its supports); a width at a level
-  moves each crossing along the profile by the trial's height error over the wall's slope.
+  is found again per trial on the moved profile (:func:`_trial_crossings`), at a level that moves
+  with the bands it was taken from when it came from bands on the same profile (``level_bands``:
+  only the wall's change relative to them counts), never a height error divided by a slope.
 - **rail speed** (type B, rectangular): the travel along the scan scales with the rail speed.
   The half-width is the difference between the speed implied by the target and the one entered
   (a floor of 0.1 % for the motor's own regulation); sensitivity: the reading's change per
@@ -230,11 +232,15 @@ class UncertaintyContext:
         h = np.where(np.isfinite(h), h, 0.0)
         s = ens.n_trials
         out = [np.zeros((s, len(x))) for _ in range(3)]
-        for n, (xi, yi) in enumerate(zip(x, y)):
-            for laser, w in self.lasers_at(xi, yi):
-                d = ens.deltas(xi, yi, h[n], laser)
-                for o, v in zip(out, d):
-                    o[:, n] += w * v[:, 0]
+        weights = [dict(self.lasers_at(xi, yi)) for xi, yi in zip(x, y)]
+        for laser in LASER_NAMES:  # the cells of one laser in one call
+            idx = np.array([n for n, wd in enumerate(weights) if laser in wd], int)
+            if not idx.size:
+                continue
+            w = np.array([weights[n][laser] for n in idx])
+            d = ens.deltas(x[idx], y[idx], h[idx], laser)
+            for o, v in zip(out, d):
+                o[:, idx] += w[None] * v
         return out[0], out[1], out[2]
 
     def raw_height(self, x, y, h):
@@ -753,15 +759,23 @@ def _step_repeatability(ctx: UncertaintyContext, profile, band_a, band_b) -> tup
     return _consistent_scatter(a, np.array(steps)[order], 5)
 
 
-def width_budget(ctx: UncertaintyContext, profile, width) -> Budget:
-    """The width of a feature at a level (two crossings of a profile)."""
+def width_budget(ctx: UncertaintyContext, profile, width,
+                 level_bands: Sequence[Sequence[Sequence[float]]] | None = None) -> Budget:
+    """The width of a feature at a level (two crossings of a profile), or the distance between
+    two edges found as level crossings.
+
+    ``level_bands`` says where the level comes from. None: a height given from outside the
+    profile (typed in, or the truth's), fixed under a calibration change, so a trial's absolute
+    height change moves the crossings. Otherwise one entry per crossing (left, right), each the
+    bands (distance ranges on this profile) whose means' mean is that crossing's level (e.g.
+    half the step between a band below and one above, as ``impress validate`` finds its
+    edges): a trial moves the level with those bands, so only the surface's change at the
+    crossing relative to them moves it."""
     comps: list = []
     L = profile.length_mm or 1.0
     (x0, y0), (x1, y1) = profile.start, profile.end
     ux, uy = (x1 - x0) / L, (y1 - y0) / L
     ds = np.array([width.left_mm, width.right_mm])
-    xs, ys = x0 + ds * ux, y0 + ds * uy
-    lev = np.full(2, width.level_mm)
     # each crossing lies between the two samples with data that bracket it: their spacing and
     # the wall's signed slope there (height per mm along the profile)
     d_all = np.asarray(profile.distance_mm, float)
@@ -778,21 +792,32 @@ def width_budget(ctx: UncertaintyContext, profile, width) -> Budget:
         gap = float(d_all[i1] - d_all[i0])
         gaps.append(gap)
         slopes.append(float(h_all[i1] - h_all[i0]) / max(gap, 1e-9))
-    d = ctx.calibration_deltas(xs, ys, ctx.raw_height(xs, ys, lev))
-    if d is not None:
-        dx, dy, dh = d
-        # a trial raises the surface at a crossing by dh: the level (a height on the map) is
-        # then crossed dh / slope earlier along a sloped wall (capped at the profile's length)
-        along = np.zeros_like(dh)
-        for k, g in enumerate(slopes):
-            if math.isfinite(g) and g != 0.0:
-                along[:, k] = np.clip(-dh[:, k] / g, -L, L)
-        px = xs[None] + dx + along * ux
-        py = ys[None] + dy + along * uy
-        w = np.hypot(px[:, 1] - px[:, 0], py[:, 1] - py[:, 0])
-        comps += _cal_component(w - width.width_mm, "distance between the crossings (each "
-                                "moved across the map, and along the profile by the height "
-                                "error over the wall's slope)", ctx)
+    if level_bands is not None:
+        levels = [_bands_level(profile, bands) for bands in level_bands]
+    else:
+        levels = [float(width.level_mm)] * 2
+    if ctx.ensemble is not None and np.isfinite(ds).all() and np.isfinite(levels).all():
+        trial = _trial_crossings(ctx, profile, ds, levels, level_bands)
+        if trial is not None:
+            px, py, lost = trial
+            w = np.hypot(px[:, 1] - px[:, 0], py[:, 1] - py[:, 0])
+            what = ("distance between the crossings, found again per trial on the moved "
+                    "profile " + ("at the level of its moved bands" if level_bands is not None
+                                  else "at the fixed level") + " and moved across the map")
+            found = w[np.isfinite(w)]
+            if found.size >= 2:
+                cal = _cal_component(found - width.width_mm, what, ctx)
+                if lost:  # the reading would fail there: said, not hidden
+                    c = cal[0]
+                    cal = [Component(c.name, c.quantity, c.evaluation, c.distribution, c.u_x,
+                                     c.unit, c.sensitivity, c.u_mm,
+                                     c.note + f"; in {lost} of {len(w)} trials the moved "
+                                     "profile did not cross the level there (left out)")]
+                comps += cal
+            else:
+                comps.append(Component("calibration", what, "A", "Monte Carlo", math.nan, "mm",
+                                       1.0, math.nan, f"in {lost} of {len(w)} trials the moved "
+                                       "profile did not cross the level there: not evaluated"))
     comps += _speed_component(ctx, width.width_mm * uy * uy)
     # each crossing: the height noise over the wall's slope moves it, but never beyond the two
     # samples with data that bracket it (the crossing is found between them)
@@ -821,6 +846,87 @@ def width_budget(ctx: UncertaintyContext, profile, width) -> Budget:
                                f"{ctx.sampling_mm[1]:.3f} mm along it), half-width one sample "
                                "per wall"))
     return Budget("width at level", width.width_mm, tuple(comps), notes=_notes(ctx))
+
+
+def _band_mask(profile, band: Sequence[float]) -> np.ndarray:
+    lo, hi = sorted(map(float, band))
+    d = np.asarray(profile.distance_mm, float)
+    return (d >= lo) & (d <= hi) & np.isfinite(np.asarray(profile.height_mm, float))
+
+
+def _bands_level(profile, bands: Sequence[Sequence[float]]) -> float:
+    """The mean of the bands' means (as :func:`~impress_gui.core.measure.readings.band_stats`
+    takes them); NaN when a band has no data."""
+    h = np.asarray(profile.height_mm, float)
+    means = [float(h[m].mean()) if (m := _band_mask(profile, b)).any() else math.nan
+             for b in bands]
+    return float(np.mean(means)) if means else math.nan
+
+
+#: the largest gap of missing data a crossing is looked for across (as ``level_crossings``)
+CROSSING_MAX_GAP_MM = 2.0
+
+
+def _trial_crossings(ctx: UncertaintyContext, profile, ds: np.ndarray, levels: Sequence[float],
+                     level_bands) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """Where each Monte Carlo trial puts the crossings found at distances ``ds`` (at heights
+    ``levels``): every sample of the profile with data is moved by the trial (its height and
+    its place on the map), the level with the bands it comes from (``level_bands``; None: the
+    level stays), and the crossing is found again on the moved profile as
+    :func:`~impress_gui.core.measure.readings.level_crossings` finds it (linear between
+    neighbouring samples, the higher side's sample across a gap), the one nearest the original.
+    No division by the slope: between nearly level samples the crossing moves only as far as
+    the moved profile really moves it. Returns the crossings' map positions ``(px, py)`` each
+    ``(S, 2)`` (NaN in a trial where the moved profile does not cross the level) and how many
+    trials lost a crossing; None without calibration trials."""
+    d_all = np.asarray(profile.distance_mm, float)
+    h_all = np.asarray(profile.height_mm, float)
+    ok = np.flatnonzero(np.isfinite(h_all))
+    if ok.size < 2:
+        return None
+    xs, ys = np.asarray(profile.x_mm, float)[ok], np.asarray(profile.y_mm, float)[ok]
+    hs, dd = h_all[ok], d_all[ok]
+    delta = ctx.calibration_deltas(xs, ys, ctx.raw_height(xs, ys, hs))
+    if delta is None:
+        return None
+    dx, dy, dh = delta
+    H = hs[None] + dh  # (S, N): the moved profile
+    s = H.shape[0]
+    i0, i1 = np.arange(ok.size - 1), np.arange(1, ok.size)
+    near = d_all[ok[1:]] - d_all[ok[:-1]] <= CROSSING_MAX_GAP_MM + 1e-9
+    adjacent = ok[1:] - ok[:-1] == 1
+    px, py = np.full((s, 2), np.nan), np.full((s, 2), np.nan)
+    for k in range(2):
+        lev = np.full(s, float(levels[k]))
+        if level_bands is not None:
+            masks = [_band_mask(profile, b)[ok] for b in level_bands[k]]
+            lev = lev + np.mean([dh[:, m].mean(1) for m in masks], axis=0)
+        s0, s1 = H[:, i0] - lev[:, None], H[:, i1] - lev[:, None]
+        cross = ((s0 < 0) != (s1 < 0)) & near[None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(adjacent[None], s0 / (s0 - s1), np.where(s0 > s1, 0.0, 1.0))
+        t = np.where(cross, t, np.nan)
+        pos = dd[i0][None] + t * (dd[i1] - dd[i0])[None]
+        far = np.where(cross, np.abs(pos - ds[k]), np.inf)
+        j = np.argmin(far, axis=1)
+        rows = np.arange(s)
+        found = np.isfinite(far[rows, j])
+        tj = t[rows, j]
+        a, b = i0[j], i1[j]
+        along = pos[rows, j]
+        mx = (1 - tj) * dx[rows, a] + tj * dx[rows, b]
+        my = (1 - tj) * dy[rows, a] + tj * dy[rows, b]
+        px[:, k] = np.where(found, _at(profile, along, 0) + mx, np.nan)
+        py[:, k] = np.where(found, _at(profile, along, 1) + my, np.nan)
+    lost = int((~np.isfinite(px).all(1)).sum())
+    return px, py, lost
+
+
+def _at(profile, along: np.ndarray, axis: int) -> np.ndarray:
+    """The map coordinate (``axis`` 0: x, 1: y) of distances ``along`` the profile."""
+    L = profile.length_mm or 1.0
+    p0, p1 = profile.start[axis], profile.end[axis]
+    return p0 + np.asarray(along, float) * (p1 - p0) / L
 
 
 def with_uncertainty(values: dict, budgets: Mapping[str, Budget]) -> dict:
