@@ -39,6 +39,9 @@ def _source_key() -> str:
         ROOT / "impress_gui" / "core" / "calibration" / n
         for n in ("target.py", "geometry.py", "scene.py", "solve.py", "planes.py", "picks.py")
     ]
+    # the calibration finds the stripe with the reconstruction's detector
+    files += [ROOT / "impress_gui" / "core" / "reconstruction" / n
+              for n in ("stripes.py", "kernels.py")]
     for f in files:
         h.update(f.read_bytes())
     return h.hexdigest()[:16]

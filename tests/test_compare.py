@@ -473,6 +473,9 @@ def _source_key(args: list[str]) -> str:
     h = hashlib.sha256(" ".join([RESOLUTION, SPEED, *args]).encode())
     files = sorted((ROOT / "impress_gui" / "sim").glob("*.py"))
     files += sorted((ROOT / "impress_gui" / "core" / "calibration").glob("*.py"))
+    # the calibration finds the stripe with the reconstruction's detector
+    files += [ROOT / "impress_gui" / "core" / "reconstruction" / n
+              for n in ("stripes.py", "kernels.py")]
     for f in files:
         h.update(f.read_bytes())
     return h.hexdigest()[:16]

@@ -1,5 +1,6 @@
-"""The stripe centre's sub-pixel estimate (``StripeParams.subpixel``): the default ``window``
-refinement is far less locked to the pixel grid than the centre of mass above half maximum.
+"""The stripe centre's sub-pixel estimate (``StripeParams.subpixel``): the ``window`` refinement
+(an option) is far less locked to the pixel grid than the centre of mass above half maximum
+(the default).
 
 A synthetic Gaussian stripe whose exact centre drifts over two whole pixels across the image
 (so every sub-pixel position occurs), rendered like a frame converted from RGB; the error is
@@ -62,3 +63,12 @@ def test_a_brighter_side_does_not_pull_the_window_estimate():
 def test_unknown_subpixel_estimate_is_refused():
     with pytest.raises(InputError, match="sub-pixel"):
         StripeParams(subpixel="gauss").validate()
+
+
+def test_the_processing_parameter_is_checked_and_recorded():
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams
+
+    assert ProcessParams().subpixel == "half-max"  # the default (docs/accuracy.md: why)
+    assert ProcessParams(subpixel="window").to_json()["subpixel"] == "window"
+    with pytest.raises(InputError, match="sub-pixel"):
+        ProcessParams(subpixel="gauss").validate()

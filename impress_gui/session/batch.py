@@ -38,7 +38,8 @@ BATCH_FORMAT = "impress.batch"
 GB_PER_JOB = 2.5
 SUMMARY_FILES = ("summary.csv", "summary.json")
 #: processing parameters a manifest may set (the others keep their defaults)
-PARAM_KEYS = ("method", "frame_start", "frame_stop", "grid_mm", "min_peak", "texture", "fps")
+PARAM_KEYS = ("method", "frame_start", "frame_stop", "grid_mm", "min_peak", "subpixel", "texture",
+              "fps")
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ from impress_gui.core.reconstruction.grid import ColorAccumulator, GridSpec, Hei
 from impress_gui.core.reconstruction.stripes import (
     LASERS,
     METHODS,
+    SUBPIXEL,
     BackgroundLUT,
     StripeDetector,
     StripeParams,
@@ -65,6 +66,9 @@ class ProcessParams:
     # a stripe piece shorter than LONG_RUN_FRACTION of the image width whose mean strength is
     # below this share of the frame's typical stripe strength is dropped (0: keep every piece)
     weak_run_ratio: float = 0.5
+    # the stripe centre's sub-pixel estimate (stripes.SUBPIXEL): "half-max" (the centre of
+    # mass above half maximum) or "window" (stripes.window_refine; docs/accuracy.md)
+    subpixel: str = "half-max"
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -80,6 +84,9 @@ class ProcessParams:
         if (self.frame_start is not None and self.frame_stop is not None
                 and self.frame_stop <= self.frame_start):
             raise InputError("the frame range is empty", code=codes.E_PARAM)
+        if self.subpixel not in SUBPIXEL:
+            raise InputError(f"unknown sub-pixel estimate {self.subpixel!r} (use one of "
+                             f"{', '.join(SUBPIXEL)})", code=codes.E_PARAM)
         if not 0.0 <= self.weak_run_ratio < 1.0:
             raise InputError("the weak-run ratio must be in 0..1 (0 keeps every stripe piece)",
                              code=codes.E_PARAM)
@@ -317,7 +324,8 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
     cal.intrinsics.check_image_size(w, h)
     start, stop = _default_range(video, params)
     rois = dict(params.rois) or laser_rois(cal, (w, h), params.height_range_mm)
-    sp = StripeParams(method=params.method, rois=rois, min_peak=params.min_peak)
+    sp = StripeParams(method=params.method, rois=rois, min_peak=params.min_peak,
+                      subpixel=params.subpixel)
     sp.validate(h)
     # the background tables (the seed's LUT method) are learned from keyframes spread over
     # the range, through the caller's reader, beside everything else; decoding starts at once

@@ -12,9 +12,9 @@ Three methods share one sub-pixel stage:
 
 The peak is decided by colour but located on the sharpest signal, the luma (in 4:2:0 video the
 colour has half the vertical resolution): centre of mass of the background-subtracted luma above
-half of its maximum, in a window around the strongest laser pixel of the column; then (the
-default ``subpixel="window"``) refined by :func:`window_refine`, which is far less locked to
-the pixel grid.
+half of its maximum, in a window around the strongest laser pixel of the column; with
+``subpixel="window"`` then refined by :func:`window_refine`, which is far less locked to the
+pixel grid (not the default: see docs/accuracy.md).
 """
 
 from __future__ import annotations
@@ -55,9 +55,10 @@ class StripeParams:
     # (summed shares over the window's rows; see headroom_lean); inf: never
     min_headroom_lean: float = 0.3
     max_width_px: int = 20
-    # the centre's sub-pixel estimate: "window" (window_refine) or "half-max" (the centre of
-    # mass above half maximum alone, as before 2026-11-25)
-    subpixel: str = "window"
+    # the centre's sub-pixel estimate: "half-max" (the centre of mass above half maximum) or
+    # "window" (refined by window_refine: less locked to the pixel grid, better on most random
+    # rigs, worse on saturated stripes and at walls; docs/accuracy.md)
+    subpixel: str = "half-max"
 
     def validate(self, height: int | None = None) -> None:
         if self.method not in METHODS:

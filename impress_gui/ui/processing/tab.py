@@ -440,7 +440,7 @@ class ProcessingTab(QWidget):
             self.view.set_stripes(None)
             return
         p = self.params.params()
-        sp = StripeParams(method=p.method, rois=rois, min_peak=p.min_peak)
+        sp = StripeParams(method=p.method, rois=rois, min_peak=p.min_peak, subpixel=p.subpixel)
         try:
             sp.validate(self.video.size[1])
         except ImpressError as exc:
