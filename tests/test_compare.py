@@ -469,21 +469,27 @@ def _run(*args: str) -> None:
                    capture_output=True, timeout=RENDER_TIMEOUT_S, cwd=ROOT)
 
 
-def _source_key(args: list[str]) -> str:
+def _source_key(args: list[str], *, calibration: bool = False) -> str:
+    """The cache key of a rendered scan (the simulator's source; the calibration's, whose
+    target and picks the simulator uses) or, ``calibration``, of its calibration (also the
+    stripe detector's source: the calibration finds the stripe with the reconstruction's
+    detector)."""
     h = hashlib.sha256(" ".join([RESOLUTION, SPEED, *args]).encode())
     files = sorted((ROOT / "impress_gui" / "sim").glob("*.py"))
     files += sorted((ROOT / "impress_gui" / "core" / "calibration").glob("*.py"))
-    # the calibration finds the stripe with the reconstruction's detector
-    files += [ROOT / "impress_gui" / "core" / "reconstruction" / n
-              for n in ("stripes.py", "kernels.py")]
+    if calibration:
+        files += [ROOT / "impress_gui" / "core" / "reconstruction" / n
+                  for n in ("stripes.py", "kernels.py")]
     for f in files:
         h.update(f.read_bytes())
     return h.hexdigest()[:16]
 
 
-def rendered_scan(config, factory, name: str) -> Path:
-    """A scan, its calibration, kept in pytest's cache between runs (keyed by the simulator's
-    and the calibration's source)."""
+def rendered_scan(config, factory, name: str) -> tuple[Path, Path]:
+    """``(scan folder, its calibration)``, kept in pytest's cache between runs: the scan keyed
+    by the simulator's and the calibration's source, its calibration also by the stripe
+    detector's (a change to the detector calibrates the cached scan again, without rendering
+    it again)."""
     args = SCANS[name]
     cache = Path(config.cache.mkdir(f"impress-compare-scan-{name}"))
     final = cache / _source_key(args)
@@ -491,8 +497,6 @@ def rendered_scan(config, factory, name: str) -> Path:
         work = factory.mktemp(f"scan-{name}") / "scan"
         _run("simulate", str(work), "--resolution", RESOLUTION, "--speed", SPEED,
              "--workers", str(min(2, os.cpu_count() or 1)), *args)
-        _run("calibrate", str(work / "scan.mp4"), "--intrinsics", str(work / "intrinsics.json"),
-             "--picks", str(work / "picks.json"), "--speed", SPEED, "-o", str(work / "cal.json"))
         (work / "complete").write_text("ok\n")
         for old in cache.iterdir():
             shutil.rmtree(old, ignore_errors=True)
@@ -502,7 +506,18 @@ def rendered_scan(config, factory, name: str) -> Path:
             tmp.rename(final)
         except OSError:
             shutil.rmtree(tmp, ignore_errors=True)
-    return final
+    cal = final / f"cal-{_source_key(args, calibration=True)}.json"
+    if not cal.is_file():
+        tmp_cal = factory.mktemp(f"cal-{name}") / "cal.json"
+        _run("calibrate", str(final / "scan.mp4"), "--intrinsics",
+             str(final / "intrinsics.json"), "--picks", str(final / "picks.json"), "--speed",
+             SPEED, "-o", str(tmp_cal))
+        for old in final.glob("cal-*.json"):
+            old.unlink(missing_ok=True)
+        part = final / f".{cal.name}.{os.getpid()}"
+        shutil.copyfile(tmp_cal, part)
+        os.replace(part, cal)
+    return final, cal
 
 
 @pytest.fixture(scope="module")
@@ -512,9 +527,9 @@ def scans(request, tmp_path_factory):
 
     out = {}
     for name in SCANS:
-        scan = rendered_scan(request.config, tmp_path_factory, name)
+        scan, cal = rendered_scan(request.config, tmp_path_factory, name)
         recon = tmp_path_factory.mktemp(f"recon-{name}") / "recon"
-        process_files(scan / "scan.mp4", scan / "cal.json", recon, ProcessParams(grid_mm=0.2))
+        process_files(scan / "scan.mp4", cal, recon, ProcessParams(grid_mm=0.2))
         out[name] = (scan, recon)
     return out
 
