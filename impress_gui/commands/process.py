@@ -40,11 +40,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weak-run-ratio", type=float, default=0.5,
                    help="drop short stripe pieces weaker than this share of the frame's stripe "
                    "(0 keeps every piece; default 0.5)")
-    p.add_argument("--subpixel", choices=("half-max", "window"), default="half-max",
-                   help="the stripe centre's sub-pixel estimate: 'half-max' (default: the "
-                   "centre of mass above half maximum) or 'window' (refined in a window: far "
-                   "less locked to the pixel grid, better on most rigs, worse on saturated "
-                   "stripes and at walls; see docs/accuracy.md)")
+    p.add_argument("--subpixel", choices=("half-max", "window"), default="window",
+                   help="the stripe centre's sub-pixel estimate: 'window' (default: the centre "
+                   "of mass above half maximum refined in a window, far less locked to the "
+                   "pixel grid) or 'half-max' (that first centre; see docs/accuracy.md)")
     p.add_argument("--no-texture", action="store_true", help="skip the texture")
     p.add_argument("--fps", type=float, default=None, help="override the frame rate")
 

@@ -30,7 +30,7 @@ from impress_gui.core.calibration.target import TargetModel, _inside_convex
 # 0.49-1.0 where they calibrate; the presets 0.86-0.98)
 BLOOM_SWITCH = 0.25
 #: how a laser's stripe rows on the target are estimated (see observe_stripes)
-ROWS_CENTRE = "centre of mass above half maximum"
+ROWS_CENTRE = "centre of mass in a window"  # the detector's default (stripes.window_refine)
 ROWS_MIDPOINT = "midpoint of the half-maximum crossings"
 ROWS_BLOOMING = "blooming fallback (centre of mass)"
 #: the ground beside the target (its base plane) whose stripe points join each plane's fit:
@@ -183,6 +183,14 @@ def points_on_ground(rays: np.ndarray, pose, target: TargetModel, travel_mm: flo
     return hit[keep]
 
 
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of two 3-vectors, the same products and differences without its
+    overhead (the same values bit for bit)."""
+    a0, a1, a2 = a.tolist()
+    b0, b1, b2 = b.tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
 def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: float):
     """Intersect ideal-frame rays with the target's top faces (seen from a frame whose camera
     travelled ``travel_mm``): 3D points in the camera-fixed ideal frame and face heights, for
@@ -197,7 +205,7 @@ def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: floa
     best_h = np.full(len(rays), np.nan)
     best_in = np.zeros(len(rays), bool)
     for height, poly_in, poly in _face_polygons(pose, target):
-        n = np.cross(poly[1] - poly[0], poly[2] - poly[0])
+        n = _cross3(poly[1] - poly[0], poly[2] - poly[0])
         n /= np.linalg.norm(n)
         p0 = poly[0] - np.array([0.0, travel_mm, 0.0])
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -205,7 +213,7 @@ def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: floa
         hit = rays * t[:, None] + np.array([0.0, travel_mm, 0.0])  # rail frame
         e1 = poly[1] - poly[0]
         e1 /= np.linalg.norm(e1)
-        e2 = np.cross(n, e1)
+        e2 = _cross3(n, e1)
         hq = hit - poly[0]
         u, v = hq @ e1, hq @ e2
 

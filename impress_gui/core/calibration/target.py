@@ -49,7 +49,13 @@ class TargetModel:
         return np.array([self.corners_mm[c] for c in CORNER_NAMES])
 
     def top_faces(self) -> tuple[Face, ...]:
-        return tuple(f for f in self.faces if f.is_horizontal and f.normal[2] > 0)
+        # computed once per model (the calibration's tilt refinement asks thousands of times)
+        try:
+            return self.__dict__["_top_faces"]
+        except KeyError:
+            top = tuple(f for f in self.faces if f.is_horizontal and f.normal[2] > 0)
+            object.__setattr__(self, "_top_faces", top)
+            return top
 
     def size_mm(self) -> float:
         """RMS distance of the corners from their centroid (the scale the fit compares)."""

@@ -25,6 +25,11 @@ from impress_gui.core.reconstruction.jit import kernel as _kernel
 REFINE_FLOOR = 0.1  # luma above this share of the peak counts
 REFINE_WIDTH = 0.9  # the window's half width: this many times the rows above half maximum
 REFINE_MIN_HALF = 1.5  # rows: the narrowest half width
+REFINE_MAX_HALF = 3.5  # rows: the widest (a broad profile's skirts, light beside the stripe,
+# would otherwise pull the centre; measured against the renderer's exact centres) ...
+REFINE_MAX_HALF_CLIPPED = 3.0  # ... and where the profile is clipped: at least
+REFINE_PLATEAU_ROWS = 3  # rows within REFINE_PLATEAU of its maximum (a saturated core)
+REFINE_PLATEAU = 0.96
 REFINE_ITERATIONS = 4
 
 HSV_SHIFT = 12
@@ -106,10 +111,14 @@ def _window_refine(rr, sig, n, top, centre):
     (fractional end weights), iterated; ``centre`` unchanged where that window would leave the
     samples."""
     wc = 0
+    plateau = 0
     for j in range(n):
         if sig[j] > 0.5 * top:
             wc += 1
-    hw = max(REFINE_MIN_HALF, REFINE_WIDTH * wc)
+        if sig[j] >= REFINE_PLATEAU * top:
+            plateau += 1
+    cap = REFINE_MAX_HALF_CLIPPED if plateau >= REFINE_PLATEAU_ROWS else REFINE_MAX_HALF
+    hw = min(cap, max(REFINE_MIN_HALF, REFINE_WIDTH * wc))
     c = centre
     for _ in range(REFINE_ITERATIONS):
         if c - hw < rr[0] or c + hw > rr[n - 1]:
@@ -164,7 +173,8 @@ def _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch):
 
 
 @_kernel(
-    "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), Tuple((int64[:], int64)), "
+    "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), "
+    "Tuple((int64[:], int64, int64[:], int64)), "
     "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64)), "
     "Tuple((boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64)), "
     "UniTuple(int64[:], 2), Tuple((float64[:], float32[:])))"
@@ -175,7 +185,9 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     kernel, and as little as separate arguments to call with):
 
     * ``frame = (y, cb, cr, chroma_step)``: the frame's planes (:class:`video.Planes`);
-    * ``band = (band_start, band_height)``: rows searched in each column;
+    * ``band = (band_start, band_height, other_start, other_height)``: rows searched in each
+      column, and the rows where the other laser's stripe can lie (a halo leaning to the
+      other laser's colour refuses a peak only there);
     * ``laser = (sign, ch, o1, o2)``: +1 red / -1 green (the chroma lean), the laser's RGB
       channel and the other two;
     * ``peak = (min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine)``: the peak
@@ -187,7 +199,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     * ``hsv = (sdiv, hdiv)``: :func:`hsv_tables`;
     * ``out = (rows, strength)``: the result per column (NaN / 0 where no stripe)."""
     y, cb, cr, s = frame
-    band_start, band_height = band
+    band_start, band_height, other_start, other_height = band
     sign, ch, o1, o2 = laser
     min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine = peak
     use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut, lut_margin = colour
@@ -279,7 +291,10 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
             if sig[j] > 0.2 * top and sig[j] < 0.65 * top:
                 lean += sign * (float(cr[rr[j] >> sh, cc]) - bg)
                 nh += 1
-        if lean / max(nh, 1) <= -max_wrong_lean:
+        # only where the other laser's stripe can lie (its band, widened by the half window)
+        ob0 = other_start[c]
+        if lean / max(nh, 1) <= -max_wrong_lean and peak + k >= ob0 \
+                and peak - k < ob0 + other_height:
             # a stripe saturating its own channel on a surface of its colour: the headroom
             # shares decide (stripes.headroom_lean)
             if not _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch) >= min_headroom_lean:

@@ -66,9 +66,9 @@ class ProcessParams:
     # a stripe piece shorter than LONG_RUN_FRACTION of the image width whose mean strength is
     # below this share of the frame's typical stripe strength is dropped (0: keep every piece)
     weak_run_ratio: float = 0.5
-    # the stripe centre's sub-pixel estimate (stripes.SUBPIXEL): "half-max" (the centre of
-    # mass above half maximum) or "window" (stripes.window_refine; docs/accuracy.md)
-    subpixel: str = "half-max"
+    # the stripe centre's sub-pixel estimate (stripes.SUBPIXEL): "window" (the centre of mass
+    # above half maximum refined by stripes.window_refine; docs/accuracy.md) or "half-max"
+    subpixel: str = "window"
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -475,7 +475,10 @@ def _process(run: _Run) -> Reconstruction:
                            if tex is not None else None)
     try:
         lut = run.lut_job.result() if run.lut_job is not None else None
-        detect = {n: StripeDetector(n, tab.bands[n][0], tab.bands[n][1], run.stripe_params, lut)
+        # each laser's detector knows where the other's stripe can lie: light leaning to the
+        # other laser's colour is refused only there
+        detect = {n: StripeDetector(n, tab.bands[n][0], tab.bands[n][1], run.stripe_params, lut,
+                                    other=tab.bands[next(m for m in LASERS if m != n)])
                   for n in LASERS}
         report(run.progress, 0.03, "background learned")
         tally = _frame_loop(run, tab, kern, acc, detect, finisher)

@@ -12,9 +12,9 @@ Three methods share one sub-pixel stage:
 
 The peak is decided by colour but located on the sharpest signal, the luma (in 4:2:0 video the
 colour has half the vertical resolution): centre of mass of the background-subtracted luma above
-half of its maximum, in a window around the strongest laser pixel of the column; with
-``subpixel="window"`` then refined by :func:`window_refine`, which is far less locked to the
-pixel grid (not the default: see docs/accuracy.md).
+half of its maximum, in a window around the strongest laser pixel of the column; then (the
+default ``subpixel="window"``) refined by :func:`window_refine`, which is far less locked to the
+pixel grid (docs/accuracy.md; ``subpixel="half-max"`` keeps the first centre).
 """
 
 from __future__ import annotations
@@ -55,10 +55,10 @@ class StripeParams:
     # (summed shares over the window's rows; see headroom_lean); inf: never
     min_headroom_lean: float = 0.3
     max_width_px: int = 20
-    # the centre's sub-pixel estimate: "half-max" (the centre of mass above half maximum) or
-    # "window" (refined by window_refine: less locked to the pixel grid, better on most random
-    # rigs, worse on saturated stripes and at walls; docs/accuracy.md)
-    subpixel: str = "half-max"
+    # the centre's sub-pixel estimate: "window" (the centre of mass above half maximum refined
+    # by window_refine: less locked to the pixel grid; docs/accuracy.md) or "half-max" (that
+    # first centre)
+    subpixel: str = "window"
 
     def validate(self, height: int | None = None) -> None:
         if self.method not in METHODS:
@@ -133,12 +133,30 @@ def _hue_ok(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
     return m & (s >= params.min_saturation) & (v >= params.min_value)
 
 
+Band = tuple[np.ndarray, int]  # (first row per column, rows)
+
+
 def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height: int,
-                  params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
+                  params: StripeParams, lut: BackgroundLUT | None,
+                  other: Band | None = None) -> StripeResult:
     """Detect one laser's stripe; column ``c`` is searched in rows
-    ``band_start[c] .. band_start[c] + band_height``. The compiled kernel
+    ``band_start[c] .. band_start[c] + band_height``. ``other``: the other laser's band (where
+    its stripe can lie, from the calibration and the height range): a peak whose halo leans to
+    the other laser's colour is refused only within it (widened by the half window); without
+    it, everywhere. The compiled kernel
     (:func:`impress_gui.core.reconstruction.kernels.detect_stripe`) of :func:`detect_planes_numpy`."""
-    return StripeDetector(name, band_start, band_height, params, lut)(planes).copy()
+    return StripeDetector(name, band_start, band_height, params, lut, other)(planes).copy()
+
+
+def _other_band(other: Band | None, w: int) -> tuple[np.ndarray, int]:
+    """The other laser's band per column; every row (``-2**40`` on, ``2**41`` rows) when unknown."""
+    if other is None:
+        return np.full(w, -(1 << 40), np.int64), 1 << 41
+    start, height = other
+    if len(start) != w:
+        raise InputError(f"the other laser's band has {len(start)} columns, the frame {w}",
+                         code=codes.E_SIZE_MISMATCH)
+    return np.ascontiguousarray(start, dtype=np.int64), int(height)
 
 
 class StripeDetector:
@@ -146,7 +164,8 @@ class StripeDetector:
     prepared once, and each call's result is in arrays the next call overwrites."""
 
     def __init__(self, name: str, band_start: np.ndarray, band_height: int,
-                 params: StripeParams, lut: BackgroundLUT | None) -> None:
+                 params: StripeParams, lut: BackgroundLUT | None,
+                 other: Band | None = None) -> None:
         from impress_gui.core.reconstruction.compiled import kernels
 
         method = params.method
@@ -162,7 +181,8 @@ class StripeDetector:
         self.result = StripeResult(np.empty(w, np.float64), np.empty(w, np.float32))
         self._kernel = kernels().detect_stripe
         self._args = (
-            (np.ascontiguousarray(band_start, dtype=np.int64), int(band_height)),
+            (np.ascontiguousarray(band_start, dtype=np.int64), int(band_height),
+             *_other_band(other, w)),
             (1 if name == "red" else -1, _CH[name], o1, o2),
             (float(params.min_peak), int(params.half_window_px), int(params.max_width_px),
              float(params.max_wrong_lean), float(params.min_headroom_lean),
@@ -194,7 +214,8 @@ def _hsv_tables():
 
 
 def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_height: int,
-                        params: StripeParams, lut: BackgroundLUT | None) -> StripeResult:
+                        params: StripeParams, lut: BackgroundLUT | None,
+                        other: Band | None = None) -> StripeResult:
     """The readable numpy reference of :func:`detect_planes` (the tests check they agree).
 
     1. candidate: per column the brightest pixel of luma biased towards the laser's chroma;
@@ -270,7 +291,9 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
     # red stripe on orange soil): it can only add the other channels there, which shifts the
     # chroma away from its colour. Then the share of each channel's headroom the stripe used
     # decides (:func:`headroom_lean`): its own channel's share must exceed the other laser's.
-    wrong = lean <= -params.max_wrong_lean
+    # ... and only where the other laser's stripe can lie (its band, widened by the window)
+    o_start, o_height = _other_band(other, w)
+    wrong = (lean <= -params.max_wrong_lean) & (peak + k >= o_start) & (peak - k < o_start + o_height)
     if wrong.any():
         hl = headroom_lean(name, planes.rgb(rr[:, wrong], cols[None, wrong]))
         wrong[wrong] = hl < params.min_headroom_lean
@@ -299,7 +322,8 @@ def window_refine(rr: np.ndarray, sig: np.ndarray, top: np.ndarray,
     """The stripe's centre refined per column (``rr``, ``sig``: ``(2k+1, W)`` rows and luma
     above the window's minimum; ``top`` its maximum; ``centre`` the centre of mass above half
     maximum): the centre of mass of the luma above a floor, weighted by a window of fixed half
-    width (0.9 x the rows above half maximum, at least 1.5) centred on the estimate, with
+    width (0.9 x the rows above half maximum, at least 1.5, at most 3.5, or 3 where the profile
+    is clipped: three rows within 4 % of its maximum) centred on the estimate, with
     fractional weights at its ends, iterated 4 times. The floor is a tenth of the maximum, or
     the row just outside that window on either side where it is brighter (a brighter surface
     beside the stripe would otherwise pull the centre towards it). Measured against the
@@ -314,7 +338,9 @@ def window_refine(rr: np.ndarray, sig: np.ndarray, top: np.ndarray,
     sig = sig.astype(np.float64)
     rr = rr.astype(np.float64)
     wc = (sig > 0.5 * top).sum(axis=0)
-    hw = np.maximum(kn.REFINE_MIN_HALF, kn.REFINE_WIDTH * wc)
+    clipped = (sig >= kn.REFINE_PLATEAU * top).sum(axis=0) >= kn.REFINE_PLATEAU_ROWS
+    cap = np.where(clipped, kn.REFINE_MAX_HALF_CLIPPED, kn.REFINE_MAX_HALF)
+    hw = np.minimum(cap, np.maximum(kn.REFINE_MIN_HALF, kn.REFINE_WIDTH * wc))
     c = centre.astype(np.float64)
     keep = ~np.isfinite(c)
     n = sig.shape[0]
