@@ -2,7 +2,9 @@
 
 Three scans of the same shoe (the sole's nicks from one seed), each with its own pose, rig and
 render seed, rendered, calibrated from the simulator's exact picks and reconstructed on the
-0.1 mm grid (cached under benchmarks/.cache per version of the simulator and resolution):
+0.1 mm grid (cached under benchmarks/.cache per version of the simulator and resolution;
+remove a scan's ``recon`` folder to calibrate and process the kept render again, after a change
+to the calibration or the reconstruction):
 
 - A: the shoe as the preset places it (roll 1.2, tilt -1.8, standoff 300, seed 1);
 - B: turned 20 deg and shifted (12, -8) mm (roll -0.5, tilt 1.0, standoff 320, seed 2);
@@ -18,7 +20,7 @@ The difference is measured along A's surface normal (``impress compare``'s defau
 also split by A's slope (flats: |grad A| < 0.2; walls: |grad A| > 1).
 
 Usage: .venv/bin/python benchmarks/bench_compare.py [--resolution 1920x1080] [--speed 13.138]
-       [--metric normal|vertical]
+       [--metric normal|vertical] [--cache-key KEY]
 """
 
 from __future__ import annotations
@@ -53,15 +55,17 @@ def impress(*args: str) -> str:
     return res.stdout
 
 
-def scan_and_recon(name: str, resolution: str, speed: str) -> tuple[Path, Path]:
+def scan_and_recon(name: str, resolution: str, speed: str,
+                   sim_key: str = SIM_KEY) -> tuple[Path, Path]:
     key = hashlib.sha256(" ".join([resolution, speed, *SCANS[name]]).encode()).hexdigest()[:8]
-    folder = CACHE / f"compare-{name}-{resolution}-{SIM_KEY}-{key}"
+    folder = CACHE / f"compare-{name}-{resolution}-{sim_key}-{key}"
     scan, recon = folder / "scan", folder / "recon"
     if not (recon / "metadata.json").exists():
         t0 = time.perf_counter()
-        print(f"[rendering {name} at {resolution}]", flush=True)
-        impress("simulate", str(scan), "--resolution", resolution, "--speed", speed,
-                *SCANS[name])
+        if not (scan / "truth.json").exists():  # a kept render is only processed again
+            print(f"[rendering {name} at {resolution}]", flush=True)
+            impress("simulate", str(scan), "--resolution", resolution, "--speed", speed,
+                    *SCANS[name])
         impress("calibrate", str(scan / "scan.mp4"), "--intrinsics",
                 str(scan / "intrinsics.json"), "--picks", str(scan / "picks.json"), "--speed",
                 speed, "-o", str(folder / "cal.json"))
@@ -127,8 +131,10 @@ def main() -> None:
     ap.add_argument("--resolution", default="1920x1080")
     ap.add_argument("--speed", default="13.138")
     ap.add_argument("--metric", default="normal", choices=("normal", "vertical"))
+    ap.add_argument("--cache-key", default=SIM_KEY,
+                    help="the simulator key of cached renders to use (default: this simulator's)")
     args = ap.parse_args()
-    runs = {n: scan_and_recon(n, args.resolution, args.speed) for n in SCANS}
+    runs = {n: scan_and_recon(n, args.resolution, args.speed, args.cache_key) for n in SCANS}
     work = CACHE / f"compare-out-{args.resolution}" / args.metric
     work.mkdir(parents=True, exist_ok=True)
     (scan_a, rec_a), (_, rec_b), (_, rec_c) = runs["a"], runs["b"], runs["c"]
