@@ -6,6 +6,7 @@ y along the scan, z up from the target's base (the ground it stands on).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,13 +50,12 @@ class TargetModel:
         return np.array([self.corners_mm[c] for c in CORNER_NAMES])
 
     def top_faces(self) -> tuple[Face, ...]:
+        return self._top_faces
+
+    @functools.cached_property
+    def _top_faces(self) -> tuple[Face, ...]:
         # computed once per model (the calibration's tilt refinement asks thousands of times)
-        try:
-            return self.__dict__["_top_faces"]
-        except KeyError:
-            top = tuple(f for f in self.faces if f.is_horizontal and f.normal[2] > 0)
-            object.__setattr__(self, "_top_faces", top)
-            return top
+        return tuple(f for f in self.faces if f.is_horizontal and f.normal[2] > 0)
 
     def size_mm(self) -> float:
         """RMS distance of the corners from their centroid (the scale the fit compares)."""
