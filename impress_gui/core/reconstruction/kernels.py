@@ -186,12 +186,14 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
 
     * ``frame = (y, cb, cr, chroma_step)``: the frame's planes (:class:`video.Planes`);
     * ``band = (band_start, band_height, other_start, other_height)``: rows searched in each
-      column, and the rows where the other laser's stripe can lie (a halo leaning to the
-      other laser's colour refuses a peak only there);
+      column, and the rows where the other laser's stripe can lie (the lean test refuses a
+      peak only there);
     * ``laser = (sign, ch, o1, o2)``: +1 red / -1 green (the chroma lean), the laser's RGB
       channel and the other two;
     * ``peak = (min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine)``: the peak
-      tests (``k``: the half window) and whether the centre is refined
+      tests (``k``: the half window; a halo whose lean to this laser's colour is at most
+      ``-max_wrong_lean`` is refused in the other band unless the headroom test keeps it:
+      ``stripes._wrong_lean``) and whether the centre is refined
       (``stripes.SUBPIXEL``: 1 ``window``, 0 ``half-max``);
     * ``colour = (use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut,
       lut_margin)``: the method's colour tests; ``lut`` is a (64, 64) table or an empty

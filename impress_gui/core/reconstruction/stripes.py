@@ -54,6 +54,10 @@ class StripeParams:
     # ... unless the stripe used more of its own channel's headroom than of the other laser's
     # (summed shares over the window's rows; see headroom_lean); inf: never
     min_headroom_lean: float = 0.3
+    # inside the other laser's band, when it is known (the reconstruction), a halo must lean
+    # to this laser's colour by more than this (chroma units), else the headroom test decides:
+    # the other laser's stripe blooming white there leans to neither colour (issue 18, rig 1)
+    min_lean_in_other_band: float = 0.0
     max_width_px: int = 20
     # the centre's sub-pixel estimate: "window" (the centre of mass above half maximum refined
     # by window_refine: less locked to the pixel grid; docs/accuracy.md) or "half-max" (that
@@ -142,8 +146,9 @@ def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height
     """Detect one laser's stripe; column ``c`` is searched in rows
     ``band_start[c] .. band_start[c] + band_height``. ``other``: the other laser's band (where
     its stripe can lie, from the calibration and the height range): a peak whose halo leans to
-    the other laser's colour is refused only within it (widened by the half window); without
-    it, everywhere. The compiled kernel
+    the other laser's colour is refused only within it (widened by the half window), and there
+    a halo must lean to this laser's colour (``StripeParams.min_lean_in_other_band``) unless
+    the headroom test keeps it; without it, a lean to the other colour is refused everywhere. The compiled kernel
     (:func:`impress_gui.core.reconstruction.kernels.detect_stripe`) of :func:`detect_planes_numpy`."""
     return StripeDetector(name, band_start, band_height, params, lut, other)(planes).copy()
 
@@ -157,6 +162,16 @@ def _other_band(other: Band | None, w: int) -> tuple[np.ndarray, int]:
         raise InputError(f"the other laser's band has {len(start)} columns, the frame {w}",
                          code=codes.E_SIZE_MISMATCH)
     return np.ascontiguousarray(start, dtype=np.int64), int(height)
+
+
+def _wrong_lean(params: StripeParams, other: Band | None) -> float:
+    """The lean to the other laser's colour (chroma units, negated) at or beyond which a peak
+    in the other laser's band is refused unless the headroom test keeps it: ``max_wrong_lean``
+    without a known band (the test then applies everywhere), ``-min_lean_in_other_band`` with
+    one (a halo that does not lean to this laser's colour is not enough there)."""
+    if other is None:
+        return float(params.max_wrong_lean)
+    return -float(params.min_lean_in_other_band)
 
 
 class StripeDetector:
@@ -185,7 +200,7 @@ class StripeDetector:
              *_other_band(other, w)),
             (1 if name == "red" else -1, _CH[name], o1, o2),
             (float(params.min_peak), int(params.half_window_px), int(params.max_width_px),
-             float(params.max_wrong_lean), float(params.min_headroom_lean),
+             _wrong_lean(params, other), float(params.min_headroom_lean),
              int(params.subpixel == "window")),
             (method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
              np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
@@ -291,9 +306,11 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
     # red stripe on orange soil): it can only add the other channels there, which shifts the
     # chroma away from its colour. Then the share of each channel's headroom the stripe used
     # decides (:func:`headroom_lean`): its own channel's share must exceed the other laser's.
-    # ... and only where the other laser's stripe can lie (its band, widened by the window)
+    # ... and only where the other laser's stripe can lie (its band, widened by the window);
+    # with that band known, a halo there must lean to this laser's colour (_wrong_lean)
     o_start, o_height = _other_band(other, w)
-    wrong = (lean <= -params.max_wrong_lean) & (peak + k >= o_start) & (peak - k < o_start + o_height)
+    wrong = (lean <= -_wrong_lean(params, other)) & (peak + k >= o_start) \
+        & (peak - k < o_start + o_height)
     if wrong.any():
         hl = headroom_lean(name, planes.rgb(rr[:, wrong], cols[None, wrong]))
         wrong[wrong] = hl < params.min_headroom_lean
