@@ -139,9 +139,8 @@ def test_a_bold_wrapped_reading_gets_the_height_its_bold_lines_need(qtbot):
     scroll.show()
     qtbot.waitExposed(scroll)
     lab = tools.step_text
-    text = ("A 32.067 ± 0.017 mm (n 35), B 25.688 ± 0.033 mm (n 51)\nStep B - A: -6.380 ± "
-            "0.037 mm\nStep uncertainty U (k=2): ± 0.018 mm (u_c 0.009 mm; ± above: the "
-            "bands' SD)")
+    text = ("A 32.067 mm (SD 0.017, n 35), B 25.688 mm (SD 0.033, n 51)\nStep B - A: -6.380 "
+            "mm (SD 0.037)\nStep uncertainty U (k=2): ± 0.018 mm (u_c 0.009 mm)")
     lab.setStyleSheet("font-weight: bold")
     lab.setText(text)
     qtbot.wait(50)

@@ -75,6 +75,13 @@ def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calib
         assert m and float(m.group(1)) == pytest.approx(v.ruler.step_budget.U_mm, abs=1e-3)
         assert "calibration" in v.tools.step_text.toolTip()
         assert "k=2" in v.profile_plot.plotItem.titleLabel.text
+        # the exported profile figure (and the report's) states U, not the bands' SD, as the
+        # step's and the ruler's uncertainty
+        lines, _ = v.actions.profile_lines()
+        step_line = next(x for x in lines if x.startswith("Band A"))
+        assert f"± {v.ruler.step_budget.U_mm:.3f} mm (U, k = 2)" in step_line
+        ruler_line = next(x for x in lines if x.startswith("Ruler xy"))
+        assert f"{budgets['xy'].U_mm:.3f} mm" in ruler_line
         # the measurement list: value with ± U, the budget in the tooltip and one click away
         rec = v.add_ruler_measurement("across")
         assert rec["values"]["U_k2_xy_mm"] == pytest.approx(budgets["xy"].U_mm, abs=1e-4)

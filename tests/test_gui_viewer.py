@@ -130,7 +130,7 @@ def test_ruler_across_the_slot_reads_its_width_and_depth(qtbot, viewer, slot):
     s = v.step
     assert -s.difference_mm == pytest.approx(slot["depth"], abs=0.1)
     assert s.a.sd_mm < 0.1 and s.b.sd_mm < 0.1
-    assert f"{s.difference_mm:+.3f} ± {s.sd_mm:.3f} mm" in v.tools.step_text.text()
+    assert f"{s.difference_mm:+.3f} mm (SD {s.sd_mm:.3f})" in v.tools.step_text.text()
     assert v.profile_plot.labels["A"].isVisible() and v.map.band_lines["B"].xData is not None
     # the left wall's foot is in view: the profile's edge lies where the ruler says (0.2 mm:
     # the 10 mm wide average spans the reconstructed wall's wobble along y; see test_measure

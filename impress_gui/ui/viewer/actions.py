@@ -341,13 +341,13 @@ class ViewerExports(QObject):
             }
         return self.provenance(export, params)
 
-    def profile_maker(self):
-        """A function ``() -> RGB figure`` of the ruler's profile (title, case and evidence,
-        the reconstruction, the ruler's ends and width, axes in mm, the placed bands and their
-        step), everything captured here on the GUI thread; None without a profile."""
+    def profile_lines(self) -> tuple[list[str], dict]:
+        """The profile figure's text lines (case, reconstruction, ruler; the ruler's readings and
+        the bands' step with their expanded uncertainty U, k = 2, when a budget exists) and the
+        placed bands; ([], {}) without a profile."""
         pr, ruler = self.ruler.profile, self.ruler
         if pr is None:
-            return None
+            return [], {}
         proj, data = self.session.project, self.recon.data
         levelled = self.recon.plane is not None
         folder = "-" if data is None or data.folder is None else str(data.folder)
@@ -361,16 +361,38 @@ class ViewerExports(QObject):
             f"{pr.end[1]:.2f}) mm, {pr.length_mm:.2f} mm long, averaged over "
             f"{pr.width_mm:.2f} mm",
         ]
+        budgets = ruler.budgets()
+
+        def pm(key: str) -> str:
+            b = budgets.get(key)
+            return "" if b is None or not np.isfinite(b.U_mm) else f" ± {b.U_mm:.3f}"
+
+        r = ruler.result()
+        if r is not None and budgets:
+            dz = "no data" if np.isnan(r.dz_mm) else f"{r.dz_mm:+.3f}{pm('dz')} mm"
+            lines.append(f"Ruler xy {r.xy_mm:.3f}{pm('xy')} mm, dz {dz} (± U, k = 2)")
         bands = dict(ruler.plot.placed_bands()) if ruler.plot.bands_placed() else {}
-        means = {}
         s = ruler.step
         if bands and s is not None:
-            means = {"A": s.a.mean_mm, "B": s.b.mean_mm}
+            unc = (f"{pm('step')} mm (U, k = 2)" if "step" in budgets else " mm")
             lines.append(
-                f"Band A {s.a.mean_mm:.3f} +- {s.a.sd_mm:.3f} mm (n {s.a.n}), band B "
-                f"{s.b.mean_mm:.3f} +- {s.b.sd_mm:.3f} mm (n {s.b.n}); step B - A "
-                f"{s.difference_mm:+.3f} +- {s.sd_mm:.3f} mm"
+                f"Band A {s.a.mean_mm:.3f} mm (SD {s.a.sd_mm:.3f}, n {s.a.n}), band B "
+                f"{s.b.mean_mm:.3f} mm (SD {s.b.sd_mm:.3f}, n {s.b.n}); step B - A "
+                f"{s.difference_mm:+.3f}{unc}"
             )
+        return lines, bands
+
+    def profile_maker(self):
+        """A function ``() -> RGB figure`` of the ruler's profile (title, case and evidence,
+        the reconstruction, the ruler's ends and width, axes in mm, the placed bands and their
+        step with U: :meth:`profile_lines`), everything captured here on the GUI thread; None
+        without a profile."""
+        pr, ruler = self.ruler.profile, self.ruler
+        if pr is None:
+            return None
+        lines, bands = self.profile_lines()
+        s = ruler.step
+        means = {"A": s.a.mean_mm, "B": s.b.mean_mm} if bands and s is not None else {}
         d, z = np.array(pr.distance_mm), np.array(pr.height_mm)
         return lambda: profile_figure(
             d, z, title="Depth profile along the ruler", lines=lines, bands=bands,

@@ -401,7 +401,8 @@ def summary(m: dict) -> str:
         text = (f"xy {_mm(v.get('xy_mm'))}{_u(v, 'U_k2_xy_mm')}, 3D {_mm(v.get('d3_mm'))}"
                 f"{_u(v, 'U_k2_3d_mm')}, dz {_mm(v.get('dz_mm'))}{_u(v, 'U_k2_dz_mm')}")
         if "step_mm" in v:
-            text += f"; step {_mm(v.get('step_mm'))} ± {_mm(v.get('step_sd_mm'))}"
+            sd = v.get("step_sd_mm")
+            text += f"; step {_mm(v.get('step_mm'))}" + ("" if sd is None else f" (SD {sd:.3f})")
             text += "" if v.get("U_k2_step_mm") is None else \
                 f" (U {v['U_k2_step_mm']:.3f} mm)"
         if any(k.startswith("U_k2") for k in v):

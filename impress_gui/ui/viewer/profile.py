@@ -151,7 +151,7 @@ class ProfilePlot(pg.PlotWidget):
         return {name: tuple(float(v) for v in r.getRegion()) for name, r in self.regions.items()}
 
     def show_step(self, step: StepHeight | None, budget=None) -> None:
-        """The bands' means (± their SD) on the plot; with the step's uncertainty ``budget``
+        """The bands' means (and their SD) on the plot; with the step's uncertainty ``budget``
         the plot's title states the step ± U (k = 2) and its tooltip the budget."""
         if step is None or budget is None or not math.isfinite(step.difference_mm):
             self.setTitle(None)
@@ -167,7 +167,7 @@ class ProfilePlot(pg.PlotWidget):
                 label.hide()
                 line.hide()
                 continue
-            label.setText(f"{name}: {stats.mean_mm:.3f} ± {stats.sd_mm:.3f} mm")
+            label.setText(f"{name}: {stats.mean_mm:.3f} mm (SD {stats.sd_mm:.3f})")
             label.setPos((stats.start_mm + stats.end_mm) / 2, stats.mean_mm)
             label.show()
             line.setValue(stats.mean_mm)

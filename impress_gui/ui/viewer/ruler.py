@@ -185,11 +185,12 @@ class RulerProfile(QObject):
         self.tools.step_text.setStyleSheet("font-weight: bold")
         unc = ("" if self.step_budget is None else
                f"\nStep uncertainty U (k=2): {_pm_mm(self.step_budget.U_mm)} "
-               f"(u_c {self.step_budget.u_c_mm:.3f} mm; ± above: the bands' SD)")
+               f"(u_c {self.step_budget.u_c_mm:.3f} mm)")
+        # the bands' SD is the spread of the surface in them, not an uncertainty: never "±"
         self.tools.step_text.setText(
-            f"A {s.a.mean_mm:.3f} ± {s.a.sd_mm:.3f} mm (n {s.a.n}), B {s.b.mean_mm:.3f} ± "
-            f"{s.b.sd_mm:.3f} mm (n {s.b.n})\nStep B - A: {s.difference_mm:+.3f} ± "
-            f"{s.sd_mm:.3f} mm" + unc
+            f"A {s.a.mean_mm:.3f} mm (SD {s.a.sd_mm:.3f}, n {s.a.n}), B {s.b.mean_mm:.3f} mm "
+            f"(SD {s.b.sd_mm:.3f}, n {s.b.n})\nStep B - A: {s.difference_mm:+.3f} mm "
+            f"(SD {s.sd_mm:.3f})" + unc
         )
         self.tools.step_text.setToolTip("" if self.step_budget is None
                                         else self.step_budget.text())
