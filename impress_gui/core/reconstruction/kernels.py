@@ -19,6 +19,9 @@ import numpy as np
 from impress_gui.core.reconstruction.jit import helper as _jit
 from impress_gui.core.reconstruction.jit import kernel as _kernel
 
+# a second candidate's score is compared with the scores this many rows off (even: the first
+# pass reads every second row); ``stripes`` reads it from here
+RIDGE_STEP = 6
 # the sub-pixel refinement of the stripe's centre (``_window_refine``; numba freezes these at
 # compile time, and its cache is keyed on this file: they live here, the numpy reference in
 # ``stripes`` reads them from this module)
@@ -172,10 +175,145 @@ def _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch):
     return total
 
 
+@_jit
+def _second_candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, first, gap):
+    """The first pass's candidate of column ``c`` again (the best luma biased towards the
+    laser's chroma at every second row from ``r0``, first of equal maxima) among the rows of
+    its band more than ``gap`` rows from ``first``; -1 when there is none."""
+    cc = c >> sh
+    lo = max(r0, b0 + ((b0 - r0) & 1))
+    hi = min(r1, b0 + band_height)
+    best = -(1 << 30)
+    row = -1
+    for r in range(lo, hi, 2):
+        if abs(r - first) <= gap:
+            continue
+        v = int(y[r, c]) + sign * (int(cr[r >> sh, cc]) - 128)
+        if v > best:
+            best = v
+            row = r
+    return row
+
+
+@_jit
+def _ridge_candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, first, gap, step):
+    """The row of column ``c``'s band (every second row from ``r0``) whose score (luma biased
+    towards the laser's chroma, as in the first pass) rises most above the higher of the
+    scores ``step`` rows above and below it (one side where the other is outside the band):
+    a stripe, not a bright surface, which can outscore a stripe on darker ground. Rows within
+    ``gap`` of ``first`` are skipped; first of equal maxima; -1 when there is none."""
+    cc = c >> sh
+    lo = max(r0, b0 + ((b0 - r0) & 1))
+    hi = min(r1, b0 + band_height)
+    best = -(1 << 30)
+    row = -1
+    for r in range(lo, hi, 2):
+        if abs(r - first) <= gap:
+            continue
+        m = -(1 << 30)
+        if r - step >= lo:
+            m = int(y[r - step, c]) + sign * (int(cr[(r - step) >> sh, cc]) - 128)
+        if r + step < hi:
+            m = max(m, int(y[r + step, c]) + sign * (int(cr[(r + step) >> sh, cc]) - 128))
+        if m == -(1 << 30):
+            continue
+        v = int(y[r, c]) + sign * (int(cr[r >> sh, cc]) - 128) - m
+        if v > best:
+            best = v
+            row = r
+    return row
+
+
+@_jit
+def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, sig, strict):
+    """Steps 2-4 of :func:`detect_stripe` for column ``c`` at candidate row ``coarse``:
+    ``(row, strength, why)`` - the refined centre (NaN when a test refuses the peak), its
+    strength, and why it was refused: 0 kept, or refused by colour outside the other laser's
+    band; 1 refused in that band; 2 not a peak (too weak, at the band's edge, an edge, too
+    wide). ``strict``: the lean test of the other laser's band applies everywhere."""
+    _, band_height, other_start, other_height = band
+    sign, ch, o1, o2 = laser
+    min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, _ = peak
+    use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut, lut_margin = colour
+    sdiv, hdiv = hsv
+    h = y.shape[0]
+    n = 2 * k + 1
+    cc = c >> sh
+    use_lut = lut.shape[0] > 0
+    # fine: the brightest luma row within +-2 rows
+    pk = -1
+    bestv = -1
+    for o in range(-2, 3):
+        r = min(max(coarse + o, 0), h - 1)
+        if int(y[r, c]) > bestv:
+            bestv = int(y[r, c])
+            pk = r
+    # 2. centre of mass of the luma above half maximum, in a window re-centred once
+    top, wsum, centre = _window(y, c, pk, k, rr, sig)
+    if not math.isnan(centre) and int(np.rint(centre)) != pk:  # else: the same window
+        pk = int(np.rint(centre))
+        top, wsum, centre = _window(y, c, pk, k, rr, sig)
+    ob0 = other_start[c]
+    inside = strict or (pk + k >= ob0 and pk - k < ob0 + other_height)
+    pi = pk - b0
+    if not (top >= min_peak and wsum > 0 and pi >= k and pi < band_height - k):
+        return np.nan, top, 2  # too weak (or at the band's edge)
+    if not (sig[0] < 0.7 * top and sig[n - 1] < 0.7 * top):
+        return np.nan, top, 2  # an edge, not a peak
+    if n > max_width:  # else the window cannot hold a stripe wider than max_width
+        width = 0
+        for j in range(n):
+            if sig[j] > 0.5 * top:
+                width += 1
+        if width > max_width:
+            return np.nan, top, 2
+    # 3. the halo leans to this laser's colour (judged against the window's ends)
+    bg = 0.5 * (float(cr[rr[0] >> sh, cc]) + float(cr[rr[n - 1] >> sh, cc]))
+    lean = 0.0
+    nh = 0
+    for j in range(n):
+        if sig[j] > 0.2 * top and sig[j] < 0.65 * top:
+            lean += sign * (float(cr[rr[j] >> sh, cc]) - bg)
+            nh += 1
+    # only where the other laser's stripe can lie (its band, widened by the half window)
+    if lean / max(nh, 1) <= -max_wrong_lean and inside:
+        # a stripe saturating its own channel on a surface of its colour: the headroom
+        # shares decide (stripes.headroom_lean)
+        if not _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch) >= min_headroom_lean:
+            return np.nan, top, 1
+    # 4. the method's colour test on the central rows
+    ok = False
+    for j in range(k - 3, k + 4):
+        r = rr[j]
+        rgb = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+        rf = rgb[ch]
+        of = max(rgb[o1], rgb[o2])
+        # the three tests are alternatives: the cheapest first
+        if use_tint and rf - of >= min_tint and rf >= min_value:
+            ok = True
+            break
+        if use_hue:
+            hh, ss, vv = _hsv8(int(rgb[0]), int(rgb[1]), int(rgb[2]), sdiv, hdiv)
+            if ss >= min_sat and vv >= min_value:
+                for q in range(hue_lo.shape[0]):
+                    if hue_lo[q] <= hh <= hue_hi[q]:
+                        ok = True
+        if use_lut:
+            q0 = int(min(max(rgb[o1] + 0.5, 0.0), 255.0)) >> 2
+            q1 = int(min(max(rgb[o2] + 0.5, 0.0), 255.0)) >> 2
+            if int(min(max(rf + 0.5, 0.0), 255.0)) > lut[q0, q1] + lut_margin:
+                ok = True
+        if ok:
+            break
+    if not ok:
+        return np.nan, top, 1 if inside else 0
+    return (_window_refine(rr, sig, n, top, centre) if refine else centre), top, 0
+
+
 @_kernel(
     "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), "
     "Tuple((int64[:], int64, int64[:], int64)), "
-    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64)), "
+    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64, boolean)), "
     "Tuple((boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64)), "
     "UniTuple(int64[:], 2), Tuple((float64[:], float32[:])))"
 )
@@ -190,22 +328,22 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
       peak only there);
     * ``laser = (sign, ch, o1, o2)``: +1 red / -1 green (the chroma lean), the laser's RGB
       channel and the other two;
-    * ``peak = (min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine)``: the peak
-      tests (``k``: the half window; a halo whose lean to this laser's colour is at most
-      ``-max_wrong_lean`` is refused in the other band unless the headroom test keeps it:
-      ``stripes._wrong_lean``) and whether the centre is refined
-      (``stripes.SUBPIXEL``: 1 ``window``, 0 ``half-max``);
+    * ``peak = (min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, retry)``:
+      the peak tests (``k``: the half window; a halo whose lean to this laser's colour is at
+      most ``-max_wrong_lean`` is refused in the other band unless the headroom test keeps
+      it: ``stripes._wrong_lean``), whether the centre is refined (``stripes.SUBPIXEL``: 1
+      ``window``, 0 ``half-max``) and whether a column whose candidate was refused in the
+      other laser's band gets a second candidate (only when that band is known);
     * ``colour = (use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut,
       lut_margin)``: the method's colour tests; ``lut`` is a (64, 64) table or an empty
       (0, 0) array;
     * ``hsv = (sdiv, hdiv)``: :func:`hsv_tables`;
     * ``out = (rows, strength)``: the result per column (NaN / 0 where no stripe)."""
     y, cb, cr, s = frame
-    band_start, band_height, other_start, other_height = band
-    sign, ch, o1, o2 = laser
-    min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine = peak
-    use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut, lut_margin = colour
-    sdiv, hdiv = hsv
+    band_start, band_height = band[0], band[1]
+    sign = laser[0]
+    k = peak[1]
+    retry = peak[6]
     rows_out, strength_out = out
     h, w = y.shape
     sh = 1 if s == 2 else 0  # chroma subsampling as a shift (4:2:0 or full resolution)
@@ -215,7 +353,6 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     n = 2 * k + 1
     rr = np.empty(n, np.int64)
     sig = np.empty(n, np.float64)
-    use_lut = lut.shape[0] > 0
     # 1. candidate: per column the brightest luma biased towards the laser's chroma, at every
     # second row of the column's band (row-major: memory is read in order)
     # the score and (4095 - the row's index) packed in one integer: a plain running maximum,
@@ -255,78 +392,29 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     for c in range(w):
         rows_out[c] = np.nan
         strength_out[c] = 0.0
-        b0 = band_start[c]
-        cc = c >> sh
         if (best[c] >> 12) <= -1000:
             continue  # no row of the column's band was searched
         coarse = r0 + 2 * (4095 - (best[c] & 4095))
-        # fine: the brightest luma row within +-2 rows
-        peak = -1
-        bestv = -1
-        for o in range(-2, 3):
-            r = min(max(coarse + o, 0), h - 1)
-            if int(y[r, c]) > bestv:
-                bestv = int(y[r, c])
-                peak = r
-        # 2. centre of mass of the luma above half maximum, in a window re-centred once
-        top, wsum, centre = _window(y, c, peak, k, rr, sig)
-        if not math.isnan(centre) and int(np.rint(centre)) != peak:  # else: the same window
-            peak = int(np.rint(centre))
-            top, wsum, centre = _window(y, c, peak, k, rr, sig)
-        pi = peak - b0
-        if not (top >= min_peak and wsum > 0 and pi >= k and pi < band_height - k):
-            continue
-        if not (sig[0] < 0.7 * top and sig[n - 1] < 0.7 * top):
-            continue  # an edge, not a peak
-        if n > max_width:  # else the window cannot hold a stripe wider than max_width
-            width = 0
-            for j in range(n):
-                if sig[j] > 0.5 * top:
-                    width += 1
-            if width > max_width:
-                continue
-        # 3. the halo leans to this laser's colour (judged against the window's ends)
-        bg = 0.5 * (float(cr[rr[0] >> sh, cc]) + float(cr[rr[n - 1] >> sh, cc]))
-        lean = 0.0
-        nh = 0
-        for j in range(n):
-            if sig[j] > 0.2 * top and sig[j] < 0.65 * top:
-                lean += sign * (float(cr[rr[j] >> sh, cc]) - bg)
-                nh += 1
-        # only where the other laser's stripe can lie (its band, widened by the half window)
-        ob0 = other_start[c]
-        if lean / max(nh, 1) <= -max_wrong_lean and peak + k >= ob0 \
-                and peak - k < ob0 + other_height:
-            # a stripe saturating its own channel on a surface of its colour: the headroom
-            # shares decide (stripes.headroom_lean)
-            if not _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch) >= min_headroom_lean:
-                continue
-        # 4. the method's colour test on the central rows
-        colour = False
-        for j in range(k - 3, k + 4):
-            r = rr[j]
-            rgb = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
-            rf = rgb[ch]
-            of = max(rgb[o1], rgb[o2])
-            # the three tests are alternatives: the cheapest first
-            if use_tint and rf - of >= min_tint and rf >= min_value:
-                colour = True
-                break
-            if use_hue:
-                hh, ss, vv = _hsv8(int(rgb[0]), int(rgb[1]), int(rgb[2]), sdiv, hdiv)
-                if ss >= min_sat and vv >= min_value:
-                    for q in range(hue_lo.shape[0]):
-                        if hue_lo[q] <= hh <= hue_hi[q]:
-                            colour = True
-            if use_lut:
-                q0 = int(min(max(rgb[o1] + 0.5, 0.0), 255.0)) >> 2
-                q1 = int(min(max(rgb[o2] + 0.5, 0.0), 255.0)) >> 2
-                if int(min(max(rf + 0.5, 0.0), 255.0)) > lut[q0, q1] + lut_margin:
-                    colour = True
-            if colour:
-                break
-        if colour:
-            rows_out[c] = _window_refine(rr, sig, n, top, centre) if refine else centre
+        row, top, why = _peak_at(y, cb, cr, sh, c, coarse, band_start[c], band, laser, peak,
+                                 colour, hsv, rr, sig, False)
+        if math.isnan(row) and why and retry:
+            if why == 1:
+                # refused where the other laser's stripe can lie: that stripe, brighter, can
+                # hide this laser's in the column; the best candidate of the band away from it
+                # (more than 2k rows) is tested the same way
+                second = _second_candidate(y, cr, sh, c, band_start[c], band_height, r0, r1,
+                                           sign, coarse, 2 * k)
+            else:
+                # not a peak: a bright surface (a light target face) can outscore the stripe
+                # on darker ground; the row rising most above its surroundings is tested,
+                # its halo required to lean to this laser's colour everywhere
+                second = _ridge_candidate(y, cr, sh, c, band_start[c], band_height, r0, r1,
+                                          sign, coarse, k, RIDGE_STEP)
+            if second >= 0:
+                row, top, why = _peak_at(y, cb, cr, sh, c, second, band_start[c], band, laser,
+                                         peak, colour, hsv, rr, sig, why == 2)
+        if not math.isnan(row):
+            rows_out[c] = row
             strength_out[c] = top
 
 

@@ -58,6 +58,14 @@ class StripeParams:
     # to this laser's colour by more than this (chroma units), else the headroom test decides:
     # the other laser's stripe blooming white there leans to neither colour (issue 18, rig 1)
     min_lean_in_other_band: float = 0.0
+    # with the other laser's band known (the reconstruction), a column whose candidate (the
+    # brightest light leaning to this laser's chroma) was refused gets a second one: where it
+    # lay in that band, the best more than two half windows away (the other stripe, brighter,
+    # can hide this one: issue 18, rig 1, 38-46 % of the red stripe's columns at one end of the
+    # image); where it was no peak (a light target face outscoring the stripe on dark ground:
+    # rig 6), the row rising most above the scores RIDGE_STEP rows off, whose halo must then
+    # lean to this laser's colour wherever it lies
+    second_candidate: bool = True
     max_width_px: int = 20
     # the centre's sub-pixel estimate: "window" (the centre of mass above half maximum refined
     # by window_refine: less locked to the pixel grid; docs/accuracy.md) or "half-max" (that
@@ -201,7 +209,7 @@ class StripeDetector:
             (1 if name == "red" else -1, _CH[name], o1, o2),
             (float(params.min_peak), int(params.half_window_px), int(params.max_width_px),
              _wrong_lean(params, other), float(params.min_headroom_lean),
-             int(params.subpixel == "window")),
+             int(params.subpixel == "window"), bool(params.second_candidate and other is not None)),
             (method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
              np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
              int(params.min_value), method == "combined", float(params.min_tint), table,
@@ -236,7 +244,9 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
     1. candidate: per column the brightest pixel of luma biased towards the laser's chroma;
     2. the method's colour test (hue, background table, tint) on the pixels around it;
     3. centre of mass of the background-subtracted luma above half maximum, with checks that
-       it is a peak (not an edge) leaning to this laser's colour."""
+       it is a peak (not an edge) leaning to this laser's colour;
+    4. with the other laser's band known, a refused candidate gets a second one
+       (``StripeParams.second_candidate``)."""
     method = params.method
     if method == "lut" and lut is None:
         raise InputError("the lookup-table method needs a learned background", code=codes.E_PARAM)
@@ -265,71 +275,114 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
     nr = yb.shape[0]
     packed = score.astype(np.int32) * 4096 + (4095 - np.arange(nr, dtype=np.int32))[:, None]
     coarse = r0 + 2 * (4095 - (packed.max(axis=0) & 4095))
-    # fine: the brightest luma row within +-2 rows of the coarse candidate
-    fine_offs = np.arange(-2, 3)
-    fr = np.clip(coarse[None, :] + fine_offs[:, None], 0, h - 1)
-    peak = fr[planes.y[fr, cols[None, :]].argmax(axis=0), cols]
-    peak_i = peak - band_start
-    sign = 1 if name == "red" else -1
-    k = params.half_window_px
-    offs = np.arange(-k, k + 1)
+    searched = (packed.max(axis=0) >> 12) > -1000  # else no row of the column's band
 
-    def window(centre_rows):
-        rr = np.clip(centre_rows[None, :] + offs[:, None], 0, h - 1)  # (2k+1, W) image rows
-        win = planes.y[rr, cols[None, :]].astype(np.float32)
-        sig = win - win.min(axis=0)
-        top = sig.max(axis=0)
-        above = np.clip(sig - 0.5 * top, 0, None)
-        wsum = above.sum(axis=0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            centre = (above * rr).sum(axis=0) / wsum
-        return rr, sig, top, wsum, centre
+    def attempt(coarse, strict=False):
+        """Steps 2-4 at the candidate rows ``coarse``: (kept, centre, strength, why) - why a
+        column was refused: 0 not (or by colour outside the other laser's band), 1 in that
+        band, 2 not a peak (too weak, at the band's edge, an edge, too wide). ``strict`` (per
+        column): the lean test of the other laser's band applies everywhere."""
+        # fine: the brightest luma row within +-2 rows of the coarse candidate
+        fine_offs = np.arange(-2, 3)
+        fr = np.clip(coarse[None, :] + fine_offs[:, None], 0, h - 1)
+        peak = fr[planes.y[fr, cols[None, :]].argmax(axis=0), cols]
+        peak_i = peak - band_start
+        sign = 1 if name == "red" else -1
+        k = params.half_window_px
+        offs = np.arange(-k, k + 1)
 
-    # the brightest row may sit at one edge of a saturated core: centre the window on the
-    # first estimate and measure again
-    rr, sig, top, wsum, centre = window(peak)
-    peak = np.where(np.isfinite(centre), np.rint(np.nan_to_num(centre)), peak).astype(np.int64)
-    rr, sig, top, wsum, centre = window(peak)
-    peak_i = peak - band_start
-    width = (sig > 0.5 * top).sum(axis=0)
-    ok = (top >= params.min_peak) & (wsum > 0) & (width <= params.max_width_px)
-    ok &= (peak_i >= k) & (peak_i < band_height - k)
-    ok &= (sig[0] < 0.7 * top) & (sig[-1] < 0.7 * top)
-    # which laser: the stripe's halo (not its white core) shifts the chroma of the surface it
-    # falls on towards this laser's colour - judged against the background at the window's
-    # ends, so red or green soil does not decide it; the other laser's stripe is refused
-    crw = planes.cr[rr // s, (cols // s)[None, :]].astype(np.float32)
-    cr_bg = 0.5 * (crw[0] + crw[-1])
-    halo = (sig > 0.2 * top) & (sig < 0.65 * top)
-    lean = (sign * (crw - cr_bg) * halo).sum(axis=0) / np.maximum(halo.sum(axis=0), 1)
-    # ... except when the stripe saturates its own channel on a surface of its own colour (a
-    # red stripe on orange soil): it can only add the other channels there, which shifts the
-    # chroma away from its colour. Then the share of each channel's headroom the stripe used
-    # decides (:func:`headroom_lean`): its own channel's share must exceed the other laser's.
-    # ... and only where the other laser's stripe can lie (its band, widened by the window);
-    # with that band known, a halo there must lean to this laser's colour (_wrong_lean)
+        def window(centre_rows):
+            rr = np.clip(centre_rows[None, :] + offs[:, None], 0, h - 1)  # (2k+1, W) image rows
+            win = planes.y[rr, cols[None, :]].astype(np.float32)
+            sig = win - win.min(axis=0)
+            top = sig.max(axis=0)
+            above = np.clip(sig - 0.5 * top, 0, None)
+            wsum = above.sum(axis=0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                centre = (above * rr).sum(axis=0) / wsum
+            return rr, sig, top, wsum, centre
+
+        # the brightest row may sit at one edge of a saturated core: centre the window on the
+        # first estimate and measure again
+        rr, sig, top, wsum, centre = window(peak)
+        peak = np.where(np.isfinite(centre), np.rint(np.nan_to_num(centre)), peak).astype(np.int64)
+        rr, sig, top, wsum, centre = window(peak)
+        peak_i = peak - band_start
+        width = (sig > 0.5 * top).sum(axis=0)
+        ok = (top >= params.min_peak) & (wsum > 0) & (peak_i >= k) & (peak_i < band_height - k)
+        ok &= width <= params.max_width_px
+        ok &= (sig[0] < 0.7 * top) & (sig[-1] < 0.7 * top)
+        peakish = ok.copy()
+        # which laser: the stripe's halo (not its white core) shifts the chroma of the surface it
+        # falls on towards this laser's colour - judged against the background at the window's
+        # ends, so red or green soil does not decide it; the other laser's stripe is refused
+        crw = planes.cr[rr // s, (cols // s)[None, :]].astype(np.float32)
+        cr_bg = 0.5 * (crw[0] + crw[-1])
+        halo = (sig > 0.2 * top) & (sig < 0.65 * top)
+        lean = (sign * (crw - cr_bg) * halo).sum(axis=0) / np.maximum(halo.sum(axis=0), 1)
+        # ... except when the stripe saturates its own channel on a surface of its own colour (a
+        # red stripe on orange soil): it can only add the other channels there, which shifts the
+        # chroma away from its colour. Then the share of each channel's headroom the stripe used
+        # decides (:func:`headroom_lean`): its own channel's share must exceed the other laser's.
+        # ... and only where the other laser's stripe can lie (its band, widened by the window);
+        # with that band known, a halo there must lean to this laser's colour (_wrong_lean)
+        inside = (peak + k >= o_start) & (peak - k < o_start + o_height) | strict
+        wrong = (lean <= -_wrong_lean(params, other)) & inside
+        if wrong.any():
+            hl = headroom_lean(name, planes.rgb(rr[:, wrong], cols[None, wrong]))
+            wrong[wrong] = hl < params.min_headroom_lean
+        ok &= ~wrong  # only a clear lean to the other colour refuses
+        # the method's colour test on the central rows (a white core sits between coloured halo)
+        core = slice(k - 3, k + 4)
+        rgb = planes.rgb(rr[core], cols[None, :])  # (7, W, 3)
+        colour = np.zeros(rgb.shape[:2], bool)
+        if method in ("hue", "combined"):
+            colour |= _hue_ok(name, rgb, params)
+        if method == "combined":
+            c, (o1, o2) = _CH[name], _OTHERS[name]
+            colour |= ((rgb[..., c] - np.maximum(rgb[..., o1], rgb[..., o2]) >= params.min_tint)
+                       & (rgb[..., c] >= params.min_value))
+        if method in ("lut", "combined") and lut is not None:
+            colour |= lut.mask(name, np.clip(rgb + 0.5, 0, 255).astype(np.uint8), params.lut_margin)
+        ok &= colour.any(axis=0)
+        if params.subpixel == "window":
+            centre = window_refine(rr, sig, top, centre)
+        why = np.where(~peakish, 2, np.where(wrong | (~ok & inside), 1, 0))
+        return ok, centre, top, np.where(ok, 0, why)
+
     o_start, o_height = _other_band(other, w)
-    wrong = (lean <= -_wrong_lean(params, other)) & (peak + k >= o_start) \
-        & (peak - k < o_start + o_height)
-    if wrong.any():
-        hl = headroom_lean(name, planes.rgb(rr[:, wrong], cols[None, wrong]))
-        wrong[wrong] = hl < params.min_headroom_lean
-    ok &= ~wrong  # only a clear lean to the other colour refuses
-    # the method's colour test on the central rows (a white core sits between coloured halo)
-    core = slice(k - 3, k + 4)
-    rgb = planes.rgb(rr[core], cols[None, :])  # (7, W, 3)
-    colour = np.zeros(rgb.shape[:2], bool)
-    if method in ("hue", "combined"):
-        colour |= _hue_ok(name, rgb, params)
-    if method == "combined":
-        c, (o1, o2) = _CH[name], _OTHERS[name]
-        colour |= ((rgb[..., c] - np.maximum(rgb[..., o1], rgb[..., o2]) >= params.min_tint)
-                   & (rgb[..., c] >= params.min_value))
-    if method in ("lut", "combined") and lut is not None:
-        colour |= lut.mask(name, np.clip(rgb + 0.5, 0, 255).astype(np.uint8), params.lut_margin)
-    ok &= colour.any(axis=0)
-    if params.subpixel == "window":
-        centre = window_refine(rr, sig, top, centre)
+    ok, centre, top, why = attempt(coarse)
+    why = np.where(searched, why, 0)
+    if params.second_candidate and other is not None and why.any():
+        none = np.iinfo(np.int32).min
+        tags = (4095 - np.arange(nr, dtype=np.int32))[:, None]
+        k = params.half_window_px
+        # refused where the other laser's stripe can lie: that stripe, brighter, can hide
+        # this laser's in the column; the best candidate of the band away from it (more than
+        # 2k rows) is tested the same way
+        far = np.abs(rows_c[:, None] - coarse[None, :]) > 2 * k
+        best1 = np.where(far & (score > -1000), packed, none).max(axis=0)
+        # not a peak: a bright surface can outscore the stripe on darker ground; the row
+        # rising most above the higher of the scores RIDGE_STEP rows off (one side at the
+        # band's ends) is tested, its halo required to lean to this laser's colour everywhere
+        from impress_gui.core.reconstruction.compiled import kernels
+
+        q = kernels().RIDGE_STEP // 2
+        sc = score.astype(np.int32)
+        up = np.full_like(sc, -1000)
+        dn = np.full_like(sc, -1000)
+        up[q:] = sc[:-q]
+        dn[:-q] = sc[q:]
+        m = np.maximum(up, dn)
+        near = np.abs(rows_c[:, None] - coarse[None, :]) > k
+        ridge = np.where(near & (sc > -1000) & (m > -1000), (sc - m) * 4096 + tags, none)
+        best2 = ridge.max(axis=0)
+        cand = np.where(why == 1, best1, np.where(why == 2, best2, none))
+        has2 = cand > none
+        coarse2 = np.where(has2, r0 + 2 * (4095 - (cand & 4095)), coarse)
+        ok2, centre2, top2, _ = attempt(coarse2, why == 2)
+        take = has2 & ok2
+        ok, centre, top = ok | take, np.where(take, centre2, centre), np.where(take, top2, top)
     out_rows = np.where(ok, centre, np.nan)
     return StripeResult(out_rows, np.where(ok, top, 0).astype(np.float32))
 
