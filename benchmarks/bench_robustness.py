@@ -111,7 +111,8 @@ def measure(seed: int, w: int, h: int, with_fill: bool, draws: int, noise_px: fl
         with open_video(d / truth["video"]) as v:
             rec = reconstruct(v, cal, ProcessParams())
         row.update(R.height_figures(d, cal, rec, with_fill))
-        t = truth_for_reconstruction(d, rec.spec, rec.height_mm, cal.reference_depth)
+        t = truth_for_reconstruction(d, rec.spec, rec.height_mm, cal.reference_depth,
+                                     cal.rotation)
         row["edge_mm"] = edge_error_mm(rec.height_mm, t, rec.spec.pixel_mm)
         row["warnings"] = list(cal.warnings) + list(rec.warnings)
         worst = float("nan")

@@ -233,7 +233,7 @@ def test_random_rig_calibrates_from_exact_picks_and_reconstructs(tmp_path):
     assert cal.reprojection_rms_px <= E2E_MAX_REPROJECTION_PX
     assert abs(cal.roll_deg - truth["roll_deg"]) < 0.01
     h = rec.height_mm
-    t = truth_for_reconstruction(out, rec.spec, h, cal.reference_depth)
+    t = truth_for_reconstruction(out, rec.spec, h, cal.reference_depth, cal.rotation)
     from scipy.ndimage import maximum_filter, minimum_filter
 
     t0 = np.nan_to_num(t)

@@ -4,8 +4,11 @@ From the six L-target corners marked in frames t1 and t2 this recovers the motio
 (least-squares vanishing point of all six corner tracks, valid at infinity), roll and tilt, the
 metric corners by motion parallax, a rigid fit of the target model (per-corner residuals, and
 the speed implied by the target's known size), then refines everything by minimising the
-reprojection error of all twelve picks. Each laser plane is fitted to every stripe pixel that
-falls on a known target face, in several frames around its calibration frame.
+reprojection error of all twelve picks. The frame is then turned about the motion axis until
+the target's base is level across the scan (the camera's turn about the motion axis, which the
+motion does not reveal; :func:`~impress_gui.core.calibration.solve.level_across`). Each laser
+plane is fitted to every stripe pixel that falls on a known target face, in several frames
+around its calibration frame.
 
 This module holds :class:`SceneCalibration` (and its file format) and the entry point
 :func:`calibrate_scene`; the geometric solvers are in :mod:`~impress_gui.core.calibration.solve`, the
@@ -29,6 +32,7 @@ from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.planes import LaserPlaneFit, observe_stripes, refine_tilt
 from impress_gui.core.calibration.solve import (
     SPEED_WARN_FRACTION,
+    level_across,
     project_points,
     solve_pose,
     vanishing_point,
@@ -60,7 +64,7 @@ class SceneCalibration:
     vanishing_point_px: np.ndarray  # homogeneous, undistorted pixels; [x, y, 0] at infinity
     roll_deg: float
     tilt_deg: float
-    rotation: np.ndarray  # camera -> ideal
+    rotation: np.ndarray  # camera -> levelled ideal frame (R_y(cross) R_x(tilt) R_z(roll))
     corners_parallax_mm: np.ndarray  # (6, 3) rail frame, by motion parallax with the entered speed
     corner_residuals_mm: np.ndarray  # (6,) after the rigid fit of the target model
     target_rotation: np.ndarray  # object -> rail
@@ -70,6 +74,10 @@ class SceneCalibration:
     planes: dict[str, LaserPlaneFit]
     warnings: tuple[str, ...] = ()
     inputs: dict = field(default_factory=dict)
+    #: the turn (deg) about the motion axis Y that levelled the target's base across the scan
+    #: (:func:`~impress_gui.core.calibration.solve.level_across`; informational: ``rotation``
+    #: includes it; 0 in files written before the levelling, whose frame is the unlevelled one)
+    cross_tilt_deg: float = 0.0
 
     # ----- derived -------------------------------------------------------------------------
     def corners_fit_mm(self, target: TargetModel) -> np.ndarray:
@@ -107,13 +115,15 @@ class SceneCalibration:
             "t1": self.t1,
             "t2": self.t2,
             "t_ref_s": self.t_ref_s,
-            "frames": "rail frame: axes of the ideal frame (camera rotated so the motion is +Y), "
-                      "origin at the optical centre at frame t1; Z' = depth; planes are in the "
-                      "camera-fixed ideal frame",
+            "frames": "rail frame: axes of the ideal frame (camera rotated so the motion is +Y, "
+                      "then turned about Y by cross_tilt_deg so the target's base is level "
+                      "across the scan), origin at the optical centre at frame t1; Z' = depth; "
+                      "planes are in the camera-fixed ideal frame",
             "motion_direction_camera": self.motion_dir_cam.tolist(),
             "vanishing_point_px": self.vanishing_point_px.tolist(),
             "roll_deg": self.roll_deg,
             "tilt_deg": self.tilt_deg,
+            "cross_tilt_deg": self.cross_tilt_deg,
             "rotation_camera_to_ideal": self.rotation.tolist(),
             "corners_parallax_mm": {c: self.corners_parallax_mm[i].tolist()
                                     for i, c in enumerate(CORNER_NAMES)},
@@ -167,6 +177,8 @@ class SceneCalibration:
                         "the implied speed (mm/s)", where)
             check_range(require(doc, "reprojection_rms_px", float, where), (0.0, 1e4),
                         "the reprojection RMS (px)", where)
+            check_range(doc.get("cross_tilt_deg", 0.0), (-90.0, 90.0),
+                        "the turn about the motion axis (deg)", where)
             return cls(
                 intrinsics=intr, speed_mm_s=speed, fps=fps,
                 t1=int(require(doc, "t1", int, where)), t2=int(require(doc, "t2", int, where)),
@@ -185,6 +197,7 @@ class SceneCalibration:
                 reprojection_rms_px=float(require(doc, "reprojection_rms_px", float, where)),
                 planes=planes, warnings=tuple(str(w) for w in doc.get("warnings", [])),
                 inputs=dict(doc.get("inputs", {})),
+                cross_tilt_deg=float(doc.get("cross_tilt_deg", 0.0)),
             )
         except (TypeError, ValueError, AttributeError, OverflowError, KeyError, IndexError):
             raise FormatError(f"{where}damaged calibration (a field has the wrong kind of "
@@ -292,6 +305,7 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
     pose = solve_pose(intrinsics, target, picks, speed_mm_s, dt)
     implied, warnings = pose.implied_speed_mm_s, list(pose.warnings)
     if plane_method == "three-point":
+        pose = level_across(pose)
         report(progress, 0.5, "laser planes from the three stripe points")
         # the travel the target's pose was fitted with: the entered speed once confirmed
         v_pose = (speed_mm_s if abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s
@@ -312,7 +326,9 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
         if refine_with_stripes:
             pose = refine_tilt(obs, planes0, intrinsics, target, picks, pose, speed_mm_s, dt,
                                click_sigma_px)
-        # the final planes: the faces' points and the ground's beside the target
+        # the frame levelled across the scan (the turn about the motion axis), then the final
+        # planes in it: the faces' points and the ground's beside the target
+        pose = level_across(pose)
         planes0 = obs.fit_planes(pose.rotation,
                                  (pose.target_rotation, pose.target_translation_mm),
                                  with_ground=True)
@@ -335,6 +351,7 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
         target_translation_mm=pose.target_translation_mm, implied_speed_mm_s=float(implied),
         reprojection_rms_px=pose.reprojection_rms_px, planes=planes,
         warnings=tuple(warnings), inputs=dict(inputs or {}),
+        cross_tilt_deg=float(np.degrees(pose.cross_tilt_rad)),
     )
 
 

@@ -5,7 +5,7 @@ roll, tilt, target pose and travel by the reprojection error of all twelve picks
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -132,6 +132,8 @@ class PoseSolution:
     warnings: tuple[str, ...]
     initial_roll_rad: float
     initial_tilt_rad: float
+    #: the turn about the motion axis Y of :func:`level_across` (0 until it is applied)
+    cross_tilt_rad: float = 0.0
 
 
 def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_mm_s: float,
@@ -200,6 +202,41 @@ def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_
 
     return PoseSolution(m_b, roll_b, tilt_b, rot_b, corners_entered, residuals, r_o, t_o,
                         float(implied), rms_px, tuple(warnings), roll, tilt)
+
+
+def rot_y(angle_rad: float) -> np.ndarray:
+    """Rotation about the Y (motion) axis: X towards Z for a positive angle (the simulator's
+    convention for its cross tilt)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+
+
+def cross_level_angle(target_rotation: np.ndarray) -> float:
+    """The angle (rad) of the turn :func:`rot_y` about the motion axis that levels the target's
+    base across the scan: its 'up' ``u`` (object +Z in the rail frame, towards the camera)
+    turned to ``(0, u_y, u_z')`` (``c u_x - s u_z = 0``)."""
+    u = np.asarray(target_rotation, float) @ np.array([0.0, 0.0, 1.0])
+    return float(np.arctan(u[0] / u[2]))
+
+
+def level_across(pose: PoseSolution) -> PoseSolution:
+    """The pose in the levelled frame: the ideal frame turned about the motion axis Y until the
+    target's base (the height reference) is level across the scan.
+
+    The motion reveals roll and tilt (it is +Y), not the camera's turn about the motion
+    axis itself: left in the ideal frame, that turn tilts the base plane across the map and
+    every height is read vertically against a sloping plane (x 1/cos of the turn; 0.35 % at
+    4.8 deg), widths across the scan shrink by cos and walls lean. A turn about Y keeps the
+    motion on +Y and the origin (the optical centre at t1), so the camera rotation, the target
+    pose and the corners are simply re-expressed (a laser plane ``n . X = d`` fitted in this
+    frame has the normal turned and the same offset). Idempotent."""
+    theta = cross_level_angle(pose.target_rotation)
+    m = rot_y(theta)
+    return replace(pose, rotation=m @ pose.rotation,
+                   corners_parallax_mm=np.asarray(pose.corners_parallax_mm, float) @ m.T,
+                   target_rotation=m @ pose.target_rotation,
+                   target_translation_mm=m @ pose.target_translation_mm,
+                   cross_tilt_rad=float(pose.cross_tilt_rad + theta))
 
 
 def ideal_pair(intr: Intrinsics, rot: np.ndarray, n1: np.ndarray, n2: np.ndarray

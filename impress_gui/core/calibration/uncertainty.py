@@ -11,7 +11,9 @@ counts and frames, the reprojection RMS of the picks - and the target model:
    the pose again with the product's own solver (:func:`~impress_gui.core.calibration.solve.solve_pose`:
    vanishing point, parallax, rigid fit, bundle refinement), then, when the calibration's
    planes were fitted to the stripes, the tilt refinement by the stripes on the rebuilt
-   stripes of step 3 (:func:`_trial`). Ten real recalibrations of random rig 0 with 0.5 px of
+   stripes of step 3, and levels its frame across the scan as the calibration does
+   (:func:`~impress_gui.core.calibration.solve.level_across`: each trial in its own levelled
+   frame, its planes fitted there) (:func:`_trial`). Ten real recalibrations of random rig 0 with 0.5 px of
    click noise scatter an absolute height by 1.5 mm (SD; 4.8 mm 100 mm further along the scan)
    where the trials of three of them say 1.0 (3.5) mm: the spread is real, not over-stated;
 3. each laser's stripe on the target is rebuilt from the recorded plane: in each recorded frame
@@ -48,7 +50,7 @@ import numpy as np
 from impress_gui.core.base.errors import CalibrationError, InputError
 from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.planes import StripeObservations, refine_tilt
-from impress_gui.core.calibration.solve import SPEED_WARN_FRACTION, solve_pose
+from impress_gui.core.calibration.solve import SPEED_WARN_FRACTION, level_across, solve_pose
 from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
 
 #: the smallest click noise assumed (px): a stated default, used when the residuals say less
@@ -265,11 +267,13 @@ def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, ref
     rms = {la: float(cal.planes[la].rms_mm) for la in LASERS} if sigma_px > 0 else None
     obs = _observations(cal, target, segs, rng, rms)
     pose = solve_pose(cal.intrinsics, target, picks, cal.speed_mm_s, dt)
-    fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
     if refine:
+        fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
         pose = refine_tilt(obs, fits, cal.intrinsics, target, picks, pose, cal.speed_mm_s, dt,
                            max(sigma_px, 0.05))
-        fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
+    # each trial in its own levelled frame, as the calibration (scene.calibrate_scene)
+    pose = level_across(pose)
+    fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
     planes = {}
     for la in LASERS:
         pl = fits[la][0].plane.oriented_like(cal.planes[la].plane)
