@@ -24,7 +24,7 @@ def fake_calibration():
     plane = SimpleNamespace(rms_mm=0.041, n_points=18234, frames=list(range(40)),
                             heights_mm=[0.0, 10.0, 20.0, 30.0, 40.0])
     return SimpleNamespace(
-        roll_deg=0.412, tilt_deg=-31.207, vanishing_point_px=np.array([912.3, -4410.2, 1.0]),
+        roll_deg=0.412, tilt_deg=-31.207, cross_tilt_deg=2.541, vanishing_point_px=np.array([912.3, -4410.2, 1.0]),
         reprojection_rms_px=0.388, speed_mm_s=2.0, implied_speed_mm_s=2.0093,
         planes={"green": plane, "red": SimpleNamespace(**{**vars(plane), "rms_mm": 0.262})},
         corner_residuals_mm=[0.05, 0.12, 0.61, 0.08, 0.02, 0.1],
@@ -57,9 +57,11 @@ def test_the_calibration_result_fits_1080_lines_without_scrolling(qtbot, tmp_pat
         tab = w.calibration_tab
         w.tabs.setCurrentWidget(tab)
         res = tab.results
-        res.show_calibration(fake_calibration())
+        cal = fake_calibration()
+        res.show_calibration(cal)
         qtbot.waitUntil(lambda: shown_whole(res, w), timeout=5000)
         assert "Roll +0.412°" in res.summary_label.text()
+        assert f"motion axis {cal.cross_tilt_deg:+.3f}° (levelled)" in res.summary_label.text()
         assert "worst corner 0.610 mm" in res.summary_label.text()
         assert shown_whole(res.warnings_label, w)
         assert not res.details.isVisible()

@@ -68,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
         cal.save(args.output)
     vp = cal.vanishing_point_px
     print(f"calibration written to {args.output}")
-    print(f"  roll {cal.roll_deg:+.4f} deg, tilt {cal.tilt_deg:+.4f} deg; vanishing point "
+    print(f"  roll {cal.roll_deg:+.4f} deg, tilt {cal.tilt_deg:+.4f} deg, turn about the motion "
+          f"axis {cal.cross_tilt_deg:+.4f} deg (the map levelled across the scan); vanishing point "
           + (f"({vp[0]:.1f}, {vp[1]:.1f}) px" if vp[2] else "at infinity"))
     print(f"  reprojection RMS of the 12 picks: {cal.reprojection_rms_px:.3f} px")
     print("  corner residuals (mm): " + ", ".join(

@@ -71,7 +71,8 @@ def summary_line(cal: SceneCalibration) -> str:
     ) or "none fitted"
     worst = max(cal.corner_residuals_mm, default=float("nan"))
     return (
-        f"Roll {cal.roll_deg:+.3f}°, tilt {cal.tilt_deg:+.3f}°; reprojection RMS "
+        f"Roll {cal.roll_deg:+.3f}°, tilt {cal.tilt_deg:+.3f}°, turn about the motion axis "
+        f"{cal.cross_tilt_deg:+.3f}° (levelled); reprojection RMS "
         f"{cal.reprojection_rms_px:.3f} px; worst corner {worst:.3f} mm; speed check "
         f"{diff:+.2f} %; plane fit RMS: {planes}"
     )
