@@ -165,3 +165,43 @@ def test_a_bright_face_does_not_hide_the_stripe_on_darker_ground(numpy_reference
     assert not np.isfinite(fn("red", planes, start, 60, StripeParams(), None, None).rows).any()
     g = fn("green", planes, start, 60, StripeParams(), None, (np.full(w, 30, np.int64), 28))
     assert not np.isfinite(g.rows).any()
+
+
+YELLOW_SOIL = (196, 209, 104)  # rig 7's soil at the edge of the image where red was lost
+
+
+@pytest.mark.parametrize("numpy_reference", [False, True])
+@pytest.mark.parametrize("power", [2.0, 8.0])
+def test_a_red_stripe_blooming_white_on_yellow_soil_is_found(numpy_reference, power):
+    """Issue 18, random rig 7: the red stripe saturates to (255, 255, 240) on yellowish soil
+    whose green channel exceeds its red; no colour test saw red in its core (the tint test
+    needs red 12 above green), and the first 60 frames lost it at one edge of the image (fill
+    98.9 %). With the other laser's band known, the calibration's blooming test decides where
+    the colour tests refuse: core saturated in the laser's channel, that channel the largest,
+    and the light it adds leaning to this laser's colour."""
+    fn = detect_planes_numpy if numpy_reference else detect_planes
+    red_rgb = _frame([(30.3, 0.04, power, (1.0, 0.2, 0.15))], background=YELLOW_SOIL)
+    w = red_rgb.shape[1]
+    start = np.zeros(w, np.int64)
+    far = (np.zeros(w, np.int64), 3)  # the green band elsewhere
+    true_rows = 30.3 + 0.04 * np.arange(w)
+
+    def detect(rgb, name, params, other):
+        return fn(name, Planes.from_rgb(rgb), start, 60, params, None, other).rows
+
+    rows = detect(red_rgb, "red", StripeParams(), far)
+    assert np.isfinite(rows).mean() > 0.95 and np.nanmax(np.abs(rows - true_rows)) < 0.3
+    assert not np.isfinite(detect(red_rgb, "red", StripeParams(blooming=False), far)).any()
+    assert not np.isfinite(detect(red_rgb, "red", StripeParams(), None)).any()  # calibration
+    # the green detector does not take it, nor either detector a neutral white line or the
+    # green stripe blooming on the same soil for red
+    assert not np.isfinite(detect(red_rgb, "green", StripeParams(), far)).any()
+    # a neutral white line (its halo leans to neither colour): red takes none of it; green, on
+    # this soil, a few columns of a blooming one (4 % at 8 full scales; without the blooming
+    # test none - a dim one, 0.5 full scales, 20 % with or without it)
+    white = _frame([(30.3, 0.04, power, (1.0, 1.0, 1.0))], background=YELLOW_SOIL)
+    assert not np.isfinite(detect(white, "red", StripeParams(), far)).any()
+    assert np.isfinite(detect(white, "green", StripeParams(), far)).mean() <= 0.05
+    green = _frame([(30.3, 0.04, power, (0.2, 1.0, 0.15))], background=YELLOW_SOIL)
+    for other in (far, (np.full(w, 20, np.int64), 20)):
+        assert not np.isfinite(detect(green, "red", StripeParams(), other)).any()

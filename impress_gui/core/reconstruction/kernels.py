@@ -233,7 +233,8 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
     wide). ``strict``: the lean test of the other laser's band applies everywhere."""
     _, band_height, other_start, other_height = band
     sign, ch, o1, o2 = laser
-    min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, _ = peak
+    min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, _, bloom_level, \
+        bloom_lean = peak
     use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut, lut_margin = colour
     sdiv, hdiv = hsv
     h = y.shape[0]
@@ -305,15 +306,54 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
                 ok = True
         if ok:
             break
+    if not ok and bloom_lean < np.inf and lean / max(nh, 1) > -max_wrong_lean:
+        # (with the band known, -max_wrong_lean is the halo's least lean to this laser's
+        # colour: a white line on yellow soil leans to neither and is refused)
+        ok = _blooming(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_value, bloom_level,
+                       bloom_lean)
     if not ok:
         return np.nan, top, 1 if inside else 0
     return (_window_refine(rr, sig, n, top, centre) if refine else centre), top, 0
 
 
+@_jit
+def _blooming(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_value, level, min_lean):
+    """``stripes.blooming_lean``'s test for column ``c``'s window: the core saturated in the
+    laser's channel (at least ``level`` within 2 rows of the centre), the laser's channel the
+    largest on a central row (the tint test at 0), and the light leaning to this laser's colour
+    by at least ``min_lean`` (headroom shares summed over the inner rows, this laser's channel
+    minus the other laser's, ``1 - ch``)."""
+    sat = False
+    tint0 = False
+    for j in range(k - 3, k + 4):
+        r = rr[j]
+        px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+        if abs(j - k) <= 2 and px[ch] >= level:
+            sat = True
+        if px[ch] - max(px[o1], px[o2]) >= 0.0 and px[ch] >= min_value:
+            tint0 = True
+    if not (sat and tint0):
+        return False
+    oc = 1 - ch
+    a = _rgb(float(y[rr[0], c]), float(cb[rr[0] >> sh, cc]), float(cr[rr[0] >> sh, cc]))
+    b = _rgb(float(y[rr[n - 1], c]), float(cb[rr[n - 1] >> sh, cc]),
+             float(cr[rr[n - 1] >> sh, cc]))
+    bg_c = 0.5 * (a[ch] + b[ch])
+    bg_o = 0.5 * (a[oc] + b[oc])
+    hc = max(255.0 - bg_c, 8.0)
+    ho = max(255.0 - bg_o, 8.0)
+    total = 0.0
+    for j in range(1, n - 1):
+        r = rr[j]
+        px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+        total += (px[ch] - bg_c) / hc - (px[oc] - bg_o) / ho
+    return total >= min_lean
+
+
 @_kernel(
     "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), "
     "Tuple((int64[:], int64, int64[:], int64)), "
-    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64, boolean)), "
+    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64, boolean, float64, float64)), "
     "Tuple((boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64)), "
     "UniTuple(int64[:], 2), Tuple((float64[:], float32[:])))"
 )
@@ -332,8 +372,9 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
       the peak tests (``k``: the half window; a halo whose lean to this laser's colour is at
       most ``-max_wrong_lean`` is refused in the other band unless the headroom test keeps
       it: ``stripes._wrong_lean``), whether the centre is refined (``stripes.SUBPIXEL``: 1
-      ``window``, 0 ``half-max``) and whether a column whose candidate was refused in the
-      other laser's band gets a second candidate (only when that band is known);
+      ``window``, 0 ``half-max``), whether a refused candidate gets a second one, and the
+      blooming test's level and lean (``stripes.BLOOM_LEVEL``, ``BLOOM_LEAN``; inf: no test),
+      the last three only when the other laser's band is known;
     * ``colour = (use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut,
       lut_margin)``: the method's colour tests; ``lut`` is a (64, 64) table or an empty
       (0, 0) array;

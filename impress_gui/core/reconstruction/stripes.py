@@ -66,6 +66,12 @@ class StripeParams:
     # rig 6), the row rising most above the scores RIDGE_STEP rows off, whose halo must then
     # lean to this laser's colour wherever it lies
     second_candidate: bool = True
+    # with the other laser's band known, a peak the colour tests refuse is kept when its core
+    # saturates this laser's channel and its light leans to this laser's colour (the
+    # calibration's blooming test, blooming_lean): a red stripe blooming white on yellowish
+    # soil, whose core has no red tint left (issue 18, rig 7), if its halo also leans to this
+    # laser's colour by more than min_lean_in_other_band
+    blooming: bool = True
     max_width_px: int = 20
     # the centre's sub-pixel estimate: "window" (the centre of mass above half maximum refined
     # by window_refine: less locked to the pixel grid; docs/accuracy.md) or "half-max" (that
@@ -172,6 +178,12 @@ def _other_band(other: Band | None, w: int) -> tuple[np.ndarray, int]:
     return np.ascontiguousarray(start, dtype=np.int64), int(height)
 
 
+def _bloom_lean(params: StripeParams, other: Band | None) -> float:
+    """The blooming test's minimum lean where the colour tests refuse a peak (inf: none):
+    ``BLOOM_LEAN`` when the other laser's band is known and ``params.blooming``."""
+    return BLOOM_LEAN if (params.blooming and other is not None) else float("inf")
+
+
 def _wrong_lean(params: StripeParams, other: Band | None) -> float:
     """The lean to the other laser's colour (chroma units, negated) at or beyond which a peak
     in the other laser's band is refused unless the headroom test keeps it: ``max_wrong_lean``
@@ -209,7 +221,8 @@ class StripeDetector:
             (1 if name == "red" else -1, _CH[name], o1, o2),
             (float(params.min_peak), int(params.half_window_px), int(params.max_width_px),
              _wrong_lean(params, other), float(params.min_headroom_lean),
-             int(params.subpixel == "window"), bool(params.second_candidate and other is not None)),
+             int(params.subpixel == "window"), bool(params.second_candidate and other is not None),
+             float(BLOOM_LEVEL), _bloom_lean(params, other)),
             (method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
              np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
              int(params.min_value), method == "combined", float(params.min_tint), table,
@@ -344,7 +357,21 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
                        & (rgb[..., c] >= params.min_value))
         if method in ("lut", "combined") and lut is not None:
             colour |= lut.mask(name, np.clip(rgb + 0.5, 0, 255).astype(np.uint8), params.lut_margin)
-        ok &= colour.any(axis=0)
+        colour = colour.any(axis=0)
+        if _bloom_lean(params, other) < np.inf and (ok & ~colour).any():
+            # the blooming test (blooming_lean) where the colour tests refuse
+            c, (o1, o2) = _CH[name], _OTHERS[name]
+            tint0 = ((rgb[..., c] - np.maximum(rgb[..., o1], rgb[..., o2]) >= 0)
+                     & (rgb[..., c] >= params.min_value)).any(axis=0)
+            sat = (rgb[1:6, :, c] >= BLOOM_LEVEL).any(axis=0)
+            win = planes.rgb(rr, cols[None, :]).astype(np.float64)  # (2k+1, W, 3)
+            o = _CH["red" if name == "green" else "green"]
+            bg = 0.5 * (win[0] + win[-1])
+            share = (win[1:-1] - bg) / np.maximum(255.0 - bg, 8.0)
+            bloom = (share[..., c] - share[..., o]).sum(axis=0) >= BLOOM_LEAN
+            # and the halo leaning to this laser's colour (a white line on yellow soil does not)
+            colour |= ~colour & sat & tint0 & bloom & (lean > -_wrong_lean(params, other))
+        ok &= colour
         if params.subpixel == "window":
             centre = window_refine(rr, sig, top, centre)
         why = np.where(~peakish, 2, np.where(wrong | (~ok & inside), 1, 0))
