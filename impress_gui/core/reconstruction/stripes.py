@@ -70,7 +70,7 @@ class StripeParams:
     # saturates this laser's channel and its light leans to this laser's colour (the
     # calibration's blooming test, blooming_lean): a red stripe blooming white on yellowish
     # soil, whose core has no red tint left (issue 18, rig 7), if its halo also leans to this
-    # laser's colour by more than min_lean_in_other_band
+    # laser's colour by more than min_lean_in_other_band (the combined method only)
     blooming: bool = True
     max_width_px: int = 20
     # the centre's sub-pixel estimate: "window" (the centre of mass above half maximum refined
@@ -180,8 +180,10 @@ def _other_band(other: Band | None, w: int) -> tuple[np.ndarray, int]:
 
 def _bloom_lean(params: StripeParams, other: Band | None) -> float:
     """The blooming test's minimum lean where the colour tests refuse a peak (inf: none):
-    ``BLOOM_LEAN`` when the other laser's band is known and ``params.blooming``."""
-    return BLOOM_LEAN if (params.blooming and other is not None) else float("inf")
+    ``BLOOM_LEAN`` when the other laser's band is known, ``params.blooming`` and the method is
+    the combined one (``hue`` and ``lut`` stay the seed's methods)."""
+    on = params.blooming and other is not None and params.method == "combined"
+    return BLOOM_LEAN if on else float("inf")
 
 
 def _wrong_lean(params: StripeParams, other: Band | None) -> float:
