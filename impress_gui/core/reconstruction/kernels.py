@@ -176,48 +176,39 @@ def _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch):
 
 
 @_jit
-def _second_candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, first, gap):
-    """The first pass's candidate of column ``c`` again (the best luma biased towards the
-    laser's chroma at every second row from ``r0``, first of equal maxima) among the rows of
-    its band more than ``gap`` rows from ``first``; -1 when there is none."""
-    cc = c >> sh
-    lo = max(r0, b0 + ((b0 - r0) & 1))
-    hi = min(r1, b0 + band_height)
-    best = -(1 << 30)
-    row = -1
-    for r in range(lo, hi, 2):
-        if abs(r - first) <= gap:
-            continue
-        v = int(y[r, c]) + sign * (int(cr[r >> sh, cc]) - 128)
-        if v > best:
-            best = v
-            row = r
-    return row
+def _score(y, cr, sh, c, r, sign):
+    """The first pass's score of row ``r`` of column ``c``: its luma biased towards the
+    laser's chroma."""
+    return int(y[r, c]) + sign * (int(cr[r >> sh, c >> sh]) - 128)
 
 
 @_jit
-def _ridge_candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, first, gap, step):
-    """The row of column ``c``'s band (every second row from ``r0``) whose score (luma biased
-    towards the laser's chroma, as in the first pass) rises most above the higher of the
-    scores ``step`` rows above and below it (one side where the other is outside the band):
-    a stripe, not a bright surface, which can outscore a stripe on darker ground. Rows within
-    ``gap`` of ``first`` are skipped; first of equal maxima; -1 when there is none."""
-    cc = c >> sh
+def _candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, first, gap, step):
+    """Another candidate row of column ``c``'s band (every second row from ``r0``; rows within
+    ``gap`` of ``first`` skipped; first of equal maxima; -1 when there is none).
+
+    ``step`` 0: the first pass's candidate again, the best :func:`_score`. ``step`` > 0: the
+    row whose score rises most above the higher of the scores ``step`` rows above and below it
+    (one side where the other is outside the band): a stripe, not a bright surface, which can
+    outscore a stripe on darker ground."""
     lo = max(r0, b0 + ((b0 - r0) & 1))
     hi = min(r1, b0 + band_height)
-    best = -(1 << 30)
+    none = -(1 << 30)
+    best = none
     row = -1
     for r in range(lo, hi, 2):
         if abs(r - first) <= gap:
             continue
-        m = -(1 << 30)
-        if r - step >= lo:
-            m = int(y[r - step, c]) + sign * (int(cr[(r - step) >> sh, cc]) - 128)
-        if r + step < hi:
-            m = max(m, int(y[r + step, c]) + sign * (int(cr[(r + step) >> sh, cc]) - 128))
-        if m == -(1 << 30):
-            continue
-        v = int(y[r, c]) + sign * (int(cr[r >> sh, cc]) - 128) - m
+        v = _score(y, cr, sh, c, r, sign)
+        if step > 0:
+            m = none
+            if r - step >= lo:
+                m = _score(y, cr, sh, c, r - step, sign)
+            if r + step < hi:
+                m = max(m, _score(y, cr, sh, c, r + step, sign))
+            if m == none:
+                continue
+            v -= m
         if v > best:
             best = v
             row = r
@@ -443,14 +434,14 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
                 # refused where the other laser's stripe can lie: that stripe, brighter, can
                 # hide this laser's in the column; the best candidate of the band away from it
                 # (more than 2k rows) is tested the same way
-                second = _second_candidate(y, cr, sh, c, band_start[c], band_height, r0, r1,
-                                           sign, coarse, 2 * k)
+                second = _candidate(y, cr, sh, c, band_start[c], band_height, r0, r1, sign,
+                                    coarse, 2 * k, 0)
             else:
                 # not a peak: a bright surface (a light target face) can outscore the stripe
                 # on darker ground; the row rising most above its surroundings is tested,
                 # its halo required to lean to this laser's colour everywhere
-                second = _ridge_candidate(y, cr, sh, c, band_start[c], band_height, r0, r1,
-                                          sign, coarse, k, RIDGE_STEP)
+                second = _candidate(y, cr, sh, c, band_start[c], band_height, r0, r1, sign,
+                                    coarse, k, RIDGE_STEP)
             if second >= 0:
                 row, top, why = _peak_at(y, cb, cr, sh, c, second, band_start[c], band, laser,
                                          peak, colour, hsv, rr, sig, why == 2)
