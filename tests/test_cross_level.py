@@ -66,12 +66,12 @@ def test_level_across_turns_the_base_level_and_keeps_the_motion():
 
 @pytest.fixture(scope="module")
 def turned_rig(tmp_path_factory):
-    """Random rig 0 at 320x180, calibrated from its exact picks and reconstructed."""
+    """Random rig 0 at 320x180, calibrated from its exact picks (the tests read the
+    calibration; none reads a reconstruction, so none is made)."""
     from impress_gui.core.calibration.geometry import Intrinsics
     from impress_gui.core.calibration.picks import Picks
     from impress_gui.core.calibration.scene import calibrate_scene
     from impress_gui.core.formats.video import open_video
-    from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
     from impress_gui.sim.simulate import simulate
 
     out = tmp_path_factory.mktemp("cross-level") / "scan"
@@ -81,12 +81,11 @@ def turned_rig(tmp_path_factory):
     with open_video(out / "scan.mp4") as v:
         cal = calibrate_scene(v, Intrinsics.load(out / "intrinsics.json"), target,
                               Picks.load(out / "picks.json"), truth["speed_mm_s"])
-        rec = reconstruct(v, cal, ProcessParams())
-    return out, truth, target, cal, rec
+    return out, truth, target, cal
 
 
 def test_a_turned_rig_is_levelled_and_reads_true_heights(turned_rig):
-    out, truth, target, cal, rec = turned_rig
+    out, truth, target, cal = turned_rig
     cross = truth["random_rig"]["cross_tilt_deg"]
     assert abs(cross) > 4.0  # the rig this test needs
     # the base plane is level across the scan (unlevelled: cx = -tan(4.795 deg) = -0.0839)
@@ -115,7 +114,7 @@ def test_the_monte_carlo_trials_are_levelled_like_the_calibration(turned_rig):
     (unlevelled it would be turned by the rig's 4.8 deg against it)."""
     from impress_gui.core.calibration.uncertainty import calibration_ensemble
 
-    _, _, target, cal, _ = turned_rig
+    _, _, target, cal = turned_rig
     # little click noise (0.3 px at 320x180 moves a point by millimetres): the frames' turn
     # (4.8 deg) would move it by tens of millimetres
     ens = calibration_ensemble(cal, target, click_sigma_px=0.02, n=4, seed=3)
@@ -130,7 +129,7 @@ def test_the_monte_carlo_trials_are_levelled_like_the_calibration(turned_rig):
 
 
 def test_the_turn_is_stored_and_old_files_load(turned_rig):
-    _, _, _, cal, _ = turned_rig
+    _, _, _, cal = turned_rig
     doc = cal.to_json()
     assert doc["cross_tilt_deg"] == cal.cross_tilt_deg
     back = SceneCalibration.from_json(json.loads(json.dumps(doc)))
