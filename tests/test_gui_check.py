@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -17,8 +18,24 @@ from impress_gui.sim.sample import make_sample
 
 
 @pytest.fixture(scope="module")
-def sample_project(tmp_path_factory) -> Path:
-    return make_sample(tmp_path_factory.mktemp("sample"), workers=1, small=True)
+def built_sample(tmp_path_factory) -> tuple[Path, Path]:
+    """(the small sample's project folder, a copy of the whole sample as built): built once."""
+    base = tmp_path_factory.mktemp("sample")
+    project = make_sample(base / "sample", workers=1, small=True)
+    shutil.copytree(project.parent, base / "pristine", symlinks=True)
+    return project, base / "pristine"
+
+
+@pytest.fixture
+def sample_project(built_sample) -> Path:
+    """The small sample as make_sample left it, for each test that asks: put back from the
+    copy (the check logs into the project; a test damages it) where it was built, as the
+    project names its files by their absolute paths (a copy elsewhere would show the
+    original's reconstruction). One build instead of one per test: most of a minute each."""
+    project, pristine = built_sample
+    shutil.rmtree(project.parent)
+    shutil.copytree(pristine, project.parent, symlinks=True)
+    return project
 
 
 def run_check(path: Path, tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
@@ -50,8 +67,8 @@ def test_check_fails_on_a_corrupt_project_json(tmp_path):
     assert "check passed" not in res.stdout
 
 
-def test_check_fails_when_the_reconstruction_cannot_be_shown(tmp_path):
-    project = make_sample(tmp_path / "sample", workers=1, small=True)
+def test_check_fails_when_the_reconstruction_cannot_be_shown(sample_project, tmp_path):
+    project = sample_project
     recon = project / "reconstruction"
     (recon / "heightmap.tif").write_bytes(b"not a TIFF")
     res = run_check(project, tmp_path)
