@@ -61,34 +61,47 @@ def blocks_scan(config, factory) -> Path:
     """Folder with scan.mp4, truth.json, intrinsics.json, picks.json and cal.json."""
     if "scan" in _SESSION:
         return _SESSION["scan"]
+    import fcntl
+
     cache = Path(config.cache.mkdir("impress-blocks-scan"))
     final = cache / _source_key()
-    if not (final / "complete").exists():
-        work = factory.mktemp("blocks-render") / "scan"
-        _run("simulate", str(work), *ARGS, "--workers", str(min(2, os.cpu_count() or 1)))
-        _run(
-            "calibrate",
-            str(work / "scan.mp4"),
-            "--intrinsics",
-            str(work / "intrinsics.json"),
-            "--picks",
-            str(work / "picks.json"),
-            "--speed",
-            str(SPEED_MM_S),
-            "-o",
-            str(work / "cal.json"),
-        )
-        (work / "complete").write_text("ok\n")
-        for old in cache.iterdir():
-            shutil.rmtree(old, ignore_errors=True)
-        tmp = cache / f".{final.name}.{os.getpid()}"
-        shutil.copytree(work, tmp)
-        try:
-            tmp.rename(final)
-        except OSError:  # another session got there first
-            shutil.rmtree(tmp, ignore_errors=True)
+    # one render for the run: the test suite's other worker (another file of the four that
+    # measure this scan) waits for it here instead of rendering it too
+    with open(cache.parent / "impress-blocks-scan.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (final / "complete").exists():
+            _render_blocks(factory, cache, final)
     _SESSION["scan"] = final
     return final
+
+
+def _render_blocks(factory, cache: Path, final: Path) -> None:
+    """Render and calibrate the scan into ``final`` (under ``cache``)."""
+    work = factory.mktemp("blocks-render") / "scan"
+    # one process: with more, each worker builds the scene again, and the test suite's
+    # other worker already has the second core (the frames are the same)
+    _run("simulate", str(work), *ARGS, "--workers", "1")
+    _run(
+        "calibrate",
+        str(work / "scan.mp4"),
+        "--intrinsics",
+        str(work / "intrinsics.json"),
+        "--picks",
+        str(work / "picks.json"),
+        "--speed",
+        str(SPEED_MM_S),
+        "-o",
+        str(work / "cal.json"),
+    )
+    (work / "complete").write_text("ok\n")
+    for old in cache.iterdir():
+        shutil.rmtree(old, ignore_errors=True)
+    tmp = cache / f".{final.name}.{os.getpid()}"
+    shutil.copytree(work, tmp)
+    try:
+        tmp.rename(final)
+    except OSError:  # another session got there first
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def truth(scan: Path) -> dict:
@@ -110,18 +123,25 @@ def rail_y(scan: Path, world_y_mm: float) -> float:
 
 
 def blocks_recon(config, factory) -> Path:
-    """Block A reconstructed from the scan (core pipeline), once per session."""
+    """Block A reconstructed from the scan (core pipeline), once per run: shared by the
+    test suite's workers (conftest.shared_folder), as test_measure and test_gui_viewer may
+    run on different ones."""
     if "recon" in _SESSION:
         return _SESSION["recon"]
+    from conftest import shared_folder
+
     from impress_gui.core.reconstruction.pipeline import process_files
     from impress_gui.core.reconstruction.reconstruct import ProcessParams
 
     scan = blocks_scan(config, factory)
     start, stop = block_a_frames(scan)
-    out = factory.mktemp("blocks-recon") / "recon"
-    process_files(
-        scan / "scan.mp4", scan / "cal.json", out, ProcessParams(frame_start=start, frame_stop=stop)
-    )
+
+    def build(base: Path) -> None:
+        base.mkdir(parents=True)
+        process_files(scan / "scan.mp4", scan / "cal.json", base / "recon",
+                      ProcessParams(frame_start=start, frame_stop=stop))
+
+    out = shared_folder(factory, f"blocks-recon-{scan.name}", build) / "recon"
     _SESSION["recon"] = out
     return out
 
