@@ -367,9 +367,11 @@ def _impress(*args: str, cwd=None) -> subprocess.CompletedProcess:
 
 @pytest.mark.parametrize("fmt", ["frames", "mp4"])
 def test_cli_writes_truth_that_loads_and_agrees(tmp_path, fmt):
+    # a 0.5 mm scene grid (the default 0.1 mm is rendered by the tests above and by every
+    # shared scan): nothing checked here depends on it, and the command takes half the time
     out = tmp_path / "scan"
     res = _impress("simulate", str(out), "--preset", "flat", "--length-mm", "80",
-                   "--resolution", "320x180", "--format", fmt, "--seed", "4")
+                   "--resolution", "320x180", "--format", fmt, "--seed", "4", "--grid-mm", "0.5")
     assert res.returncode == 0, res.stderr
     for name in ("intrinsics.json", "target.json", "picks.json", "truth.json",
                  "truth_height.tif", "truth_texture.png"):
@@ -398,7 +400,7 @@ def test_cli_writes_truth_that_loads_and_agrees(tmp_path, fmt):
         assert len(files) == n
         # a frame written by the command equals the same frame rendered here, byte for byte
         cfg = SimConfig(preset="flat", length_mm=80.0, width=320, height=180, seed=4,
-                        video_format="frames")
+                        video_format="frames", grid_mm=0.5)
         k = n // 2
         mine = next(render_frames(cfg, [k]))
         theirs = cv2.imread(str(files[k]), cv2.IMREAD_COLOR)[..., ::-1]
@@ -445,7 +447,9 @@ def test_output_folder_is_replaced_whole_or_not_at_all(tmp_path):
     from impress_gui.core.base.progress import CancelToken
     from impress_gui.sim.simulate import SimConfig, simulate
 
-    small = dict(preset="flat", length_mm=60.0, width=160, height=90, speed_mm_s=40.0)
+    # a coarse scene (0.5 mm grid): what is checked is the folder, not the frames
+    small = dict(preset="flat", length_mm=60.0, width=160, height=90, speed_mm_s=40.0,
+                 grid_mm=0.5)
     out = tmp_path / "scan"
     simulate(SimConfig(video_format="frames", **small), out)
     truth = json.loads((out / "truth.json").read_text())
