@@ -304,7 +304,10 @@ def test_positive_is_the_rotation_of_the_poured_cast(cast_recon, tmp_path):
 
 # ----- provenance and reproducibility --------------------------------------------------------
 def test_same_input_same_bytes_and_the_record(cast_recon, tmp_path):
-    params = C.CastParams(positive=True, base_mm=4.0, max_triangles=50000,
+    # nine casts: at most 10 000 triangles (8 800, every third cell) each is verified in under
+    # a second; 50 000 left 19 000 (every second cell) and took 3-4 s each, nearly all of it
+    # open3d's self-intersection test, which this test is not about
+    params = C.CastParams(positive=True, base_mm=4.0, max_triangles=10000,
                           crop_mm=(105.0, -100.0, 150.0, -50.0))
     for suffix in (".stl", ".ply", ".obj"):
         a, b = tmp_path / f"a{suffix}", tmp_path / "again" / f"a{suffix}"
@@ -324,13 +327,13 @@ def test_same_input_same_bytes_and_the_record(cast_recon, tmp_path):
     assert doc["mesh"]["bytes"] == len(data) and doc["mesh"]["file"] == "a.stl"
     assert doc["parameters"] == {"mode": "positive", "base_mm": 4.0,
                                  "crop_mm": [105.0, -100.0, 150.0, -50.0],
-                                 "max_triangles": 50000, "decimate": "sample"}
+                                 "max_triangles": 10000, "decimate": "sample"}
     assert doc["frame"]["handedness"] == "right" and "180 deg about the y axis" in \
         doc["frame"]["transformation"]
     header = data[:80].decode("ascii")
     assert not header.startswith("solid")
     assert header.startswith("IMPREsS") and " pos " in header and "b=4 " in header
-    assert "t=50000" in header and "c=105,-100,150,-50" in header
+    assert "t=10000" in header and "c=105,-100,150,-50" in header
     assert meta_sha[:12] in header
     assert int.from_bytes(data[80:84], "little") == doc["mesh"]["triangles"]
     ply_head = (tmp_path / "a.ply").read_bytes().split(b"end_header")[0].decode("ascii")
