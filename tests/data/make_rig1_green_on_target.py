@@ -1,7 +1,9 @@
 """Makes rig1_green_on_target.npz (tests/test_other_band.py) from the benchmark's cached render
 of random rig 1 at 640x360 (simulator key 95a603848f): the frame where the red detector with the
 former lean rule took most of the green stripe, cropped around it, with the renderer's exact
-stripe rows per column.
+stripe rows per column. Made with the detector of commit 9cab477; since the lean in the other
+laser's band is the lean of all the stripe's light, ``min_lean_in_other_band=-4.0`` no longer
+reproduces the former rule and this script finds no such frame.
 
 Run from the repository: .venv/bin/python tests/data/make_rig1_green_on_target.py OUT.npz"""
 

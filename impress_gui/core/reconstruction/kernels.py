@@ -225,7 +225,7 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
     _, band_height, other_start, other_height = band
     sign, ch, o1, o2 = laser
     min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, _, bloom_level, \
-        bloom_lean = peak
+        bloom_lean, light_lean = peak
     use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut, lut_margin = colour
     sdiv, hdiv = hsv
     h = y.shape[0]
@@ -263,12 +263,22 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
     bg = 0.5 * (float(cr[rr[0] >> sh, cc]) + float(cr[rr[n - 1] >> sh, cc]))
     lean = 0.0
     nh = 0
+    light = 0.0
+    lsum = 0.0
     for j in range(n):
-        if sig[j] > 0.2 * top and sig[j] < 0.65 * top:
-            lean += sign * (float(cr[rr[j] >> sh, cc]) - bg)
-            nh += 1
+        if sig[j] > 0.2 * top:
+            d = sign * (float(cr[rr[j] >> sh, cc]) - bg)
+            light += float(sig[j]) * d
+            lsum += float(sig[j])
+            if sig[j] < 0.65 * top:
+                lean += d
+                nh += 1
+    # in the other laser's band, when it is known, the lean of all the stripe's light (its
+    # rows above a fifth of the peak, weighted by their light): the halo alone can be one row
+    # of textured ground beside a sharp stripe (stripes.StripeParams.min_lean_in_other_band)
+    in_lean = (light / lsum if lsum > 0 else 0.0) if light_lean else lean / max(nh, 1)
     # only where the other laser's stripe can lie (its band, widened by the half window)
-    if lean / max(nh, 1) <= -max_wrong_lean and inside:
+    if in_lean <= -max_wrong_lean and inside:
         # a stripe saturating its own channel on a surface of its colour: the headroom
         # shares decide (stripes.headroom_lean)
         if not _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch) >= min_headroom_lean:
@@ -344,7 +354,7 @@ def _blooming(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_value, level, min_
 @_kernel(
     "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), "
     "Tuple((int64[:], int64, int64[:], int64)), "
-    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64, boolean, float64, float64)), "
+    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64, boolean, float64, float64, boolean)), "
     "Tuple((boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64)), "
     "UniTuple(int64[:], 2), Tuple((float64[:], float32[:])))"
 )
@@ -359,13 +369,15 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
       peak only there);
     * ``laser = (sign, ch, o1, o2)``: +1 red / -1 green (the chroma lean), the laser's RGB
       channel and the other two;
-    * ``peak = (min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, retry)``:
-      the peak tests (``k``: the half window; a halo whose lean to this laser's colour is at
-      most ``-max_wrong_lean`` is refused in the other band unless the headroom test keeps
-      it: ``stripes._wrong_lean``), whether the centre is refined (``stripes.SUBPIXEL``: 1
-      ``window``, 0 ``half-max``), whether a refused candidate gets a second one, and the
-      blooming test's level and lean (``stripes.BLOOM_LEVEL``, ``BLOOM_LEAN``; inf: no test),
-      the last three only when the other laser's band is known;
+    * ``peak = (min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, retry,
+      bloom_level, bloom_lean, light_lean)``: the peak tests (``k``: the half window; a peak
+      whose lean to this laser's colour is at most ``-max_wrong_lean`` is refused in the
+      other band unless the headroom test keeps it: ``stripes._wrong_lean``), whether the
+      centre is refined (``stripes.SUBPIXEL``: 1 ``window``, 0 ``half-max``), whether a
+      refused candidate gets a second one, the blooming test's level and lean
+      (``stripes.BLOOM_LEVEL``, ``BLOOM_LEAN``; inf: no test), and whether that lean is the
+      lean of all the stripe's light rather than of its halo, the last four only when the
+      other laser's band is known;
     * ``colour = (use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut,
       lut_margin)``: the method's colour tests; ``lut`` is a (64, 64) table or an empty
       (0, 0) array;

@@ -54,9 +54,11 @@ class StripeParams:
     # ... unless the stripe used more of its own channel's headroom than of the other laser's
     # (summed shares over the window's rows; see headroom_lean); inf: never
     min_headroom_lean: float = 0.3
-    # inside the other laser's band, when it is known (the reconstruction), a halo must lean
-    # to this laser's colour by more than this (chroma units), else the headroom test decides:
-    # the other laser's stripe blooming white there leans to neither colour (issue 18, rig 1)
+    # inside the other laser's band, when it is known (the reconstruction), the stripe's light
+    # (its rows above a fifth of the peak, weighted by their light) must lean to this laser's
+    # colour by more than this (chroma units), else the headroom test decides: the other
+    # laser's stripe blooming white there leans to neither colour (issue 18, rig 1), and its
+    # halo alone can be one row of textured ground (rig 23)
     min_lean_in_other_band: float = 0.0
     # with the other laser's band known (the reconstruction), a column whose candidate (the
     # brightest light leaning to this laser's chroma) was refused gets a second one: where it
@@ -224,7 +226,7 @@ class StripeDetector:
             (float(params.min_peak), int(params.half_window_px), int(params.max_width_px),
              _wrong_lean(params, other), float(params.min_headroom_lean),
              int(params.subpixel == "window"), bool(params.second_candidate and other is not None),
-             float(BLOOM_LEVEL), _bloom_lean(params, other)),
+             float(BLOOM_LEVEL), _bloom_lean(params, other), other is not None),
             (method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
              np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
              int(params.min_value), method == "combined", float(params.min_tint), table,
@@ -342,7 +344,19 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         # ... and only where the other laser's stripe can lie (its band, widened by the window);
         # with that band known, a halo there must lean to this laser's colour (_wrong_lean)
         inside = (peak + k >= o_start) & (peak - k < o_start + o_height) | strict
-        wrong = (lean <= -_wrong_lean(params, other)) & inside
+        if other is not None:
+            # there, the lean of all the stripe's light (rows above a fifth of the peak,
+            # weighted by their light): the halo alone can be a single row of textured ground
+            # beside a sharp stripe, and a green stripe blooming white on warm soil passed it
+            # as red (random rig 23) while its whole light leaned clearly green
+            lit = np.where(sig > 0.2 * top, sig, 0).astype(np.float64)
+            dcr = sign * (crw.astype(np.float64) - cr_bg.astype(np.float64))
+            lsum = lit.sum(axis=0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                in_lean = np.where(lsum > 0, (dcr * lit).sum(axis=0) / lsum, 0.0)
+        else:
+            in_lean = lean
+        wrong = (in_lean <= -_wrong_lean(params, other)) & inside
         if wrong.any():
             hl = headroom_lean(name, planes.rgb(rr[:, wrong], cols[None, wrong]))
             wrong[wrong] = hl < params.min_headroom_lean
