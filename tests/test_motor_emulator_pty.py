@@ -348,7 +348,14 @@ def _wait_for(condition, timeout_s: float = 10.0) -> None:
 )
 def test_cli_move_ended_by_a_signal_stops_the_motor(pty_motor, signame, status, message):
     emu, path = pty_motor(time_scale=1.0)  # 1000 mm at 5 mm/s: over three minutes
-    command = [sys.executable, "-m", "impress_gui", "motor", "--port", path, "move", "--to", "1000"]
+    # as from a terminal: a test run under nohup or from a background shell would hand the
+    # command SIGHUP / SIGINT ignored, which it deliberately leaves ignored; the prelude puts
+    # the dispositions a terminal gives back, then runs `python -m impress_gui`
+    prelude = ("import runpy, signal, sys; signal.signal(signal.SIGHUP, signal.SIG_DFL); "
+               "signal.signal(signal.SIGINT, signal.default_int_handler); "
+               "sys.argv = ['impress_gui'] + sys.argv[1:]; "
+               "runpy.run_module('impress_gui', run_name='__main__', alter_sys=True)")
+    command = [sys.executable, "-c", prelude, "motor", "--port", path, "move", "--to", "1000"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen(
         command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True

@@ -233,6 +233,10 @@ def test_a_terminate_signal_stops_the_motor_and_shuts_down(rig, qtbot, signame):
     qtbot.waitUntil(lambda: panel.is_busy and motor.moving)
     host, received = Host(panel), []
     number = getattr(signal, signame)
+    # as from a terminal: a run under nohup (or a background shell) inherits SIGHUP ignored,
+    # which on_process_signals deliberately leaves ignored
+    inherited = signal.signal(number, signal.SIG_DFL) if (
+        signal.getsignal(number) is signal.SIG_IGN) else None
     before = signal.getsignal(number)
 
     def ended(number: int) -> None:
@@ -245,10 +249,13 @@ def test_a_terminate_signal_stops_the_motor_and_shuts_down(rig, qtbot, signame):
         qtbot.waitUntil(lambda: host.closed, timeout=5000)
     finally:
         restore()
+        after = signal.getsignal(number)
+        if inherited is not None:
+            signal.signal(number, inherited)
     assert received == [number]
     assert panel._thread.isFinished()
     assert not motor.moving and sent_stop_after_last_move(motor)
-    assert signal.getsignal(number) is before  # the previous handler is back
+    assert after is before  # the previous handler is back
 
 
 class BrokenDriver(CoolMuscle):

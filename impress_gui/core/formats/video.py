@@ -104,10 +104,16 @@ class VideoSource:
         """Yield ``(index, RGB frame)`` for ``start <= index < stop``, in order."""
         raise NotImplementedError
 
-    def iter_planes(self, start: int = 0, stop: int | None = None) -> Iterator[tuple[int, Planes]]:
+    def iter_planes(self, start: int = 0, stop: int | None = None,
+                    keep_rgb: dict[int, np.ndarray | None] | None = None
+                    ) -> Iterator[tuple[int, Planes]]:
         """Yield ``(index, frame as YCbCr planes)`` for ``start <= index < stop``, in order:
-        what the reconstruction reads (a frame folder's RGB frames converted)."""
+        what the reconstruction reads (a frame folder's RGB frames converted). ``keep_rgb``:
+        the frames whose keys it holds are also stored there as :meth:`read` returns them (the
+        same bytes, without seeking again)."""
         for k, rgb in self.iter_frames(start, stop):
+            if keep_rgb is not None and k in keep_rgb:
+                keep_rgb[k] = rgb
             yield k, Planes.from_rgb(rgb)
 
     def quick_frames(self, start: int, stop: int, n: int) -> list[int]:
@@ -610,11 +616,14 @@ class AVVideo(VideoSource):
             for idx, frame in frames:
                 yield idx, self._to_rgb(frame)
 
-    def iter_planes(self, start: int = 0, stop: int | None = None):
+    def iter_planes(self, start: int = 0, stop: int | None = None,
+                    keep_rgb: dict[int, np.ndarray | None] | None = None):
         """As :meth:`VideoSource.iter_planes`: the decoder's own 4:2:0 planes, not converted
         (the luma at its coded height: 1088 rows for a 1080-line coding)."""
         with closing(self._decoded(start, stop)) as frames:
             for idx, frame in frames:
+                if keep_rgb is not None and idx in keep_rgb:
+                    keep_rgb[idx] = self._to_rgb(frame)
                 yield idx, Planes.from_av(frame)
 
     def _decoded(self, start: int, stop: int | None):

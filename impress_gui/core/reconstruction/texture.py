@@ -10,6 +10,8 @@ whose surface is already final (:mod:`impress_gui.core.reconstruction.finish`), 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from impress_gui.core.calibration.scene import SceneCalibration
@@ -260,7 +262,8 @@ def _end_frames(end) -> list[EndFrame]:
 
 
 def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: GridSpec,
-                      cal: SceneCalibration, first, last, inplace: bool = False
+                      cal: SceneCalibration, first, last, inplace: bool = False,
+                      progress: Callable[[str], None] | None = None
                       ) -> tuple[np.ndarray, np.ndarray]:
     """The texture at the scan's ends, where the heightmap reaches further than the texture
     row (the lasers lead and trail the image's centre): each cell without colour before the
@@ -276,8 +279,9 @@ def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: Grid
     very first frame lie on the first cells with heights, so reconstruct passes a second
     frame a little further into the scan (:func:`stripe_clear_travel`); cells on the stripes
     of every frame given are left without colour, as are interior cells without colour
-    (shadows). Returns the texture (a copy, or ``texture_rgb`` itself filled when
-    ``inplace``) and the cells filled. Deterministic; occlusion is not checked (at the ends
+    (shadows). ``progress(message)`` is called before each frame is sampled. Returns the
+    texture (a copy, or ``texture_rgb`` itself filled when ``inplace``) and the cells
+    filled. Deterministic; occlusion is not checked (at the ends
     the surface is seen from close to straight above). Memory: a few boolean grids, no
     integer grid."""
     from scipy.ndimage import map_coordinates
@@ -319,11 +323,17 @@ def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: Grid
     ends = sorted([_end_frames(first), _end_frames(last)], key=lambda e: e[0][0])
     # cells before the texture's first row (lower Y) lie towards the frames of lower travel
     start = before[ii, jj]
+    n_frames = len(ends[0]) + len(ends[1])
+    done = 0
     for sel0, frames in ((start, ends[0]), (~start, ends[1])):
         todo = np.flatnonzero(sel0)
         for travel, img in frames:
             if not len(todo):
                 break
+            done += 1
+            if progress is not None:
+                progress(f"colouring the texture's ends: frame {done} of {n_frames} "
+                         f"({len(todo)} cells)")
             uv = cal.project_rail(pts[todo], float(travel))
             h, w = img.shape[:2]
             ok = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) \
