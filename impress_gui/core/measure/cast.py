@@ -462,7 +462,9 @@ def verify_mesh(mesh: CastMesh, cancel: CancelToken | None = None) -> dict:
     if len(t) <= SELF_INTERSECTION_MAX_TRIANGLES:
         si = bool(m.is_self_intersecting())
         out["self_intersection"] = {"tested": True, "self_intersecting": si}
-        out["watertight"] = bool(m.is_watertight())  # open3d: manifold, no self-intersection
+        # open3d's is_watertight(): edge- and vertex-manifold and not self-intersecting, each
+        # found above (calling it ran the quadratic self-intersection test a second time)
+        out["watertight"] = bool(out["edge_manifold"] and out["vertex_manifold"] and not si)
     else:
         out["self_intersection"] = {
             "tested": False,
