@@ -370,8 +370,12 @@ def test_cli_writes_truth_that_loads_and_agrees(tmp_path, fmt):
     # a 0.5 mm scene grid (the default 0.1 mm is rendered by the tests above and by every
     # shared scan): nothing checked here depends on it, and the command takes half the time
     out = tmp_path / "scan"
+    # the frame folder is rendered by two processes (the scene built once and handed to them);
+    # its middle frame is compared below with one rendered here in this process
+    workers = ["--workers", "2"] if fmt == "frames" else []
     res = _impress("simulate", str(out), "--preset", "flat", "--length-mm", "80",
-                   "--resolution", "320x180", "--format", fmt, "--seed", "4", "--grid-mm", "0.5")
+                   "--resolution", "320x180", "--format", fmt, "--seed", "4", "--grid-mm", "0.5",
+                   *workers)
     assert res.returncode == 0, res.stderr
     for name in ("intrinsics.json", "target.json", "picks.json", "truth.json",
                  "truth_height.tif", "truth_texture.png"):

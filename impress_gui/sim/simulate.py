@@ -276,14 +276,17 @@ def _calibration_frames(rig: Rig, motion: Motion, target: TargetModel, pose, w: 
 _WORKER: dict = {}
 
 
-def _make_renderer(cfg: SimConfig):
+def _make_renderer(cfg: SimConfig, scene=None):
+    """(renderer, scene) of ``cfg``; ``scene``, when given, is the one this configuration
+    builds (the rendering workers get it from the parent instead of building it again)."""
     from impress_gui.sim.render import Renderer, RenderOptions
 
     rig, motion, target = make_rig(cfg), make_motion(cfg), make_target(cfg)
     rr = random_rig(cfg)
     if rr is None:
-        scene = build_scene(cfg.preset, cfg.scan_length_mm, cfg.grid_mm, cfg.seed, target,
-                            target_pose(cfg), **cfg.blocks, **cfg.shoe)
+        if scene is None:
+            scene = build_scene(cfg.preset, cfg.scan_length_mm, cfg.grid_mm, cfg.seed, target,
+                                target_pose(cfg), **cfg.blocks, **cfg.shoe)
         opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle,
                              seed=cfg.seed, stripe_sigma_px=max(1.2, 1.6 * cfg.width / 1920.0),
                              laser_peak=3.5)
@@ -291,8 +294,9 @@ def _make_renderer(cfg: SimConfig):
         from impress_gui.sim.random_rig import soil_of
 
         p = rr.params
-        scene = build_scene(cfg.preset, cfg.scan_length_mm, cfg.grid_mm, cfg.seed, target,
-                            target_pose(cfg), soil=soil_of(p))
+        if scene is None:
+            scene = build_scene(cfg.preset, cfg.scan_length_mm, cfg.grid_mm, cfg.seed, target,
+                                target_pose(cfg), soil=soil_of(p))
         opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle,
                              seed=cfg.seed, laser_peak=p["laser_peak"], ambient=p["ambient"],
                              stripe_sigma_px=max(0.9, p["stripe_sigma_px_1080p"]
@@ -300,19 +304,21 @@ def _make_renderer(cfg: SimConfig):
     return Renderer(scene, rig, motion, opts), scene
 
 
-def _worker_init(cfg_json: str) -> None:
+def _worker_init(cfg_json: str, scene) -> None:
     cfg = SimConfig(**json.loads(cfg_json))
-    _WORKER["renderer"] = _make_renderer(cfg)[0]
+    _WORKER["renderer"] = _make_renderer(cfg, scene)[0]
 
 
 def _worker_render(k: int) -> np.ndarray:
     return _WORKER["renderer"].render(k)[0]
 
 
-def render_frames(cfg: SimConfig, frames, workers: int = 1):
-    """Yield rendered RGB frames in order; with ``workers > 1`` render in spawned processes."""
+def render_frames(cfg: SimConfig, frames, workers: int = 1, scene=None):
+    """Yield rendered RGB frames in order; with ``workers > 1`` render in spawned processes.
+    ``scene``: the scene ``cfg`` builds, when the caller has it (built once, not per process:
+    a shoe scene takes seconds to build and a fraction of a second to send)."""
     if workers <= 1:
-        renderer, _ = _make_renderer(cfg)
+        renderer, _ = _make_renderer(cfg, scene)
         for k in frames:
             yield renderer.render(k)[0]
         return
@@ -320,8 +326,10 @@ def render_frames(cfg: SimConfig, frames, workers: int = 1):
     from concurrent.futures import ProcessPoolExecutor
 
     cfg_json = json.dumps(dataclasses.asdict(cfg))
+    if scene is None:
+        scene = _make_renderer(cfg)[1]
     with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"),
-                             initializer=_worker_init, initargs=(cfg_json,)) as pool:
+                             initializer=_worker_init, initargs=(cfg_json, scene)) as pool:
         pending = []
         it = iter(frames)
         for k in it:
@@ -428,7 +436,7 @@ def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
     try:
         if workers > 1:
             del renderer
-            frames = render_frames(cfg, range(n), workers)
+            frames = render_frames(cfg, range(n), workers, scene)
         else:
             frames = (renderer.render(k)[0] for k in range(n))
         for k, rgb in enumerate(frames):
