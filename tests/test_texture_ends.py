@@ -90,6 +90,20 @@ def test_the_texture_reaches_the_heights_ends(flat_recon):
     assert np.array_equal(tex3, rec.texture_rgb) and not filled3.any()
 
 
+def test_the_fill_by_small_blocks_of_cells_gives_the_same_texture(flat_recon, monkeypatch):
+    """The end cells are projected by blocks (no arrays of millions of points): blocks of 997
+    cells (hundreds of blocks here, the last one partial) colour the same cells the same."""
+    import impress_gui.core.reconstruction.texture as texture
+
+    _, _, cal, rec, ends = flat_recon
+    assert rec.stats["texture_end_cells_filled"] > 50 * 997
+    monkeypatch.setattr(texture, "_BLOCK", 997)
+    tex, filled = texture.fill_texture_ends(rec.row_only_texture, rec.height_mm, rec.spec, cal,
+                                            *ends)
+    assert np.array_equal(tex, rec.texture_rgb)
+    assert int(filled.sum()) == rec.stats["texture_end_cells_filled"]
+
+
 def test_the_filled_colours_are_registered(flat_recon):
     """Blank each column's first and last 15 mm of the texture row's colours and fill them
     from the end frames: they come back as the texture row saw them."""

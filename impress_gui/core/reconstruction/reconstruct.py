@@ -10,6 +10,7 @@ by a worker thread during the loop (:mod:`impress_gui.core.reconstruction.finish
 
 from __future__ import annotations
 
+import importlib
 import queue
 import threading
 import time
@@ -352,6 +353,8 @@ def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
     with ThreadPoolExecutor(1, thread_name_prefix="impress-lut") as pool:
         lut = pool.submit(learn_background, video, start, stop, rois, params.lut_frames,
                           cancel, 2) if params.method in ("lut", "combined") else None
+        if params.texture:  # what colours the texture's ends, imported during the loop
+            pool.submit(importlib.import_module, "scipy.ndimage")
         # the frames the texture's ends are coloured from are kept as they are decoded
         # (seeking them again after the loop took 2.7 s of a 3.2 s finish, without progress)
         ends = (end_frame_indices(cal, cal.travel_mm(video.times_s), start, stop)
