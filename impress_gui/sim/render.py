@@ -59,6 +59,20 @@ def _minmod_slope(h: np.ndarray, axis: int, step: float) -> np.ndarray:
         np.float32)
 
 
+def fold_radius(intr) -> float:
+    """The normalized radius (tan of the angle off the optical axis) where the lens model's
+    radial distortion stops growing: beyond it a point outside the view maps back into the
+    picture. ``inf`` when it keeps growing up to a radius of 5 (85 deg off axis)."""
+    d = np.zeros(8)
+    d[: min(8, intr.dist_coeffs.size)] = intr.dist_coeffs[:8]
+    k1, k2, _, _, k3, k4, k5, k6 = d
+    r = np.linspace(0.0, 5.0, 50001)
+    r2 = r * r
+    rd = r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    turn = np.flatnonzero(np.diff(rd) <= 0)
+    return float(r[turn[0]]) if len(turn) else float("inf")
+
+
 class Renderer:
     def __init__(self, scene: Scene, rig: Rig, motion: Motion, options: RenderOptions):
         self.scene, self.rig, self.motion, self.opt = scene, rig, motion, options
@@ -67,6 +81,7 @@ class Renderer:
         self.width, self.height = w, h
         uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
         rays = intr.rays(np.column_stack([uu.ravel(), vv.ravel()])) @ rig.rotation.T
+        self.fold_radius = fold_radius(intr)
         self.ax = (rays[:, 0] / rays[:, 2]).astype(np.float32).reshape(h, w)
         self.ay = (rays[:, 1] / rays[:, 2]).astype(np.float32).reshape(h, w)
         del rays, uu, vv
@@ -212,8 +227,14 @@ class Renderer:
         vis[g] = np.isfinite(zc) & (zc >= p[g, 2] - 0.08)
         pc = (rel[vis]) @ self.rig.rotation  # ideal -> camera frame (R^T applied to rows)
         uv = self.rig.intrinsics.project(pc)
+        # only points inside the lens model's field: beyond the radius where its distortion
+        # polynomial turns back (a strong barrel lens, k1 and k2 both negative), points far
+        # outside the view project back into the picture - a second, phantom stripe that
+        # no camera shows (random rig 15: 65 rows from the real one at the image's edge)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r_n = np.hypot(pc[:, 0], pc[:, 1]) / pc[:, 2]
         inside = (uv[:, 0] > -2) & (uv[:, 0] < self.width + 1) & (uv[:, 1] > -2) & (
-            uv[:, 1] < self.height + 1)
+            uv[:, 1] < self.height + 1) & (pc[:, 2] > 0) & (r_n < self.fold_radius)
         keep = np.flatnonzero(vis)[inside]
         return StripeTruth(uv[inside], p[keep])
 
