@@ -44,6 +44,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the stripe centre's sub-pixel estimate: 'window' (default: the centre "
                    "of mass above half maximum refined in a window, far less locked to the "
                    "pixel grid) or 'half-max' (that first centre; see docs/accuracy.md)")
+    p.add_argument("--island-cells", type=int, default=50,
+                   help="drop islands of at most this many cells of a laser's map, cut off from "
+                   "their surroundings by steps over --island-step-mm or by cells without data "
+                   "(a false stripe's heights floating off the surface; 0 keeps them; default 50)")
+    p.add_argument("--island-step-mm", type=float, default=0.5,
+                   help="the step that separates an island from its surroundings (default 0.5)")
     p.add_argument("--no-texture", action="store_true", help="skip the texture")
     p.add_argument("--fps", type=float, default=None, help="override the frame rate")
 
@@ -56,7 +62,9 @@ def run(args: argparse.Namespace) -> int:
     params = ProcessParams(method=args.method, frame_start=args.frames[0],
                            frame_stop=args.frames[1], grid_mm=args.grid_mm, rois=rois,
                            min_peak=args.min_peak, weak_run_ratio=args.weak_run_ratio,
-                           texture=not args.no_texture, subpixel=args.subpixel)
+                           texture=not args.no_texture, subpixel=args.subpixel,
+                           island_max_cells=args.island_cells,
+                           island_step_mm=args.island_step_mm)
     progress = progress_printer()
 
     from impress_gui.core.reconstruction.pipeline import process_files
@@ -69,6 +77,9 @@ def run(args: argparse.Namespace) -> int:
           f"{meta['grid']['pixel_mm']} mm; {meta['run']['timings']['frames_per_second']} frames/s")
     print(f"  cells with data: fused {st['cells_fused']}, green {st['cells_green']}, "
           f"red {st['cells_red']}")
+    isl = st.get("island_cells_dropped") or {}
+    if any(isl.values()):
+        print("  small islands dropped (cells): " + ", ".join(f"{k} {v}" for k, v in isl.items()))
     for w in meta["warnings"]:
         print(f"  WARNING: {w}")
     return 0

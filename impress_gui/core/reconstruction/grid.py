@@ -171,3 +171,48 @@ def fuse_rows(h_green, h_red, tol_mm: float, fused, diff, contrib, lo: int, hi: 
     a, b = resolve if resolve is not None else (lo, hi)
     if b > a and (conflicts or resolve is not None):
         k.resolve_conflicts(h_green, h_red, FUSE_RADIUS, fused, contrib, a, b)
+
+
+#: rows of a map looked at together by :func:`drop_islands` (its working memory is about 11
+#: bytes per cell of a block, instead of per cell of the map)
+ISLAND_BLOCK_ROWS = 1024
+
+
+def drop_islands(h: np.ndarray, step_mm: float, max_cells: int,
+                 block_rows: int = ISLAND_BLOCK_ROWS) -> int:
+    """Set to NaN, in place, every island of at most ``max_cells`` cells of the float32 map
+    ``h``: cells joined to their 4 neighbours where the heights differ by at most
+    ``step_mm``, cut off from the rest by larger steps or by cells without data. Returns the
+    cells dropped. A detector's false stripe (soil of the laser's colour, a reflection)
+    gives a few cells floating millimetres off the surface, never joined to it; a real
+    surface is one piece of thousands of cells. Heights are compared in hundredths of a
+    millimetre (OpenCV's ``filterSpeckles`` on 16-bit cells; beyond +-320 mm they are
+    clipped). The map is worked through in blocks of ``block_rows`` rows with ``max_cells
+    + 1`` rows of margin on each side: an island of at most ``max_cells`` cells spans no more
+    rows than that, and a larger piece reaches beyond the margin, so the result is that of
+    the whole map at once."""
+    import cv2
+
+    if max_cells <= 0:
+        return 0
+    rows = h.shape[0]
+    margin = int(max_cells) + 1
+    diff = max(0, int(round(step_mm * 100)))
+    dropped = 0
+    drop_rows = []
+    for a in range(0, rows, block_rows):
+        b = min(rows, a + block_rows)
+        lo, hi = max(0, a - margin), min(rows, b + margin)
+        win = h[lo:hi]
+        valid = np.isfinite(win)
+        img = np.full(win.shape, -32768, np.int16)
+        img[valid] = np.clip(np.rint(win[valid] * 100.0), -32000, 32000).astype(np.int16)
+        cv2.filterSpeckles(img, -32768, int(max_cells), diff)
+        gone = valid & (img == -32768)
+        drop_rows.append((a, gone[a - lo:b - lo]))  # applied after every block is read
+    for a, gone in drop_rows:
+        n = int(gone.sum())
+        if n:
+            h[a:a + gone.shape[0]][gone] = np.nan
+            dropped += n
+    return dropped

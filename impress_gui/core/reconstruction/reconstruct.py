@@ -32,7 +32,13 @@ from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.formats.video import VideoSource
 from impress_gui.core.reconstruction.compiled import kernels as _kernels
 from impress_gui.core.reconstruction.finish import RowFinisher, TextureInputs, stripe_footprint
-from impress_gui.core.reconstruction.grid import ColorAccumulator, GridSpec, HeightAccumulator
+from impress_gui.core.reconstruction.grid import (
+    ColorAccumulator,
+    GridSpec,
+    HeightAccumulator,
+    drop_islands,
+    fuse_rows,
+)
 from impress_gui.core.reconstruction.stripes import (
     LASERS,
     METHODS,
@@ -70,6 +76,12 @@ class ProcessParams:
     # the stripe centre's sub-pixel estimate (stripes.SUBPIXEL): "window" (the centre of mass
     # above half maximum refined by stripes.window_refine; docs/accuracy.md) or "half-max"
     subpixel: str = "window"
+    # islands of at most this many cells of a laser's map, cut off from their surroundings by
+    # steps larger than island_step_mm (or by cells without data), are dropped before the
+    # maps are fused: a false stripe's few cells float millimetres off the surface (grid.
+    # drop_islands; 0 keeps them)
+    island_max_cells: int = 50
+    island_step_mm: float = 0.5
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -90,6 +102,12 @@ class ProcessParams:
                              f"{', '.join(SUBPIXEL)})", code=codes.E_PARAM)
         if not 0.0 <= self.weak_run_ratio < 1.0:
             raise InputError("the weak-run ratio must be in 0..1 (0 keeps every stripe piece)",
+                             code=codes.E_PARAM)
+        if not 0 <= self.island_max_cells <= 10000:
+            raise InputError("the largest island dropped must be 0 (none) to 10000 cells",
+                             code=codes.E_PARAM)
+        if not 0.01 <= self.island_step_mm <= 100.0:
+            raise InputError("the step around a dropped island must be 0.01 to 100 mm",
                              code=codes.E_PARAM)
 
     def to_json(self) -> dict:
@@ -521,9 +539,11 @@ def _process(run: _Run) -> Reconstruction:
     t_finish = time.perf_counter()
     report(run.progress, 0.93, "finishing the maps and the texture")
     finisher.finish()
+    islands = _drop_islands(run, finisher)
     end_cells = _texture_ends(run, tab, finisher, warnings)
     stats = _stats(run, tab, tally, finisher, loop_s, t_finish)
     stats["texture_end_cells_filled"] = end_cells
+    stats["island_cells_dropped"] = islands
     report(run.progress, 1.0, "done")
     if finisher.broken:
         stats["finished_after_loop"] = finisher.broken
@@ -598,6 +618,24 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
             report(run.progress, 0.05 + 0.85 * i / n_total,
                    f"frame {i}/{n_total} ({i / max(el, 1e-9):.1f} frames/s)")
     return tally
+
+
+def _drop_islands(run: _Run, finisher: RowFinisher) -> dict[str, int]:
+    """Drop the small islands of each laser's map (:func:`~impress_gui.core.reconstruction.
+    grid.drop_islands`) and fuse the maps again if any were found; the cells dropped per
+    laser. (The texture was sampled during the loop at the fused heights then: an island's
+    cells keep the colour sampled at its height.)"""
+    p = run.params
+    if p.island_max_cells <= 0:
+        return {n: 0 for n in finisher.names}
+    report(run.progress, 0.94, "dropping small islands of heights")
+    out = {n: drop_islands(finisher.per[n], p.island_step_mm, p.island_max_cells)
+           for n in finisher.names}
+    if any(out.values()):
+        g, r = (finisher.per[n] for n in finisher.names)
+        fuse_rows(g, r, finisher.tol, finisher.fused, finisher.diff, finisher.contrib, 0,
+                  g.shape[0])
+    return out
 
 
 def _texture_ends(run: _Run, tab: _Tables, finisher: RowFinisher, warnings: list[str]) -> int:
