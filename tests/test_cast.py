@@ -116,7 +116,7 @@ def raycast_heights(mesh, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("suffix", [".stl", ".ply", ".obj"])
 def test_watertight_outward_solid_in_every_format(cast_recon, tmp_path, positive, suffix):
     out = tmp_path / f"cast{suffix}"
-    doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive, max_triangles=20000))
+    doc = C.write_cast(cast_recon, out, C.CastParams(decimate="sample", positive=positive, max_triangles=20000))
     mesh = read_mesh(out)
     volume = check_solid(mesh)
     assert len(mesh.triangles) == doc["mesh"]["triangles"] <= 20000
@@ -136,7 +136,7 @@ def test_full_resolution_surface_lies_on_the_heightmap(cast_recon, tmp_path):
     height = synthetic_height()
     for positive in (False, True):
         out = tmp_path / f"full{positive}.stl"
-        doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive))
+        doc = C.write_cast(cast_recon, out, C.CastParams(decimate="sample", positive=positive))
         assert doc["mesh"]["step_cells"] == 1
         mesh = read_mesh(out)
         check_solid(mesh, full=False)
@@ -160,7 +160,7 @@ def test_full_resolution_surface_lies_on_the_heightmap(cast_recon, tmp_path):
 def test_decimated_surface_keeps_heightmap_values_at_its_vertices(cast_recon, tmp_path):
     height = synthetic_height()
     out = tmp_path / "small.ply"
-    doc = C.write_cast(cast_recon, out, C.CastParams(max_triangles=30000))
+    doc = C.write_cast(cast_recon, out, C.CastParams(decimate="sample", max_triangles=30000))
     step = doc["mesh"]["step_cells"]
     assert step > 1
     r0, r1 = doc["region"]["rows"]
@@ -187,7 +187,7 @@ def test_decimated_surface_keeps_heightmap_values_at_its_vertices(cast_recon, tm
 def test_region_holes_and_base(cast_recon, tmp_path):
     height = synthetic_height()
     out = tmp_path / "c.stl"
-    doc = C.write_cast(cast_recon, out, C.CastParams(base_mm=3.5))
+    doc = C.write_cast(cast_recon, out, C.CastParams(decimate="sample", base_mm=3.5))
     # default region: the bounding box of the cells with data (rows 6.., cols ..-4)
     assert doc["region"]["rows"] == [6, SPEC.shape[0]]
     assert doc["region"]["cols"] == [0, SPEC.shape[1] - 4]
@@ -213,13 +213,13 @@ def test_region_holes_and_base(cast_recon, tmp_path):
     assert np.nanmin(ring) - 1e-3 <= z.min() and z.max() <= np.nanmax(ring) + 1e-3
     assert np.max(np.abs(z - ground(x, y))) < 0.15  # the smooth ground continues
     # the positive: base below the lowest point of the turned-over surface
-    doc = C.write_cast(cast_recon, tmp_path / "p.stl", C.CastParams(positive=True, base_mm=3.5))
+    doc = C.write_cast(cast_recon, tmp_path / "p.stl", C.CastParams(decimate="sample", positive=True, base_mm=3.5))
     assert doc["mesh"]["base_z_mm"] == pytest.approx(-float(np.nanmax(region)) - 3.5, abs=1e-4)
 
 
 def test_crop_in_the_export_frame(cast_recon, tmp_path):
     x0, y0, x1, y1 = 110.0, -90.0, 140.2, -60.0
-    doc = C.write_cast(cast_recon, tmp_path / "c.stl", C.CastParams(crop_mm=(x1, y1, x0, y0)))
+    doc = C.write_cast(cast_recon, tmp_path / "c.stl", C.CastParams(decimate="sample", crop_mm=(x1, y1, x0, y0)))
     box = doc["mesh"]["bounding_box"]
     assert box["min_mm"][:2] == pytest.approx([110.0, -90.0])
     assert box["max_mm"][:2] == pytest.approx([140.0, -60.0])  # cell centres inside the crop
@@ -229,7 +229,7 @@ def test_crop_in_the_export_frame(cast_recon, tmp_path):
 
 @pytest.mark.parametrize("cap", [20, 1000, 12345, 100000])
 def test_triangle_cap(cast_recon, tmp_path, cap):
-    doc = C.write_cast(cast_recon, tmp_path / "c.stl", C.CastParams(max_triangles=cap))
+    doc = C.write_cast(cast_recon, tmp_path / "c.stl", C.CastParams(decimate="sample", max_triangles=cap))
     n = doc["mesh"]["triangles"]
     assert n <= cap
     rows, cols = doc["region"]["cells"]
@@ -272,7 +272,7 @@ def _best_iou(mask: np.ndarray, letter: np.ndarray) -> tuple[float, int]:
 @pytest.mark.parametrize("positive", [False, True])
 def test_a_raised_letter_keeps_its_handedness(cast_recon, tmp_path, positive):
     out = tmp_path / "f.stl"
-    C.write_cast(cast_recon, out, C.CastParams(positive=positive, max_triangles=400000))
+    C.write_cast(cast_recon, out, C.CastParams(decimate="sample", positive=positive, max_triangles=400000))
     mask = _relief_mask(read_mesh(out))
     s = np.arange(-16, 16.01, 0.5)
     x, y = np.meshgrid(s, s[::-1])  # row 0 = the largest y, as the mask
@@ -289,8 +289,8 @@ def test_a_raised_letter_keeps_its_handedness(cast_recon, tmp_path, positive):
 def test_positive_is_the_rotation_of_the_poured_cast(cast_recon, tmp_path):
     """Every surface vertex of the positive is the rotation by 180 deg about y of the same
     cell's vertex in the negative: (x, y, z) -> (-x, y, -z)."""
-    neg = C.write_cast(cast_recon, tmp_path / "n.ply", C.CastParams(max_triangles=50000))
-    pos = C.write_cast(cast_recon, tmp_path / "p.ply", C.CastParams(positive=True,
+    neg = C.write_cast(cast_recon, tmp_path / "n.ply", C.CastParams(decimate="sample", max_triangles=50000))
+    pos = C.write_cast(cast_recon, tmp_path / "p.ply", C.CastParams(decimate="sample", positive=True,
                                                                max_triangles=50000))
     vn = np.asarray(read_mesh(tmp_path / "n.ply").vertices)
     vp = np.asarray(read_mesh(tmp_path / "p.ply").vertices)
@@ -307,7 +307,7 @@ def test_same_input_same_bytes_and_the_record(cast_recon, tmp_path):
     # nine casts: at most 10 000 triangles (8 800, every third cell) each is verified in under
     # a second; 50 000 left 19 000 (every second cell) and took 3-4 s each, nearly all of it
     # open3d's self-intersection test, which this test is not about
-    params = C.CastParams(positive=True, base_mm=4.0, max_triangles=10000,
+    params = C.CastParams(decimate="sample", positive=True, base_mm=4.0, max_triangles=10000,
                           crop_mm=(105.0, -100.0, 150.0, -50.0))
     for suffix in (".stl", ".ply", ".obj"):
         a, b = tmp_path / f"a{suffix}", tmp_path / "again" / f"a{suffix}"
@@ -406,7 +406,7 @@ def test_bad_inputs_give_their_codes(cast_recon, tmp_path, capsys):
 @pytest.mark.parametrize("bad", [math.nan, -1.0, 0.0, math.inf, 2000.0])
 def test_core_refuses_bad_bases(bad):
     with pytest.raises(InputError) as info:
-        C.make_cast(synthetic_height(), SPEC, C.CastParams(base_mm=bad))
+        C.make_cast(synthetic_height(), SPEC, C.CastParams(decimate="sample", base_mm=bad))
     assert info.value.code == "E-CAST-BASE"
 
 
@@ -457,7 +457,7 @@ def test_simulated_letter_cast(letter_scan, tmp_path, positive):
     lx, ly = export_xy(spec, ii, jj)
     crop = (lx.min() - 8, ly.min() - 8, lx.max() + 8, ly.max() + 8)
     out = tmp_path / "letter.stl"
-    doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive, crop_mm=crop))
+    doc = C.write_cast(cast_recon, out, C.CastParams(decimate="sample", positive=positive, crop_mm=crop))
     assert doc["mesh"]["step_cells"] == 1
     mesh = read_mesh(out)
     check_solid(mesh, full=doc["mesh"]["triangles"] < 40000)
@@ -488,11 +488,11 @@ def test_progress_and_cancel(cast_recon, tmp_path):
     from impress_gui.core.base.progress import CancelToken
 
     seen: list[float] = []
-    C.write_cast(cast_recon, tmp_path / "a.stl", C.CastParams(max_triangles=5000),
+    C.write_cast(cast_recon, tmp_path / "a.stl", C.CastParams(decimate="sample", max_triangles=5000),
                  progress=lambda f, _msg: seen.append(f))
     assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
     token = CancelToken()
     token.cancel()
     with pytest.raises(Cancelled):
-        C.write_cast(cast_recon, tmp_path / "b.stl", C.CastParams(), cancel=token)
+        C.write_cast(cast_recon, tmp_path / "b.stl", C.CastParams(decimate="sample"), cancel=token)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.stl", "a.stl.json"]

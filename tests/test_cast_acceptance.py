@@ -3,7 +3,8 @@ written here): the cast is watertight with a positive volume, its surface lies w
 of the heightmap (at full resolution, and after open3d's quadric decimation), a left shoe
 stays a left shoe (a chiral feature keeps its side in the right-handed export frame), and the
 open3d checks and the measured deviation are in the sidecar; the same input gives the same
-bytes with either decimation."""
+bytes with any decimation. The default (the adaptive surface) keeps every cell of the whole
+region within 0.02 mm with far fewer triangles than the grid."""
 
 from __future__ import annotations
 
@@ -50,7 +51,7 @@ def data_cells_deviation(mesh_path, height, doc) -> np.ndarray:
 def test_trimesh_reads_a_watertight_solid_with_positive_volume(cast_recon, tmp_path, positive,
                                                                suffix):
     out = tmp_path / f"cast{suffix}"
-    doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive, max_triangles=40000))
+    doc = C.write_cast(cast_recon, out, C.CastParams(decimate="sample", positive=positive, max_triangles=40000))
     mesh = load(out)
     assert mesh.is_watertight and mesh.is_winding_consistent and mesh.is_volume
     assert mesh.volume > 0 and mesh.volume == pytest.approx(doc["mesh"]["volume_mm3"],
@@ -78,7 +79,7 @@ def test_small_casts_are_tested_for_self_intersection(cast_recon, tmp_path):
 def test_full_resolution_surface_within_0_02_mm(cast_recon, tmp_path, positive):
     height = synthetic_height()
     out = tmp_path / "full.stl"
-    doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive))
+    doc = C.write_cast(cast_recon, out, C.CastParams(decimate="sample", positive=positive))
     assert doc["mesh"]["decimation"] == {"method": "sample", "step_cells": 1}
     d = data_cells_deviation(out, height, doc)
     assert d.size > 40000 and np.max(d) <= 1e-4  # float32 rounding only
@@ -110,14 +111,14 @@ def test_quadric_decimation_keeps_the_surface_within_0_02_mm(cast_recon, tmp_pat
     assert doc["checks"]["ok"] and "by_construction" not in doc["checks"]["self_intersection"]
     # sampling to the same cap: vertices on the cells, but the walls between them are not
     s = tmp_path / "s.ply"
-    sdoc = C.write_cast(cast_recon, s, C.CastParams(positive=positive, max_triangles=cap))
+    sdoc = C.write_cast(cast_recon, s, C.CastParams(decimate="sample", positive=positive, max_triangles=cap))
     assert sdoc["mesh"]["step_cells"] == 3
     assert sdoc["surface_deviation"]["max_mm"] > 1.0  # a 2 mm wall cut across
     assert np.max(data_cells_deviation(s, height, sdoc)) > 1.0
 
 
 def test_same_input_same_bytes_with_either_decimation(cast_recon, tmp_path):
-    for dec in ("sample", "quadric"):
+    for dec in ("adaptive", "sample", "quadric"):
         params = C.CastParams(positive=True, max_triangles=20000, decimate=dec)
         a, b = tmp_path / f"a-{dec}.stl", tmp_path / "again" / f"a-{dec}.stl"
         C.write_cast(cast_recon, a, params)
@@ -175,7 +176,7 @@ def test_a_left_shoe_stays_left(tmp_path, suffix):
     assert hx > 10 and hy > 100  # the heightmap: the big toe medial (+x), at the toes (+y)
     for positive in (False, True):
         out = tmp_path / f"{positive}{suffix}"
-        doc = C.write_cast(recon, out, C.CastParams(positive=positive))
+        doc = C.write_cast(recon, out, C.CastParams(decimate="sample", positive=positive))
         mesh = load(out)
         assert mesh.is_watertight and mesh.volume > 0
         v = np.asarray(mesh.vertices)
@@ -199,7 +200,112 @@ def test_a_strided_deviation_sees_between_the_samples(cast_recon, tmp_path, monk
     """On a large map the deviation is measured on every k-th cell, k prime to the sampling
     step: never only on the sampled cells, where a sampled surface is exact."""
     monkeypatch.setattr(C, "DEVIATION_MAX_RAYS", 10000)  # 54 864 cells: stride 3 at first
-    doc = C.write_cast(cast_recon, tmp_path / "s.stl", C.CastParams(max_triangles=13200))
+    doc = C.write_cast(cast_recon, tmp_path / "s.stl", C.CastParams(decimate="sample", max_triangles=13200))
     step, dev = doc["mesh"]["step_cells"], doc["surface_deviation"]
     assert step == 3 and dev["stride_cells"] == 4  # 3 would land on the samples only
     assert dev["max_mm"] > 1.0 and dev["within_tolerance_fraction"] < 0.999
+
+
+# ----- the adaptive surface (the default) ----------------------------------------------------
+@pytest.mark.parametrize("positive", [False, True])
+@pytest.mark.parametrize("suffix", [".stl", ".ply"])
+def test_default_cast_keeps_every_cell_within_0_02_mm(cast_recon, tmp_path, positive, suffix):
+    """The default parameters on the whole region: every cell with data within 0.02 mm of the
+    surface (rays cast on the file as read back, independently of the sidecar), a watertight solid for trimesh, and a quarter of the
+    full-resolution grid's 111 598 triangles or fewer."""
+    height = synthetic_height()
+    out = tmp_path / f"cast{suffix}"
+    doc = C.write_cast(cast_recon, out, C.CastParams(positive=positive))
+    dec = doc["mesh"]["decimation"]
+    assert doc["parameters"]["decimate"] == "adaptive" and doc["parameters"]["tolerance_mm"] == TOL_MM
+    assert dec["method"] == "adaptive" and dec["tolerance_met"] and "warnings" not in doc
+    assert dec["max_vertical_error_mm"] <= TOL_MM
+    assert doc["mesh"]["triangles"] < 111598 / 4
+    mesh = load(out)
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.is_volume
+    assert mesh.volume > 0 and mesh.volume == pytest.approx(doc["mesh"]["volume_mm3"], rel=1e-5)
+    d = data_cells_deviation(out, height, doc)
+    assert d.size > 40000 and np.max(d) <= TOL_MM + 1e-5  # float32 vertices, float32 rays
+    dev = doc["surface_deviation"]
+    assert dev["missed"] == 0 and dev["cells"] == int(np.isfinite(height[6:, :-4]).sum())
+    assert dev["max_mm"] <= TOL_MM and dev["within_tolerance_fraction"] == 1.0
+    assert dev["normal"]["max_mm"] <= dev["max_mm"]
+    si = doc["checks"]["self_intersection"]  # the exact check of the projection
+    assert doc["checks"]["ok"] and si["tested"] and not si["self_intersecting"]
+    assert dec["projection"]["no_overlap"] and doc["checks"]["watertight"]
+
+
+def test_adaptive_surface_against_every_cell_by_interpolation():
+    """Independently of any ray caster: the adaptive surface interpolated linearly over its
+    triangles (matplotlib's triangulation) at every cell of the region, filled holes included,
+    lies within the tolerance, and a finer tolerance takes more triangles."""
+    from matplotlib.tri import LinearTriInterpolator, Triangulation
+
+    height = synthetic_height()
+    counts = []
+    for tol in (0.1, 0.02, 0.005):
+        mesh = C.make_cast(height, SPEC, C.CastParams(tolerance_mm=tol))
+        (r0, r1), (c0, c1) = mesh.region["rows"], mesh.region["cols"]
+        filled = C.fill_holes(height[r0:r1, c0:c1]).astype(np.float32)
+        top = C.surface_triangles(mesh)
+        v = mesh.vertices.astype(np.float64)
+        f = LinearTriInterpolator(Triangulation(v[:, 0], v[:, 1], mesh.triangles[top]), v[:, 2])
+        ii, jj = np.mgrid[r0:r1, c0:c1]
+        x, y = export_xy(SPEC, ii, jj)
+        z = np.asarray(f(x.ravel(), y.ravel())).reshape(x.shape)
+        err = np.abs(z - filled)
+        assert not np.isnan(z).any() and err.max() <= tol + 1e-6
+        assert err.max() == pytest.approx(mesh.decimation["max_vertical_error_mm"], abs=1e-5)
+        counts.append(len(mesh.triangles))
+    assert counts[0] < counts[1] < counts[2]
+
+
+def test_a_cap_reached_before_the_tolerance_is_said(cast_recon, tmp_path, capsys):
+    from impress_gui.cli import main
+
+    out = tmp_path / "capped.stl"
+    assert main(["cast", str(cast_recon), "-o", str(out), "--max-triangles", "3000"]) == 0
+    text = capsys.readouterr().out
+    doc = json.loads(out.with_name(out.name + ".json").read_text())
+    dec = doc["mesh"]["decimation"]
+    assert doc["mesh"]["triangles"] <= 3000 and not dec["tolerance_met"]
+    assert dec["max_vertical_error_mm"] > TOL_MM
+    assert doc["warnings"][0].startswith("W-CAST-TOLERANCE")
+    assert "WARNING W-CAST-TOLERANCE" in text and "raise the cap" in text
+    assert load(out).is_watertight
+    # the tolerance is an option; out of range is refused with a code
+    for bad in ("-0.01", "11", "nan"):
+        with pytest.raises(C.InputError) as info:
+            C.CastParams(tolerance_mm=float(bad)).check()
+        assert info.value.code == "E-CAST-TOLERANCE"
+    loose = tmp_path / "loose.stl"
+    assert main(["cast", str(cast_recon), "-o", str(loose), "--tolerance-mm", "0.2"]) == 0
+    ldoc = json.loads(loose.with_name(loose.name + ".json").read_text())
+    assert ldoc["parameters"]["tolerance_mm"] == 0.2
+    assert ldoc["mesh"]["decimation"]["max_vertical_error_mm"] <= 0.2
+    assert ldoc["mesh"]["triangles"] < doc["mesh"]["triangles"] + 30000
+
+
+@pytest.mark.parametrize("positive", [False, True])
+def test_a_left_shoe_stays_left_with_the_adaptive_surface(tmp_path, positive):
+    h = left_shoe_impression()
+    recon = write_recon(tmp_path / "left", h, LEFT_SPEC)
+    ii, jj = np.mgrid[0 : LEFT_SPEC.shape[0], 0 : LEFT_SPEC.shape[1]]
+    x, y = export_xy(LEFT_SPEC, ii, jj)
+    cells = np.column_stack([x.ravel(), y.ravel(), h.ravel()])
+    hx, hy = _toe_side(cells, cells[:, 2] < 10.0 - 2.0 - 1.0, cells[:, 2] < 10.0 - 1.0)
+    out = tmp_path / "left.stl"
+    C.write_cast(recon, out, C.CastParams(positive=positive))
+    mesh = load(out)
+    assert mesh.is_watertight and mesh.volume > 0
+    # the deepest pit's place read off the mesh itself: rays straight down over the sole
+    z = raycast_heights(read_mesh(out), -x.ravel() if positive else x.ravel(), y.ravel())
+    z = -z if positive else z
+    known = np.isfinite(z)  # a ray along the region's outer edge may miss
+    # thresholds between the heightmap's levels (10, 8, 7, 5 mm), away from the float32
+    # rounding of a ray's hit on a level
+    deep, sole = known & (z < 6.5), known & (z < 9.5)
+    mx, my = _toe_side(cells, deep, sole)
+    ex, ey = _toe_side(cells, known & (cells[:, 2] < 6.5), known & (cells[:, 2] < 9.5))
+    assert (ex, ey) == pytest.approx((hx, hy), abs=0.5)  # the big toe medial, at the toes
+    assert (mx, my) == pytest.approx((ex, ey), abs=0.05)  # where the mesh has it

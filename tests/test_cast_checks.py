@@ -59,9 +59,9 @@ def height_and_spec(cast_recon):
 
 
 @pytest.mark.parametrize("params", [
-    C.CastParams(),  # full resolution, 111,598 triangles
-    C.CastParams(max_triangles=30000),
-    C.CastParams(max_triangles=5000, positive=True),
+    C.CastParams(decimate="sample"),  # full resolution, 111,598 triangles
+    C.CastParams(decimate="sample", max_triangles=30000),
+    C.CastParams(decimate="sample", max_triangles=5000, positive=True),
     C.CastParams(max_triangles=30000, decimate="quadric"),
     C.CastParams(max_triangles=5000, decimate="quadric", positive=True),
 ], ids=["full", "sample-30k", "sample-5k-positive", "quadric-30k", "quadric-5k-positive"])
@@ -104,7 +104,7 @@ def test_numpy_edge_check_gives_open3d_verdicts_on_broken_meshes(height_and_spec
 def test_open3d_runs_only_when_the_edge_check_fails(height_and_spec, monkeypatch):
     """The speed-up: a closed, consistently wound cast never reaches open3d's edge-manifold
     and orientability tests (about 27 s on a 1.7-million-triangle cast)."""
-    mesh = C.make_cast(*height_and_spec, C.CastParams(max_triangles=30000))
+    mesh = C.make_cast(*height_and_spec, C.CastParams(decimate="sample", max_triangles=30000))
     calls = []
     real = o3d.geometry.TriangleMesh
 
@@ -139,7 +139,7 @@ class MissingRays:
     def cast_rays(self, rays):
         out = self._scene.cast_rays(rays)
         t = np.full(out["t_hit"].shape, np.inf, np.float32)
-        return {"t_hit": o3d.core.Tensor(t)}
+        return {"t_hit": o3d.core.Tensor(t), "primitive_ids": out["primitive_ids"]}
 
 
 _REAL_SCENE = o3d.t.geometry.RaycastingScene
@@ -166,7 +166,7 @@ def test_summary_of_records_without_figures(cast_recon, tmp_path):
     from impress_gui.commands.cast import summary_lines
 
     out = tmp_path / "c.stl"
-    doc = C.write_cast(cast_recon, out, C.CastParams(max_triangles=5000))
+    doc = C.write_cast(cast_recon, out, C.CastParams(decimate="sample", max_triangles=5000))
     full = summary_lines(doc, out)
     dev = doc["surface_deviation"]
     assert any("(vertical)" in line for line in full)
@@ -188,7 +188,7 @@ def test_summary_of_records_without_figures(cast_recon, tmp_path):
 
 def test_vertical_method_says_what_is_measured(cast_recon, tmp_path):
     """The vertical figures are unsigned (absolute differences), as the method says."""
-    doc = C.write_cast(cast_recon, tmp_path / "c.stl", C.CastParams(max_triangles=5000))
+    doc = C.write_cast(cast_recon, tmp_path / "c.stl", C.CastParams(decimate="sample", max_triangles=5000))
     method = doc["surface_deviation"]["method"]
     assert "absolute difference" in method and "minus" not in method
     assert synthetic_height().shape == tuple(doc["grid"]["shape"])

@@ -63,6 +63,10 @@ def test_digital_cast_from_the_viewer(qtbot, window, tmp_path, cast_recon):
     qtbot.keyClicks(dlg.base_spin, "3.5")
     dlg.triangles_spin.clear()
     qtbot.keyClicks(dlg.triangles_spin, "30000")
+    assert dlg.decimate_combo.currentData() == "adaptive" and dlg.tolerance_spin.isEnabled()
+    assert dlg.tolerance_spin.value() == 0.02
+    dlg.tolerance_spin.clear()
+    qtbot.keyClicks(dlg.tolerance_spin, "0.05")
     dlg.region_combo.setCurrentIndex(1)  # the visible region
     r = v.map.vb.viewRect()
     assert dlg.visible_crop == pytest.approx((r.left(), -r.bottom(), r.right(), -r.top()))
@@ -80,6 +84,8 @@ def test_digital_cast_from_the_viewer(qtbot, window, tmp_path, cast_recon):
     doc = json.loads((out_dir / "outsole.stl.json").read_text())
     assert doc["parameters"]["mode"] == "positive"
     assert doc["parameters"]["base_mm"] == 3.5 and doc["parameters"]["max_triangles"] == 30000
+    assert doc["parameters"]["decimate"] == "adaptive" and doc["parameters"]["tolerance_mm"] == 0.05
+    assert doc["mesh"]["decimation"]["max_vertical_error_mm"] <= 0.05
     assert doc["parameters"]["crop_mm"] == pytest.approx(list(dlg.visible_crop), abs=1e-3)
     assert len(mesh.faces) == doc["mesh"]["triangles"] <= 30000
     assert mesh.volume == pytest.approx(doc["mesh"]["volume_mm3"], rel=1e-5)
@@ -95,7 +101,8 @@ def test_digital_cast_from_the_viewer(qtbot, window, tmp_path, cast_recon):
     # the viewer's context only)
     cli = tmp_path / "cli" / "outsole.stl"
     C.write_cast(cast_recon, cli, C.CastParams(positive=True, base_mm=3.5, max_triangles=30000,
-                                          crop_mm=tuple(doc["parameters"]["crop_mm"])))
+                                          crop_mm=tuple(doc["parameters"]["crop_mm"]),
+                                          tolerance_mm=0.05))
     assert cli.read_bytes() == stl.read_bytes()
     # recorded in the case record: the mesh with its hash, and its record
     outs = v.project.outputs[-2:]
@@ -167,4 +174,16 @@ def test_the_file_menu_exports_the_cast(qtbot, window):
     dlg = window.viewer_tab.actions.cast_dialog
     assert dlg is not None
     qtbot.waitExposed(dlg)
+    dlg.reject()
+
+
+def test_the_tolerance_follows_the_method(qtbot, window):
+    """The tolerance applies to the adaptive surface only: disabled for the other methods."""
+    dlg = open_dialog(qtbot, window.viewer_tab)
+    keys = [dlg.decimate_combo.itemData(i) for i in range(dlg.decimate_combo.count())]
+    assert keys == ["adaptive", "sample", "quadric"]
+    dlg.decimate_combo.setCurrentIndex(1)
+    assert not dlg.tolerance_spin.isEnabled() and dlg.params().decimate == "sample"
+    dlg.decimate_combo.setCurrentIndex(0)
+    assert dlg.tolerance_spin.isEnabled() and dlg.params().tolerance_mm == 0.02
     dlg.reject()

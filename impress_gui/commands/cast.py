@@ -20,7 +20,13 @@ def _crop(text: str) -> tuple[float, float, float, float]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from impress_gui.core.measure.cast import DEFAULT_BASE_MM, DEFAULT_MAX_TRIANGLES
+    from impress_gui.core.measure.cast import (
+        DECIMATE_METHODS,
+        DEFAULT_BASE_MM,
+        DEFAULT_DECIMATE,
+        DEFAULT_MAX_TRIANGLES,
+        DEFAULT_TOLERANCE_MM,
+    )
 
     p.add_argument("reconstruction", type=Path, help="reconstruction folder (impress process)")
     p.add_argument("-o", "--output", type=Path, required=True,
@@ -34,16 +40,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"base thickness below the lowest point, mm (default {DEFAULT_BASE_MM:g})")
     p.add_argument("--crop", type=_crop, default=None, metavar="X0,Y0,X1,Y1",
                    help="region in the export frame, mm (default: the cells with data)")
+    p.add_argument("--tolerance-mm", type=float, default=DEFAULT_TOLERANCE_MM,
+                   help=f"with --decimate adaptive: the largest vertical distance allowed "
+                   f"between the mesh's surface and any cell of the heightmap, mm (default "
+                   f"{DEFAULT_TOLERANCE_MM:g}; 0 keeps every cell that is not on a plane with "
+                   f"its neighbours)")
     p.add_argument("--max-triangles", type=int, default=DEFAULT_MAX_TRIANGLES,
-                   help=f"triangle cap; the grid is sampled more coarsely to keep under it "
-                   f"(default {DEFAULT_MAX_TRIANGLES})")
-    p.add_argument("--decimate", choices=("sample", "quadric"), default="sample",
-                   help="how the triangle cap is met: 'sample' keeps every k-th cell (vertices "
-                   "exactly on the heightmap's cells; walls smeared over k cells), 'quadric' "
-                   "simplifies the full-resolution mesh with open3d's quadric error decimation "
-                   "(few triangles on flat ground, walls and edges kept; slower, more memory); "
-                   "the record gives the surface's deviation from the heightmap either way "
-                   "(default sample)")
+                   help=f"triangle cap (the file's size: 50 bytes a triangle in STL); with "
+                   f"--decimate adaptive a cap reached before the tolerance is said so in the "
+                   f"output and the record (default {DEFAULT_MAX_TRIANGLES})")
+    p.add_argument("--decimate", choices=DECIMATE_METHODS, default=DEFAULT_DECIMATE,
+                   help="how the mesh is made smaller than the grid: 'adaptive' places "
+                   "vertices on the cells where the relief needs them until every cell lies "
+                   "within --tolerance-mm of the surface (flat ground gets large triangles, "
+                   "walls and edges small ones); 'sample' keeps every k-th cell under the cap "
+                   "(walls smeared over k cells); 'quadric' simplifies the full-resolution mesh "
+                   "with open3d's quadric error decimation to the cap (slower, more memory); "
+                   f"the record gives the surface's deviation from the heightmap either way "
+                   f"(default {DEFAULT_DECIMATE})")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -51,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     from impress_gui.core.measure.cast import CastParams, write_cast
 
     params = CastParams(positive=args.positive, base_mm=args.base_mm, crop_mm=args.crop,
-                        max_triangles=args.max_triangles, decimate=args.decimate)
+                        max_triangles=args.max_triangles, decimate=args.decimate,
+                        tolerance_mm=args.tolerance_mm)
     progress = progress_printer()
 
     doc = write_cast(args.reconstruction, args.output, params, progress)
@@ -70,13 +85,21 @@ def summary_lines(doc: dict, output: Path | str) -> list[str]:
     m, holes = doc["mesh"], doc.get("holes") or {}
     box = m["bounding_box"]
     size = [hi - lo for lo, hi in zip(box["min_mm"], box["max_mm"], strict=True)]
-    lines = [f"cast written to {output} ({doc['parameters']['mode']}, {m['format']})",
-             f"  {m['triangles']} triangles, {m['vertices']} vertices, every {m['step_cells']} "
-             f"cell(s) ({m['vertex_spacing_mm']:g} mm); size {size[0]:.1f} x {size[1]:.1f} x "
-             f"{size[2]:.1f} mm; volume {m['volume_mm3'] / 1000:.1f} cm3"]
     dec = m.get("decimation") or {}
+    where = (f"adaptive, {dec.get('surface_vertices')} surface vertices on the "
+             f"{dec.get('cells')} cells" if dec.get("method") == "adaptive" else
+             f"every {m['step_cells']} cell(s) ({m['vertex_spacing_mm']:g} mm)")
+    lines = [f"cast written to {output} ({doc['parameters']['mode']}, {m['format']})",
+             f"  {m['triangles']} triangles, {m['vertices']} vertices, {where}; size "
+             f"{size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} mm; volume "
+             f"{m['volume_mm3'] / 1000:.1f} cm3"]
     dev, chk = doc.get("surface_deviation") or {}, doc.get("checks") or {}
-    if dec.get("method") == "quadric":
+    for w in doc.get("warnings") or ():
+        lines.append(f"  WARNING {w}")
+    if dec.get("method") == "adaptive":
+        lines.append(f"  every cell within {dec.get('max_vertical_error_mm', 0):.4f} mm of the "
+                     f"surface, vertically (tolerance {dec.get('tolerance_mm', 0):g} mm)")
+    elif dec.get("method") == "quadric":
         lines.append(f"  quadric decimation of {dec.get('input_triangles')} triangles (every "
                      f"{dec.get('input_step_cells')} cell(s))")
     elif dec.get("note"):

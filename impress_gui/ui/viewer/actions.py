@@ -605,6 +605,8 @@ class ViewerExports(QObject):
             if "max_mm" in dev:
                 text += f"; surface within {dev['max_mm']:.3f} mm of the heightmap"
             self.status.emit(text + ")")
+            if doc.get("warnings"):
+                self.messenger.warning("Digital cast", "\n".join(doc["warnings"]))
 
         return self.tasks.run("Writing the digital cast", task, done,
                               "Cannot write the digital cast")

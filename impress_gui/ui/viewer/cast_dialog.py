@@ -1,5 +1,6 @@
 """The viewer's "Digital cast" dialog: the choices of ``impress cast`` (negative or positive,
-base thickness, triangle cap and how it is met, the whole data or the visible region) before
+base thickness, how the mesh is made smaller than the grid (the adaptive surface's tolerance,
+the triangle cap), the whole data or the visible region) before
 the file is chosen. The cast itself is :func:`impress_gui.core.measure.cast.write_cast`, the
 command line's code, run by :class:`~impress_gui.ui.viewer.actions.ViewerExports`."""
 
@@ -20,7 +21,10 @@ from PySide6.QtWidgets import (
 from impress_gui.core.measure.cast import (
     DEFAULT_BASE_MM,
     DEFAULT_MAX_TRIANGLES,
+    DEFAULT_TOLERANCE_MM,
     MAX_BASE_MM,
+    MAX_TOLERANCE_MM,
+    MIN_TOLERANCE_MM,
     MIN_TRIANGLES,
     CastParams,
 )
@@ -30,6 +34,8 @@ MODES = (
     ("positive", "Positive: the outsole (the poured cast, turned over)"),
 )
 DECIMATIONS = (
+    ("adaptive", "Adaptive: every cell within the tolerance (small triangles where the relief "
+                 "needs them)"),
     ("sample", "Every k-th cell (vertices on the heightmap's cells)"),
     ("quadric", "Quadric decimation (open3d: walls and edges kept; slower)"),
 )
@@ -86,6 +92,17 @@ class CastDialog(QDialog):
         for key, text in DECIMATIONS:
             self.decimate_combo.addItem(text, key)
         form.addRow("Fewer triangles by", self.decimate_combo)
+        self.tolerance_spin = QDoubleSpinBox()
+        self.tolerance_spin.setRange(MIN_TOLERANCE_MM, MAX_TOLERANCE_MM)
+        self.tolerance_spin.setDecimals(3)
+        self.tolerance_spin.setSingleStep(0.005)
+        self.tolerance_spin.setSuffix(" mm")
+        self.tolerance_spin.setValue(DEFAULT_TOLERANCE_MM)
+        self.tolerance_spin.setToolTip(
+            "Adaptive: the largest vertical distance between the mesh and any cell of the "
+            "heightmap; the triangle cap wins if it is reached first (the record says so)")
+        form.addRow("Surface tolerance", self.tolerance_spin)
+        self.decimate_combo.currentIndexChanged.connect(self._method_changed)
         self.region_combo = QComboBox()
         self.region_combo.addItem("All the data (the rectangle around the cells with data)",
                                   "data")
@@ -105,6 +122,9 @@ class CastDialog(QDialog):
         lay.addWidget(note)
         lay.addWidget(self.buttons)
 
+    def _method_changed(self) -> None:
+        self.tolerance_spin.setEnabled(self.decimate_combo.currentData() == "adaptive")
+
     @property
     def ok_button(self):
         return self.buttons.button(QDialogButtonBox.StandardButton.Ok)
@@ -122,4 +142,5 @@ class CastDialog(QDialog):
             crop_mm=None if crop is None else tuple(round(float(v), 3) for v in crop),
             max_triangles=int(self.triangles_spin.value()),
             decimate=str(self.decimate_combo.currentData()),
+            tolerance_mm=round(float(self.tolerance_spin.value()), 6),
         )
