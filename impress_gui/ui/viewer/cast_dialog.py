@@ -80,14 +80,6 @@ class CastDialog(QDialog):
         self.base_spin.setValue(DEFAULT_BASE_MM)
         self.base_spin.setToolTip("The base's thickness below the surface's lowest point")
         form.addRow("Base thickness", self.base_spin)
-        self.triangles_spin = QSpinBox()
-        self.triangles_spin.setRange(MIN_TRIANGLES, MAX_TRIANGLES_LIMIT)
-        self.triangles_spin.setSingleStep(100_000)
-        self.triangles_spin.setGroupSeparatorShown(True)
-        self.triangles_spin.setValue(DEFAULT_MAX_TRIANGLES)
-        self.triangles_spin.setToolTip("At most this many triangles (the file's size: 50 bytes "
-                                       "each in STL)")
-        form.addRow("Max triangles", self.triangles_spin)
         self.decimate_combo = QComboBox()
         for key, text in DECIMATIONS:
             self.decimate_combo.addItem(text, key)
@@ -102,6 +94,14 @@ class CastDialog(QDialog):
             "Adaptive: the largest vertical distance between the mesh and any cell of the "
             "heightmap; the triangle cap wins if it is reached first (the record says so)")
         form.addRow("Surface tolerance", self.tolerance_spin)
+        self.triangles_spin = QSpinBox()
+        self.triangles_spin.setRange(MIN_TRIANGLES, MAX_TRIANGLES_LIMIT)
+        self.triangles_spin.setSingleStep(100_000)
+        self.triangles_spin.setGroupSeparatorShown(True)
+        self.triangles_spin.setValue(DEFAULT_MAX_TRIANGLES)
+        self.triangles_spin.setToolTip("At most this many triangles (the file's size: 50 bytes "
+                                       "each in STL)")
+        form.addRow("Max triangles", self.triangles_spin)
         self.decimate_combo.currentIndexChanged.connect(self._method_changed)
         self.region_combo = QComboBox()
         self.region_combo.addItem("All the data (the rectangle around the cells with data)",
