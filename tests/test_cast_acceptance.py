@@ -165,15 +165,22 @@ def _toe_side(points: np.ndarray, deep: np.ndarray, sole: np.ndarray) -> tuple[f
     return tuple(points[deep, :2].mean(axis=0) - points[sole, :2].mean(axis=0))
 
 
-@pytest.mark.parametrize("suffix", [".stl", ".obj"])
-def test_a_left_shoe_stays_left(tmp_path, suffix):
+def left_shoe_case(folder):
+    """A reconstruction folder of :func:`left_shoe_impression`, its cells ``(x, y, h)`` in the
+    export frame and the big toe's side read off the heightmap."""
     h = left_shoe_impression()
-    recon = write_recon(tmp_path / "left", h, LEFT_SPEC)
+    recon = write_recon(folder, h, LEFT_SPEC)
     ii, jj = np.mgrid[0 : LEFT_SPEC.shape[0], 0 : LEFT_SPEC.shape[1]]
     x, y = export_xy(LEFT_SPEC, ii, jj)
     cells = np.column_stack([x.ravel(), y.ravel(), h.ravel()])
     hx, hy = _toe_side(cells, cells[:, 2] < 10.0 - 2.0 - 1.0, cells[:, 2] < 10.0 - 1.0)
     assert hx > 10 and hy > 100  # the heightmap: the big toe medial (+x), at the toes (+y)
+    return recon, cells, (hx, hy)
+
+
+@pytest.mark.parametrize("suffix", [".stl", ".obj"])
+def test_a_left_shoe_stays_left(tmp_path, suffix):
+    recon, cells, (hx, hy) = left_shoe_case(tmp_path / "left")
     for positive in (False, True):
         out = tmp_path / f"{positive}{suffix}"
         doc = C.write_cast(recon, out, C.CastParams(decimate="sample", positive=positive))
@@ -288,18 +295,14 @@ def test_a_cap_reached_before_the_tolerance_is_said(cast_recon, tmp_path, capsys
 
 @pytest.mark.parametrize("positive", [False, True])
 def test_a_left_shoe_stays_left_with_the_adaptive_surface(tmp_path, positive):
-    h = left_shoe_impression()
-    recon = write_recon(tmp_path / "left", h, LEFT_SPEC)
-    ii, jj = np.mgrid[0 : LEFT_SPEC.shape[0], 0 : LEFT_SPEC.shape[1]]
-    x, y = export_xy(LEFT_SPEC, ii, jj)
-    cells = np.column_stack([x.ravel(), y.ravel(), h.ravel()])
-    hx, hy = _toe_side(cells, cells[:, 2] < 10.0 - 2.0 - 1.0, cells[:, 2] < 10.0 - 1.0)
+    recon, cells, (hx, hy) = left_shoe_case(tmp_path / "left")
+    x, y = cells[:, 0], cells[:, 1]
     out = tmp_path / "left.stl"
     C.write_cast(recon, out, C.CastParams(positive=positive))
     mesh = load(out)
     assert mesh.is_watertight and mesh.volume > 0
     # the deepest pit's place read off the mesh itself: rays straight down over the sole
-    z = raycast_heights(read_mesh(out), -x.ravel() if positive else x.ravel(), y.ravel())
+    z = raycast_heights(read_mesh(out), -x if positive else x, y)
     z = -z if positive else z
     known = np.isfinite(z)  # a ray along the region's outer edge may miss
     # thresholds between the heightmap's levels (10, 8, 7, 5 mm), away from the float32
