@@ -312,3 +312,30 @@ def test_a_left_shoe_stays_left_with_the_adaptive_surface(tmp_path, positive):
     ex, ey = _toe_side(cells, known & (cells[:, 2] < 6.5), known & (cells[:, 2] < 9.5))
     assert (ex, ey) == pytest.approx((hx, hy), abs=0.5)  # the big toe medial, at the toes
     assert (mx, my) == pytest.approx((ex, ey), abs=0.05)  # where the mesh has it
+
+
+def test_a_large_region_is_triangulated_in_a_child_process(monkeypatch):
+    """Above TIN_IN_PROCESS_CELLS the triangulation runs in a child process (the call holds
+    the interpreter's lock: in-process it would freeze the window): the same mesh, progress
+    reported while it runs, and a cancellation ends the child at once."""
+    import multiprocessing as mp
+
+    from impress_gui.core.base.progress import Cancelled, CancelToken
+
+    height = synthetic_height()
+    here = C.make_cast(height, SPEC, C.CastParams())
+    monkeypatch.setattr(C, "TIN_IN_PROCESS_CELLS", 0)
+    said: list[str] = []
+    apart = C.make_cast(height, SPEC, C.CastParams(), progress=lambda f, m: said.append(m))
+    assert np.array_equal(apart.vertices, here.vertices)
+    assert np.array_equal(apart.triangles, here.triangles)
+    assert apart.decimation == here.decimation
+    assert any(m.startswith("building the adaptive surface") for m in said)
+    # a region whose triangulation would take many seconds, cancelled before it ends
+    rng = np.random.default_rng(5)
+    noisy = rng.normal(0.0, 0.05, (2500, 2500)).astype(np.float32)
+    token = CancelToken()
+    token.cancel()
+    with pytest.raises(Cancelled):
+        C.adaptive_surface_apart(noisy, 0.001, None, cancel=token)
+    assert mp.active_children() == []

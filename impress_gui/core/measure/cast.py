@@ -71,7 +71,7 @@ import numpy as np
 from impress_gui import __version__
 from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, ImpressError, InputError
-from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.base.progress import CancelToken, ProgressCallback, report, sub_progress
 from impress_gui.core.reconstruction.grid import GridSpec
 
 CAST_FORMAT = "impress.cast"
@@ -90,6 +90,9 @@ MAX_TOLERANCE_MM = 10.0
 #: the quadric decimation's input: the full-resolution grid mesh, or the finest sampling with at
 #: most this many triangles (memory and time: open3d keeps a quadric per vertex)
 QUADRIC_INPUT_TRIANGLES = 4_000_000
+#: regions up to this many cells are triangulated in the process itself (well under a second);
+#: larger ones in a child process (:func:`adaptive_surface_apart`)
+TIN_IN_PROCESS_CELLS = 1_000_000
 #: open3d's self-intersection test is quadratic (about 45 s for 90 000 triangles on two cores)
 SELF_INTERSECTION_MAX_TRIANGLES = 20_000
 #: the surface deviation is measured on at most this many cells (every k-th row and column)
@@ -356,6 +359,64 @@ def adaptive_surface(z: np.ndarray, tolerance_mm: float, max_triangles: int | No
     return rows_, cols_, tris, float(tin.error)
 
 
+def _tin_child(conn, z: np.ndarray, tolerance_mm: float, max_triangles: int | None) -> None:
+    """:func:`adaptive_surface` in a child process; its result (or error) sent on ``conn``."""
+    try:
+        conn.send(("ok", adaptive_surface(z, tolerance_mm, max_triangles)))
+    except BaseException as exc:  # reported to the parent, which raises it
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        conn.close()
+
+
+def adaptive_surface_apart(z: np.ndarray, tolerance_mm: float, max_triangles: int | None,
+                           progress: ProgressCallback | None = None,
+                           cancel: CancelToken | None = None
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """:func:`adaptive_surface`, run in a child process when the region has more than
+    :data:`TIN_IN_PROCESS_CELLS` cells: the triangulation is one long call that holds the
+    interpreter's lock (15-20 s for a whole shoe), so in-process it would freeze the window
+    and leave Cancel unanswered. Here the caller reports progress every half second and a
+    cancellation ends the child at once. The same result either way (the same code on the
+    same bytes)."""
+    if z.size <= TIN_IN_PROCESS_CELLS:
+        return adaptive_surface(z, tolerance_mm, max_triangles)
+    import multiprocessing as mp
+    import time
+
+    ctx = mp.get_context("spawn")
+    receiver, sender = ctx.Pipe(duplex=False)
+    child = ctx.Process(target=_tin_child, args=(sender, z, tolerance_mm, max_triangles),
+                        daemon=True, name="impress-cast-surface")
+    child.start()
+    sender.close()
+    start = time.monotonic()
+    try:
+        while not receiver.poll(0.25):
+            if cancel is not None:
+                cancel.check()
+            if not child.is_alive() and not receiver.poll(0):
+                raise ImpressError(f"the adaptive surface's process stopped (exit code "
+                                   f"{child.exitcode}) without a result: please report this",
+                                   code=codes.E_INTERNAL)
+            report(progress, 0.0, f"building the adaptive surface: "
+                                  f"{time.monotonic() - start:.0f} s")
+        try:
+            status, payload = receiver.recv()
+        except EOFError:
+            raise ImpressError("the adaptive surface's process stopped without a result: "
+                               "please report this", code=codes.E_INTERNAL) from None
+    finally:
+        receiver.close()
+        if child.is_alive():
+            child.terminate()
+        child.join()
+    if status != "ok":
+        raise ImpressError(f"the adaptive surface failed ({payload}): please report this",
+                           code=codes.E_INTERNAL)
+    return payload
+
+
 def solid_from_tin(x: np.ndarray, y: np.ndarray, z: np.ndarray, tris: np.ndarray,
                    base_z: float) -> tuple[np.ndarray, np.ndarray, float]:
     """A closed solid between a triangulated surface over a rectangle (vertices ``x, y, z``,
@@ -414,7 +475,9 @@ def solid_from_tin(x: np.ndarray, y: np.ndarray, z: np.ndarray, tris: np.ndarray
 
 
 def _adaptive_solid(filled: np.ndarray, rs: slice, cs: slice, spec: GridSpec,
-                    params: CastParams, base_mm: float
+                    params: CastParams, base_mm: float,
+                    progress: ProgressCallback | None = None,
+                    cancel: CancelToken | None = None
                     ) -> tuple[np.ndarray, np.ndarray, float, float, dict, np.ndarray]:
     """The adaptive cast of the region ``filled`` (float64 with the float32 values, no NaN):
     the surface within the tolerance (:func:`adaptive_surface`), at most ``max_triangles``
@@ -435,7 +498,7 @@ def _adaptive_solid(filled: np.ndarray, rs: slice, cs: slice, spec: GridSpec,
     limit: int | None = None if surface_cap >= 2 * (rows - 1) * (cols - 1) else max(2, surface_cap)
     while True:
         runs += 1
-        r, c, tris, err = adaptive_surface(z32, tol, limit)
+        r, c, tris, err = adaptive_surface_apart(z32, tol, limit, progress, cancel)
         total = len(tris) + 3 * _boundary_edges(tris)
         if total <= cap or runs >= 6:
             break
@@ -542,7 +605,8 @@ def make_cast(height: np.ndarray, spec: GridSpec, params: CastParams,
         report(progress, 0.3, f"building the adaptive surface (within {params.tolerance_mm:g} "
                               f"mm of every cell)")
         verts, tris, volume, base_z, adaptive, rc = _adaptive_solid(
-            filled, rs, cs, spec, params, params.base_mm)
+            filled, rs, cs, spec, params, params.base_mm, sub_progress(progress, 0.3, 0.9),
+            cancel)
         if cancel is not None:
             cancel.check()
         report(progress, 1.0, "mesh ready")
