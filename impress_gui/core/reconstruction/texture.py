@@ -320,6 +320,38 @@ def _runs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ii + r0, jj
 
 
+#: rows looked at together when the first and last rows of a grid's columns are found
+_ROWS_BLOCK = 512
+
+
+def _first_last_rows(n_rows: int, mask_rows: Callable[[int, int], np.ndarray]
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Per column, the first and the last row where ``mask_rows(a, b)`` (the boolean mask of
+    rows ``a .. b - 1``) is true: ``n_rows`` and -1 where it never is. Worked through by
+    blocks of :data:`_ROWS_BLOCK` rows from each end, stopping when every column is found: no
+    grid-sized mask (20 M cells: 20 MB for the mask, more for the temporaries that make it)."""
+    first = last = None
+    for a in range(0, n_rows, _ROWS_BLOCK):
+        m = mask_rows(a, min(n_rows, a + _ROWS_BLOCK))
+        if first is None:
+            first = np.full(m.shape[1], n_rows, np.intp)
+        hit = m.any(axis=0) & (first == n_rows)
+        first[hit] = a + m.argmax(axis=0)[hit]
+        if (first < n_rows).all():
+            break
+    for b in range(n_rows, 0, -_ROWS_BLOCK):
+        a = max(0, b - _ROWS_BLOCK)
+        m = mask_rows(a, b)[::-1]
+        if last is None:
+            last = np.full(m.shape[1], -1, np.intp)
+        hit = m.any(axis=0) & (last == -1)
+        last[hit] = b - 1 - m.argmax(axis=0)[hit]
+        if (last >= 0).all():
+            break
+    assert first is not None and last is not None
+    return first, last
+
+
 def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: GridSpec,
                       cal: SceneCalibration, first, last, inplace: bool = False,
                       progress: Callable[[str], None] | None = None
@@ -346,24 +378,18 @@ def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: Grid
 
     tex = texture_rgb if inplace else np.array(texture_rgb, copy=True)
     filled = np.zeros(tex.shape[:2], bool)
-    # (one pass per channel: tex.any(axis=2) takes ten times as long on a grid of pixels)
-    covered = (tex[..., 0] | tex[..., 1] | tex[..., 2]).astype(bool)
-    if not covered.any():
-        return tex, filled
     # per column the texture's first and last row (the row's footprint may cross the grid
-    # obliquely): cells before the first or after the last are at the scan's ends
-    n_rows = covered.shape[0]
-    has_col = np.asarray(covered.any(axis=0), bool)
-    first_row = np.where(has_col, covered.argmax(axis=0), n_rows)
-    last_row = np.where(has_col, n_rows - 1 - covered[::-1].argmax(axis=0), -1)
-    del covered
+    # obliquely): cells before the first or after the last are at the scan's ends (one pass
+    # per channel: tex.any(axis=2) takes ten times as long on a grid of pixels)
+    n_rows = tex.shape[0]
+    first_row, last_row = _first_last_rows(
+        n_rows, lambda a, b: (tex[a:b, :, 0] | tex[a:b, :, 1] | tex[a:b, :, 2]) != 0)
+    has_col = last_row >= 0
+    if not has_col.any():
+        return tex, filled
     # and the heights' first and last row: cells without a height between them and the
     # texture's are inside the scan
-    finite = np.isfinite(height_mm)
-    has_h = np.asarray(finite.any(axis=0), bool)
-    h_first = np.where(has_h, finite.argmax(axis=0), n_rows)
-    h_last = np.where(has_h, n_rows - 1 - finite[::-1].argmax(axis=0), -1)
-    del finite
+    h_first, h_last = _first_last_rows(n_rows, lambda a, b: np.isfinite(height_mm[a:b]))
     # the cells to colour at the first end are rows h_first .. first_row - 1 of each column
     # (no height lies before h_first, no colour before first_row), at the last end rows
     # last_row + 1 .. h_last: per end one run of rows per column, found in the few rows the
@@ -372,8 +398,9 @@ def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: Grid
     lo_a, hi_a = np.where(has_col, last_row + 1, n_rows), np.where(has_col, h_last + 1, 0)
     parts = [_runs(lo_b, hi_b), _runs(lo_a, hi_a)]
     n_start = len(parts[0][0])
-    ii = np.concatenate([parts[0][0], parts[1][0]])
-    jj = np.concatenate([parts[0][1], parts[1][1]])
+    # 32-bit indices: half the memory of nonzero's for the millions of cells at the ends
+    ii = np.concatenate([parts[0][0], parts[1][0]]).astype(np.int32)
+    jj = np.concatenate([parts[0][1], parts[1][1]]).astype(np.int32)
     del parts
     if not len(ii):
         return tex, filled
@@ -381,7 +408,8 @@ def fill_texture_ends(texture_rgb: np.ndarray, height_mm: np.ndarray, spec: Grid
     # cells before the texture's first row (lower Y) lie towards the frames of lower travel
     n_frames = len(ends[0]) + len(ends[1])
     done = 0
-    for todo, frames in ((np.arange(n_start), ends[0]), (np.arange(n_start, len(ii)), ends[1])):
+    for todo, frames in ((np.arange(n_start, dtype=np.int32), ends[0]),
+                         (np.arange(n_start, len(ii), dtype=np.int32), ends[1])):
         for travel, img in frames:
             if not len(todo):
                 break
