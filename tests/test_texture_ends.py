@@ -104,6 +104,38 @@ def test_the_fill_by_small_blocks_of_cells_gives_the_same_texture(flat_recon, mo
     assert int(filled.sum()) == rec.stats["texture_end_cells_filled"]
 
 
+def test_the_fill_by_small_blocks_of_rows_gives_the_same_texture(flat_recon, monkeypatch):
+    """The first and last rows of the columns are found by blocks of rows from each end: rows
+    of 7 (the last block partial) colour the same cells the same."""
+    import impress_gui.core.reconstruction.texture as texture
+
+    _, _, cal, rec, ends = flat_recon
+    monkeypatch.setattr(texture, "_ROWS_BLOCK", 7)
+    tex, filled = texture.fill_texture_ends(rec.row_only_texture, rec.height_mm, rec.spec, cal,
+                                            *ends)
+    assert np.array_equal(tex, rec.texture_rgb)
+    assert int(filled.sum()) == rec.stats["texture_end_cells_filled"]
+
+
+@pytest.mark.parametrize("block", [1, 3, 512])
+def test_first_and_last_rows_by_blocks(block, monkeypatch):
+    """Against argmax over the whole mask: columns hit in the first or last row, in one row
+    only, on a block's edge, never."""
+    import impress_gui.core.reconstruction.texture as texture
+
+    monkeypatch.setattr(texture, "_ROWS_BLOCK", block)
+    rng = np.random.default_rng(3)
+    mask = rng.random((23, 40)) < 0.02
+    mask[:, 0] = False  # never
+    mask[0, 1] = mask[22, 2] = True  # first row, last row
+    mask[:, 3] = False
+    mask[9, 3] = True  # one row only
+    first, last = texture._first_last_rows(23, lambda a, b: mask[a:b])
+    has = mask.any(axis=0)
+    assert np.array_equal(first, np.where(has, mask.argmax(axis=0), 23))
+    assert np.array_equal(last, np.where(has, 22 - mask[::-1].argmax(axis=0), -1))
+
+
 def test_the_filled_colours_are_registered(flat_recon):
     """Blank each column's first and last 15 mm of the texture row's colours and fill them
     from the end frames: they come back as the texture row saw them."""
