@@ -312,12 +312,18 @@ def _runs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     looked at."""
     ok = hi > lo
     if not ok.any():
-        empty = np.zeros(0, np.intp)
+        empty = np.zeros(0, np.int32)
         return empty, empty
     r0, r1 = int(lo[ok].min()), int(hi[ok].max())
-    rows = np.arange(r0, r1)[:, None]
-    ii, jj = np.nonzero((rows >= lo[None, :]) & (rows < hi[None, :]))
-    return ii + r0, jj
+    # by blocks of rows: a column whose run starts far from the others' would otherwise make
+    # masks of (rows spanned) x (columns) cells, hundreds of MB on the whole rail
+    out_i, out_j = [], []
+    for a in range(r0, r1, _ROWS_BLOCK):
+        rows = np.arange(a, min(r1, a + _ROWS_BLOCK))[:, None]
+        ii, jj = np.nonzero((rows >= lo[None, :]) & (rows < hi[None, :]))
+        out_i.append((ii + a).astype(np.int32))
+        out_j.append(jj.astype(np.int32))
+    return np.concatenate(out_i), np.concatenate(out_j)
 
 
 #: rows looked at together when the first and last rows of a grid's columns are found
