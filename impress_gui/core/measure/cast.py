@@ -499,12 +499,14 @@ def _adaptive_solid(filled: np.ndarray, rs: slice, cs: slice, spec: GridSpec,
     while True:
         runs += 1
         r, c, tris, err = adaptive_surface_apart(z32, tol, limit, progress, cancel)
-        total = len(tris) + 3 * _boundary_edges(tris)
+        # a triangulation of the rectangle has as many boundary edges as vertices on its sides
+        edges = int(np.count_nonzero((r == 0) | (r == rows - 1) | (c == 0) | (c == cols - 1)))
+        total = len(tris) + 3 * edges
         if total <= cap or runs >= 6:
             break
         # greedy insertion stopped earlier is a prefix of the same insertions: the boundary
         # can only lose vertices, so this cap holds after at most a few rounds
-        limit = max(2, cap - 3 * _boundary_edges(tris))
+        limit = max(2, cap - 3 * edges)
     if total > cap:
         raise ImpressError("the adaptive surface does not fit the triangle cap: please report "
                            "this", code=codes.E_INTERNAL)
@@ -538,17 +540,6 @@ def _adaptive_solid(filled: np.ndarray, rs: slice, cs: slice, spec: GridSpec,
         record["note"] = (f"the triangle cap ({cap}) was reached before the tolerance: the "
                           f"surface lies up to {err:.4f} mm from a cell (tolerance {tol:g} mm)")
     return verts, out, volume, base_z, record, np.column_stack([r, c])
-
-
-def _boundary_edges(tris: np.ndarray) -> int:
-    """The number of edges that only one triangle has."""
-    t = np.asarray(tris, np.int64)
-    a = np.concatenate([t[:, 0], t[:, 1], t[:, 2]])
-    b = np.concatenate([t[:, 1], t[:, 2], t[:, 0]])
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    n = int(t.max()) + 1
-    _, counts = np.unique(lo * n + hi, return_counts=True)
-    return int(np.count_nonzero(counts == 1))
 
 
 def solid_from_grid(x: np.ndarray, y: np.ndarray, z: np.ndarray, base_z: float
