@@ -718,15 +718,56 @@ def step_budget(ctx: UncertaintyContext, profile, step, band_a, band_b) -> Budge
     ua = sa[0] / math.sqrt(sa[1]) if math.isfinite(sa[0]) else math.nan
     ub = sb[0] / math.sqrt(sb[1]) if math.isfinite(sb[0]) else math.nan
     u_se = math.hypot(ua, ub)
+    # each band's mean also as the scatter of the same band's mean on a ring around it, as
+    # wide as the distance between the bands (errors correlated over more than a band - a
+    # frame's offset shared along a stripe - that neither the band's own samples nor
+    # profiles beside it see when the profile runs along the scan)
+    sep = abs(0.5 * (band_b[0] + band_b[1]) - 0.5 * (band_a[0] + band_a[1]))
+    ring = min(max(sep, 1.0), RING_MAX_MM)
+    ra, ka = _band_repeatability(ctx, profile, band_a, ring)
+    rb, kb = _band_repeatability(ctx, profile, band_b, ring)
+    u_ring = math.hypot(float(np.nanmax([ua, ra])), float(np.nanmax([ub, rb])))
     rep, k = _step_repeatability(ctx, profile, band_a, band_b)
-    u = float(np.nanmax([u_se, rep])) if np.isfinite([u_se, rep]).any() else math.nan
+    u = float(np.nanmax([u_se, u_ring, rep])) if np.isfinite([u_se, u_ring, rep]).any() \
+        else math.nan
     comps.append(Component("surface noise", "means of the two bands", "A", "normal", u, "mm", 1.0,
                            u, f"band A: SD {sa[0]:.4f} mm, n {sa[2]}, effective n {sa[1]:.1f}; "
                            f"band B: SD {sb[0]:.4f} mm, n {sb[2]}, effective n {sb[1]:.1f}; "
-                           f"standard error {u_se:.4f} mm; the same step on {k} parallel "
-                           f"profiles scatters {rep:.4f} mm; the larger taken"))
+                           f"standard error {u_se:.4f} mm; each band's mean on a ring of "
+                           f"{ring:.1f} mm scatters {ra:.4f} ({ka}) and {rb:.4f} ({kb}) mm, "
+                           f"together {u_ring:.4f} mm; the same step on {k} parallel profiles "
+                           f"scatters {rep:.4f} mm; the largest taken"))
     comps += _method_component(ctx)
     return Budget("step height B - A", step.difference_mm, tuple(comps), notes=_notes(ctx))
+
+
+def _band_repeatability(ctx: UncertaintyContext, profile, band, ring_mm: float
+                        ) -> tuple[float, int]:
+    """The scatter of a band's mean (the band of ``profile`` between the distances ``band``)
+    at this scale: the same band moved to 8 places on a ring of ``ring_mm`` around it, about a
+    plane through them, as :func:`disk_repeatability` does for a disk; ``(SD, bands used)``,
+    NaN with fewer than 6 consistent ones."""
+    from impress_gui.core.measure.readings import line_profile
+
+    L = profile.length_mm
+    if L <= 0:
+        return math.nan, 0
+    (x0, y0), (x1, y1) = profile.start, profile.end
+    ux, uy = (x1 - x0) / L, (y1 - y0) / L
+    a = (x0 + band[0] * ux, y0 + band[0] * uy)
+    b = (x0 + band[1] * ux, y0 + band[1] * uy)
+    vals = []
+    for dx, dy in [(0.0, 0.0)] + [(ring_mm * math.cos(t), ring_mm * math.sin(t))
+                                  for t in np.linspace(0, 2 * math.pi, 8, endpoint=False)]:
+        p = line_profile(ctx.height, ctx.spec, (a[0] + dx, a[1] + dy), (b[0] + dx, b[1] + dy),
+                         profile.width_mm)
+        hv = np.asarray(p.height_mm, float)
+        if hv.size and np.isfinite(hv).mean() >= 0.5:
+            vals.append((dx, dy, float(np.nanmean(hv))))
+    if len(vals) < 6 or vals[0][:2] != (0.0, 0.0):
+        return math.nan, len(vals)
+    v = np.array(vals)
+    return _consistent_scatter(np.column_stack([v[:, 0], v[:, 1], np.ones(len(v))]), v[:, 2], 6)
 
 
 def _step_repeatability(ctx: UncertaintyContext, profile, band_a, band_b) -> tuple[float, int]:
@@ -757,6 +798,22 @@ def _step_repeatability(ctx: UncertaintyContext, profile, band_a, band_b) -> tup
     o = np.array(offs)[order]
     a = np.column_stack([o, np.ones(len(o))])
     return _consistent_scatter(a, np.array(steps)[order], 5)
+
+
+def _level_fraction(d_all: np.ndarray, h_all: np.ndarray, at_mm: float, level: float,
+                    reach_mm: float = 2.0) -> float:
+    """Where ``level`` lies between the low and the high side of the wall crossed at
+    ``at_mm`` (the profile's lowest and highest heights within ``reach_mm``), 0..1; 0.5 when
+    not known. A wall seen as a jump between two samples is crossed by the line joining them
+    at this fraction of the way, so the wall's true position lies up to ``max(f, 1 - f)``
+    samples from the crossing found."""
+    near = np.isfinite(h_all) & (np.abs(d_all - at_mm) <= reach_mm)
+    if not near.any() or not math.isfinite(level):
+        return 0.5
+    lo, hi = float(np.min(h_all[near])), float(np.max(h_all[near]))
+    if hi - lo <= 0:
+        return 0.5
+    return float(np.clip((level - lo) / (hi - lo), 0.0, 1.0))
 
 
 def width_budget(ctx: UncertaintyContext, profile, width,
@@ -837,14 +894,18 @@ def width_budget(ctx: UncertaintyContext, profile, width,
     comps.append(_grid_component(ctx, 1.0, 2.0, "positions of the two crossings"))
     if ctx.sampling_mm is not None:
         s_mm = math.hypot(ux * ctx.sampling_mm[0], uy * ctx.sampling_mm[1])
-        u1 = s_mm / math.sqrt(3.0)
+        fr = [_level_fraction(d_all, h_all, dd, lv) for dd, lv in zip(ds, levels)]
+        u_w = [s_mm * max(f, 1.0 - f) / math.sqrt(3.0) for f in fr]
+        u1 = math.hypot(*u_w)
         comps.append(Component("lateral sampling", "where each wall lies between two samples",
-                               "B", "rectangular", u1, "mm", math.sqrt(2.0),
-                               math.sqrt(2.0) * u1,
+                               "B", "rectangular", u1, "mm", 1.0, u1,
                                f"one sample along the profile {s_mm:.3f} mm (a camera column "
                                f"{ctx.sampling_mm[0]:.3f} mm across the scan, a frame's travel "
-                               f"{ctx.sampling_mm[1]:.3f} mm along it), half-width one sample "
-                               "per wall"))
+                               f"{ctx.sampling_mm[1]:.3f} mm along it); a steep wall between two "
+                               "samples is crossed by the line between them at the level's "
+                               "fraction f of the step, the wall itself anywhere between them: "
+                               f"half-width max(f, 1 - f) samples per wall (f {fr[0]:.2f}, "
+                               f"{fr[1]:.2f})"))
     return Budget("width at level", width.width_mm, tuple(comps), notes=_notes(ctx))
 
 
