@@ -215,3 +215,56 @@ def test_other_relief_nearby_is_not_taken_for_noise():
     spec2, h2 = _noisy_plane(0.05)
     rep, k = U.disk_repeatability(h2, spec2, 20.0, 20.0, 0.5)
     assert k == 9 and 0.0 < rep < 0.05
+
+
+def test_a_step_sees_offsets_shared_along_a_stripe():
+    """A frame's offset is shared by every cell along its stripe (across the scan): a profile
+    run along the scan has its two bands in different frames, and neither the bands' own
+    samples nor parallel profiles beside it (the same frames) see the offsets. The bands'
+    means on a ring as wide as their distance do: the stated u covers the true errors of many
+    such steps (RMS error / u_c near 1, where the samples and the parallel profiles alone
+    gave about a ninth of the error: RMS error / u 8.8 on this surface)."""
+    spec = GridSpec(0.0, 0.0, 0.1, (800, 600))
+    rng = np.random.default_rng(3)
+    block = 40  # one "frame" every 4 mm along the scan (rows), offset SD 0.05 mm
+    offsets = np.repeat(rng.normal(0.0, 0.05, spec.shape[0] // block + 1), block)[:spec.shape[0]]
+    h = (rng.normal(0.0, 0.01, spec.shape) + offsets[:, None]).astype(np.float32)
+    ctx = U.UncertaintyContext(h, spec)
+    z, old = [], []
+    for k in range(30):
+        x, y = 15.0 + 1.0 * k, 18.0 + 0.7 * k
+        p = M.line_profile(h, spec, (x, y), (x, y + 24.0), 1.0)
+        s = M.step_height(p, (1.0, 5.0), (17.0, 21.0))
+        b = U.step_budget(ctx, p, s, (1.0, 5.0), (17.0, 21.0))
+        noise = next(c for c in b.components if c.name == "surface noise")
+        assert "on a ring of 15.0 mm" in noise.note
+        z.append(s.difference_mm / b.u_c_mm)  # the true step is 0
+        rep, _ = U._step_repeatability(ctx, p, (1.0, 5.0), (17.0, 21.0))
+        sa = U.series_noise(U._band_values(p, (1.0, 5.0)))
+        sb = U.series_noise(U._band_values(p, (17.0, 21.0)))
+        se = math.hypot(sa[0] / math.sqrt(sa[1]), sb[0] / math.sqrt(sb[1]))
+        old.append(s.difference_mm / float(np.nanmax([se, rep])))
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.5 < rms < 1.6, rms
+    assert float(np.sqrt(np.mean(np.square(old)))) > 2.5  # the former terms alone: far under
+
+
+def test_lateral_sampling_of_a_width_follows_where_the_level_cuts_the_wall():
+    """A steep wall between two samples is crossed by the line joining them at the level's
+    fraction f of the step; the wall itself lies anywhere between the samples: half-width
+    max(f, 1 - f) samples per wall. At half the step, half a sample; at a quarter, three
+    quarters of one."""
+    spec = GridSpec(0.0, 0.0, 0.1, (200, 400))
+    h = np.zeros(spec.shape, np.float32)
+    h[:, 150:250] = 2.0  # a ridge 10 mm wide, 2 mm high, vertical walls
+    ctx = replace(U.UncertaintyContext(h, spec), sampling_mm=(0.6, 0.9))
+    p = M.line_profile(h, spec, (5.0, 10.0), (35.0, 10.0), 1.0)  # across the scan: columns
+    u = {}
+    for level in (1.0, 0.5, 1.5):
+        w = M.width_at_level(p, level, 15.0)
+        assert w.width_mm == pytest.approx(10.0, abs=0.15)
+        c = next(c for c in U.width_budget(ctx, p, w).components if c.name == "lateral sampling")
+        u[level] = c.u_mm
+    assert u[1.0] == pytest.approx(0.6 * 0.5 / math.sqrt(3) * math.sqrt(2), rel=0.02)
+    assert u[0.5] == pytest.approx(0.6 * 0.75 / math.sqrt(3) * math.sqrt(2), rel=0.02)
+    assert u[1.5] == pytest.approx(u[0.5], rel=1e-6)  # symmetric: a quarter from the top
