@@ -268,3 +268,30 @@ def test_lateral_sampling_of_a_width_follows_where_the_level_cuts_the_wall():
     assert u[1.0] == pytest.approx(0.6 * 0.5 / math.sqrt(3) * math.sqrt(2), rel=0.02)
     assert u[0.5] == pytest.approx(0.6 * 0.75 / math.sqrt(3) * math.sqrt(2), rel=0.02)
     assert u[1.5] == pytest.approx(u[0.5], rel=1e-6)  # symmetric: a quarter from the top
+
+
+def test_the_target_check_is_of_the_models_shape_not_of_the_pose(flat):
+    """The Monte Carlo needs the target model the calibration was fitted with. The check
+    fits the model's corners rigidly to the calibration's parallax corners: a calibration's own
+    model passes even when its parallax corners moved by millimetres as a whole (noisy clicks
+    on a short baseline; the former check compared them with the fitted pose and refused
+    such calibrations, random rigs 3 and 19 with 0.5 px clicks), and a model of another size
+    is refused."""
+    from impress_gui.core.base.errors import InputError
+    from impress_gui.core.calibration.solve import rot_y
+
+    cal, target = flat
+    CU.check_target(cal, target)
+    # the parallax corners turned 2 deg and moved 4 mm as a whole: the shape is the same
+    par = np.asarray(cal.corners_parallax_mm, float)
+    c = par.mean(0)
+    moved = replace(cal, corners_parallax_mm=(par - c) @ rot_y(math.radians(2.0)).T + c
+                    + np.array([4.0, -3.0, 2.0]))
+    assert np.max(np.linalg.norm(moved.corners_fit_mm(target) - moved.corners_parallax_mm,
+                                 axis=1)) > 3.0  # the former check's tolerance: refused
+    CU.check_target(moved, target)
+    # a target 3 % larger is another model
+    other = replace(target, corners_mm={k: 1.03 * np.asarray(v) for k, v in
+                                        target.corners_mm.items()})
+    with pytest.raises(InputError, match="does not match the calibration"):
+        CU.check_target(cal, other)

@@ -13,9 +13,12 @@ counts and frames, the reprojection RMS of the picks - and the target model:
    planes were fitted to the stripes, the tilt refinement by the stripes on the rebuilt
    stripes of step 3, and levels its frame across the scan as the calibration does
    (:func:`~impress_gui.core.calibration.solve.level_across`: each trial in its own levelled
-   frame, its planes fitted there) (:func:`_trial`). Ten real recalibrations of random rig 0 with 0.5 px of
-   click noise scatter an absolute height by 1.5 mm (SD; 4.8 mm 100 mm further along the scan)
-   where the trials of three of them say 1.0 (3.5) mm: the spread is real, not over-stated;
+   frame, its planes fitted there) (:func:`_trial`). Checked against real recalibrations
+   (random rigs 0-7 at 640x360, four draws of 0.5 px click noise each, 31 calibrations with
+   their own Monte Carlo of 20 trials, errors against the simulator's truth at 40 points each):
+   94.8 % of absolute heights, 97.4 % of lengths and 95.4 % of height differences within
+   2 SD - but heavy-tailed: most calibrations' errors are a third of the stated SD and a few
+   far beyond it (one at 8.8 SD), see docs/uncertainty.md;
 3. each laser's stripe on the target is rebuilt from the recorded plane: in each recorded frame
    the line where the plane cuts each top face, seen as camera rays. A trial intersects those
    rays with the target faces of its own pose (and its own travel), adds stripe noise of the
@@ -191,15 +194,27 @@ def model_picks(cal, target: TargetModel) -> Picks:
                  {c: (float(p[0]), float(p[1])) for c, p in zip(CORNER_NAMES, uv2)})
 
 
-def check_target(cal, target: TargetModel, tol_mm: float = 3.0) -> None:
-    """InputError unless ``target`` is the model the calibration was fitted with (its fitted
-    corners must lie near the corners triangulated by parallax)."""
-    fit = cal.corners_fit_mm(target)
-    gap = np.linalg.norm(fit - cal.corners_parallax_mm, axis=1)
-    if not np.all(np.isfinite(gap)) or float(np.max(gap)) > max(tol_mm, 3 * float(
-            np.nanmax(cal.corner_residuals_mm))):
+def check_target(cal, target: TargetModel, tol_mm: float = 1.0) -> None:
+    """InputError unless ``target`` is the model the calibration was fitted with: the model's
+    corners fitted rigidly to the corners the calibration triangulated by parallax must leave
+    residuals no larger than the calibration's own (recorded with its model) plus ``tol_mm``.
+    A check of the model's shape, not of the pose: the parallax corners move by millimetres
+    with the clicks' noise on a short baseline (0.5 px clicks: 4-6 mm on random rigs 3 and 19)
+    while the fitted pose does not follow them, so comparing the two refused good
+    calibrations; the rigid fit's residuals are the same for any pose."""
+    from impress_gui.core.calibration.solve import umeyama
+
+    par = np.asarray(cal.corners_parallax_mm, float)
+    model = target.corner_array()
+    if par.shape != model.shape or not np.all(np.isfinite(par)):
+        raise InputError(f"the target model '{target.name}' does not match the calibration")
+    _, r, t = umeyama(model, par, with_scale=False)
+    res = np.linalg.norm(par - (model @ r.T + t), axis=1)
+    own = float(np.nanmax(cal.corner_residuals_mm))
+    if not np.all(np.isfinite(res)) or float(np.max(res)) > own + tol_mm:
         raise InputError(f"the target model '{target.name}' does not match the calibration "
-                         f"(corners up to {float(np.nanmax(gap)):.1f} mm apart)")
+                         f"(its corners fit the calibration's up to {float(np.max(res)):.1f} mm "
+                         f"off, the calibration's own model {own:.1f} mm)")
 
 
 def _segments(cal, target: TargetModel, laser: str):
