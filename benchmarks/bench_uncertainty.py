@@ -46,9 +46,6 @@ from pathlib import Path
 import common
 import numpy as np
 
-# the cached random-rig scans at 640x360 are valid for the current simulator; common.SIM_KEY
-# differs only because of simulator options these scans do not use
-common.SIM_KEY = "0fe2c5f8f2"
 
 KINDS = ("height", "ruler xy", "ruler 3D", "ruler dz", "step height", "width", "width (bands)",
          "depth")
@@ -95,7 +92,8 @@ class Rig:
 
         d = common.CACHE / f"random-{seed}-640x360-{common.SIM_KEY}"
         if not (d / "truth.json").exists():
-            raise FileNotFoundError(f"{d}: not cached (this benchmark renders nothing)")
+            raise FileNotFoundError(f"{d}: not cached (this benchmark renders nothing: "
+                                    f"bench_random_rigs.py --seeds {seed}, renders it)")
         self.dir = d
         truth = json.loads((d / "truth.json").read_text())
         t0 = time.perf_counter()
