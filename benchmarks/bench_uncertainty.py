@@ -46,7 +46,6 @@ from pathlib import Path
 import common
 import numpy as np
 
-
 KINDS = ("height", "ruler xy", "ruler 3D", "ruler dz", "step height", "width", "width (bands)",
          "depth")
 
