@@ -419,19 +419,29 @@ def disk_repeatability(height: np.ndarray, spec: GridSpec, x: float, y: float,
     from impress_gui.core.measure.readings import readout
 
     r = max(radius_mm, 0.5)
-    ring = max(3 * r + 0.5, ring_mm or 0.0)
-    pts = [(x, y)] + [(x + ring * math.cos(a), y + ring * math.sin(a))
-                      for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)]
+
+    def mean_at(dx: float, dy: float) -> float | None:
+        rd = readout(height, spec, x + dx, y + dy, r)
+        return rd.height_mm if rd.n_valid >= max(3, rd.n_cells // 2) else None
+
+    return _ring_scatter(mean_at, max(3 * r + 0.5, ring_mm or 0.0))
+
+
+def _ring_scatter(mean_at, ring_mm: float) -> tuple[float, int]:
+    """The scatter of a local mean: ``mean_at(dx, dy)`` (None where too few cells have data)
+    here and at 8 places on a ring of ``ring_mm`` around, about a plane through them
+    (:func:`_consistent_scatter`); ``(SD, means used)``, NaN with fewer than 6 consistent
+    ones or none here."""
     vals = []
-    for px, py in pts:
-        rd = readout(height, spec, px, py, r)
-        if rd.n_valid >= max(3, rd.n_cells // 2):
-            vals.append((px, py, rd.height_mm))
-    if len(vals) < 6 or vals[0][:2] != (x, y):
+    for dx, dy in [(0.0, 0.0)] + [(ring_mm * math.cos(t), ring_mm * math.sin(t))
+                                  for t in np.linspace(0, 2 * math.pi, 8, endpoint=False)]:
+        m = mean_at(dx, dy)
+        if m is not None:
+            vals.append((dx, dy, m))
+    if len(vals) < 6 or vals[0][:2] != (0.0, 0.0):
         return math.nan, len(vals)
     v = np.array(vals)
-    a = np.column_stack([v[:, 0] - x, v[:, 1] - y, np.ones(len(v))])
-    return _consistent_scatter(a, v[:, 2], 6)
+    return _consistent_scatter(np.column_stack([v[:, 0], v[:, 1], np.ones(len(v))]), v[:, 2], 6)
 
 
 def series_noise(values: np.ndarray) -> tuple[float, float, int]:
@@ -756,18 +766,14 @@ def _band_repeatability(ctx: UncertaintyContext, profile, band, ring_mm: float
     ux, uy = (x1 - x0) / L, (y1 - y0) / L
     a = (x0 + band[0] * ux, y0 + band[0] * uy)
     b = (x0 + band[1] * ux, y0 + band[1] * uy)
-    vals = []
-    for dx, dy in [(0.0, 0.0)] + [(ring_mm * math.cos(t), ring_mm * math.sin(t))
-                                  for t in np.linspace(0, 2 * math.pi, 8, endpoint=False)]:
+
+    def mean_at(dx: float, dy: float) -> float | None:
         p = line_profile(ctx.height, ctx.spec, (a[0] + dx, a[1] + dy), (b[0] + dx, b[1] + dy),
                          profile.width_mm)
         hv = np.asarray(p.height_mm, float)
-        if hv.size and np.isfinite(hv).mean() >= 0.5:
-            vals.append((dx, dy, float(np.nanmean(hv))))
-    if len(vals) < 6 or vals[0][:2] != (0.0, 0.0):
-        return math.nan, len(vals)
-    v = np.array(vals)
-    return _consistent_scatter(np.column_stack([v[:, 0], v[:, 1], np.ones(len(v))]), v[:, 2], 6)
+        return float(np.nanmean(hv)) if hv.size and np.isfinite(hv).mean() >= 0.5 else None
+
+    return _ring_scatter(mean_at, ring_mm)
 
 
 def _step_repeatability(ctx: UncertaintyContext, profile, band_a, band_b) -> tuple[float, int]:
