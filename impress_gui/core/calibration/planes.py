@@ -229,6 +229,24 @@ def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: floa
     return rays[ok] * best_t[ok, None], best_h[ok], ok
 
 
+def robust_plane(points: np.ndarray, rounds: int = 4, floor_mm: float = 0.02
+                 ) -> tuple[Plane, float, np.ndarray]:
+    """SVD plane through ``points`` with outlier rejection (points farther than 4 robust SDs,
+    at least ``floor_mm``, left out; refitted until the set holds): plane, RMS of the kept
+    points and the kept mask."""
+    keep = np.ones(len(points), bool)
+    for _ in range(rounds):
+        plane, rms, _ = fit_plane(points[keep])
+        res = np.abs(plane.distance(points))
+        mad = np.median(res[keep]) * 1.4826 + 1e-6
+        new = res < max(4 * mad, floor_mm)
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    plane, rms, _ = fit_plane(points[keep])
+    return plane, rms, keep
+
+
 def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames,
                     ground: np.ndarray | None = None) -> LaserPlaneFit:
     """SVD plane through the stripe points (and the ``ground`` points, if any) with outlier
@@ -244,16 +262,7 @@ def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames,
             code=codes.E_PLANE_UNDETERMINED)
     if ground is not None and len(ground):
         points = np.concatenate([points, ground])
-    keep = np.ones(len(points), bool)
-    for _ in range(4):
-        plane, rms, _ = fit_plane(points[keep])
-        res = np.abs(plane.distance(points))
-        mad = np.median(res[keep]) * 1.4826 + 1e-6
-        new = res < max(4 * mad, 0.02)
-        if np.array_equal(new, keep):
-            break
-        keep = new
-    plane, rms, _ = fit_plane(points[keep])
+    plane, rms, keep = robust_plane(points)
     if plane.normal[2] < 0:  # orient consistently: normal with positive depth component
         plane = Plane(-plane.normal, -plane.offset_mm)
     return LaserPlaneFit(name, plane, rms, int(keep.sum()), tuple(frames), tuple(levels))
@@ -435,6 +444,9 @@ def _face_points(obs: StripeObservations, name: str, rot: np.ndarray, pose_rt) -
 #: tilt (+-10 deg), then a bounded search within one step of the best grid point
 TILT_GRID_STEP_DEG = 0.5
 TILT_GRID_STEPS = 20
+#: stripe points farther than this (mm) from a laser's plane (and 4 robust SDs) are left out of
+#: the plane the tilt refinement fits: another object's light, not a tilt's residual
+GROSS_OUTLIER_MM = 0.5
 
 
 def refine_tilt(obs: StripeObservations, planes0: dict, intrinsics: Intrinsics,
@@ -469,7 +481,11 @@ def refine_tilt(obs: StripeObservations, planes0: dict, intrinsics: Intrinsics,
             if n_pts < 0.8 * n_ref[name]:
                 return 1e12  # the stripe no longer falls on the faces: not a candidate
             allp = np.concatenate(pts)
-            plane, _, _ = fit_plane(allp)
+            # the plane with outliers left out (a few stripe points off the faces - another
+            # object's light, a frame off the constant speed - would turn a plain fit and
+            # hide the tilt's signal in the other points' residuals); they still count,
+            # capped, in the cost
+            plane, _, _ = robust_plane(allp, floor_mm=GROSS_OUTLIER_MM)
             r = np.clip(np.abs(plane.distance(allp)) / sigma_s, 0, 5)  # outliers capped
             total += n_ref[name] * float(np.mean(r**2))
         return total

@@ -50,6 +50,9 @@ PLANE_METHODS = ("stripe-fit", "three-point")
 #: about (issue 18): the random rigs' targets step 10-25 mm, the default target 30 mm, and
 #: the ground beside the target adds height 0
 PLANE_SPAN_WARN_MM = 10.0
+#: a tilt refined by more than this (deg) from the picks' tilt has the stripes gathered again
+#: with the refined pose, then refined once more (their crops followed the picks' pose)
+REGATHER_TILT_DEG = 0.25
 
 
 @dataclass(frozen=True)
@@ -324,8 +327,20 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
         planes0 = obs.fit_planes(pose.rotation,
                                  (pose.target_rotation, pose.target_translation_mm))
         if refine_with_stripes:
+            tilt0 = pose.tilt_rad
             pose = refine_tilt(obs, planes0, intrinsics, target, picks, pose, speed_mm_s, dt,
                                click_sigma_px)
+            if abs(pose.tilt_rad - tilt0) > np.radians(REGATHER_TILT_DEG):
+                # the stripes were cropped to the faces as the picks' pose saw them: a tilt
+                # that moved far moves the faces in the picture, so the stripes are gathered
+                # again with the refined pose and the tilt refined once more
+                obs = observe_stripes(video, times, intrinsics, target, picks, pose, fps,
+                                      plane_frames, plane_span, plane_travel_mm, progress,
+                                      cancel)
+                planes0 = obs.fit_planes(pose.rotation,
+                                         (pose.target_rotation, pose.target_translation_mm))
+                pose = refine_tilt(obs, planes0, intrinsics, target, picks, pose, speed_mm_s,
+                                   dt, click_sigma_px)
         # the frame levelled across the scan (the turn about the motion axis), then the final
         # planes in it: the faces' points and the ground's beside the target
         pose = level_across(pose)
