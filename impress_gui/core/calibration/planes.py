@@ -464,6 +464,7 @@ def refine_tilt(obs: StripeObservations, planes0: dict, intrinsics: Intrinsics,
     implied, v_true = pose.implied_speed_mm_s, obs.speed_mm_s
     sigma_s = max(1e-3, np.mean([f.rms_mm for f, _ in planes0.values()]))
     n_ref = {name: sum(len(p) for p in pts) for name, (_, pts) in planes0.items()}
+    weight = float(np.mean(list(n_ref.values())))
     speed_ok = abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s
     d_use = (speed_mm_s if speed_ok else v_true) * dt
     base = (pose.roll_rad, pose.tilt_rad, pose.target_rotation, pose.target_translation_mm)
@@ -487,7 +488,10 @@ def refine_tilt(obs: StripeObservations, planes0: dict, intrinsics: Intrinsics,
             # capped, in the cost
             plane, _, _ = robust_plane(allp, floor_mm=GROSS_OUTLIER_MM)
             r = np.clip(np.abs(plane.distance(allp)) / sigma_s, 0, 5)  # outliers capped
-            total += n_ref[name] * float(np.mean(r**2))
+            # the two lasers weigh alike: their errors are biases per face and frame, not
+            # independent per point, and the laser with more points is not the better witness
+            # (weighted by their points, rigs 7 and 21 followed red's biased minimum)
+            total += weight * float(np.mean(r**2))
         return total
 
     # tilt only: roll is fixed well by the picks (the stripes would add their own bias). The
