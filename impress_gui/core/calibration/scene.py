@@ -25,7 +25,7 @@ from impress_gui import __version__
 from impress_gui.core.base import codes
 from impress_gui.core.base.errors import CalibrationError, FormatError
 from impress_gui.core.base.fileio import float_array, read_json, require, write_json
-from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
+from impress_gui.core.base.progress import CancelToken, ProgressCallback, report, sub_progress
 from impress_gui.core.calibration.aids import check_stripe_points, three_point_planes
 from impress_gui.core.calibration.geometry import Intrinsics, Plane
 from impress_gui.core.calibration.picks import Picks
@@ -334,9 +334,10 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
                 # the stripes were cropped to the faces as the picks' pose saw them: a tilt
                 # that moved far moves the faces in the picture, so the stripes are gathered
                 # again with the refined pose and the tilt refined once more
+                report(progress, 0.46, "stripes gathered again with the refined tilt")
                 obs = observe_stripes(video, times, intrinsics, target, picks, pose, fps,
-                                      plane_frames, plane_span, plane_travel_mm, progress,
-                                      cancel)
+                                      plane_frames, plane_span, plane_travel_mm,
+                                      sub_progress(progress, 0.46, 0.6), cancel)
                 planes0 = obs.fit_planes(pose.rotation,
                                          (pose.target_rotation, pose.target_translation_mm))
                 pose = refine_tilt(obs, planes0, intrinsics, target, picks, pose, speed_mm_s,
