@@ -114,3 +114,63 @@ def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calib
     finally:
         v.shutdown()
         v.messenger.close_all()
+
+
+def test_a_validation_record_enters_every_budget(qtbot, flat_recon, tmp_path):
+    """Component 6 through the real widgets: "Method validation..." in the measurement panel
+    takes an impress validate record (chosen in the file dialog); the ruler's budgets then
+    carry "method (validation)" with u = sqrt(bias^2 + SD^2) of the record's height errors and
+    a larger U; a file that is not a record is refused with its code and changes nothing."""
+    import math
+
+    import numpy as np
+
+    errors = [0.012, -0.004, 0.020, 0.007, 0.015]  # the record's height readings' errors
+    record = tmp_path / "validation.json"
+    record.write_text(json.dumps({
+        "format": "impress.validation", "version": 1, "kind": "real",
+        "date_utc": "2026-11-28T10:00:00Z",
+        "readings": [{"axis": "z", "error_mm": e} for e in errors]
+        + [{"axis": "xy", "error_mm": 0.3}]}))
+    expected_u = math.hypot(np.mean(errors), np.std(errors, ddof=1))
+    dialogs = FakeDialogs()
+    v = ViewerTab(Messenger(None), dialogs)
+    qtbot.addWidget(v)
+    v.resize(1400, 900)
+    v.show()
+    qtbot.waitExposed(v)
+    try:
+        v.set_project(Project(case_id="U-6"))
+        with qtbot.waitSignal(v.loaded, timeout=60000):
+            v.open_reconstruction(flat_recon)
+        spec = v.data.spec
+        xc = spec.x0_mm + spec.shape[1] * spec.pixel_mm / 2
+        yc = spec.y0_mm + spec.shape[0] * spec.pixel_mm / 2
+        with qtbot.waitSignal(v.profile_changed, timeout=20000):
+            v.set_ruler((xc - 12.0, yc), (xc + 12.0, yc))
+        before = v.ruler.budgets()["dz"]
+        assert "method (validation)" not in v.tools.ruler_text.toolTip()
+        # not a record: refused, with its code, nothing changes
+        wrong = tmp_path / "picks.json"
+        wrong.write_text(json.dumps({"format": "impress.picks", "version": 1}))
+        dialogs.answer = str(wrong)
+        QTest.mouseClick(v.table.method_button, Qt.MouseButton.LeftButton)
+        assert v.session.method_validation is None
+        assert "E-WRONG-FORMAT" in v.messenger.last_text
+        # the record
+        dialogs.answer = str(record)
+        QTest.mouseClick(v.table.method_button, Qt.MouseButton.LeftButton)
+        assert v.session.method_validation["z"]["n"] == len(errors)
+        assert "method (validation)" in v.tools.ruler_text.toolTip()
+        after = v.ruler.budgets()["dz"]
+        comp = next(c for c in after.components if c.name == "method (validation)")
+        assert comp.u_mm == pytest.approx(expected_u * comp.sensitivity, rel=1e-6)
+        assert after.U_mm > before.U_mm
+        assert "validation.json" in v.table.method_button.toolTip()
+        # a marker made now carries it in its stored budget
+        mk = v.add_marker(xc, yc + 5.0)
+        names = {c["name"] for c in mk["uncertainty"][""]["components"]}
+        assert "method (validation)" in names
+    finally:
+        v.shutdown()
+        v.messenger.close_all()

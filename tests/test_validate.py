@@ -382,3 +382,62 @@ def test_incomplete_readings_fail_alone_and_serialise():
     assert math.isnan(results[2].measured_mm) and "around_mm" in results[2].note
     doc = reading_to_json(no_b)
     assert doc["band_a_mm"] == [1.0, 6.0] and "band_b_mm" not in doc
+
+
+def test_the_method_component_comes_from_a_validation_record(run, tmp_path):
+    """issue 22, component 6: the run's record gives the method's height bias and SD (the
+    mean and SD of its z readings' signed errors, computed here from the saved JSON); a height
+    budget with it gains "method (validation)" of u = sqrt(bias^2 + SD^2) and a larger U; the
+    session keeps the record (with the file's SHA-256) in the project, through a save and a
+    load; what is not a validation record is refused with its code and changes nothing."""
+    import hashlib
+
+    from impress_gui.core.base import codes
+    from impress_gui.core.measure import readings as M
+    from impress_gui.core.measure import uncertainty as U
+    from impress_gui.core.project.project import Project
+    from impress_gui.session.session import Session
+    from impress_gui.validation.method import SETTINGS_KEY, budget_validation, method_record
+
+    path = run["out"] / "validation.json"
+    saved = json.loads(path.read_text())
+    z = np.array([r["error_mm"] for r in saved["readings"]
+                  if r["axis"] == "z" and r["error_mm"] is not None])
+    assert len(z) >= 3
+    rec = method_record(path)
+    assert rec["z"]["n"] == len(z)
+    assert rec["z"]["bias_mm"] == pytest.approx(z.mean(), abs=1e-12)
+    assert rec["z"]["sd_mm"] == pytest.approx(z.std(ddof=1), abs=1e-12)
+    assert rec["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+    # a height budget on a noisy plane, without and with the method
+    spec = GridSpec(0.0, 0.0, 0.1, (200, 200))
+    h = np.random.default_rng(1).normal(0, 0.03, spec.shape).astype(np.float32)
+    ro = M.readout(h, spec, 10.0, 10.0, 0.5)
+    plain = U.height_budget(U.UncertaintyContext(h, spec), ro)
+    ctx = U.UncertaintyContext(h, spec, validation=budget_validation(rec))
+    with_method = U.height_budget(ctx, ro)
+    comp = next(c for c in with_method.components if c.name == "method (validation)")
+    assert comp.u_mm == pytest.approx(math.hypot(z.mean(), z.std(ddof=1)), rel=1e-9)
+    assert with_method.u_c_mm == pytest.approx(math.hypot(plain.u_c_mm, comp.u_mm), rel=1e-6)
+    assert "validation.json" in comp.note and rec["sha256"][:12] in comp.note
+    assert not any("validate report: not included" in n for n in with_method.notes)
+    # kept by the session in the project, through a save and a load
+    session = Session(Project(case_id="V-6"))
+    session.set_method_validation(path)
+    assert session.method_validation == rec
+    session.project.save(tmp_path / "case")
+    back = Project.load(tmp_path / "case")
+    assert back.calibration_settings[SETTINGS_KEY] == rec
+    # refused: another kind of JSON, and a record without height readings
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"format": "impress.picks", "version": 1}))
+    thin = tmp_path / "thin.json"
+    thin.write_text(json.dumps({**saved, "readings": [r for r in saved["readings"]
+                                                       if r["axis"] != "z"]}))
+    for bad in (other, thin):
+        with pytest.raises(FormatError) as err:
+            session.set_method_validation(bad)
+        assert err.value.code in (codes.E_FORMAT, codes.E_WRONG_FORMAT)
+        assert session.method_validation == rec  # unchanged
+    session.set_method_validation(None)
+    assert session.method_validation is None

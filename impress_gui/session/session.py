@@ -154,6 +154,33 @@ class Session:
         _emit(self.calibration_changed, cal)
         _emit(self.changed)
 
+    # ----- the method's validation (component 6 of the uncertainty budget) -------------------
+    @property
+    def method_validation(self) -> dict | None:
+        """The ``impress validate`` record the budgets take the method's bias and precision
+        from (:func:`~impress_gui.validation.method.method_record`), or None."""
+        from impress_gui.validation.method import SETTINGS_KEY
+
+        rec = self._project.calibration_settings.get(SETTINGS_KEY)
+        return rec if isinstance(rec, dict) else None
+
+    def set_method_validation(self, path: str | Path | None) -> dict | None:
+        """Take the method's bias and precision from the validation record at ``path`` (None:
+        leave the component out again); kept in the project's calibration settings, with the
+        file's SHA-256, and logged. A file that is not a validation record raises FormatError
+        and changes nothing."""
+        from impress_gui.validation.method import SETTINGS_KEY, method_record
+
+        settings = dict(self._project.calibration_settings)
+        rec = None if path is None else method_record(path)
+        if rec is None:
+            settings.pop(SETTINGS_KEY, None)
+        else:
+            settings[SETTINGS_KEY] = rec
+        self._project.set_calibration_settings(settings)
+        _emit(self.changed)
+        return rec
+
     # ----- reconstructions ------------------------------------------------------------------
     @property
     def reconstructions(self) -> list[Path]:

@@ -34,8 +34,8 @@ Components (docs/uncertainty.md says the same for a quality manager):
   ``a`` mm, half-width ``a/2``, so ``u = a / (2 sqrt 3)`` per coordinate, times the reading's
   sensitivity to that position (1 for a length's end, the local slope for a height).
 - **method** (type B, normal): bias and precision of the method from an ``impress validate``
-  report of the rig, when one is given (:class:`UncertaintyContext` ``validation``); the viewer
-  does not look one up yet.
+  report of the rig, when one is given (:class:`UncertaintyContext` ``validation``; the viewer
+  takes it from the record the examiner chose, impress_gui.validation.method).
 """
 
 from __future__ import annotations

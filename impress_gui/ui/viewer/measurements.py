@@ -32,6 +32,7 @@ from impress_gui.ui.viewer.undo import (
     RemoveMeasurement,
 )
 from impress_gui.ui.worker import LatestOnly
+from impress_gui.validation.method import budget_validation
 
 
 class Levelling(QObject):
@@ -308,6 +309,7 @@ class UncertaintyProvider(QObject):
             None if cal is None else float(cal.speed_mm_s),
             None if cal is None else float(cal.implied_speed_mm_s),
             None, recon.plane, None, notes)
+        ctx.validation = budget_validation(self.session.method_validation)
         if contribution is not None:
             ctx.per_laser = self.per_laser(data)
         if key in ("green", "red"):

@@ -319,7 +319,10 @@ class MeasurementTable(QGroupBox):
             row.addWidget(b)
         v.addLayout(row)
         row = QHBoxLayout()  # a second row: the panel stays narrow enough to show them all
-        for b in (self.details_button, self.clear_button, self.export_button):
+        self.method_button = QPushButton("Method validation...")
+        self.method_button.setToolTip("Take the method's bias and precision from an impress "
+                                      "validate record (validation.json) into every budget")
+        for b in (self.details_button, self.method_button, self.clear_button, self.export_button):
             row.addWidget(b)
         v.addLayout(row)
         self._filling = False

@@ -33,6 +33,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from impress_gui.core.base.errors import ImpressError
 from impress_gui.core.formats.writers import contribution_png
 from impress_gui.core.measure import readings as M
 from impress_gui.core.measure import uncertainty as U
@@ -239,6 +240,7 @@ class ViewerTab(QWidget):
         b["report_pdf"].clicked.connect(lambda: a.export_report_pdf())
         b["view3d"].clicked.connect(lambda: a.open_3d())
         self.table.export_button.clicked.connect(lambda: a.export_measurements_csv())
+        self.table.method_button.clicked.connect(lambda: self.attach_method_validation())
 
     # ----- the session ----------------------------------------------------------------------------
     @property
@@ -482,6 +484,32 @@ class ViewerTab(QWidget):
             text += " [levelled]"
         self.tools.readout.setText(text)
         self.tools.readout.setToolTip("" if budget is None else budget.text())
+
+    def attach_method_validation(self, path: str | Path | None = None) -> dict | None:
+        """The method's bias and precision into every budget from now on (component 6), from
+        an ``impress validate`` record chosen by the user (or ``path``); kept in the project.
+        A file that is not such a record is refused with its code and changes nothing."""
+        if path is None:
+            start = str(self.session.project.root or "")
+            path = self.dialogs.open_file("Method validation record (validation.json)",
+                                          "Validation record (*.json)", start)
+        if not path:
+            return None
+        try:
+            rec = self.session.set_method_validation(path)
+        except ImpressError as exc:
+            self.messenger.exception("Cannot use the validation record", exc)
+            return None
+        assert rec is not None
+        z = rec["z"]
+        self.table.method_button.setToolTip(
+            f"Method validation: {Path(rec['file']).name}, height bias {z['bias_mm']:+.4f} mm, "
+            f"SD {z['sd_mm']:.4f} mm ({z['n']} readings)")
+        self.status.emit(f"Method validation from {Path(rec['file']).name}: height bias "
+                         f"{z['bias_mm']:+.4f} mm, SD {z['sd_mm']:.4f} mm, in every budget")
+        self.ruler.show_uncertainty()
+        self._show_readout_again()
+        return rec
 
     def _show_readout_again(self) -> None:
         """The calibration's Monte Carlo arrived: the cursor's reading again, with it."""
