@@ -78,6 +78,60 @@ def true_params(scan_dir: Path, cal):
     return CalParams(rot[None], normals, offsets, reference_coeffs(r_o, t_o)[None], np.ones(1))
 
 
+def physical_truth(scan_dir: Path, cal, rec, nominal=None, true=None) -> np.ndarray:
+    """The true height of the physical point each reconstructed cell shows: the cell's
+    camera ray at its time through the TRUE calibration (map_points), the simulator's height
+    map read there (for a cell both lasers made, the mean over the two lasers' points; for
+    one where they disagreed, the laser the fusion kept). Not the truth at the same map
+    coordinates: the map's frame is the calibration's, turned against the true one by its
+    tilt and roll errors (0.5 px of click noise: up to ~9 mm along y at the scene), and a
+    point the examiner picks on the map is the physical point shown there. ``rec``: the
+    reconstruction (its fused map, contribution codes and per-laser maps); ``nominal`` and
+    ``true``: the calibration's and the true CalParams (made from ``cal`` when not given)."""
+    import tifffile
+
+    from impress_gui.core.calibration.uncertainty import CalParams, map_points
+    from impress_gui.sim.truth import _turn_ideal_to_rail
+
+    nominal = CalParams.of_calibration(cal) if nominal is None else nominal
+    true = true_params(scan_dir, cal) if true is None else true
+    truth = json.loads((scan_dir / "truth.json").read_text())
+    turn = _turn_ideal_to_rail(truth, cal.rotation)  # the true params' frame -> rail
+    hm = truth["heightmap"]
+    tmap = tifffile.imread(scan_dir / hm["file"])
+    s1 = truth["travel_mm"][truth["calibration_frames"]["t1"]]
+    ii, jj = np.nonzero(np.isfinite(rec.height_mm))
+    x, y = rec.spec.xs()[jj], rec.spec.ys()[ii]
+    h = rec.height_mm[ii, jj].astype(float)
+    code = np.asarray(rec.contribution)[ii, jj]
+    wg = np.where(code == 1, 1.0, np.where(code == 2, 0.0, 0.5))
+    four = code == 4
+    if four.any():
+        g, r = (np.asarray(rec.per_laser_mm[n])[ii[four], jj[four]] for n in ("green", "red"))
+        wg[four] = np.where(np.abs(g - h[four]) <= np.abs(r - h[four]), 1.0, 0.0)
+    out_v = np.zeros(len(x))
+    ref = true.ref[0]
+    for name, w in (("green", wg), ("red", 1.0 - wg)):
+        for a in range(0, len(x), 500_000):
+            sl = slice(a, a + 500_000)
+            sel = np.flatnonzero(w[sl] > 0) + a
+            if not sel.size:
+                continue
+            tx, ty, th = (v[0] for v in map_points(nominal, true, x[sel], y[sel],
+                                                   h[sel], name))
+            z = ref[0] + ref[1] * tx + ref[2] * ty - th
+            p = np.column_stack([tx, ty, z]) @ turn.T
+            ci = np.rint((p[:, 1] + s1 - hm["y0_mm"]) / hm["pixel_mm"]).astype(int)
+            cj = np.rint((p[:, 0] - hm["x0_mm"]) / hm["pixel_mm"]).astype(int)
+            inside = (ci >= 0) & (ci < tmap.shape[0]) & (cj >= 0) & (cj < tmap.shape[1])
+            v = np.full(sel.size, np.nan)
+            v[inside] = tmap[ci[inside], cj[inside]]
+            out_v[sel] += w[sel] * v
+    out = np.full(rec.spec.shape, np.nan, np.float32)
+    out[ii, jj] = out_v
+    return out
+
+
 class Rig:
     """One calibrated, reconstructed draw and what the readings need."""
 
@@ -118,53 +172,8 @@ class Rig:
         self.cells = np.argwhere(self.ok)
 
     def physical_truth(self, rec) -> np.ndarray:
-        """The true height of the physical point each reconstructed cell shows: the cell's
-        camera ray at its time through the TRUE calibration (map_points), the simulator's height
-        map read there (for a cell both lasers made, the mean over the two lasers' points; for
-        one where they disagreed, the laser the fusion kept). Not the truth at the same map
-        coordinates: the map's frame is the calibration's, turned against the true one by its
-        tilt and roll errors (0.5 px of click noise: up to ~9 mm along y at the scene), and a
-        point the examiner picks on the map is the physical point shown there."""
-        import tifffile
-
-        from impress_gui.core.calibration.uncertainty import map_points
-        from impress_gui.sim.truth import _turn_ideal_to_rail
-
-        truth = json.loads((self.dir / "truth.json").read_text())
-        turn = _turn_ideal_to_rail(truth, self.cal.rotation)  # the true params' frame -> rail
-        hm = truth["heightmap"]
-        tmap = tifffile.imread(self.dir / hm["file"])
-        s1 = truth["travel_mm"][truth["calibration_frames"]["t1"]]
-        ii, jj = np.nonzero(np.isfinite(self.h))
-        x, y = self.spec.xs()[jj], self.spec.ys()[ii]
-        h = self.h[ii, jj].astype(float)
-        code = np.asarray(rec.contribution)[ii, jj]
-        wg = np.where(code == 1, 1.0, np.where(code == 2, 0.0, 0.5))
-        four = code == 4
-        if four.any():
-            g, r = (np.asarray(rec.per_laser_mm[n])[ii[four], jj[four]] for n in ("green", "red"))
-            wg[four] = np.where(np.abs(g - h[four]) <= np.abs(r - h[four]), 1.0, 0.0)
-        out_v = np.zeros(len(x))
-        ref = self.true.ref[0]
-        for name, w in (("green", wg), ("red", 1.0 - wg)):
-            for a in range(0, len(x), 500_000):
-                sl = slice(a, a + 500_000)
-                sel = np.flatnonzero(w[sl] > 0) + a
-                if not sel.size:
-                    continue
-                tx, ty, th = (v[0] for v in map_points(self.nominal, self.true, x[sel], y[sel],
-                                                       h[sel], name))
-                z = ref[0] + ref[1] * tx + ref[2] * ty - th
-                p = np.column_stack([tx, ty, z]) @ turn.T
-                ci = np.rint((p[:, 1] + s1 - hm["y0_mm"]) / hm["pixel_mm"]).astype(int)
-                cj = np.rint((p[:, 0] - hm["x0_mm"]) / hm["pixel_mm"]).astype(int)
-                inside = (ci >= 0) & (ci < tmap.shape[0]) & (cj >= 0) & (cj < tmap.shape[1])
-                v = np.full(sel.size, np.nan)
-                v[inside] = tmap[ci[inside], cj[inside]]
-                out_v[sel] += w[sel] * v
-        out = np.full(self.spec.shape, np.nan, np.float32)
-        out[ii, jj] = out_v
-        return out
+        """:func:`physical_truth` of this draw's map."""
+        return physical_truth(self.dir, self.cal, rec, self.nominal, self.true)
 
     def to_true(self, x, y, h):
         """Map points to where they truly are (true ideal frame)."""
