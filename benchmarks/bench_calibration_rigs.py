@@ -11,7 +11,7 @@ the scene is calibrated from the simulator's exact corner picks (draw "exact") a
   (a 20 x 20 grid over x -60..60 mm across and y 0..120 mm along the scan from the camera at
   t1, heights cycling over -10..+20 mm, in the calibration's frame) reconstructed by the calibration from one laser are taken, by their
   camera ray at their time, through the simulator's TRUE calibration
-  (core.calibration.uncertainty.map_points; bench_uncertainty.true_params); the height
+  (core.calibration.uncertainty.map_points; sim.truth.true_cal_params); the height
   difference, median and largest of |error| over the points, the worse laser;
 - a calibration the product refuses is listed with its error code (a result, not a crash).
 
@@ -31,9 +31,9 @@ from pathlib import Path
 import bench_random_rigs as R
 import common
 import numpy as np
-from bench_uncertainty import true_params
 
 from impress_gui.core.base.errors import ImpressError
+from impress_gui.sim.truth import true_cal_params as true_params
 
 #: the fixed points (calibration frame, mm): 20 across x 20 along, heights cycling -10..+20 mm
 _X, _Y = np.meshgrid(np.linspace(-60.0, 60.0, 20), np.linspace(0.0, 120.0, 20))

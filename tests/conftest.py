@@ -56,6 +56,7 @@ LONG_FILES = (
     "test_reconstruct.py",
     "test_measure.py",
     "test_gui_calibration.py",
+    "test_tilt_refinement.py",
 )
 
 

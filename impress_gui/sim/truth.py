@@ -122,3 +122,30 @@ def true_laser_plane(truth: dict, name: str, rotation: np.ndarray | None = None)
     rail = Plane.from_json(la["plane_rail"], name)
     turn = _turn_ideal_to_rail(truth, rotation)
     return Plane(turn.T @ rail.normal, rail.offset_mm)
+
+
+def true_cal_params(scan_dir: Path, cal):
+    """The simulator's true calibration as a CalParams, in the frame convention of ``cal``
+    (origin at the camera at frame t1; axes levelled across the scan as the calibration levels
+    its own, i.e. the simulator's rail frame, or the ideal frame for a calibration that was
+    not levelled: sim.truth._turn_ideal_to_rail picks the nominal frame nearer to ``cal``'s).
+    The true ideal frame of a rig turned about the motion axis is not the levelled one: a
+    length in the map's plane measured there differs by the turn (up to 2 % at 5.7 deg)."""
+    from impress_gui.core.calibration.solve import umeyama
+    from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
+    from impress_gui.core.calibration.uncertainty import CalParams, reference_coeffs
+
+    truth = json.loads((scan_dir / "truth.json").read_text())
+    target = TargetModel.load(scan_dir / "target.json")
+    tc = np.array([truth["target"]["corners_rail_mm"][c] for c in CORNER_NAMES])
+    corners = rail_to_reconstruction(scan_dir, tc, cal.rotation)
+    _, r_o, t_o = umeyama(target.corner_array(), corners, with_scale=False)
+    normals, offsets = {}, {}
+    for name in ("green", "red"):
+        tp = true_laser_plane(truth, name, cal.rotation).oriented_like(cal.planes[name].plane)
+        normals[name] = np.asarray(tp.normal, float)[None]
+        offsets[name] = np.array([float(tp.offset_mm)])
+    # camera -> the calibration's nominal frame: camera -> ideal, then ideal -> that frame
+    rot = (_turn_ideal_to_rail(truth, cal.rotation).T @ _turn_ideal_to_rail(truth)
+           @ np.asarray(truth["rotation_camera_to_ideal"], float))
+    return CalParams(rot[None], normals, offsets, reference_coeffs(r_o, t_o)[None], np.ones(1))
