@@ -12,6 +12,7 @@ with its SHA-256, so a budget says which validation it used.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from pathlib import Path
@@ -21,7 +22,7 @@ import numpy as np
 
 from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError
-from impress_gui.core.base.fileio import read_json, sha256_file
+from impress_gui.core.base.fileio import MAX_JSON_BYTES, parse_json, read_regular
 from impress_gui.validation.run import RECORD_FORMAT
 
 #: where the project keeps the record (in its calibration settings: a property of the rig and
@@ -47,7 +48,8 @@ def method_record(path: str | os.PathLike[str]) -> dict[str, Any]:
     ``bias_mm`` and ``sd_mm``, and the file's name, SHA-256, date and kind. FormatError (coded)
     when the file is not a validation record or holds fewer than three height readings."""
     path = Path(path)
-    doc = read_json(path, RECORD_FORMAT)
+    raw = read_regular(path, RECORD_FORMAT, MAX_JSON_BYTES)  # read once: parsed and hashed
+    doc = parse_json(raw, path, RECORD_FORMAT)
     readings = doc.get("readings")
     if not isinstance(readings, list):
         raise FormatError(f"{path}: a validation record without readings", code=codes.E_FORMAT)
@@ -56,7 +58,7 @@ def method_record(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise FormatError(f"{path}: the validation holds {z['n']} height readings with an error; "
                           f"at least {MIN_READINGS} are needed for the method's bias and "
                           "precision", code=codes.E_FORMAT)
-    return {"file": str(path.resolve()), "sha256": sha256_file(path),
+    return {"file": str(path.resolve()), "sha256": hashlib.sha256(raw).hexdigest(),
             "date_utc": str(doc.get("date_utc", "")), "kind": str(doc.get("kind", "")),
             "software": str(doc.get("software", "")), "z": z, "xy": xy}
 

@@ -500,7 +500,8 @@ class ViewerTab(QWidget):
         except ImpressError as exc:
             self.messenger.exception("Cannot use the validation record", exc)
             return None
-        assert rec is not None
+        if rec is None:
+            return None
         z = rec["z"]
         self.table.method_button.setToolTip(
             f"Method validation: {Path(rec['file']).name}, height bias {z['bias_mm']:+.4f} mm, "
