@@ -41,6 +41,7 @@ import argparse
 import json
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import common
@@ -109,7 +110,8 @@ def physical_truth(scan_dir: Path, cal, rec, nominal=None, true=None) -> np.ndar
 class Rig:
     """One calibrated, reconstructed draw and what the readings need."""
 
-    def __init__(self, seed: int, draw: int, noise_px: float, trials: int) -> None:
+    def __init__(self, seed: int, draw: int, noise_px: float, trials: int,
+                 speed_error_rel: float = 0.0) -> None:
         from impress_gui.core.calibration.target import TargetModel
         from impress_gui.core.calibration.uncertainty import CalParams
         from impress_gui.core.formats.video import open_video
@@ -124,7 +126,12 @@ class Rig:
         self.dir = d
         truth = json.loads((d / "truth.json").read_text())
         t0 = time.perf_counter()
-        self.cal = cal = common.calibrate(d, noise_px=noise_px, seed=1000 * seed + draw + 1)
+        # the speed entered: the rail's true speed off by the servo's regulation (a uniform
+        # draw within +-speed_error_rel), as the budget's rail-speed component claims
+        eps = float(np.random.default_rng(7919 * seed + draw).uniform(-1.0, 1.0)) * speed_error_rel
+        self.entered_speed = truth["speed_mm_s"] * (1.0 + eps)
+        self.cal = cal = common.calibrate(d, noise_px=noise_px, seed=1000 * seed + draw + 1,
+                                          speed_mm_s=self.entered_speed)
         with open_video(d / truth["video"]) as v:
             rec = reconstruct(v, cal, ProcessParams())
         self.t_rec = time.perf_counter() - t0
@@ -138,7 +145,8 @@ class Rig:
             trials=trials, per_laser=rec.per_laser_mm)
         self.t_mc = time.perf_counter() - t0
         self.nominal = CalParams.of_calibration(cal)
-        self.true = true_params(d, cal)
+        true = true_params(d, cal)  # the true travel over the entered one: the speed's error
+        self.true = replace(true, speed_scale=np.array([truth["speed_mm_s"] / self.entered_speed]))
         self.contrib = rec.contribution
         self.truth = self.physical_truth(rec)
         self.edge = common.edge_mask(self.truth, 5, 1.0)
@@ -390,16 +398,20 @@ def main() -> None:
     ap.add_argument("--noise-px", type=float, default=0.5)
     ap.add_argument("--trials", type=int, default=30)
     ap.add_argument("--per-kind", type=int, default=25)
+    ap.add_argument("--speed-error-pct", type=float, default=0.1,
+                    help="half-width (%%) of the uniform error of the speed entered against "
+                         "the rail's true speed (the servo's regulation; 0: exact)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",") if s]
     print(f"random rigs {seeds} at 640x360, {args.draws} draws of click noise "
-          f"{args.noise_px} px each, {args.trials} Monte Carlo trials per calibration")
+          f"{args.noise_px} px each, {args.trials} Monte Carlo trials per calibration, "
+          f"speed entered within +-{args.speed_error_pct:g} % of the true")
     rows: list[dict] = []
     for seed in seeds:
         for draw in range(args.draws):
             try:
-                rig = Rig(seed, draw, args.noise_px, args.trials)
+                rig = Rig(seed, draw, args.noise_px, args.trials, args.speed_error_pct / 100)
             except Exception as exc:  # noqa: BLE001 - a rig the product refuses is a result
                 print(f"  seed {seed} draw {draw}: not measured ({type(exc).__name__}: {exc})")
                 continue

@@ -47,7 +47,8 @@ def scan(name: str, **cfg) -> Path:
     return out
 
 
-def calibrate(scan_dir: Path, picks_file: str = "picks.json", noise_px: float = 0.0, seed: int = 0):
+def calibrate(scan_dir: Path, picks_file: str = "picks.json", noise_px: float = 0.0, seed: int = 0,
+              speed_mm_s: float | None = None):
     from impress_gui.core.calibration.geometry import Intrinsics
     from impress_gui.core.calibration.picks import Picks
     from impress_gui.core.calibration.scene import calibrate_scene
@@ -66,7 +67,7 @@ def calibrate(scan_dir: Path, picks_file: str = "picks.json", noise_px: float = 
     with open_video(scan_dir / truth["video"]) as v:
         return calibrate_scene(v, Intrinsics.load(scan_dir / "intrinsics.json"),
                                TargetModel.load(scan_dir / "target.json"), picks,
-                               truth["speed_mm_s"])
+                               truth["speed_mm_s"] if speed_mm_s is None else speed_mm_s)
 
 
 def edge_mask(truth: np.ndarray, radius_cells: int = 5, jump_mm: float = 1.0) -> np.ndarray:

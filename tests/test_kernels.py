@@ -107,7 +107,7 @@ def test_stripe_profile_kernel_equals_numpy_steps(frames, flat_calibration):
             sparse[::7] = rows[::7]  # isolated hits only: no stripe
             variants.append(sparse)
             for r in variants:
-                def tri(valid, r=r):
+                def tri(valid, r=r, b0=b0, rays=rays, plane=plane):
                     x, y, hh = np.empty(w), np.empty(w), np.empty(w)
                     kern.triangulate(r, valid, b0, rays, plane.normal, float(plane.offset_mm),
                                      12.5, ref, x, y, hh)

@@ -154,9 +154,12 @@ def test_readings_budgets_and_the_csv_carry_the_uncertainty(flat):
     r = M.ruler(h, spec, (5.0, 5.0), (30.0, 25.0), 0.5)
     b = U.ruler_budgets(ctx, r)
     assert set(b) == {"xy", "3d", "dz"}
-    for budget in b.values():
+    for key, budget in b.items():
         names = {c.name for c in budget.components}
-        assert {"calibration", "grid resolution", "rail speed"} <= names
+        assert {"calibration", "rail speed"} <= names
+        # the length between the marked coordinates is not quantised to cells; the heights
+        # read at the ends' cells are
+        assert ("grid resolution" in names) == (key != "xy")
         assert budget.U_mm == pytest.approx(2 * budget.u_c_mm) and budget.u_c_mm > 0
     p = M.line_profile(h, spec, (5.0, 20.0), (35.0, 20.0), 1.0)
     s = M.step_height(p, (2, 6), (20, 24))
@@ -268,6 +271,38 @@ def test_lateral_sampling_of_a_width_follows_where_the_level_cuts_the_wall():
     assert u[1.0] == pytest.approx(0.6 * 0.5 / math.sqrt(3) * math.sqrt(2), rel=0.02)
     assert u[0.5] == pytest.approx(0.6 * 0.75 / math.sqrt(3) * math.sqrt(2), rel=0.02)
     assert u[1.5] == pytest.approx(u[0.5], rel=1e-6)  # symmetric: a quarter from the top
+
+
+def test_lateral_sampling_shrinks_where_the_samples_resolve_the_wall():
+    """A wall that slopes over several of the scanner's samples is placed by the samples on
+    it: only the share of its rise within one sample is open (J). A jump between two samples
+    (J 1) keeps the full half-width; a wall sloping over 2.4 mm sampled every 0.6 mm rises a
+    quarter of itself within one sample, and the width measured on it is still right to far
+    less than that quarter sample."""
+    spec = GridSpec(0.0, 0.0, 0.1, (200, 400))
+    xs = spec.xs()
+    ramp = np.clip((xs - 14.0) / 2.4, 0.0, 1.0) * np.clip((27.6 - xs) / 2.4, 0.0, 1.0)
+    sloped = np.broadcast_to(2.0 * ramp, spec.shape).astype(np.float32)
+    steep = np.zeros(spec.shape, np.float32)
+    steep[:, 150:250] = 2.0
+    u, widths = {}, {}
+    for name, h in (("steep", steep), ("sloped", sloped)):
+        ctx = replace(U.UncertaintyContext(h, spec), sampling_mm=(0.6, 0.9))
+        p = M.line_profile(h, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
+        w = M.width_at_level(p, 1.0, 20.0)
+        widths[name] = w.width_mm
+        b = U.width_budget(ctx, p, w)
+        assert "grid resolution" not in {c.name for c in b.components}  # interpolated crossings
+        u[name] = next(c for c in b.components if c.name == "lateral sampling").u_mm
+    assert u["steep"] == pytest.approx(0.6 * 0.5 / math.sqrt(3) * math.sqrt(2), rel=0.02)
+    assert u["sloped"] == pytest.approx(u["steep"] * 0.6 / 2.4, rel=0.05)
+    assert widths["sloped"] == pytest.approx(27.6 - 14.0 - 2.4, abs=0.02)
+    # no scanner sampling known: one grid cell is the sample
+    ctx = U.UncertaintyContext(steep, spec)
+    p = M.line_profile(steep, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
+    c = next(c for c in U.width_budget(ctx, p, M.width_at_level(p, 1.0, 20.0)).components
+             if c.name == "lateral sampling")
+    assert c.u_mm == pytest.approx(0.1 * 0.5 / math.sqrt(3) * math.sqrt(2), rel=0.05)
 
 
 def test_the_target_check_is_of_the_models_shape_not_of_the_pose(flat):

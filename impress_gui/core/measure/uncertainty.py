@@ -30,9 +30,13 @@ Components (docs/uncertainty.md says the same for a quality manager):
   from their scatter about a local plane (a line, for a band), with the sample count reduced to
   an *effective* count by their spatial autocorrelation (neighbouring cells of a heightmap
   interpolated from one stripe are not independent): ``n_eff = n / prod(1 + 2 sum rho_k)``.
-- **grid resolution** (type B, rectangular): a position is only resolved to a cell of
-  ``a`` mm, half-width ``a/2``, so ``u = a / (2 sqrt 3)`` per coordinate, times the reading's
-  sensitivity to that position (1 for a length's end, the local slope for a height).
+- **grid resolution** (type B, rectangular): a height read at one cell is read up to half a
+  cell ``a`` from the point marked, so ``u = a / (2 sqrt 3)`` per coordinate, times the
+  local slope. A ruler's length between two marked points has none (the coordinates marked
+  are not snapped to cells), nor has a width (its crossings are interpolated along a profile;
+  the scanner's own sampling, never taken finer than a cell, is its **lateral sampling**
+  component: where a wall lies between two samples, scaled by the share of the wall's rise
+  the samples leave unresolved).
 - **method** (type B, normal): bias and precision of the method from an ``impress validate``
   report of the rig, when one is given (:class:`UncertaintyContext` ``validation``; the viewer
   takes it from the record the examiner chose, impress_gui.validation.method).
@@ -657,7 +661,8 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
         xs = np.hypot(ux + dx[:, 1] - dx[:, 0], uy + dy[:, 1] - dy[:, 0])
         comps += _cal_component(xs - xy, "length in the xy plane", ctx)
     comps += _speed_component(ctx, (uy * uy / xy) if xy > 0 else 0.0)
-    comps.append(_grid_component(ctx, 1.0, 2.0, "positions of the two ends"))
+    # no grid term: the ends are the coordinates marked (not snapped to cells), so the length
+    # between them is not quantised; where the examiner puts them is not the reading's
     out["xy"] = Budget("ruler xy", xy, tuple(comps), notes=_notes(ctx))
     # dz and 3D
     if np.isfinite(hs).all():
@@ -684,9 +689,10 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
                                    u_noise, "mm", c_noise, c_noise * u_noise,
                                    "the two ends' means (standard error or nearby scatter, "
                                    "the larger), in quadrature"))
-            c_grid = slope if key == "dz" else math.hypot(xy / val if val > 0 else 1.0,
-                                                          c_noise * slope)
-            comps.append(_grid_component(ctx, c_grid, 1.0, "positions of the two ends"))
+            # the heights are read at the cell nearest each end (radius 0) or over a disk
+            # about it: the position's resolution moves a height by the slope there
+            c_grid = slope if key == "dz" else c_noise * slope
+            comps.append(_grid_component(ctx, c_grid, 1.0, "heights read at the ends' cells"))
             comps += _speed_component(ctx, (uy * uy / val) if (key == "3d" and val > 0) else 0.0)
             comps += _method_component(ctx, c_noise)
             out[key] = Budget("ruler dz" if key == "dz" else "ruler 3D", val, tuple(comps),
@@ -822,6 +828,41 @@ def _level_fraction(d_all: np.ndarray, h_all: np.ndarray, at_mm: float, level: f
     return float(np.clip((level - lo) / (hi - lo), 0.0, 1.0))
 
 
+def _height_noise_beside(profile, at_mm: float) -> float:
+    """The profile's height noise beside a wall crossed at ``at_mm``: the scatter about a line
+    of the samples 0.5-2 mm before and after it (RMS of the two sides that have data), not of
+    the samples on the wall, whose curve is shape, not noise (a line through a wall's S leaves
+    residuals of tenths of a millimetre). 0 when neither side has data."""
+    sides = []
+    for band in ((at_mm - 2.0, at_mm - 0.5), (at_mm + 0.5, at_mm + 2.0)):
+        sg, _, n = series_noise(_band_values(profile, band))
+        if math.isfinite(sg) and n >= 5:
+            sides.append(sg)
+    return float(np.sqrt(np.mean(np.square(sides)))) if sides else 0.0
+
+
+def _unresolved_share(d_all: np.ndarray, h_all: np.ndarray, at_mm: float, sample_mm: float,
+                      reach_mm: float = 2.0) -> float:
+    """The share of the wall crossed at ``at_mm`` that the scanner's samples do not resolve,
+    0..1: the largest rise of the profile over one sample's length among the windows that hold
+    the crossing, over the wall's whole rise (lowest to highest height within ``reach_mm``).
+    A wall that is a jump between two samples rises fully within one sample: 1, its position
+    is known to a sample. A wall sloping over several samples rises a fraction of itself within
+    one: the samples on it place the crossing, and only that fraction's position is open. 1
+    when not known."""
+    ok = np.isfinite(h_all)
+    near = ok & (np.abs(d_all - at_mm) <= reach_mm)
+    if near.sum() < 2 or not (math.isfinite(sample_mm) and sample_mm > 0):
+        return 1.0
+    lo, hi = float(np.min(h_all[near])), float(np.max(h_all[near]))
+    if hi - lo <= 0:
+        return 1.0
+    d, h = d_all[ok], h_all[ok]
+    starts = at_mm - sample_mm * np.linspace(0.0, 1.0, 9)
+    rise = np.abs(np.interp(starts + sample_mm, d, h) - np.interp(starts, d, h))
+    return float(np.clip(np.max(rise) / (hi - lo), 0.0, 1.0))
+
+
 def width_budget(ctx: UncertaintyContext, profile, width,
                  level_bands: Sequence[Sequence[Sequence[float]]] | None = None) -> Budget:
     """The width of a feature at a level (two crossings of a profile), or the distance between
@@ -889,29 +930,38 @@ def width_budget(ctx: UncertaintyContext, profile, width,
         if not math.isfinite(gap):
             us.append(math.nan)
             continue
-        sg, _, _ = series_noise(_band_values(profile, (dd - 1.0, dd + 1.0)))
-        sg = sg if math.isfinite(sg) else 0.0
+        sg = _height_noise_beside(profile, dd)
         shift = sg / abs(g) if g != 0 else math.inf
         us.append(min(shift, gap / math.sqrt(3.0)))
     u = math.hypot(*us)
     comps.append(Component("surface noise", "positions of the crossings", "A", "normal", u, "mm",
-                           1.0, u, "height noise near each crossing over the wall's slope, at "
-                           "most the spacing of the samples that bracket it (rectangular)"))
-    comps.append(_grid_component(ctx, 1.0, 2.0, "positions of the two crossings"))
+                           1.0, u, "height noise beside each crossing (0.5-2 mm either side, "
+                           "off the wall) over the wall's slope, at most the spacing of the "
+                           "samples that bracket it (rectangular)"))
+    # where each wall lies between two samples: one sample is a camera column across the
+    # scan and a frame's travel along it, and never less than a cell of the grid the profile
+    # is read from (no separate grid term: the crossings are interpolated, not cells)
+    cell = ctx.spec.pixel_mm
     if ctx.sampling_mm is not None:
-        s_mm = math.hypot(ux * ctx.sampling_mm[0], uy * ctx.sampling_mm[1])
-        fr = [_level_fraction(d_all, h_all, dd, lv) for dd, lv in zip(ds, levels)]
-        u_w = [s_mm * max(f, 1.0 - f) / math.sqrt(3.0) for f in fr]
-        u1 = math.hypot(*u_w)
-        comps.append(Component("lateral sampling", "where each wall lies between two samples",
-                               "B", "rectangular", u1, "mm", 1.0, u1,
-                               f"one sample along the profile {s_mm:.3f} mm (a camera column "
-                               f"{ctx.sampling_mm[0]:.3f} mm across the scan, a frame's travel "
-                               f"{ctx.sampling_mm[1]:.3f} mm along it); a steep wall between two "
-                               "samples is crossed by the line between them at the level's "
-                               "fraction f of the step, the wall itself anywhere between them: "
-                               f"half-width max(f, 1 - f) samples per wall (f {fr[0]:.2f}, "
-                               f"{fr[1]:.2f})"))
+        s_mm = max(math.hypot(ux * ctx.sampling_mm[0], uy * ctx.sampling_mm[1]), cell)
+        what = (f"one sample along the profile {s_mm:.3f} mm (a camera column "
+                f"{ctx.sampling_mm[0]:.3f} mm across the scan, a frame's travel "
+                f"{ctx.sampling_mm[1]:.3f} mm along it, at least a cell {cell:g} mm)")
+    else:
+        s_mm = cell
+        what = f"one sample along the profile: a cell {cell:g} mm (the scanner's sampling not known)"
+    fr = [_level_fraction(d_all, h_all, dd, lv) for dd, lv in zip(ds, levels)]
+    js = [_unresolved_share(d_all, h_all, dd, s_mm) for dd in ds]
+    u_w = [j * s_mm * max(f, 1.0 - f) / math.sqrt(3.0) for f, j in zip(fr, js)]
+    u1 = math.hypot(*u_w)
+    comps.append(Component("lateral sampling", "where each wall lies between two samples",
+                           "B", "rectangular", u1, "mm", 1.0, u1,
+                           f"{what}; a steep wall between two samples is crossed by the line "
+                           "between them at the level's fraction f of the step, the wall itself "
+                           "anywhere between them: half-width max(f, 1 - f) samples per wall "
+                           f"(f {fr[0]:.2f}, {fr[1]:.2f}), times the share J of the wall's rise "
+                           "within one sample (J 1: a jump the samples do not resolve; less where "
+                           f"the wall slopes over several samples: J {js[0]:.2f}, {js[1]:.2f})"))
     return Budget("width at level", width.width_mm, tuple(comps), notes=_notes(ctx))
 
 
