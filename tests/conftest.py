@@ -4,7 +4,12 @@ os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 # the examiner's signing key of every test is made in a temporary folder, never in the home
 import tempfile  # noqa: E402
 
-os.environ.setdefault("IMPRESS_KEY_DIR", tempfile.mkdtemp(prefix="impress-test-keys-"))
+if "IMPRESS_KEY_DIR" not in os.environ:  # made here (a worker inherits it): removed at exit
+    import atexit  # noqa: E402
+    import shutil  # noqa: E402
+
+    os.environ["IMPRESS_KEY_DIR"] = _keys = tempfile.mkdtemp(prefix="impress-test-keys-")
+    atexit.register(shutil.rmtree, _keys, ignore_errors=True)
 
 import json  # noqa: E402
 from pathlib import Path  # noqa: E402
