@@ -273,30 +273,30 @@ def test_lateral_sampling_of_a_width_follows_where_the_level_cuts_the_wall():
     assert u[1.5] == pytest.approx(u[0.5], rel=1e-6)  # symmetric: a quarter from the top
 
 
-def test_lateral_sampling_shrinks_where_the_samples_resolve_the_wall():
-    """A wall that slopes over several of the scanner's samples is placed by the samples on
-    it: only the share of its rise within one sample is open (J). A jump between two samples
-    (J 1) keeps the full half-width; a wall sloping over 2.4 mm sampled every 0.6 mm rises a
-    quarter of itself within one sample, and the width measured on it is still right to far
-    less than that quarter sample."""
+def test_lateral_sampling_is_a_whole_sample_even_where_the_map_smears_the_wall():
+    """A wall lies somewhere between two of the scanner's samples: max(f, 1 - f) samples per
+    wall (rectangular), in proportion to the sample spacing. A steep wall that the map shows
+    smeared over several samples (a wall sloping over 2.4 mm, as a lost column or a filled
+    occlusion draws it) is given the same half-width: the map cannot tell it from a wall that
+    truly slopes, and it is placed no better. The crossings are interpolated: no grid term."""
     spec = GridSpec(0.0, 0.0, 0.1, (200, 400))
     xs = spec.xs()
     ramp = np.clip((xs - 14.0) / 2.4, 0.0, 1.0) * np.clip((27.6 - xs) / 2.4, 0.0, 1.0)
     sloped = np.broadcast_to(2.0 * ramp, spec.shape).astype(np.float32)
     steep = np.zeros(spec.shape, np.float32)
     steep[:, 150:250] = 2.0
-    u, widths = {}, {}
+    u = {}
     for name, h in (("steep", steep), ("sloped", sloped)):
-        ctx = replace(U.UncertaintyContext(h, spec), sampling_mm=(0.6, 0.9))
-        p = M.line_profile(h, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
-        w = M.width_at_level(p, 1.0, 20.0)
-        widths[name] = w.width_mm
-        b = U.width_budget(ctx, p, w)
-        assert "grid resolution" not in {c.name for c in b.components}  # interpolated crossings
-        u[name] = next(c for c in b.components if c.name == "lateral sampling").u_mm
-    assert u["steep"] == pytest.approx(0.6 * 0.5 / math.sqrt(3) * math.sqrt(2), rel=0.02)
-    assert u["sloped"] == pytest.approx(u["steep"] * 0.6 / 2.4, rel=0.05)
-    assert widths["sloped"] == pytest.approx(27.6 - 14.0 - 2.4, abs=0.02)
+        for s_mm in (0.6, 1.2):
+            ctx = replace(U.UncertaintyContext(h, spec), sampling_mm=(s_mm, 0.9))
+            p = M.line_profile(h, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
+            w = M.width_at_level(p, 1.0, 20.0)
+            b = U.width_budget(ctx, p, w)
+            assert "grid resolution" not in {c.name for c in b.components}
+            u[name, s_mm] = next(c for c in b.components if c.name == "lateral sampling").u_mm
+    for name in ("steep", "sloped"):  # at half the step: half a sample per wall
+        assert u[name, 0.6] == pytest.approx(0.6 * 0.5 / math.sqrt(3) * math.sqrt(2), rel=0.02)
+        assert u[name, 1.2] == pytest.approx(2 * u[name, 0.6], rel=0.02)
     # no scanner sampling known: one grid cell is the sample
     ctx = U.UncertaintyContext(steep, spec)
     p = M.line_profile(steep, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
