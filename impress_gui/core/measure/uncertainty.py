@@ -930,8 +930,8 @@ def width_budget(ctx: UncertaintyContext, profile, width,
     fr = [_level_fraction(d_all, h_all, dd, lv) for dd, lv in zip(ds, levels)]
     # the full half-width whatever the wall's slope on the map: a steep wall the reconstruction
     # smeared over several samples (a column lost at a slot's edge, occlusion filled) looks on
-    # the map like a wall sloping over them, and is placed no better (impress validate's slots
-    # in quick mode: widened by 0.47 mm, which a half-width scaled by the map's slope missed)
+    # the map like a wall sloping over them, and is placed no better (a systematic widening,
+    # such as impress validate's quick-mode slots, is a method bias this term does not carry)
     u_w = [s_mm * max(f, 1.0 - f) / math.sqrt(3.0) for f in fr]
     u1 = math.hypot(*u_w)
     comps.append(Component("lateral sampling", "where each wall lies between two samples",
