@@ -56,9 +56,9 @@ def _run(flat_scan, flat_calibration, monkeypatch, mode):
     elif mode == "offsets too narrow":
         real = fin.RowFinisher.__init__
 
-        def narrow(self, spec, acc, tol, offsets, *a):  # as if all points lay on one line
+        def narrow(self, spec, acc, tol, offsets, *a, **kw):  # as if all points lay on one line
             real(self, spec, acc, tol, {n: (0.5 * (lo + hi),) * 2
-                                        for n, (lo, hi) in offsets.items()}, *a)
+                                        for n, (lo, hi) in offsets.items()}, *a, **kw)
 
         monkeypatch.setattr(fin.RowFinisher, "__init__", narrow)
     elif mode == "texture reach too short":
@@ -116,9 +116,9 @@ def test_stripe_offsets_bound_every_triangulated_point(flat_scan, flat_calibrati
     captured = {}
     real_init = fin.RowFinisher.__init__
 
-    def init(self, spec, acc, tol, offsets, direction, texture=None):
+    def init(self, spec, acc, tol, offsets, direction, texture=None, **kw):
         captured.update(offsets)
-        real_init(self, spec, acc, tol, offsets, direction, texture)
+        real_init(self, spec, acc, tol, offsets, direction, texture, **kw)
 
     mp.setattr(fin.RowFinisher, "__init__", init)
     try:

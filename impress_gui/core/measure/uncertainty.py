@@ -14,7 +14,7 @@ Components (docs/uncertainty.md says the same for a quality manager):
   every cell the reading uses; the reading is recomputed per trial, so both ends of a ruler or
   both bands of a step move together and their common part cancels. Sensitivity 1 (the
   component is already in mm). Absent (and said so) when no calibration is known. A trial
-  moves a cell as the laser that made it (both lasers' mean where they agreed; where they
+  moves a cell as the laser that made it (both lasers' weighted mean where they agreed; where they
   disagreed, the laser whose value the fusion kept, when the per-laser maps are given:
   ``per_laser``, which the viewer and ``impress validate`` take from the reconstruction with
   :func:`per_laser_maps`). A depth below three points is recomputed per trial with the points'
@@ -177,6 +177,9 @@ class UncertaintyContext:
     #: them a cell where the lasers disagreed (code 4) is moved as the laser whose value the
     #: fusion kept, not as their mean (the two lasers' calibration errors differ)
     per_laser: Mapping | None = None
+    #: the lasers' weights in the mean where they agreed (code 3; the reconstruction's
+    #: ``fusion_weights``, from the calibration: ``reconstruct.fusion_weight``); None: 0.5 each
+    fusion_weights: Mapping | None = None
 
     @classmethod
     def for_calibration(cls, height, spec, cal=None, target=None, contribution=None,
@@ -204,25 +207,28 @@ class UncertaintyContext:
                    None if cal is None else float(cal.implied_speed_mm_s),
                    validation=validation, level_plane=level_plane, notes=notes,
                    sampling_mm=None if cal is None else lateral_sampling(cal),
-                   per_laser=per_laser)
+                   per_laser=per_laser,
+                   fusion_weights=None if cal is None else fusion_weights_for(cal))
 
     # ----- helpers ---------------------------------------------------------------------------
     def lasers_at(self, x, y) -> list[tuple[str, float]]:
         """The lasers (and their weights) of the cell at ``(x, y)``."""
         if self.laser in LASER_NAMES:
             return [(self.laser, 1.0)]
+        fw = self.fusion_weights or {"green": 0.5, "red": 0.5}
+        both = [("green", float(fw["green"])), ("red", float(fw["red"]))]
         if self.contribution is None:
-            return [("green", 0.5), ("red", 0.5)]
+            return both
         i, j = _cell(self.spec, x, y)
         if not (0 <= i < self.spec.shape[0] and 0 <= j < self.spec.shape[1]):
-            return [("green", 0.5), ("red", 0.5)]
+            return both
         c = int(self.contribution[i, j])
         if c == 4 and self.per_laser is not None:
             f = float(np.asarray(self.raw_height(x, y, float(self.height[i, j]))))
             kept = _kept_laser(f, self.per_laser, i, j)
             if kept is not None:
                 return [(kept, 1.0)]
-        return {1: [("green", 1.0)], 2: [("red", 1.0)]}.get(c, [("green", 0.5), ("red", 0.5)])
+        return {1: [("green", 1.0)], 2: [("red", 1.0)]}.get(c, both)
 
     def calibration_deltas(self, x, y, h) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Per Monte Carlo trial, how the cells ``(x, y)`` with heights ``h`` (the measured,
@@ -257,6 +263,16 @@ class UncertaintyContext:
             return None
         rel = abs((self.implied_speed_mm_s or self.speed_mm_s) / self.speed_mm_s - 1.0)
         return max(rel, SPEED_FLOOR_REL)
+
+
+def fusion_weights_for(cal) -> dict[str, float]:
+    """The lasers' weights where they agreed in a reconstruction made with the scene
+    calibration ``cal`` (``reconstruct.fusion_weight``: they depend on the calibration
+    alone)."""
+    from impress_gui.core.reconstruction.reconstruct import fusion_weight
+
+    wg = fusion_weight(cal, tuple(int(v) for v in cal.intrinsics.image_size))
+    return {"green": wg, "red": 1.0 - wg}
 
 
 def _kept_laser(f: float, per_laser: Mapping, i: int, j: int) -> str | None:

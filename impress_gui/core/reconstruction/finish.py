@@ -68,8 +68,9 @@ class RowFinisher:
 
     def __init__(self, spec: GridSpec, acc: dict[str, HeightAccumulator], tol_mm: float,
                  offsets: dict[str, tuple[float, float]], direction: int,
-                 texture: TextureInputs | None = None) -> None:
+                 texture: TextureInputs | None = None, weight_green: float = 0.5) -> None:
         self.spec, self.acc, self.tol, self.texture = spec, acc, tol_mm, texture
+        self.weight_green = float(weight_green)  # in an agreeing pair's mean (grid.fuse)
         self.names = list(acc)
         self.offsets = offsets
         self.direction = direction
@@ -82,8 +83,12 @@ class RowFinisher:
         self.contrib = np.empty(spec.shape, np.uint8)
         self.tex: np.ndarray | None = None
         g = spec.pixel_mm
-        # rows behind the camera's position (in scan order) that a stripe point can reach
-        self._lag = min(min(direction * a, direction * b) for a, b in offsets.values()) / g
+        # rows behind the camera's position (in scan order) that a stripe point can reach,
+        # and the fill towards where a point was last found (up to the accumulators' largest
+        # gap behind it)
+        back = max(float(a.max_gap_mm) for a in acc.values())
+        self._lag = (min(min(direction * a, direction * b) for a, b in offsets.values())
+                     - back) / g
         self.broken: str | None = None
         self.n_mean = self.n_fused = self.n_tex = self.j_tex = 0  # rows done, in scan order
         self.rows_during_loop = 0
@@ -215,7 +220,8 @@ class RowFinisher:
             self.acc[n].mean_rows(sl, self.per[n])
         # the fusion's first pass (conflicts wait until their neighbourhood is complete)
         fuse_rows(self.per[self.names[0]], self.per[self.names[1]], self.tol, self.fused,
-                  self.diff, self.contrib, sl.start, sl.stop, resolve=(0, 0))
+                  self.diff, self.contrib, sl.start, sl.stop, resolve=(0, 0),
+                  weight_green=self.weight_green)
         self.n_mean = target
 
     def _resolve(self, target: int) -> None:
@@ -224,7 +230,8 @@ class RowFinisher:
             return
         sl = self._rows(self.n_fused, target)
         fuse_rows(self.per[self.names[0]], self.per[self.names[1]], self.tol, self.fused,
-                  self.diff, self.contrib, 0, 0, resolve=(sl.start, sl.stop))
+                  self.diff, self.contrib, 0, 0, resolve=(sl.start, sl.stop),
+                  weight_green=self.weight_green)
         band = self.fused[sl]
         if (np.abs(band) > _HEIGHT_LIMIT_MM).any():
             self.broken = "heights beyond the texture's reach"
@@ -287,7 +294,7 @@ class RowFinisher:
         for n in self.names:
             self.acc[n].mean_rows(slice(0, H), self.per[n])
         fuse_rows(self.per[self.names[0]], self.per[self.names[1]], self.tol, self.fused,
-                  self.diff, self.contrib, 0, H)
+                  self.diff, self.contrib, 0, H, weight_green=self.weight_green)
         self.n_mean = self.n_fused = H
         tx = self.texture
         if tx is not None:

@@ -174,11 +174,12 @@ def _reflect(i, n):
 
 
 @_kernel(
-    "int64(float32[:, :], float32[:, :], float64, float32[:, :], float32[:, :], uint8[:, :], int64, int64)"
+    "int64(float32[:, :], float32[:, :], float64, float32[:, :], float32[:, :], uint8[:, :], int64, int64, float64)"
 )
-def fuse_rows(hg, hr, tol, fused, diff, contrib, lo, hi):
+def fuse_rows(hg, hr, tol, fused, diff, contrib, lo, hi, wg):
     """First pass of the fusion (see ``grid.fuse`` for the codes) over rows ``lo .. hi - 1``:
-    single lasers and agreeing pairs are fused; where both have data but disagree by more
+    single lasers and agreeing pairs are fused (``wg``: the green laser's weight in an
+    agreeing pair's mean); where both have data but disagree by more
     than ``tol`` the cell is marked 4 (NaN) for :func:`resolve_conflicts`. Returns how many."""
     conflicts = 0
     for i in range(lo, hi):
@@ -188,7 +189,7 @@ def fuse_rows(hg, hr, tol, fused, diff, contrib, lo, hi):
             diff[i, j] = g - r if (g_ok and r_ok) else np.nan
             if g_ok and r_ok:
                 if abs(g - r) <= tol:
-                    fused[i, j], contrib[i, j] = 0.5 * (g + r), 3
+                    fused[i, j], contrib[i, j] = wg * g + (1.0 - wg) * r, 3
                 else:
                     fused[i, j], contrib[i, j] = np.nan, 4
                     conflicts += 1

@@ -35,6 +35,14 @@ REFINE_PLATEAU_ROWS = 3  # rows within REFINE_PLATEAU of its maximum (a saturate
 REFINE_PLATEAU = 0.96
 REFINE_ITERATIONS = 4
 
+# with the other laser's band known (the reconstruction), a column whose stripe row does not
+# continue into a neighbour's (missed, or a piece of soil picked instead: issue 18, random rig
+# 13, 8 % of the red stripe's columns on bright speckled soil) is searched again at the row its
+# neighbours predict (``_guided``); ``stripes`` reads these from here
+GUIDE_LINK = 2.0  # px: rows of neighbouring columns continuing into each other
+GUIDE_REACH = 6  # columns searched either side for a continuing neighbour
+GUIDE_DEV = 1.0  # px: the peak found there must lie this close to the row predicted
+
 HSV_SHIFT = 12
 
 
@@ -351,10 +359,59 @@ def _blooming(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_value, level, min_
     return total >= min_lean
 
 
+@_jit
+def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, strength, linked,
+            pred):
+    """The guided pass of :func:`detect_stripe` (``stripes.guided_prediction`` and
+    ``detect_planes_numpy``): every column whose row does not continue into a neighbour's
+    (within ``GUIDE_LINK``) and has columns that do within ``GUIDE_REACH`` on both sides,
+    whose rows are continuous across it, is tested again at the row interpolated between them;
+    the peak found is kept if it lies within ``GUIDE_DEV`` of that row. The predictions come
+    from the first pass's rows only."""
+    band_start, band_height = band[0], band[1]
+    w = rows.shape[0]
+    for c in range(w):
+        linked[c] = False
+    for c in range(w - 1):
+        if abs(rows[c + 1] - rows[c]) <= GUIDE_LINK:  # NaN never links
+            linked[c] = True
+            linked[c + 1] = True
+    for c in range(w):
+        pred[c] = np.nan
+        if linked[c]:
+            continue
+        left = -1
+        for j in range(c - 1, max(c - GUIDE_REACH, 0) - 1, -1):
+            if linked[j]:
+                left = j
+                break
+        right = -1
+        for j in range(c + 1, min(c + GUIDE_REACH, w - 1) + 1):
+            if linked[j]:
+                right = j
+                break
+        if left < 0 or right < 0 or abs(rows[right] - rows[left]) > GUIDE_LINK * (right - left):
+            continue
+        pred[c] = rows[left] + (rows[right] - rows[left]) * (c - left) / (right - left)
+    for c in range(w):
+        p = pred[c]
+        if math.isnan(p):
+            continue
+        coarse = int(np.rint(p))
+        b0 = band_start[c]
+        if coarse < b0 or coarse >= b0 + band_height:
+            continue
+        row, top, _ = _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv,
+                               rr, sig, False)
+        if not math.isnan(row) and abs(row - p) <= GUIDE_DEV:
+            rows[c] = row
+            strength[c] = top
+
+
 @_kernel(
     "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), "
     "Tuple((int64[:], int64, int64[:], int64)), "
-    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64, boolean, float64, float64, boolean)), "
+    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64, int64, float64, float64, boolean)), "
     "Tuple((boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64)), "
     "UniTuple(int64[:], 2), Tuple((float64[:], float32[:])))"
 )
@@ -373,8 +430,8 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
       bloom_level, bloom_lean, light_lean)``: the peak tests (``k``: the half window; a peak
       whose lean to this laser's colour is at most ``-max_wrong_lean`` is refused in the
       other band unless the headroom test keeps it: ``stripes._wrong_lean``), whether the
-      centre is refined (``stripes.SUBPIXEL``: 1 ``window``, 0 ``half-max``), whether a
-      refused candidate gets a second one, the blooming test's level and lean
+      centre is refined (``stripes.SUBPIXEL``: 1 ``window``, 0 ``half-max``), ``retry``: bit 1
+      a refused candidate gets a second one, bit 2 the guided pass (:func:`_guided`) runs; the blooming test's level and lean
       (``stripes.BLOOM_LEVEL``, ``BLOOM_LEAN``; inf: no test), and whether that lean is the
       lean of all the stripe's light rather than of its halo, the last four only when the
       other laser's band is known;
@@ -441,7 +498,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
         coarse = r0 + 2 * (4095 - (best[c] & 4095))
         row, top, why = _peak_at(y, cb, cr, sh, c, coarse, band_start[c], band, laser, peak,
                                  colour, hsv, rr, sig, False)
-        if math.isnan(row) and why and retry:
+        if math.isnan(row) and why and retry & 1:
             if why == 1:
                 # refused where the other laser's stripe can lie: that stripe, brighter, can
                 # hide this laser's in the column; the best candidate of the band away from it
@@ -460,6 +517,9 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
         if not math.isnan(row):
             rows_out[c] = row
             strength_out[c] = top
+    if retry & 2:
+        _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows_out, strength_out,
+                np.empty(w, np.bool_), np.empty(w, np.float64))
 
 
 @_kernel(
@@ -664,8 +724,9 @@ def _add(total, count, x0, y0, g, x, y, v):
 def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev, max_gap,
                   max_step):
     """Add one upsampled profile to the per-cell sums and counts, filling the strip towards
-    the previous profile: each point pairs with the same point of the previous frame when both
-    are valid and closer than ``max_gap``; the segment between them is sampled at most one
+    the previous profile: each point pairs with the same point of the previous profile (the
+    accumulator passes where each point was last found) when both are valid and closer than
+    ``max_gap``; the segment between them is sampled at most one
     cell apart along each axis, so it leaves no cell out (linear heights, or the nearer end's
     across a step). Unpaired points are added alone."""
     hgt, wid = count.shape

@@ -146,20 +146,59 @@ class Reconstruction:
         return {k: v for k, v in self.stats.items() if k not in run}
 
 
-def _stripe_rows(cal: SceneCalibration, size: tuple[int, int], name: str,
-                 height_mm: float) -> np.ndarray:
-    """Image rows of the laser's line on a level surface ``height_mm`` above the reference,
-    sampled across the view (the points inside the image's columns)."""
+def _stripe_uv(cal: SceneCalibration, size: tuple[int, int], name: str, height_mm: float,
+               n_points: int = 65) -> np.ndarray:
+    """Image points ``(u, v)`` of the laser's line on a level surface ``height_mm`` above the
+    reference, sampled across the view (the points inside the image's columns)."""
     w, _ = size
     plane = cal.planes[name].plane
     # points of the plane at this height below the camera, across the image
     z = float(cal.reference_depth(np.array(0.0), np.array(0.0))) - height_mm
     # ideal-frame line: plane n.X = d with Z = z -> sample X across the view
-    xs = np.linspace(-z * w / cal.intrinsics.fx, z * w / cal.intrinsics.fx, 65)
+    xs = np.linspace(-z * w / cal.intrinsics.fx, z * w / cal.intrinsics.fx, n_points)
     n, d = plane.normal, plane.offset_mm
     ys = (d - n[0] * xs - n[2] * z) / n[1]
     uv = cal.intrinsics.project(np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation)
-    return uv[(uv[:, 0] >= 0) & (uv[:, 0] < w), 1]
+    return uv[(uv[:, 0] >= 0) & (uv[:, 0] < w)]
+
+
+def _stripe_rows(cal: SceneCalibration, size: tuple[int, int], name: str,
+                 height_mm: float) -> np.ndarray:
+    """Image rows of the laser's line on a level surface ``height_mm`` above the reference,
+    sampled across the view (the points inside the image's columns)."""
+    return _stripe_uv(cal, size, name, height_mm)[:, 1]
+
+
+def height_per_pixel(cal: SceneCalibration, size: tuple[int, int]) -> dict[str, float]:
+    """Per laser, the height (mm) one image row of stripe shift means on the reference
+    surface: the median over the image's columns of 1 mm divided by the rows the stripe
+    moves when the surface rises by 1 mm (NaN where the stripe is not in the image)."""
+    out = {}
+    for name in LASERS:
+        a, b = _stripe_uv(cal, size, name, 0.0, 257), _stripe_uv(cal, size, name, 1.0, 257)
+        if len(a) < 2 or len(b) < 2:
+            out[name] = float("nan")
+            continue
+        lo, hi = max(a[:, 0].min(), b[:, 0].min()), min(a[:, 0].max(), b[:, 0].max())
+        cols = np.linspace(lo, hi, 65)
+        oa, ob = np.argsort(a[:, 0]), np.argsort(b[:, 0])
+        dv = np.abs(np.interp(cols, b[ob, 0], b[ob, 1]) - np.interp(cols, a[oa, 0], a[oa, 1]))
+        out[name] = float(1.0 / np.median(dv)) if np.median(dv) > 0 else float("nan")
+    return out
+
+
+def fusion_weight(cal: SceneCalibration, size: tuple[int, int]) -> float:
+    """The green laser's weight in the mean of two agreeing lasers (``grid.fuse``, code 3):
+    inverse-variance weights for equal noise in image rows, ``s_r**2 / (s_g**2 + s_r**2)``
+    with ``s`` each laser's :func:`height_per_pixel`. A laser whose light plane meets the
+    camera's rays at a shallow angle turns the detector's row noise into more height noise:
+    on random rig 14 (issue 18) green's 1.67 mm per pixel against red's 0.67. 0.5 when either
+    is unknown."""
+    s = height_per_pixel(cal, size)
+    g, r = s["green"], s["red"]
+    if not (np.isfinite(g) and np.isfinite(r)) or g + r <= 0:
+        return 0.5
+    return float(r * r / (g * g + r * r))
 
 
 def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) -> dict:
@@ -517,7 +556,8 @@ def _process(run: _Run) -> Reconstruction:
                            _direction(tab.travel[run.start:run.stop]),
                            TextureInputs(tex.spool, tex.rays, tab.travel, tab.ref,
                                          ColorAccumulator(tab.spec, tab.max_gap_mm))
-                           if tex is not None else None)
+                           if tex is not None else None,
+                           weight_green=fusion_weight(run.cal, run.video.size))
     try:
         lut = run.lut_job.result() if run.lut_job is not None else None
         # each laser's detector knows where the other's stripe can lie: light leaning to the
@@ -634,7 +674,7 @@ def _drop_islands(run: _Run, finisher: RowFinisher) -> dict[str, int]:
     if any(out.values()):
         g, r = (finisher.per[n] for n in finisher.names)
         fuse_rows(g, r, finisher.tol, finisher.fused, finisher.diff, finisher.contrib, 0,
-                  g.shape[0])
+                  g.shape[0], weight_green=finisher.weight_green)
     return out
 
 
@@ -715,6 +755,10 @@ def _stats(run: _Run, tab: _Tables, tally: _Tally, finisher: RowFinisher, loop_s
         "stripe_column_share": {
             n: round(tally.found_cols[n] / max(1, tally.found_frames[n] * w), 3) for n in LASERS},
         "weak_stripe_columns_dropped": tally.weak_cols,
+        # where both lasers agree, the fused height is their mean with these weights
+        # (fusion_weight)
+        "fusion_weights": {"green": round(finisher.weight_green, 6),
+                           "red": round(1.0 - finisher.weight_green, 6)},
     }
 
 

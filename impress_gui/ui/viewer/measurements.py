@@ -316,6 +316,7 @@ class UncertaintyProvider(QObject):
             ctx.laser = key
         if cal is not None:
             ctx.sampling_mm = U.lateral_sampling(cal)
+            ctx.fusion_weights = U.fusion_weights_for(cal)
         return ctx
 
     def shutdown(self) -> None:
