@@ -79,7 +79,8 @@ def physical_truth(scan_dir: Path, cal, rec, nominal=None, true=None) -> np.ndar
     x, y = rec.spec.xs()[jj], rec.spec.ys()[ii]
     h = rec.height_mm[ii, jj].astype(float)
     code = np.asarray(rec.contribution)[ii, jj]
-    wg = np.where(code == 1, 1.0, np.where(code == 2, 0.0, 0.5))
+    both = float(rec.stats.get("fusion_weights", {}).get("green", 0.5))  # the fusion's weight
+    wg = np.where(code == 1, 1.0, np.where(code == 2, 0.0, both))
     four = code == 4
     if four.any():
         g, r = (np.asarray(rec.per_laser_mm[n])[ii[four], jj[four]] for n in ("green", "red"))
@@ -142,7 +143,8 @@ class Rig:
         t0 = time.perf_counter()
         self.ctx = UncertaintyContext.for_calibration(
             self.h, rec.spec, cal, TargetModel.load(d / "target.json"), rec.contribution,
-            trials=trials, per_laser=rec.per_laser_mm)
+            trials=trials, per_laser=rec.per_laser_mm,
+            fusion_weights=rec.stats.get("fusion_weights"))
         self.t_mc = time.perf_counter() - t0
         self.nominal = CalParams.of_calibration(cal)
         true = true_params(d, cal)  # the true travel over the entered one: the speed's error

@@ -11,7 +11,7 @@ import pytest
 
 from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.measure.readings import load_reconstruction
-from impress_gui.core.measure.uncertainty import UncertaintyContext, fusion_weights_for
+from impress_gui.core.measure.uncertainty import UncertaintyContext, fusion_weights_of
 from impress_gui.core.reconstruction.grid import fuse
 from impress_gui.core.reconstruction.reconstruct import fusion_weight, height_per_pixel
 
@@ -27,27 +27,71 @@ def test_agreeing_pairs_take_the_weighted_mean():
     assert plain[0, 0] == pytest.approx(1.1, abs=1e-6)
 
 
-def test_weights_follow_each_lasers_height_per_pixel(flat_calibration):
+def _triangulated_height_per_row(cal, name, u):
+    """mm of height per image row at column ``u`` where the stripe lies on the reference
+    surface: OpenCV's undistortion and a plain ray-plane intersection (not the product's
+    projection code)."""
+    import cv2
+
+    w, h = cal.intrinsics.image_size
+    plane = cal.planes[name].plane
+    k = np.asarray(cal.intrinsics.camera_matrix, float)
+    dist = np.asarray(cal.intrinsics.dist_coeffs, float)
+    v = np.arange(0.0, h, 0.25)
+    pts = np.column_stack([np.full_like(v, u), v]).reshape(-1, 1, 2)
+    xn = cv2.undistortPoints(pts, k, dist).reshape(-1, 2)
+    rays = np.column_stack([xn, np.ones(len(v))]) @ np.asarray(cal.rotation).T  # ideal frame
+    t = plane.offset_mm / (rays @ plane.normal)
+    p = rays * t[:, None]
+    height = cal.reference_depth(p[:, 0], p[:, 1]) - p[:, 2]
+    i = int(np.argmin(np.abs(height)))
+    return abs(height[i + 4] - height[i - 4]) / 2.0  # over +-1 row
+
+
+def test_height_per_pixel_matches_a_direct_triangulation(flat_calibration):
     cal = SceneCalibration.load(flat_calibration)
     size = tuple(cal.intrinsics.image_size)
     s = height_per_pixel(cal, size)
-    # the flat preset: both lasers at moderate angles, a fraction of a millimetre per row
-    assert all(0.05 < v < 2.0 for v in s.values()), s
+    for name in ("green", "red"):
+        # the flat preset's stripes run nearly along the rows and the sensitivity hardly
+        # changes across the picture: the centre column's is the median's within 3 %
+        direct = _triangulated_height_per_row(cal, name, size[0] / 2)
+        assert s[name] == pytest.approx(direct, rel=0.03), (name, s[name], direct)
     wg = fusion_weight(cal, size)
     assert wg == pytest.approx(s["red"] ** 2 / (s["green"] ** 2 + s["red"] ** 2))
-    # the laser with fewer mm per row weighs more
-    assert (wg > 0.5) == (s["green"] < s["red"])
-    # a laser plane turned towards the camera's rays (a shallower triangulation angle) means
-    # more height per row, and loses weight
-    steeper = _turned(cal, "green", 6.0)
-    s2 = height_per_pixel(steeper, size)
-    assert s2["green"] != pytest.approx(s["green"], rel=0.05)
-    assert (fusion_weight(steeper, size) > wg) == (s2["green"] < s["green"])
+
+
+def test_a_shallower_laser_weighs_less(flat_calibration):
+    """A laser plane turned towards the camera's rays (a smaller triangulation angle; the same
+    stripe on the reference surface) means more height per row, and its weight falls."""
+    cal = SceneCalibration.load(flat_calibration)
+    size = tuple(cal.intrinsics.image_size)
+    s, wg = height_per_pixel(cal, size), fusion_weight(cal, size)
+    for deg in (-8.0, 8.0):
+        turned = _turned(cal, "green", deg)
+        s2 = height_per_pixel(turned, size)
+        angle0 = _triangulation_angle(cal, "green")
+        angle2 = _triangulation_angle(turned, "green")
+        if angle2 < angle0 - 1.0:  # shallower
+            assert s2["green"] > 1.1 * s["green"] and fusion_weight(turned, size) < wg - 0.02
+        elif angle2 > angle0 + 1.0:  # steeper
+            assert s2["green"] < s["green"] / 1.1 and fusion_weight(turned, size) > wg + 0.02
+        else:
+            pytest.fail(f"turning by {deg} deg changed the angle by {angle2 - angle0:.2f} deg")
+
+
+def _triangulation_angle(cal, name):
+    """Degrees between the laser plane and the camera's optical axis (0: the plane seen
+    edge-on, no triangulation)."""
+    plane = cal.planes[name].plane
+    ray = np.asarray(cal.rotation) @ np.array([0.0, 0.0, 1.0])
+    return float(np.degrees(np.arcsin(abs(ray @ plane.normal) / np.linalg.norm(ray))))
 
 
 def _turned(cal, name, deg):
-    """``cal`` with one laser plane turned by ``deg`` about the camera's x axis through its
-    stripe on the reference surface (the same line on the ground, another angle)."""
+    """``cal`` with one laser plane turned by ``deg`` about the ideal frame's x axis through
+    its stripe on the reference surface below the camera (the same stripe line there,
+    another angle)."""
     import dataclasses
 
     from impress_gui.core.calibration.geometry import Plane
@@ -69,18 +113,24 @@ def test_the_reconstruction_fuses_and_records_with_these_weights(flat_recon, fla
     data = load_reconstruction(flat_recon)
     cal = SceneCalibration.load(flat_calibration)
     wg = fusion_weight(cal, tuple(cal.intrinsics.image_size))
-    stats = data.metadata["stats"]
-    assert stats["fusion_weights"]["green"] == pytest.approx(wg, abs=1e-6)
-    assert stats["fusion_weights"]["red"] == pytest.approx(1 - wg, abs=1e-6)
+    assert abs(wg - 0.5) > 0.005  # else the check below could not tell the weights apart
+    recorded = fusion_weights_of(data.metadata)
+    assert recorded == pytest.approx({"green": wg, "red": 1 - wg}, abs=1e-6)
     c = data.layers["contribution"] == 3
     g, r, f = (data.layers[k][c].astype(np.float64) for k in ("green", "red", "fused"))
     assert c.sum() > 1000
     assert np.abs(f - (wg * g + (1 - wg) * r)).max() < 1e-4
-    # the uncertainty budget moves such a cell with the same weights
+    assert np.abs(f - 0.5 * (g + r)).max() > 1e-3  # ... which is not the plain mean
+    # the uncertainty budget moves such a cell with the recorded weights
     ctx = UncertaintyContext.for_calibration(data.height_mm, data.spec, cal, None,
-                                             data.layers["contribution"])
-    assert ctx.fusion_weights == fusion_weights_for(cal)
+                                             data.layers["contribution"],
+                                             fusion_weights=recorded)
     i, j = np.argwhere(c)[0]
     x = data.spec.x0_mm + j * data.spec.pixel_mm
     y = data.spec.y0_mm + i * data.spec.pixel_mm
     assert dict(ctx.lasers_at(x, y)) == pytest.approx({"green": wg, "red": 1 - wg})
+    # a result made before the weights were recorded was fused half and half
+    old = {k: v for k, v in data.metadata.items() if k != "stats"}
+    assert fusion_weights_of(old) is None
+    ctx.fusion_weights = fusion_weights_of(old)
+    assert dict(ctx.lasers_at(x, y)) == pytest.approx({"green": 0.5, "red": 0.5})

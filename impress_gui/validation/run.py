@@ -311,15 +311,21 @@ def uncertainty_contexts(
     same cells: the reconstruction's calibration (its Monte Carlo computed once, cached), the
     target it was fitted with, the lasers' contribution codes and the per-laser height maps
     (where the lasers disagreed, the kept laser's calibration moves the cell; taken from
-    ``rec`` or its folder, None when absent) cropped like the heights."""
+    ``rec`` or its folder, None when absent) cropped like the heights, and the weights the
+    fusion gave agreeing lasers."""
     from impress_gui.core.calibration.scene import SceneCalibration
     from impress_gui.core.calibration.target import TargetModel
-    from impress_gui.core.measure.uncertainty import UncertaintyContext, per_laser_maps
+    from impress_gui.core.measure.uncertainty import (
+        UncertaintyContext,
+        fusion_weights_of,
+        per_laser_maps,
+    )
 
     cal = SceneCalibration.load(calibration) if calibration is not None else None
     model = TargetModel.load(target) if target is not None else None
     contribution = rec.layers.get("contribution")
     per_laser = per_laser_maps(rec) if contribution is not None else None
+    weights = fusion_weights_of(rec.metadata)
     p = rec.spec.pixel_mm
 
     def make(h, sspec, plane):
@@ -329,7 +335,7 @@ def uncertainty_contexts(
         c = None if contribution is None else contribution[window]
         lasers = None if per_laser is None else {n: m[window] for n, m in per_laser.items()}
         return UncertaintyContext.for_calibration(h, sspec, cal, model, c, level_plane=plane,
-                                                  per_laser=lasers)
+                                                  per_laser=lasers, fusion_weights=weights)
 
     return make
 

@@ -177,14 +177,15 @@ class UncertaintyContext:
     #: them a cell where the lasers disagreed (code 4) is moved as the laser whose value the
     #: fusion kept, not as their mean (the two lasers' calibration errors differ)
     per_laser: Mapping | None = None
-    #: the lasers' weights in the mean where they agreed (code 3; the reconstruction's
-    #: ``fusion_weights``, from the calibration: ``reconstruct.fusion_weight``); None: 0.5 each
+    #: the lasers' weights in the mean where they agreed (code 3): the reconstruction's
+    #: recorded ``stats.fusion_weights`` (:func:`fusion_weights_of`); None: 0.5 each, as
+    #: results made before the weights were recorded were fused
     fusion_weights: Mapping | None = None
 
     @classmethod
     def for_calibration(cls, height, spec, cal=None, target=None, contribution=None,
                         level_plane=None, validation=None, trials: int | None = None,
-                        per_laser=None) -> UncertaintyContext:
+                        per_laser=None, fusion_weights=None) -> UncertaintyContext:
         """A context with the calibration's Monte Carlo (computed once per calibration and
         cached; a target model that does not fit or a failing solve leave the component out,
         with a note)."""
@@ -207,8 +208,7 @@ class UncertaintyContext:
                    None if cal is None else float(cal.implied_speed_mm_s),
                    validation=validation, level_plane=level_plane, notes=notes,
                    sampling_mm=None if cal is None else lateral_sampling(cal),
-                   per_laser=per_laser,
-                   fusion_weights=None if cal is None else fusion_weights_for(cal))
+                   per_laser=per_laser, fusion_weights=fusion_weights)
 
     # ----- helpers ---------------------------------------------------------------------------
     def lasers_at(self, x, y) -> list[tuple[str, float]]:
@@ -265,14 +265,17 @@ class UncertaintyContext:
         return max(rel, SPEED_FLOOR_REL)
 
 
-def fusion_weights_for(cal) -> dict[str, float]:
-    """The lasers' weights where they agreed in a reconstruction made with the scene
-    calibration ``cal`` (``reconstruct.fusion_weight``: they depend on the calibration
-    alone)."""
-    from impress_gui.core.reconstruction.reconstruct import fusion_weight
-
-    wg = fusion_weight(cal, tuple(int(v) for v in cal.intrinsics.image_size))
-    return {"green": wg, "red": 1.0 - wg}
+def fusion_weights_of(metadata: Mapping | None) -> dict[str, float] | None:
+    """The lasers' weights where they agreed, as the reconstruction recorded them
+    (``metadata.json``'s ``stats.fusion_weights``); None when it did not (0.5 each then)."""
+    try:
+        w = (metadata or {}).get("stats", {}).get("fusion_weights")
+        g, r = float(w["green"]), float(w["red"])
+    except (AttributeError, KeyError, TypeError, ValueError):
+        return None
+    if not (0.0 <= g <= 1.0 and 0.0 <= r <= 1.0 and abs(g + r - 1.0) < 1e-3):
+        return None
+    return {"green": g, "red": r}
 
 
 def _kept_laser(f: float, per_laser: Mapping, i: int, j: int) -> str | None:

@@ -170,20 +170,31 @@ def _stripe_rows(cal: SceneCalibration, size: tuple[int, int], name: str,
 
 
 def height_per_pixel(cal: SceneCalibration, size: tuple[int, int]) -> dict[str, float]:
-    """Per laser, the height (mm) one image row of stripe shift means on the reference
-    surface: the median over the image's columns of 1 mm divided by the rows the stripe
-    moves when the surface rises by 1 mm (NaN where the stripe is not in the image)."""
+    """Per laser, the height (mm) one pixel of stripe shift means on the reference surface:
+    where the surface rises by 1 mm the stripe moves across itself by ``d`` pixels (the shift
+    along the image column times the cosine of the stripe's slope in the picture: the
+    detector's noise is across the stripe's line); the median of ``1 / d`` over the stripe's
+    points inside the picture (NaN where it has too few)."""
+    w, h = size
     out = {}
     for name in LASERS:
-        a, b = _stripe_uv(cal, size, name, 0.0, 257), _stripe_uv(cal, size, name, 1.0, 257)
-        if len(a) < 2 or len(b) < 2:
+        a, b = (uv[(uv[:, 1] >= 0) & (uv[:, 1] < h)]
+                for uv in (_stripe_uv(cal, size, name, 0.0, 257),
+                           _stripe_uv(cal, size, name, 1.0, 257)))
+        if len(a) < 8 or len(b) < 8:
             out[name] = float("nan")
             continue
         lo, hi = max(a[:, 0].min(), b[:, 0].min()), min(a[:, 0].max(), b[:, 0].max())
+        if hi - lo < 0.05 * w:
+            out[name] = float("nan")
+            continue
         cols = np.linspace(lo, hi, 65)
         oa, ob = np.argsort(a[:, 0]), np.argsort(b[:, 0])
-        dv = np.abs(np.interp(cols, b[ob, 0], b[ob, 1]) - np.interp(cols, a[oa, 0], a[oa, 1]))
-        out[name] = float(1.0 / np.median(dv)) if np.median(dv) > 0 else float("nan")
+        va = np.interp(cols, a[oa, 0], a[oa, 1])
+        dv = np.abs(np.interp(cols, b[ob, 0], b[ob, 1]) - va)
+        d = dv / np.sqrt(1.0 + np.gradient(va, cols) ** 2)
+        med = float(np.median(d))
+        out[name] = 1.0 / med if med > 0 else float("nan")
     return out
 
 
@@ -550,7 +561,10 @@ def _process(run: _Run) -> Reconstruction:
     params = run.params
     kern = _kernels()  # loaded (or waited for) before the tables that use them
     tab = _tables(run)
-    acc = {n: HeightAccumulator(tab.spec, tab.max_gap_mm, params.max_step_mm) for n in LASERS}
+    # a run of up to BRIDGE_COLUMNS columns missed in one frame is filled across (grid.
+    # HeightAccumulator): m missed columns are (m + 1) k - 1 upsampled points
+    acc = {n: HeightAccumulator(tab.spec, tab.max_gap_mm, params.max_step_mm,
+                                (BRIDGE_COLUMNS + 1) * tab.k_up - 1) for n in LASERS}
     tex = tab.texture
     finisher = RowFinisher(tab.spec, acc, params.fuse_tolerance_mm, tab.offsets,
                            _direction(tab.travel[run.start:run.stop]),
@@ -800,6 +814,9 @@ def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int)
 
 #: stripe rows of neighbouring columns closer than this (pixels) belong to one curve
 CONNECT_PX = 2.0
+#: the longest run of a stripe's columns missed in one frame (with the columns either side
+#: found) that the heightmap is filled across, from the frames before and after
+BRIDGE_COLUMNS = 3
 #: a stripe piece at least this share of the image width long sets the frame's typical strength
 #: (see :func:`~impress_gui.core.reconstruction.kernels.prune_weak_runs`); shorter pieces must
 #: be at least ``ProcessParams.weak_run_ratio`` as strong

@@ -37,7 +37,7 @@ Y_LABEL = "y (mm), increasing downwards: rail motion"
 CONTRIBUTION_MEANING = {
     1: "green laser only",
     2: "red laser only",
-    3: "both lasers, agreeing (mean)",
+    3: "both lasers, agreeing (weighted mean)",
     4: "both, disagreeing (nearer one kept)",
     0: "no data",
 }

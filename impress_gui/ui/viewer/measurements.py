@@ -312,11 +312,11 @@ class UncertaintyProvider(QObject):
         ctx.validation = budget_validation(self.session.method_validation)
         if contribution is not None:
             ctx.per_laser = self.per_laser(data)
+            ctx.fusion_weights = U.fusion_weights_of(data.metadata)
         if key in ("green", "red"):
             ctx.laser = key
         if cal is not None:
             ctx.sampling_mm = U.lateral_sampling(cal)
-            ctx.fusion_weights = U.fusion_weights_for(cal)
         return ctx
 
     def shutdown(self) -> None:
