@@ -831,7 +831,8 @@ def long_run_columns(width: int) -> int:
 
 class _Profile:
     """Per-laser arrays of one frame's profile, reused from frame to frame: the upsampled
-    profile alternates between two sets, as the accumulator keeps the previous frame's."""
+    profile alternates between two sets (the accumulator copies what it keeps of a profile,
+    so one would do; two cost a few kilobytes)."""
 
     def __init__(self, w: int, k_up: int) -> None:
         self.x, self.y, self.h = (np.empty(w) for _ in range(3))
