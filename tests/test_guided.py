@@ -50,16 +50,16 @@ def test_guided_pass_puts_mistaken_columns_back_on_the_stripe(frame):
     got = {}
     for guided in (False, True):
         for fn in (detect_planes, detect_planes_numpy):
-            rows = fn("red", planes, *band, StripeParams(guided=guided), None, other).rows
-            err = np.abs(rows - exact)
-            got[guided, fn] = rows
-            # measured: frame 0 129 -> 132 columns within 1 px, 31 -> 29 more than 5 px off;
-            # frame 1 176 -> 182, 18 -> 15 (deterministic: the decoded planes are stored)
-            if guided:
-                on, off = (err <= 1).sum(), (err > 5).sum()
-                on0 = (np.abs(got[False, fn] - exact) <= 1).sum()
-                off0 = (np.abs(got[False, fn] - exact) > 5).sum()
-                assert on >= on0 + 3 and off <= off0 - 2, (on0, on, off0, off)
+            got[guided, fn] = fn("red", planes, *band, StripeParams(guided=guided), None,
+                                 other).rows
+    for fn in (detect_planes, detect_planes_numpy):
+        before, after = got[False, fn], got[True, fn]
+        changed = ~((before == after) | (np.isnan(before) & np.isnan(after)))
+        # measured: 3 (frame 0) and 6 (frame 1) columns changed, each put back on the stripe
+        assert changed.sum() >= 2
+        e0, e1 = np.abs(before - exact)[changed], np.abs(after - exact)[changed]
+        assert (e1 <= 1.0).all()  # on the stripe now
+        assert np.all(np.isnan(e0) | (e0 > e1))  # missed or farther off before
     # the compiled kernel and the numpy reference agree, with and without the pass
     for guided in (False, True):
         a, b = got[guided, detect_planes], got[guided, detect_planes_numpy]
