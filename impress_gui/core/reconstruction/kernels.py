@@ -42,6 +42,9 @@ REFINE_ITERATIONS = 4
 GUIDE_LINK = 2.0  # px: rows of neighbouring columns continuing into each other
 GUIDE_REACH = 6  # columns searched either side for a continuing neighbour
 GUIDE_DEV = 1.0  # px: the peak found there must lie this close to the row predicted
+# the white-core rule's columns (stripes.StripeParams.white_core) stay only on a chain of
+# found columns at least this share of which the colour tests accepted
+WHITE_SHARE = 0.2
 
 HSV_SHIFT = 12
 
@@ -233,7 +236,7 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
     _, band_height, other_start, other_height = band
     sign, ch, o1, o2 = laser
     min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, _, bloom_level, \
-        bloom_lean, light_lean = peak
+        bloom_lean, light_lean, white_lean = peak
     use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut, lut_margin = colour
     sdiv, hdiv = hsv
     h = y.shape[0]
@@ -320,9 +323,31 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
         # colour: a white line on yellow soil leans to neither and is refused)
         ok = _blooming(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_value, bloom_level,
                        bloom_lean)
+    if not ok and white_lean < np.inf and not inside and lean / max(nh, 1) > -white_lean:
+        # a white core (stripes.StripeParams.white_core): away from the other laser's band
+        # the position says which laser it is; a core saturated in this laser's channel whose
+        # halo does not clearly lean to the other laser's colour is the stripe
+        if _saturated_core(y, cb, cr, sh, c, cc, rr, k, ch, bloom_level):
+            # kept by this rule alone (why 3): confirmed by _confirm_white or dropped
+            return (_window_refine(rr, sig, n, top, centre) if refine else centre), top, 3
     if not ok:
         return np.nan, top, 1 if inside else 0
     return (_window_refine(rr, sig, n, top, centre) if refine else centre), top, 0
+
+
+@_jit
+def _saturated_core(y, cb, cr, sh, c, cc, rr, k, ch, level):
+    """Whether column ``c``'s window has, within 2 rows of its centre, this laser's channel and
+    the luma (0.299 R + 0.587 G + 0.114 B) at least ``level`` (``stripes.BLOOM_LEVEL``: at
+    full scale): a core clipped white, not a bright piece of soil of this laser's colour."""
+    chan = False
+    white = False
+    for j in range(k - 2, k + 3):
+        r = rr[j]
+        px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+        chan = chan or px[ch] >= level
+        white = white or 0.299 * px[0] + 0.587 * px[1] + 0.114 * px[2] >= level
+    return chan and white
 
 
 @_jit
@@ -361,7 +386,7 @@ def _blooming(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_value, level, min_
 
 @_jit
 def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, strength, linked,
-            pred):
+            pred, white):
     """The guided pass of :func:`detect_stripe` (``stripes.guided_prediction`` and
     ``detect_planes_numpy``): every column whose row does not continue into a neighbour's
     (within ``GUIDE_LINK``) and has columns that do within ``GUIDE_REACH`` on both sides,
@@ -401,17 +426,55 @@ def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, streng
         b0 = band_start[c]
         if coarse < b0 or coarse >= b0 + band_height:
             continue
-        row, top, _ = _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv,
-                               rr, sig, False)
+        row, top, why = _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv,
+                                 rr, sig, False)
         if not math.isnan(row) and abs(row - p) <= GUIDE_DEV:
             rows[c] = row
             strength[c] = top
+            white[c] = why == 3
+
+
+@_jit
+def _confirm_white(rows, strength, white):
+    """Drop the columns kept by the white-core rule alone (``white``) on a chain of found
+    columns less than ``WHITE_SHARE`` of which the colour tests accepted
+    (``stripes.confirmed_by_colour``, the numpy reference): a chain continues to the next
+    found column within ``GUIDE_REACH`` columns whose row differs by at most ``GUIDE_LINK``
+    per column."""
+    w = rows.shape[0]
+    start = -1  # first found column of the current chain
+    last = -1  # last found column
+    coloured = 0
+    total = 0
+    for c in range(w + 1):
+        found = c < w and not math.isnan(rows[c])
+        if c < w and not found:
+            continue
+        cont = found and last >= 0 and c - last <= GUIDE_REACH and \
+            abs(rows[c] - rows[last]) <= GUIDE_LINK * (c - last)
+        if not cont and start >= 0:
+            if coloured < WHITE_SHARE * total:  # the chain ends: too little colour in it
+                for j in range(start, last + 1):
+                    if white[j]:
+                        rows[j] = np.nan
+                        strength[j] = 0.0
+            start = -1
+        if not found:
+            break
+        if start < 0:
+            start = c
+            coloured = 0
+            total = 0
+        coloured += not white[c]
+        total += 1
+        last = c
 
 
 @_kernel(
     "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), "
     "Tuple((int64[:], int64, int64[:], int64)), "
-    "UniTuple(int64, 4), Tuple((float64, int64, int64, float64, float64, int64, int64, float64, float64, boolean)), "
+    "UniTuple(int64, 4), "
+    "Tuple((float64, int64, int64, float64, float64, int64, int64, float64, float64, boolean, float64)), "
     "Tuple((boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64)), "
     "UniTuple(int64[:], 2), Tuple((float64[:], float32[:])))"
 )
@@ -434,7 +497,10 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
       a refused candidate gets a second one, bit 2 the guided pass (:func:`_guided`) runs; the blooming test's level and lean
       (``stripes.BLOOM_LEVEL``, ``BLOOM_LEAN``; inf: no test), and whether that lean is the
       lean of all the stripe's light rather than of its halo, the last four only when the
-      other laser's band is known;
+      other laser's band is known; ``white_lean``: outside the other laser's band a peak the
+      colour tests refuse is kept when its core saturates the laser's channel and its halo
+      leans to the other laser's colour by less than this (``StripeParams.white_core``; inf:
+      no such rule);
     * ``colour = (use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut,
       lut_margin)``: the method's colour tests; ``lut`` is a (64, 64) table or an empty
       (0, 0) array;
@@ -460,6 +526,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     # which compiles to vector instructions, picks the first row of equal maxima
     # rows inside every column's band skip the per-column band test
     best = np.full(w, np.int32(-(1 << 30)), np.int32)
+    white = np.zeros(w, np.bool_)  # kept by the white-core rule alone
     crx = np.empty(w, np.int32)
     lo = band_start.astype(np.int32)
     hi = lo + np.int32(band_height)
@@ -514,12 +581,15 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
             if second >= 0:
                 row, top, why = _peak_at(y, cb, cr, sh, c, second, band_start[c], band, laser,
                                          peak, colour, hsv, rr, sig, why == 2)
+        white[c] = False
         if not math.isnan(row):
             rows_out[c] = row
             strength_out[c] = top
+            white[c] = why == 3
     if retry & 2:
         _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows_out, strength_out,
-                np.empty(w, np.bool_), np.empty(w, np.float64))
+                np.empty(w, np.bool_), np.empty(w, np.float64), white)
+    _confirm_white(rows_out, strength_out, white)
 
 
 @_kernel(

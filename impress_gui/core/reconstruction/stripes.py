@@ -80,6 +80,16 @@ class StripeParams:
     # soil, whose core has no red tint left (issue 18, rig 7), if its halo also leans to this
     # laser's colour by more than min_lean_in_other_band (the combined method only)
     blooming: bool = True
+    # with the other laser's band known, outside that band (widened by the half window), a
+    # peak the colour tests and the blooming test refuse is kept when its core is clipped
+    # white (this laser's channel and the luma at full scale: BLOOM_LEVEL; bright soil of this
+    # laser's colour saturates the channel, not the luma) and its halo does not lean to the
+    # other laser's colour by
+    # max_wrong_lean or more (a 4:2:0 halo a row or two wide often has no lean): on bright soil
+    # both lasers' stripes saturate to the same near white, (255, 255, 230), and only their
+    # faint halo is tinted; there the band tells the lasers apart (issue 18, random rig 13 at
+    # 1920x1080: 43 % of the green stripe's columns refused by colour alone)
+    white_core: bool = True
     max_width_px: int = 20
     # the centre's sub-pixel estimate: "window" (the centre of mass above half maximum refined
     # by window_refine: less locked to the pixel grid; docs/accuracy.md) or "half-max" (that
@@ -194,6 +204,14 @@ def _bloom_lean(params: StripeParams, other: Band | None) -> float:
     return BLOOM_LEAN if on else float("inf")
 
 
+def _white_lean(params: StripeParams, other: Band | None) -> float:
+    """The white-core rule's largest lean to the other laser's colour (chroma units, negated;
+    inf: no rule): ``max_wrong_lean`` with the other laser's band known, the combined method
+    and ``params.white_core`` (``StripeParams.white_core``)."""
+    on = params.white_core and other is not None and params.method == "combined"
+    return float(params.max_wrong_lean) if on else float("inf")
+
+
 def _wrong_lean(params: StripeParams, other: Band | None) -> float:
     """The lean to the other laser's colour (chroma units, negated) at or beyond which a peak
     in the other laser's band is refused unless the headroom test keeps it: ``max_wrong_lean``
@@ -234,7 +252,8 @@ class StripeDetector:
              int(params.subpixel == "window"),
              int(params.second_candidate and other is not None)
              | 2 * int(params.guided and other is not None),
-             float(BLOOM_LEVEL), _bloom_lean(params, other), other is not None),
+             float(BLOOM_LEVEL), _bloom_lean(params, other), other is not None,
+             _white_lean(params, other)),
             (method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
              np.array([b for _, b in ranges], np.int64), int(params.min_saturation),
              int(params.min_value), method == "combined", float(params.min_tint), table,
@@ -395,14 +414,26 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
             bloom = (share[..., c] - share[..., o]).sum(axis=0) >= BLOOM_LEAN
             # and the halo leaning to this laser's colour (a white line on yellow soil does not)
             colour |= ~colour & sat & tint0 & bloom & (lean > -_wrong_lean(params, other))
+        by_colour = colour.copy()
+        if _white_lean(params, other) < np.inf and (ok & ~colour & ~inside).any():
+            # away from the other laser's band, a core saturated in this laser's channel whose
+            # halo does not clearly lean to the other laser's colour (StripeParams.white_core)
+            core5 = rgb[1:6]
+            luma = 0.299 * core5[..., 0] + 0.587 * core5[..., 1] + 0.114 * core5[..., 2]
+            sat = ((core5[..., _CH[name]] >= BLOOM_LEVEL).any(axis=0)
+                   & (luma >= BLOOM_LEVEL).any(axis=0))
+            colour |= ~colour & sat & ~inside & (lean > -_white_lean(params, other))
         ok &= colour
         if params.subpixel == "window":
             centre = window_refine(rr, sig, top, centre)
         why = np.where(~peakish, 2, np.where(wrong | (~ok & inside), 1, 0))
-        return ok, centre, top, np.where(ok, 0, why)
+        # 3: kept by the white-core rule alone (confirmed or dropped by confirm_white_runs)
+        return ok, centre, top, np.where(ok, np.where(by_colour, 0, 3), why)
 
     o_start, o_height = _other_band(other, w)
     ok, centre, top, why = attempt(coarse)
+    white = ok & (why == 3)
+    why = np.where(ok, 0, why)
     why = np.where(searched, why, 0)
     if params.second_candidate and other is not None and why.any():
         none = np.iinfo(np.int32).min
@@ -431,9 +462,10 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         cand = np.where(why == 1, best1, np.where(why == 2, best2, none))
         has2 = cand > none
         coarse2 = np.where(has2, r0 + 2 * (4095 - (cand & 4095)), coarse)
-        ok2, centre2, top2, _ = attempt(coarse2, why == 2)
+        ok2, centre2, top2, why2 = attempt(coarse2, why == 2)
         take = has2 & ok2
         ok, centre, top = ok | take, np.where(take, centre2, centre), np.where(take, top2, top)
+        white = np.where(take, why2 == 3, white)
     out_rows = np.where(ok, centre, np.nan)
     strength = np.where(ok, top, 0).astype(np.float32)
     if params.guided and other is not None:
@@ -442,12 +474,44 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         coarse3 = np.rint(np.nan_to_num(pred, nan=-1.0)).astype(np.int64)
         want = np.isfinite(pred) & (coarse3 >= b0) & (coarse3 < b0 + band_height)
         if want.any():
-            ok3, centre3, top3, _ = attempt(np.where(want, coarse3, coarse))
+            ok3, centre3, top3, why3 = attempt(np.where(want, coarse3, coarse))
             with np.errstate(invalid="ignore"):
                 take = want & ok3 & (np.abs(centre3 - pred) <= _guide()["dev"])
             out_rows = np.where(take, centre3, out_rows)
             strength = np.where(take, top3, strength).astype(np.float32)
+            white = np.where(take, why3 == 3, white)
+    if white.any():
+        drop = white & ~confirmed_by_colour(out_rows, white)
+        out_rows = np.where(drop, np.nan, out_rows)
+        strength = np.where(drop, 0, strength).astype(np.float32)
     return StripeResult(out_rows, strength)
+
+
+def confirmed_by_colour(rows: np.ndarray, white: np.ndarray) -> np.ndarray:
+    """Per column: whether its row lies on a chain of found columns at least
+    ``kernels.WHITE_SHARE`` of which the colour tests accepted (``~white``). A chain continues
+    from one found column to the next when they are at most ``kernels.GUIDE_REACH`` columns
+    apart and their rows differ by at most ``kernels.GUIDE_LINK`` per column between them. The
+    white-core rule's columns (``StripeParams.white_core``) are kept only where this holds: a
+    white line (a highlight, a white edge) has no or few coloured columns on its chain (a
+    neutral white line on yellow soil: 4 % of its columns pass the blooming test as green;
+    random rig 13's green stripe at 1080p: 40-57 % pass the colour tests). The numpy reference
+    of the compiled ``kernels._confirm_white``."""
+    g = _guide()
+    link, reach = g["link"], g["reach"]
+    cols = np.flatnonzero(np.isfinite(rows))
+    out = np.zeros(len(rows), bool)
+    if not len(cols):
+        return out
+    gap = np.diff(cols)
+    cont = (gap <= reach) & (np.abs(np.diff(rows[cols])) <= link * gap)
+    chain = np.concatenate([[0], np.cumsum(~cont)])
+    from impress_gui.core.reconstruction.compiled import kernels
+
+    coloured = np.bincount(chain, ~white[cols])
+    total = np.bincount(chain)
+    out[cols] = (coloured >= kernels().WHITE_SHARE * total)[chain]
+    return out
 
 
 def _guide() -> dict:
