@@ -47,14 +47,19 @@ def test_white_cores_on_bright_soil_are_found_where_the_stripe_is():
         before, after = got[False, fn], got[True, fn]
         on_before = np.abs(before - exact) <= 1.0
         on_after = np.abs(after - exact) <= 1.0
-        # measured: 102 of the 256 columns on the stripe without the rule, 233 with it
+        # measured: 102 of the 256 columns on the stripe without the rule, 239 with it
         assert on_before.sum() < 130
         assert on_after.sum() > 220
-        # the columns the rule adds are all on the stripe; none found before is lost or moved
+        # the columns the rule adds are all on the stripe; none found before is lost, and one
+        # moves only from far off the stripe onto it (measured: 2 columns, 114 and 25 px off
+        # before, where a weak clipped core at the first candidate now passes and the second
+        # candidate is not needed)
         added = np.isfinite(after) & np.isnan(before)
         assert added.sum() > 100 and on_after[added].all()
         kept = np.isfinite(before)
-        assert np.array_equal(after[kept], before[kept])
+        assert np.isfinite(after[kept]).all()
+        moved = kept & (after != before)
+        assert moved.sum() <= 4 and (~on_before[moved] & on_after[moved]).all()
     # the compiled kernel and the numpy reference agree, with and without the rule
     for white in (False, True):
         a, b = got[white, detect_planes], got[white, detect_planes_numpy]

@@ -45,6 +45,9 @@ GUIDE_DEV = 1.0  # px: the peak found there must lie this close to the row predi
 # the white-core rule's columns (stripes.StripeParams.white_core) stay only on a chain of
 # found columns at least this share of which the colour tests accepted
 WHITE_SHARE = 0.2
+# ... and may be weaker than min_peak, down to this share of it (a stripe clipped white on the
+# brightest soil: 10-25 grey levels above it; random rig 13 at 1080p)
+WEAK_SHARE = 0.4
 
 HSV_SHIFT = 12
 
@@ -259,7 +262,9 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
     ob0 = other_start[c]
     inside = strict or (pk + k >= ob0 and pk - k < ob0 + other_height)
     pi = pk - b0
-    if not (top >= min_peak and wsum > 0 and pi >= k and pi < band_height - k):
+    # a weaker peak is tested further only for the white-core rule (WEAK_SHARE)
+    weak = top < min_peak and white_lean < np.inf and not inside and top >= WEAK_SHARE * min_peak
+    if not ((top >= min_peak or weak) and wsum > 0 and pi >= k and pi < band_height - k):
         return np.nan, top, 2  # too weak (or at the band's edge)
     if not (sig[0] < 0.7 * top and sig[n - 1] < 0.7 * top):
         return np.nan, top, 2  # an edge, not a peak
@@ -296,6 +301,11 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
             return np.nan, top, 1
     # 4. the method's colour test on the central rows
     ok = False
+    if weak:
+        if lean / max(nh, 1) > -white_lean and _saturated_core(y, cb, cr, sh, c, cc, rr, k, ch,
+                                                               bloom_level):
+            return (_window_refine(rr, sig, n, top, centre) if refine else centre), top, 3
+        return np.nan, top, 2
     for j in range(k - 3, k + 4):
         r = rr[j]
         rgb = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))

@@ -353,7 +353,14 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         rr, sig, top, wsum, centre = window(peak)
         peak_i = peak - band_start
         width = (sig > 0.5 * top).sum(axis=0)
-        ok = (top >= params.min_peak) & (wsum > 0) & (peak_i >= k) & (peak_i < band_height - k)
+        # a peak weaker than min_peak (down to kernels.WEAK_SHARE of it) is tested further
+        # only for the white-core rule, away from the other laser's band: a stripe clipped
+        # white on the brightest soil stands only 10-25 grey levels above it
+        inside0 = (peak + k >= o_start) & (peak - k < o_start + o_height) | strict
+        weak = ((top < params.min_peak) & (_white_lean(params, other) < np.inf) & ~inside0
+                & (top >= _guide()["weak"] * params.min_peak))
+        ok = (((top >= params.min_peak) | weak) & (wsum > 0) & (peak_i >= k)
+              & (peak_i < band_height - k))
         ok &= width <= params.max_width_px
         ok &= (sig[0] < 0.7 * top) & (sig[-1] < 0.7 * top)
         peakish = ok.copy()
@@ -414,6 +421,7 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
             bloom = (share[..., c] - share[..., o]).sum(axis=0) >= BLOOM_LEAN
             # and the halo leaning to this laser's colour (a white line on yellow soil does not)
             colour |= ~colour & sat & tint0 & bloom & (lean > -_wrong_lean(params, other))
+        colour &= ~weak  # a weak peak passes only the white-core rule
         by_colour = colour.copy()
         if _white_lean(params, other) < np.inf and (ok & ~colour & ~inside).any():
             # away from the other laser's band, a core saturated in this laser's channel whose
@@ -426,7 +434,7 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         ok &= colour
         if params.subpixel == "window":
             centre = window_refine(rr, sig, top, centre)
-        why = np.where(~peakish, 2, np.where(wrong | (~ok & inside), 1, 0))
+        why = np.where(~peakish | (weak & ~ok), 2, np.where(wrong | (~ok & inside), 1, 0))
         # 3: kept by the white-core rule alone (confirmed or dropped by confirm_white_runs)
         return ok, centre, top, np.where(ok, np.where(by_colour, 0, 3), why)
 
@@ -519,7 +527,8 @@ def _guide() -> dict:
     from impress_gui.core.reconstruction.compiled import kernels
 
     k = kernels()
-    return {"link": k.GUIDE_LINK, "reach": k.GUIDE_REACH, "dev": k.GUIDE_DEV}
+    return {"link": k.GUIDE_LINK, "reach": k.GUIDE_REACH, "dev": k.GUIDE_DEV,
+            "weak": k.WEAK_SHARE}
 
 
 def guided_prediction(rows: np.ndarray) -> np.ndarray:
