@@ -117,3 +117,73 @@ def test_white_core_outside_and_inside_the_other_band(fn):
     # white columns whose halo leans clearly to the other laser's colour (red) are refused
     planes, _ = _stripe(tinted, halo_rgb=(40.0, -25.0, -20.0))
     assert np.isnan(detect(planes, away)[~tinted]).all()
+
+
+def _bright_stripe(tinted, soil_white, row=30.4, h=60):
+    """A stripe on bright soil: the ``tinted`` columns on darker soil, where the colour tests
+    accept it; the others on soil of colour ``soil_white``, where its core clips to white only
+    a little above the soil (a weak peak)."""
+    w = len(tinted)
+    yy = np.arange(h)[:, None, None].astype(float)
+    core = np.exp(-0.5 * ((yy - row) / 0.9) ** 2)
+    soil = np.where(tinted[:, None], (190.0, 200.0, 160.0), np.asarray(soil_white, float))[None]
+    add = np.where(tinted[:, None], (20.0, 120.0, 40.0), (120.0, 120.0, 120.0))[None]
+    rgb = np.broadcast_to(soil, (h, w, 3)) + core * add
+    return Planes.from_rgb(np.clip(rgb, 0, 255).astype(np.uint8))
+
+
+@pytest.mark.parametrize("fn", DETECTORS)
+def test_a_weak_white_core_on_the_brightest_soil(fn):
+    """A core clipped white on soil so bright that it stands less than min_peak (25 grey levels
+    of luma) above it is kept down to kernels.WEAK_SHARE (0.4) of min_peak, by the white-core
+    rule alone."""
+    w = 80
+    tinted = np.arange(w) % 5 < 2
+    band = (np.zeros(w, np.int64), 60)
+    away = (np.full(w, 300, np.int64), 40)
+
+    def detect(planes, white=True):
+        return fn("green", planes, *band, StripeParams(white_core=white), None, away).rows
+
+    bright = _bright_stripe(tinted, (235.0, 240.0, 215.0))  # the core 16 grey levels above
+    top = bright.y[30, ~tinted].astype(int) - bright.y[20, ~tinted].astype(int)
+    assert 10 <= top.min() and top.max() < 25
+    assert np.array_equal(np.isfinite(detect(bright, white=False)), tinted)
+    got = detect(bright)
+    assert np.isfinite(got).all() and np.abs(got - 30.4).max() < 0.5
+    brighter = _bright_stripe(tinted, (246.0, 249.0, 238.0))  # less than 10 grey levels above
+    top = brighter.y[30, ~tinted].astype(int) - brighter.y[20, ~tinted].astype(int)
+    assert top.max() < 10
+    assert np.array_equal(np.isfinite(detect(brighter)), tinted)
+
+
+@pytest.mark.parametrize("fn", DETECTORS)
+def test_white_core_rule_keeps_the_second_candidate_and_a_local_share(fn):
+    w = 100
+    band = (np.zeros(w, np.int64), 60)
+    away = (np.full(w, 300, np.int64), 40)
+    yy = np.arange(60)[:, None, None].astype(float)
+
+    def g(row, s):
+        return np.exp(-0.5 * ((yy - row) / s) ** 2)
+
+    # a light face clipped white a little above its own light (a weak peak) over a green stripe
+    # on dark soil: the face's peak is the column's candidate; the chain test drops it (no
+    # colour on its chain) and the stripe is found by the second candidate, as without the rule
+    rgb = np.full((60, w, 3), (80.0, 80.0, 60.0))
+    rgb[5:25] = 240.0
+    rgb += g(15.0, 1.2) * 15.0
+    rgb += g(42.0, 0.9) * np.array((20.0, 150.0, 50.0))
+    rows = fn("green", Planes.from_rgb(np.clip(rgb, 0, 255).astype(np.uint8)), *band,
+              StripeParams(), None, away).rows
+    assert np.isfinite(rows).all() and np.abs(rows - 42.0).max() < 0.5
+    # a coloured stripe (30 columns) continued by a white line (70 columns): the white line's
+    # columns are kept only within kernels.WHITE_HALF (48) columns of enough colour
+    stripe = np.arange(w) < 30
+    rgb = np.full((60, w, 3), (190.0, 200.0, 160.0))
+    rgb += g(30.4, 0.9) * np.where(stripe[:, None], (20.0, 120.0, 40.0), (120.0, 120.0, 120.0))
+    rows = fn("green", Planes.from_rgb(np.clip(rgb, 0, 255).astype(np.uint8)), *band,
+              StripeParams(), None, away).rows
+    assert np.isfinite(rows[:30]).all()
+    kept = np.flatnonzero(np.isfinite(rows[30:])) + 30
+    assert 0 < len(kept) < 40 and kept.max() < 30 + 48

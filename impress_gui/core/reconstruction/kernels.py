@@ -45,6 +45,7 @@ GUIDE_DEV = 1.0  # px: the peak found there must lie this close to the row predi
 # the white-core rule's columns (stripes.StripeParams.white_core) stay only on a chain of
 # found columns at least this share of which the colour tests accepted
 WHITE_SHARE = 0.2
+WHITE_HALF = 48  # columns either side (on the chain) over which that share is counted
 # ... and may be weaker than min_peak, down to this share of it (a stripe clipped white on the
 # brightest soil: 10-25 grey levels above it; random rig 13 at 1080p)
 WEAK_SHARE = 0.4
@@ -304,7 +305,9 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
     if weak:
         if lean / max(nh, 1) > -white_lean and _saturated_core(y, cb, cr, sh, c, cc, rr, k, ch,
                                                                bloom_level):
-            return (_window_refine(rr, sig, n, top, centre) if refine else centre), top, 3
+            # why 4: a weak peak kept by the white-core rule alone (if the chain test drops
+            # it, the second candidate is tried as for a weak peak: detect_stripe)
+            return (_window_refine(rr, sig, n, top, centre) if refine else centre), top, 4
         return np.nan, top, 2
     for j in range(k - 3, k + 4):
         r = rr[j]
@@ -396,7 +399,7 @@ def _blooming(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_value, level, min_
 
 @_jit
 def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, strength, linked,
-            pred, white):
+            pred, white, weak):
     """The guided pass of :func:`detect_stripe` (``stripes.guided_prediction`` and
     ``detect_planes_numpy``): every column whose row does not continue into a neighbour's
     (within ``GUIDE_LINK``) and has columns that do within ``GUIDE_REACH`` on both sides,
@@ -441,16 +444,40 @@ def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, streng
         if not math.isnan(row) and abs(row - p) <= GUIDE_DEV:
             rows[c] = row
             strength[c] = top
-            white[c] = why == 3
+            white[c] = why >= 3
+            weak[c] = False
+
+
+@_jit
+def _drop_white(rows, strength, white, start, last):
+    """For :func:`_confirm_white`: in the chain of found columns ``start..last``, drop each
+    white column with less than ``WHITE_SHARE`` of the found columns within ``WHITE_HALF``
+    columns of it (in the chain) accepted by the colour tests."""
+    keep = np.empty(last - start + 1, np.bool_)
+    for j in range(start, last + 1):
+        keep[j - start] = True
+        if not white[j]:
+            continue
+        found = 0
+        coloured = 0
+        for i in range(max(start, j - WHITE_HALF), min(last, j + WHITE_HALF) + 1):
+            if not math.isnan(rows[i]):
+                found += 1
+                coloured += not white[i]
+        keep[j - start] = coloured >= WHITE_SHARE * found
+    for j in range(start, last + 1):
+        if not keep[j - start]:
+            rows[j] = np.nan
+            strength[j] = 0.0
 
 
 @_jit
 def _confirm_white(rows, strength, white):
-    """Drop the columns kept by the white-core rule alone (``white``) on a chain of found
-    columns less than ``WHITE_SHARE`` of which the colour tests accepted
-    (``stripes.confirmed_by_colour``, the numpy reference): a chain continues to the next
-    found column within ``GUIDE_REACH`` columns whose row differs by at most ``GUIDE_LINK``
-    per column."""
+    """Drop the columns kept by the white-core rule alone (``white``) where, on their chain
+    of found columns and within ``WHITE_HALF`` columns, less than ``WHITE_SHARE`` of the found
+    columns were accepted by the colour tests (``stripes.confirmed_by_colour``, the numpy
+    reference): a chain continues to the next found column within ``GUIDE_REACH`` columns
+    whose row differs by at most ``GUIDE_LINK`` per column."""
     w = rows.shape[0]
     start = -1  # first found column of the current chain
     last = -1  # last found column
@@ -463,11 +490,8 @@ def _confirm_white(rows, strength, white):
         cont = found and last >= 0 and c - last <= GUIDE_REACH and \
             abs(rows[c] - rows[last]) <= GUIDE_LINK * (c - last)
         if not cont and start >= 0:
-            if coloured < WHITE_SHARE * total:  # the chain ends: too little colour in it
-                for j in range(start, last + 1):
-                    if white[j]:
-                        rows[j] = np.nan
-                        strength[j] = 0.0
+            if coloured < total:  # the chain ends: judge its white columns
+                _drop_white(rows, strength, white, start, last)
             start = -1
         if not found:
             break
@@ -537,6 +561,8 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     # rows inside every column's band skip the per-column band test
     best = np.full(w, np.int32(-(1 << 30)), np.int32)
     white = np.zeros(w, np.bool_)  # kept by the white-core rule alone
+    weak = np.zeros(w, np.bool_)  # ... from a weak first candidate
+    first = np.zeros(w, np.int64)  # the first candidate's row
     crx = np.empty(w, np.int32)
     lo = band_start.astype(np.int32)
     hi = lo + np.int32(band_height)
@@ -575,6 +601,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
         coarse = r0 + 2 * (4095 - (best[c] & 4095))
         row, top, why = _peak_at(y, cb, cr, sh, c, coarse, band_start[c], band, laser, peak,
                                  colour, hsv, rr, sig, False)
+        w4 = why == 4
         if math.isnan(row) and why and retry & 1:
             if why == 1:
                 # refused where the other laser's stripe can lie: that stripe, brighter, can
@@ -592,14 +619,30 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
                 row, top, why = _peak_at(y, cb, cr, sh, c, second, band_start[c], band, laser,
                                          peak, colour, hsv, rr, sig, why == 2)
         white[c] = False
+        weak[c] = False
         if not math.isnan(row):
             rows_out[c] = row
             strength_out[c] = top
-            white[c] = why == 3
+            white[c] = why >= 3
+            weak[c] = w4  # (from the first candidate: a retried column has no row then)
+            first[c] = coarse
     if retry & 2:
         _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows_out, strength_out,
-                np.empty(w, np.bool_), np.empty(w, np.float64), white)
+                np.empty(w, np.bool_), np.empty(w, np.float64), white, weak)
     _confirm_white(rows_out, strength_out, white)
+    if retry & 1:
+        # a weak peak the chain test dropped gets the second candidate a weak peak got before
+        # the white-core rule (a light face clipped white above the stripe)
+        for c in range(w):
+            if weak[c] and math.isnan(rows_out[c]):
+                second = _candidate(y, cr, sh, c, band_start[c], band_height, r0, r1, sign,
+                                    first[c], k, RIDGE_STEP)
+                if second >= 0:
+                    row, top, _ = _peak_at(y, cb, cr, sh, c, second, band_start[c], band,
+                                           laser, peak, colour, hsv, rr, sig, True)
+                    if not math.isnan(row):
+                        rows_out[c] = row
+                        strength_out[c] = top
 
 
 @_kernel(

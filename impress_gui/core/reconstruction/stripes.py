@@ -435,26 +435,24 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         if params.subpixel == "window":
             centre = window_refine(rr, sig, top, centre)
         why = np.where(~peakish | (weak & ~ok), 2, np.where(wrong | (~ok & inside), 1, 0))
-        # 3: kept by the white-core rule alone (confirmed or dropped by confirm_white_runs)
-        return ok, centre, top, np.where(ok, np.where(by_colour, 0, 3), why)
+        # 3: kept by the white-core rule alone (confirmed or dropped by confirmed_by_colour);
+        # 4: the same for a weak peak (if dropped, its second candidate is tried)
+        return ok, centre, top, np.where(ok, np.where(by_colour, 0, np.where(weak, 4, 3)), why)
 
     o_start, o_height = _other_band(other, w)
     ok, centre, top, why = attempt(coarse)
-    white = ok & (why == 3)
-    why = np.where(ok, 0, why)
-    why = np.where(searched, why, 0)
-    if params.second_candidate and other is not None and why.any():
-        none = np.iinfo(np.int32).min
-        tags = (4095 - np.arange(nr, dtype=np.int32))[:, None]
-        k = params.half_window_px
-        # refused where the other laser's stripe can lie: that stripe, brighter, can hide
-        # this laser's in the column; the best candidate of the band away from it (more than
-        # 2k rows) is tested the same way
-        far = np.abs(rows_c[:, None] - coarse[None, :]) > 2 * k
-        best1 = np.where(far & (score > -1000), packed, none).max(axis=0)
-        # not a peak: a bright surface can outscore the stripe on darker ground; the row
-        # rising most above the higher of the scores RIDGE_STEP rows off (one side at the
-        # band's ends) is tested, its halo required to lean to this laser's colour everywhere
+    white = ok & (why >= 3)  # kept by the white-core rule alone
+    weak = ok & (why == 4)  # ... from a weak first candidate
+    why = np.where(searched & ~ok, why, 0)
+    retry = params.second_candidate and other is not None
+    none = np.iinfo(np.int32).min
+    tags = (4095 - np.arange(nr, dtype=np.int32))[:, None]
+    k = params.half_window_px
+
+    def ridge_best():
+        """Not a peak: a bright surface can outscore the stripe on darker ground; the row
+        rising most above the higher of the scores RIDGE_STEP rows off (one side at the band's
+        ends), more than k rows from the first candidate, per column (packed as ``packed``)."""
         from impress_gui.core.reconstruction.compiled import kernels
 
         q = kernels().RIDGE_STEP // 2
@@ -466,14 +464,23 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         m = np.maximum(up, dn)
         near = np.abs(rows_c[:, None] - coarse[None, :]) > k
         ridge = np.where(near & (sc > -1000) & (m > -1000), (sc - m) * 4096 + tags, none)
-        best2 = ridge.max(axis=0)
-        cand = np.where(why == 1, best1, np.where(why == 2, best2, none))
+        return ridge.max(axis=0)
+
+    if retry and why.any():
+        # refused where the other laser's stripe can lie: that stripe, brighter, can hide
+        # this laser's in the column; the best candidate of the band away from it (more than
+        # 2k rows) is tested the same way
+        far = np.abs(rows_c[:, None] - coarse[None, :]) > 2 * k
+        best1 = np.where(far & (score > -1000), packed, none).max(axis=0)
+        # not a peak: the ridge candidate, its halo required to lean to this laser's colour
+        # everywhere
+        cand = np.where(why == 1, best1, np.where(why == 2, ridge_best(), none))
         has2 = cand > none
         coarse2 = np.where(has2, r0 + 2 * (4095 - (cand & 4095)), coarse)
         ok2, centre2, top2, why2 = attempt(coarse2, why == 2)
         take = has2 & ok2
         ok, centre, top = ok | take, np.where(take, centre2, centre), np.where(take, top2, top)
-        white = np.where(take, why2 == 3, white)
+        white = np.where(take, why2 >= 3, white)
     out_rows = np.where(ok, centre, np.nan)
     strength = np.where(ok, top, 0).astype(np.float32)
     if params.guided and other is not None:
@@ -487,17 +494,30 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
                 take = want & ok3 & (np.abs(centre3 - pred) <= _guide()["dev"])
             out_rows = np.where(take, centre3, out_rows)
             strength = np.where(take, top3, strength).astype(np.float32)
-            white = np.where(take, why3 == 3, white)
+            white = np.where(take, why3 >= 3, white)
+            weak &= ~take
     if white.any():
         drop = white & ~confirmed_by_colour(out_rows, white)
         out_rows = np.where(drop, np.nan, out_rows)
         strength = np.where(drop, 0, strength).astype(np.float32)
+        redo = drop & weak
+        if retry and redo.any():
+            # a weak peak the chain test dropped gets the second candidate a weak peak got
+            # before the white-core rule (a light face clipped white above the stripe)
+            cand = np.where(redo, ridge_best(), none)
+            has4 = cand > none
+            coarse4 = np.where(has4, r0 + 2 * (4095 - (cand & 4095)), coarse)
+            ok4, centre4, top4, _ = attempt(coarse4, has4)
+            take = has4 & ok4
+            out_rows = np.where(take, centre4, out_rows)
+            strength = np.where(take, top4, strength).astype(np.float32)
     return StripeResult(out_rows, strength)
 
 
 def confirmed_by_colour(rows: np.ndarray, white: np.ndarray) -> np.ndarray:
-    """Per column: whether its row lies on a chain of found columns at least
-    ``kernels.WHITE_SHARE`` of which the colour tests accepted (``~white``). A chain continues
+    """Per column: whether, on its chain of found columns and within ``kernels.WHITE_HALF``
+    columns of it, at least ``kernels.WHITE_SHARE`` of the found columns were accepted by the
+    colour tests (``~white``). A chain continues
     from one found column to the next when they are at most ``kernels.GUIDE_REACH`` columns
     apart and their rows differ by at most ``kernels.GUIDE_LINK`` per column between them. The
     white-core rule's columns (``StripeParams.white_core``) are kept only where this holds: a
@@ -516,9 +536,19 @@ def confirmed_by_colour(rows: np.ndarray, white: np.ndarray) -> np.ndarray:
     chain = np.concatenate([[0], np.cumsum(~cont)])
     from impress_gui.core.reconstruction.compiled import kernels
 
-    coloured = np.bincount(chain, ~white[cols])
-    total = np.bincount(chain)
-    out[cols] = (coloured >= kernels().WHITE_SHARE * total)[chain]
+    half, share = kernels().WHITE_HALF, kernels().WHITE_SHARE
+    w = len(rows)
+    found = np.isfinite(rows)
+    pf = np.concatenate([[0], np.cumsum(found)])
+    pc = np.concatenate([[0], np.cumsum(found & ~white)])
+    # each found column's chain runs from its first to its last column
+    breaks = np.flatnonzero(~cont)
+    first = cols[np.concatenate([[0], breaks + 1])]
+    last = cols[np.concatenate([breaks, [len(cols) - 1]])]
+    lo = np.maximum(first[chain], cols - half)
+    hi = np.minimum(last[chain], cols + half) + 1
+    hi = np.minimum(hi, w)
+    out[cols] = (pc[hi] - pc[lo]) >= share * (pf[hi] - pf[lo])
     return out
 
 
