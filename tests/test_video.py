@@ -103,3 +103,31 @@ def test_keyframes_read_on_their_own_equal_sequential_decoding(tmp_path, tiny, f
         cloned = dict(c.iter_frames(0))
     assert cloned.keys() == seq.keys()
     assert all(np.array_equal(cloned[k], seq[k]) for k in seq)
+
+
+def test_planes_from_rgb_by_blocks_equals_bt601_per_pixel():
+    """Planes.from_rgb converts by blocks of rows (memory, issue 19): every pixel gets the BT.601
+    limited-range value of its own RGB, the same bytes on every block boundary and for strided
+    views, checked against OpenCV's independent conversion (within its 1-level rounding) and
+    against the formula evaluated in one go."""
+    import cv2
+
+    from impress_gui.core.formats.video import Planes
+
+    rng = np.random.default_rng(5)
+    rows = 2 * Planes.ROWS_BLOCK + 37  # three blocks, the last one partial
+    rgb = rng.integers(0, 256, (rows, 61, 3), dtype=np.uint8)
+    for img in (rgb, rgb[::-1, ::2]):
+        p = Planes.from_rgb(img)
+        f = np.asarray(img, np.float32)
+        r, g, b = f[..., 0], f[..., 1], f[..., 2]
+        ref = [16 + (65.481 * r + 128.553 * g + 24.966 * b) / 255,
+               128 + (-37.797 * r - 74.203 * g + 112.0 * b) / 255,
+               128 + (112.0 * r - 93.786 * g - 18.214 * b) / 255]
+        for got, want in zip((p.y, p.cb, p.cr), ref):
+            assert got.dtype == np.uint8 and got.shape == img.shape[:2]
+            assert np.array_equal(got, np.clip(np.rint(want), 0, 255).astype(np.uint8))
+        # OpenCV's full-range YCrCb differs in scale; compare the luma after the same scaling
+        y_cv = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY).astype(float)
+        assert np.abs(p.y.astype(float) - (16 + y_cv * 219 / 255)).max() <= 1.5
+    assert p.chroma_step == 1

@@ -178,6 +178,20 @@ class RowFinisher:
                 return
             self._texture_means(H)
 
+    def release(self) -> None:
+        """Give back the accumulators' memory once :meth:`finish` has made every row: the
+        per-laser sums and counts (6 bytes per cell and laser, a third of a run's grids) and the
+        texture's. The maps the finish made (``per``, ``fused``, ``diff``, ``contrib``,
+        ``tex``) stay. What runs after the finish (the islands, the texture's ends) then does
+        not add its working memory on top of grids nothing reads any more (issue 19: the
+        finish was the command's highest point)."""
+        for a in self.acc.values():
+            a.release()
+        self._mapper = None
+        self._tex_acc = None
+        if self.texture is not None:
+            self.texture.acc = None  # type: ignore[assignment]
+
     # ----- the worker -------------------------------------------------------------------------
     def _run(self) -> None:
         while True:

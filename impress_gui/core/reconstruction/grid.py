@@ -127,6 +127,13 @@ class HeightAccumulator:
         self._prev_valid[:] = valid
         self._chain = True
 
+    def release(self) -> None:
+        """Free the sums and counts (after the maps were made from them): nothing may be
+        added or averaged afterwards."""
+        self.sum = np.zeros((0, self.spec.shape[1]), np.float32)
+        self.count = np.zeros((0, self.spec.shape[1]), np.uint16)
+        self._last = None
+
     def mean(self) -> np.ndarray:
         from impress_gui.core.reconstruction.compiled import kernels
 

@@ -593,6 +593,7 @@ def _process(run: _Run) -> Reconstruction:
     t_finish = time.perf_counter()
     report(run.progress, 0.93, "finishing the maps and the texture")
     finisher.finish()
+    finisher.release()  # the accumulators' memory, before the steps below add theirs
     islands = _drop_islands(run, finisher)
     end_cells = _texture_ends(run, tab, finisher, warnings)
     stats = _stats(run, tab, tally, finisher, loop_s, t_finish)
