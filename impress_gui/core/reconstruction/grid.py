@@ -240,7 +240,7 @@ ISLAND_BLOCK_ROWS = 1024
 
 
 def drop_islands(h: np.ndarray, step_mm: float, max_cells: int,
-                 block_rows: int = ISLAND_BLOCK_ROWS) -> int:
+                 block_rows: int = ISLAND_BLOCK_ROWS, progress=None) -> int:
     """Set to NaN, in place, every island of at most ``max_cells`` cells of the float32 map
     ``h``: cells joined to their 4 neighbours where the heights differ by at most
     ``step_mm``, cut off from the rest by larger steps or by cells without data. Returns the
@@ -251,7 +251,7 @@ def drop_islands(h: np.ndarray, step_mm: float, max_cells: int,
     clipped). The map is worked through in blocks of ``block_rows`` rows with ``max_cells
     + 1`` rows of margin on each side: an island of at most ``max_cells`` cells spans no more
     rows than that, and a larger piece reaches beyond the margin, so the result is that of
-    the whole map at once."""
+    the whole map at once. ``progress(fraction)`` is called after each block."""
     import cv2
 
     if max_cells <= 0:
@@ -278,6 +278,8 @@ def drop_islands(h: np.ndarray, step_mm: float, max_cells: int,
         gone = valid[a - lo:b - lo] & (img[a - lo:b - lo] == -32768)
         # the cells' flat indices, applied after every block is read (islands are few)
         drops.append(np.flatnonzero(gone) + a * h.shape[1])
+        if progress is not None:
+            progress(b / rows)
     idx = np.concatenate(drops) if drops else np.zeros(0, np.intp)
     h[np.unravel_index(idx, h.shape)] = np.nan
     return int(idx.size)

@@ -684,9 +684,21 @@ def _drop_islands(run: _Run, finisher: RowFinisher) -> dict[str, int]:
     if p.island_max_cells <= 0:
         return {n: 0 for n in finisher.names}
     report(run.progress, 0.94, "dropping small islands of heights")
-    out = {n: drop_islands(finisher.per[n], p.island_step_mm, p.island_max_cells)
-           for n in finisher.names}
+    out = {}
+    last = [time.perf_counter()]
+
+    def step(name: str, fraction: float) -> None:
+        # a long scan's maps take seconds: progress at least every half second
+        if time.perf_counter() - last[0] >= 0.5:
+            last[0] = time.perf_counter()
+            report(run.progress, 0.94, f"dropping small islands of heights ({name} laser, "
+                                       f"{100 * fraction:.0f} %)")
+
+    for n in finisher.names:
+        out[n] = drop_islands(finisher.per[n], p.island_step_mm, p.island_max_cells,
+                              progress=lambda f, n=n: step(n, f))
     if any(out.values()):
+        report(run.progress, 0.945, "fusing the maps again without the islands")
         g, r = (finisher.per[n] for n in finisher.names)
         fuse_rows(g, r, finisher.tol, finisher.fused, finisher.diff, finisher.contrib, 0,
                   g.shape[0], weight_green=finisher.weight_green)
