@@ -4,6 +4,7 @@ tilt (poorly fixed by the corner picks) is refined so the stripe points lie on t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -61,6 +62,15 @@ class LaserPlaneFit:
     #: ``ground_note`` says why none were used ("" = not recorded)
     ground_points: int = 0
     ground_note: str = ""
+    #: the stripe's noise about the plane on the faces, split as the calibration's Monte
+    #: Carlo needs it (:func:`stripe_noise`): the SD of the stripe's offset per frame and face
+    #: (each face's median offset over the frames removed) and of single points about their
+    #: frame and face's offset (robust); NaN = not recorded (older calibrations, too few frames)
+    segment_sd_mm: float = float("nan")
+    point_sd_mm: float = float("nan")
+    #: the RMS over the faces of each face's median offset from the plane (a bias of the
+    #: stripe on that face, the same in every frame: it turns the plane); NaN = not recorded
+    face_sd_mm: float = float("nan")
 
 
 def _face_polygons(calib_pose, target: TargetModel):
@@ -247,6 +257,50 @@ def robust_plane(points: np.ndarray, rounds: int = 4, floor_mm: float = 0.02
     return plane, rms, keep
 
 
+def stripe_noise(plane: Plane, pts: list, hts: list) -> tuple[float, float, float]:
+    """How the stripe points ``pts`` (per frame, with their faces' heights ``hts``) scatter
+    about ``plane``: ``(segment SD, point SD, face SD)`` in mm. A segment is one frame's stripe on one
+    face; its offset is the median distance of its points from the plane. The segment SD is
+    the SD of those offsets after each face's median offset over the frames is taken out
+    (a face's constant offset moves the plane; offsets that change from frame to frame tilt
+    the motion direction the calibration refines, and are what a Monte Carlo of the tilt must
+    draw), less what the point noise alone gives a median of the segment's points (pi/2 x
+    point SD^2 / points, in variance; floored at 0); the point SD is 1.4826 x the median
+    absolute deviation of the points from their segment's offset; the face SD the RMS over
+    the faces of each face's median offset (a bias of the stripe on that face, the same in
+    every frame, which turns the plane). Measured on the simulator's
+    random rigs (2026-11-29, 640x360): segment SD 0.004-0.016 mm where the plane's RMS is
+    0.024-0.047 mm. Segment SD NaN (not stated) with fewer than :data:`SEGMENT_DOF` degrees of
+    freedom."""
+    offs: dict[float, list[float]] = {}
+    dev = []
+    sizes = []
+    for p, h in zip(pts, hts):
+        r = plane.distance(p)
+        for lv in np.unique(h):
+            m = h == lv
+            if m.sum() < 5:
+                continue
+            c = float(np.median(r[m]))
+            offs.setdefault(round(float(lv), 3), []).append(c)
+            dev.append(r[m] - c)
+            sizes.append(int(m.sum()))
+    point = float(1.4826 * np.median(np.abs(np.concatenate(dev)))) if dev else float("nan")
+    resid = [np.asarray(v) - np.median(v) for v in offs.values() if len(v) >= 2]
+    face = float(np.sqrt(np.mean([np.median(v) ** 2 for v in offs.values()]))) if offs \
+        else float("nan")
+    dof = sum(len(v) - 1 for v in resid)
+    if dof < SEGMENT_DOF:
+        return float("nan"), point, face
+    var = sum(float(np.sum(v**2)) for v in resid) / dof
+    var -= 0.5 * math.pi * point**2 * float(np.mean(1.0 / np.asarray(sizes, float)))
+    return math.sqrt(max(var, 0.0)), point, face
+
+
+#: the fewest degrees of freedom (segments less faces) a segment SD is stated from
+SEGMENT_DOF = 6
+
+
 def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames,
                     ground: np.ndarray | None = None) -> LaserPlaneFit:
     """SVD plane through the stripe points (and the ``ground`` points, if any) with outlier
@@ -331,7 +385,9 @@ class StripeObservations:
                 frames = {k for k, _, _ in self.ground.get(name, [])} - dropped
                 fit = self._with_ground(name, fit, np.concatenate(pts), np.concatenate(hts),
                                         rot, pose_rt, frames)
-            out[name] = (replace(fit, stripe_rows=self.rows.get(name, "")), pts)
+            seg_sd, point_sd, face_sd = stripe_noise(fit.plane, pts, hts)
+            out[name] = (replace(fit, stripe_rows=self.rows.get(name, ""), segment_sd_mm=seg_sd,
+                                 point_sd_mm=point_sd, face_sd_mm=face_sd), pts)
         return out
 
     def _with_ground(self, name: str, fit: LaserPlaneFit, pts: np.ndarray, hts: np.ndarray,

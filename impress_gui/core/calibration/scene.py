@@ -55,6 +55,17 @@ PLANE_SPAN_WARN_MM = 10.0
 REGATHER_TILT_DEG = 0.25
 
 
+def _opt_float(doc: dict, key: str, where: str, top: float = 100.0) -> float:
+    """An optional number of a laser plane's record within 0..``top`` (mm); NaN when absent."""
+    if key not in doc:
+        return float("nan")
+    v = float(require(doc, key, float, where))
+    if not np.isfinite(v) or not 0 <= v <= top:
+        raise FormatError(f"{where}{key} must be a number from 0 to {top:g} mm, not {v!r}",
+                          code=codes.E_VALUE)
+    return v
+
+
 @dataclass(frozen=True)
 class SceneCalibration:
     intrinsics: Intrinsics
@@ -143,6 +154,9 @@ class SceneCalibration:
                 | ({"stripe_rows": f.stripe_rows} if f.stripe_rows else {})
                 | ({"ground_points": f.ground_points, "ground_note": f.ground_note}
                    if f.ground_note else {})
+                | {k: v for k, v in (("segment_sd_mm", f.segment_sd_mm),
+                                     ("point_sd_mm", f.point_sd_mm),
+                                     ("face_sd_mm", f.face_sd_mm)) if np.isfinite(v)}
                 for n, f in self.planes.items()},
             "warnings": list(self.warnings),
             "inputs": self.inputs,
@@ -161,7 +175,10 @@ class SceneCalibration:
                     tuple(int(v) for v in pd.get("frames", [])),
                     tuple(float(v) for v in pd.get("heights_mm", [])),
                     str(pd.get("method", "stripe-fit")), str(pd.get("stripe_rows", "")),
-                    int(pd.get("ground_points", 0)), str(pd.get("ground_note", "")))
+                    int(pd.get("ground_points", 0)), str(pd.get("ground_note", "")),
+                    _opt_float(pd, "segment_sd_mm", f"{where}laser_planes.{name}."),
+                    _opt_float(pd, "point_sd_mm", f"{where}laser_planes.{name}."),
+                    _opt_float(pd, "face_sd_mm", f"{where}laser_planes.{name}."))
             for name in ("green", "red"):
                 if name not in planes:
                     raise FormatError(f"{where}the {name} laser plane is missing")

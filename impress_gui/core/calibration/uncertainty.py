@@ -13,19 +13,22 @@ counts and frames, the reprojection RMS of the picks - and the target model:
    planes were fitted to the stripes, the tilt refinement by the stripes on the rebuilt
    stripes of step 3, and levels its frame across the scan as the calibration does
    (:func:`~impress_gui.core.calibration.solve.level_across`: each trial in its own levelled
-   frame, its planes fitted there) (:func:`_trial`). Checked against real recalibrations
-   (29 November 2026: random rigs 0-7 at 640x360, eight recalibrations each from the exact
-   corners plus 0.5 px of click noise, each against its own Monte Carlo of 20 trials): lengths
-   about right (real spread / stated 0.77-1.48 per rig), absolute heights **over-stated**
-   (0.04-0.22) and height differences over-stated (0.09-0.91). Known cause: the trials fit the
-   final planes without the stripe on the ground beside the target, which the calibration
-   uses (``fit_planes(..., with_ground=True)``), and the per-frame-and-face stripe offsets of
-   step 3 tilt the trials' reference plane; see docs/uncertainty.md;
+   frame, its planes fitted there as the calibration fits them: with the stripe on the ground
+   beside the target when the calibration's fit used it) (:func:`_trial`). Checked against
+   real recalibrations (29 November 2026: random rigs 0, 1, 3, 4, 5, 6 at 640x360, three
+   recalibrations each from the exact corners plus 0.5 px of click noise, each against its own
+   Monte Carlo of 12 trials; errors against the simulator's truth): RMS of error / stated SD
+   1.04 for lengths in xy, 1.30 for absolute heights. Before the stripe noise was split as
+   measured and the ground rebuilt, the Monte Carlo over-stated heights about fivefold
+   (docs/uncertainty.md);
 3. each laser's stripe on the target is rebuilt from the recorded plane: in each recorded frame
-   the line where the plane cuts each top face, seen as camera rays. A trial intersects those
-   rays with the target faces of its own pose (and its own travel), adds stripe noise of the
-   plane's recorded RMS (half of its variance as one offset per frame and face - neighbouring
-   stripe points are not independent - and half per point) and fits the plane again;
+   the line where the plane cuts each top face (and, when the calibration's fit used it, the
+   ground beside the target), seen as camera rays. A trial intersects those rays with the
+   target faces (the base plane) of its own pose and travel, adds stripe noise as the
+   calibration measured it (one offset per frame and face of ``segment_sd_mm`` -
+   neighbouring stripe points are not independent - and ``point_sd_mm`` per point:
+   :func:`~impress_gui.core.calibration.planes.stripe_noise`; for an older calibration without
+   them half of the plane's residual variance each) and fits the plane again;
 4. a trial's parameters map any reconstructed cell to where that trial would have put it
    (:meth:`CalibrationEnsemble.map_points`: the same camera ray at the same time, through the
    trial's rotation, laser plane and reference plane). The spread of a reading over the trials
@@ -54,7 +57,7 @@ import numpy as np
 
 from impress_gui.core.base.errors import CalibrationError, InputError
 from impress_gui.core.calibration.picks import Picks
-from impress_gui.core.calibration.planes import StripeObservations, refine_tilt
+from impress_gui.core.calibration.planes import StripeObservations, points_on_ground, refine_tilt
 from impress_gui.core.calibration.solve import SPEED_WARN_FRACTION, level_across, solve_pose
 from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
 
@@ -66,6 +69,10 @@ DEFAULT_SEED = 22
 LASERS = ("green", "red")
 #: points per stripe segment (one frame, one face) of the rebuilt stripes
 SEGMENT_POINTS = 24
+#: and at most (a calibration's segments hold 50-100 points at 640x360, more at 1080p)
+MAX_SEGMENT_POINTS = 160
+#: positions tried along a ground line across the ring around the target
+LINE_SAMPLES = 2000
 
 
 @dataclass(frozen=True)
@@ -219,6 +226,18 @@ def check_target(cal, target: TargetModel, tol_mm: float = 1.0) -> None:
                          f"off, the calibration's own model {own:.1f} mm)")
 
 
+def segment_points(fit) -> int:
+    """Points per rebuilt stripe segment (one frame, one face): as many as the calibration's
+    fit had on average (its points on the faces over its frames and faces), so that the
+    trials' point noise weighs in the plane as the real points' did and the faces weigh
+    against the ground as they did; :data:`SEGMENT_POINTS` when the fit does not say."""
+    faces = max(1, len(fit.heights_mm))
+    on_faces = int(fit.n_points) - int(fit.ground_points)
+    if not fit.frames or on_faces <= 0:
+        return SEGMENT_POINTS
+    return int(np.clip(round(on_faces / (len(fit.frames) * faces)), 8, MAX_SEGMENT_POINTS))
+
+
 def _segments(cal, target: TargetModel, laser: str):
     """The rebuilt stripe of ``laser``: per (frame, face) ``(frame, time since t1 (s), points
     in the ideal frame of that frame's camera (M, 3))`` on the recorded plane."""
@@ -227,8 +246,9 @@ def _segments(cal, target: TargetModel, laser: str):
     n, d = fit.plane.normal, fit.plane.offset_mm
     r_o, t_o = cal.target_rotation, cal.target_translation_mm
     v_pose = cal.implied_speed_mm_s
+    n_seg = segment_points(fit)
     out = []
-    for face in target.top_faces():
+    for fi, face in enumerate(target.top_faces()):
         poly = face.vertices_mm @ r_o.T + t_o  # rail frame
         for k in frames:
             dt = (k - cal.t1) / cal.fps
@@ -246,31 +266,124 @@ def _segments(cal, target: TargetModel, laser: str):
             length = float(np.linalg.norm(q - p))
             if length < 6.0:
                 continue
-            t = np.linspace(1.5 / length, 1 - 1.5 / length, SEGMENT_POINTS)  # inside the inset
-            out.append((int(k), dt, p[None] + t[:, None] * (q - p)[None] - shift))
+            t = np.linspace(1.5 / length, 1 - 1.5 / length, n_seg)  # inside the inset
+            out.append((int(k), dt, p[None] + t[:, None] * (q - p)[None] - shift, fi))
     return out
 
 
-def _observations(cal, target, segs, rng, laser_rms: dict | None) -> StripeObservations:
-    """Stripe observations (camera rays) of the rebuilt stripes, with stripe noise of each
-    plane's recorded RMS when ``laser_rms`` is given: half of its variance as one offset per
-    frame and face (neighbouring stripe points are not independent), half per point."""
-    rays = {}
-    for laser in LASERS:
-        nrm = cal.planes[laser].plane.normal
+def _ground_segments(cal, target: TargetModel, laser: str):
+    """The rebuilt stripe of ``laser`` on the ground beside the target, for a plane whose fit
+    used it (``ground_points`` > 0; none otherwise): per recorded frame ``(frame, time since
+    t1 (s), points (M, 3))`` on the line where the recorded plane meets the target's base
+    plane, inside the ring around the target and outside its footprint (grown by the margin
+    the calibration leaves), about as many points per frame as the calibration used. Which
+    of them a trial keeps (its own pose, the target hiding some) is decided by the same test
+    as the calibration's (:func:`~impress_gui.core.calibration.planes.points_on_ground`)."""
+    fit = cal.planes[laser]
+    frames = list(fit.frames)
+    if fit.ground_points <= 0 or not frames:
+        return []
+    per_frame = max(8, int(math.ceil(fit.ground_points / len(frames))))
+    out = _ground_lines(cal, target, fit, frames, per_frame)
+    # the target hides some of them from the camera (the trials test that as the calibration
+    # does): as many visible at the calibration's own pose as its fit had
+    seen = sum(len(points_on_ground(p, (cal.target_rotation, cal.target_translation_mm),
+                                    target, cal.implied_speed_mm_s * dt)) for _, dt, p in out)
+    total = sum(len(p) for _, _, p in out)
+    if 0 < seen < total:
+        out = _ground_lines(cal, target, fit, frames,
+                            int(math.ceil(per_frame * total / seen)))
+    return out
+
+
+def _ground_lines(cal, target: TargetModel, fit, frames, per_frame: int):
+    """The ground lines of :func:`_ground_segments`, ``per_frame`` points in each frame."""
+    from impress_gui.core.calibration.planes import GROUND_MARGIN_MM, _ground_ring
+    from impress_gui.core.calibration.target import _inside_convex
+
+    n, d = fit.plane.normal, fit.plane.offset_mm
+    r_o, t_o = cal.target_rotation, cal.target_translation_mm
+    feet, lo, hi = _ground_ring(target)
+    a_u, a_v = float(n @ r_o[:, 0]), float(n @ r_o[:, 1])
+    out = []
+    for k in frames:
+        dt = (k - cal.t1) / cal.fps
+        shift = np.array([0.0, cal.implied_speed_mm_s * dt, 0.0])
+        c = float(n @ (t_o - shift)) - d  # plane: c + a_u u + a_v v = 0 (object u, v)
+        # the line, sampled finely across the ring's rectangle along its longer extent
+        if abs(a_v) >= abs(a_u):
+            u = np.linspace(lo[0], hi[0], LINE_SAMPLES)
+            v = -(c + a_u * u) / a_v
+        else:
+            v = np.linspace(lo[1], hi[1], LINE_SAMPLES)
+            u = -(c + a_v * v) / a_u
+        keep = (u > lo[0]) & (u < hi[0]) & (v > lo[1]) & (v < hi[1])
+        for f in feet:
+            grown = f + GROUND_MARGIN_MM * np.sign(f - f.mean(0))
+            keep &= ~_inside_convex(grown, u, v)
+        if keep.sum() < 2:
+            continue
+        idx = np.flatnonzero(keep)
+        idx = idx[np.linspace(0, len(idx) - 1, min(per_frame, len(idx))).round().astype(int)]
+        pts = t_o + u[idx, None] * r_o[:, 0] + v[idx, None] * r_o[:, 1]  # rail frame
+        out.append((int(k), dt, pts - shift))
+    return out
+
+
+def stripe_sigmas(fit, rms_mm: float) -> tuple[float, float, float]:
+    """The stripe noise a trial draws for a plane: ``(per frame and face, per point, per
+    face)`` SDs in mm. The calibration's measured split (``segment_sd_mm``, ``point_sd_mm``,
+    ``face_sd_mm``: :func:`~impress_gui.core.calibration.planes.stripe_noise`) where it
+    recorded one; for an older calibration half of the plane's residual variance for each of
+    the first two (``rms_mm`` / sqrt 2; it over-states the offsets that tilt the motion
+    direction: real recalibrations of random rigs, 2-4 times the measured segment SD) and no
+    face offset."""
+    half = rms_mm / math.sqrt(2)
+    seg, pt, face = float(fit.segment_sd_mm), float(fit.point_sd_mm), float(fit.face_sd_mm)
+    return ((seg if math.isfinite(seg) else half), (pt if math.isfinite(pt) else half),
+            (face if math.isfinite(face) else 0.0))
+
+
+def _observations(cal, target, segs, rng, laser_rms: dict | None,
+                  ground: dict | None = None) -> StripeObservations:
+    """Stripe observations (camera rays) of the rebuilt stripes (``segs`` on the faces,
+    ``ground`` beside the target), with stripe noise when ``laser_rms`` (each plane's
+    recorded RMS) is given: :func:`stripe_sigmas`, one offset per frame and face (or ground
+    line; neighbouring stripe points are not independent) and one per point. A point is
+    moved within its face (the target's faces and its base plane share one normal) so that
+    its distance from the laser plane changes by the drawn amount: the detector's error moves
+    the ray along the surface it meets (moved along the laser plane's normal, the point's
+    ray met the face again only about 80 % as far from the plane)."""
+    m = np.asarray(cal.target_rotation, float)[:, 2]  # the faces' normal (rail frame)
+
+    def rays_of(laser, segments):
+        nrm = np.asarray(cal.planes[laser].plane.normal, float)
+        c = float(nrm @ m)
+        along = (nrm - c * m) / max(1.0 - c * c, 1e-6)  # in the face; along . nrm = 1
+        s_seg, s_pt, s_face = stripe_sigmas(cal.planes[laser], laser_rms[laser]) \
+            if laser_rms else (0.0, 0.0, 0.0)
+        face_offset: dict[int, float] = {}  # one per face and trial (the ground has none)
         by_frame: dict[int, list] = {}
-        for k, dt, pts in segs[laser]:
+        for seg in segments:
+            k, dt, pts = seg[:3]
             if laser_rms:
-                s = laser_rms[laser] / math.sqrt(2)
-                pts = pts + nrm * (rng.normal(0.0, s) + rng.normal(0.0, s, (len(pts), 1)))
+                off = rng.normal(0.0, s_seg) + rng.normal(0.0, s_pt, (len(pts), 1))
+                if len(seg) > 3:
+                    off = off + face_offset.setdefault(seg[3], float(rng.normal(0.0, s_face)))
+                pts = pts + along * off
             cam = pts @ cal.rotation  # rows R^T X: camera frame
             by_frame.setdefault(k, [dt, []])[1].append(cam / cam[:, 2:3])
-        rays[laser] = [(k, dt, np.concatenate(c)) for k, (dt, c) in sorted(by_frame.items())]
+        return [(k, dt, np.concatenate(c)) for k, (dt, c) in sorted(by_frame.items())]
+
+    rays = {laser: rays_of(laser, segs[laser]) for laser in LASERS}
+    on_ground = {laser: rays_of(laser, ground[laser]) for laser in LASERS
+                 if ground and ground.get(laser)}
     return StripeObservations(target, cal.implied_speed_mm_s, {"green": cal.t1, "red": cal.t2},
-                              rays)
+                              rays, ground=on_ground)
 
 
-def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, refine: bool):
+def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, refine: bool,
+           ground: dict | None = None):
     """One trial: ``(rotation, {laser: (normal, offset)}, ref coeffs, roll, tilt, implied)``:
     the product's pose solver on noisy picks, its tilt refinement and plane fits on the
     rebuilt, noisy stripes."""
@@ -282,7 +395,7 @@ def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, ref
                           for c, v in getattr(picks, key).items()}
         picks = Picks("", picks.t1, picks.t2, noisy["corners_t1"], noisy["corners_t2"])
     rms = {la: float(cal.planes[la].rms_mm) for la in LASERS} if sigma_px > 0 else None
-    obs = _observations(cal, target, segs, rng, rms)
+    obs = _observations(cal, target, segs, rng, rms, ground)
     pose = solve_pose(cal.intrinsics, target, picks, cal.speed_mm_s, dt)
     if refine:
         fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
@@ -290,7 +403,10 @@ def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, ref
                            max(sigma_px, 0.05))
     # each trial in its own levelled frame, as the calibration (scene.calibrate_scene)
     pose = level_across(pose)
-    fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
+    # the final planes as the calibration fits them: the faces' points and, where its fit
+    # used them, the ground's beside the target (which pin the plane at height 0)
+    fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm),
+                          with_ground=bool(obs.ground))
     planes = {}
     for la in LASERS:
         pl = fits[la][0].plane.oriented_like(cal.planes[la].plane)
@@ -337,15 +453,16 @@ def calibration_ensemble(cal, target: TargetModel, click_sigma_px: float | None 
     check_target(cal, target)
     picks = model_picks(cal, target)
     segs = {laser: _segments(cal, target, laser) for laser in LASERS}
+    ground = {laser: _ground_segments(cal, target, laser) for laser in LASERS}
     dt = (cal.t2 - cal.t1) / cal.fps
     rng = np.random.default_rng(seed)
     refine = all(f.method == "stripe-fit" for f in cal.planes.values())
-    results = [_trial(cal, target, picks, segs, rng, 0.0, dt, refine)]
+    results = [_trial(cal, target, picks, segs, rng, 0.0, dt, refine, ground)]
     for _ in range(n):
         if cancel is not None:
             cancel.check()
         try:
-            results.append(_trial(cal, target, picks, segs, rng, sigma, dt, refine))
+            results.append(_trial(cal, target, picks, segs, rng, sigma, dt, refine, ground))
         except CalibrationError:  # a trial the solver refuses is left out (counted)
             continue
 
