@@ -7,7 +7,9 @@ and its Monte Carlo (impress_gui.core.calibration.uncertainty.calibration_ensemb
 trials) is computed. At ``--points`` random points per laser around the target (within 60 mm
 across it, from 20 mm before to 120 mm after it along the scan, heights -10..+20 mm) the
 calibration's true error is taken from the simulator's truth (the same camera ray through the
-true calibration: map_points) and compared with the Monte Carlo's SD of the same quantity:
+true calibration: map_points) and compared with the Monte Carlo's SD of the same quantity, for
+each of ``--stripe-models`` (how the trials rebuild the stripes and draw their noise:
+uncertainty.STRIPE_MODELS):
 
 - ``h``: an absolute height;
 - ``dz``: the height difference between two random points;
@@ -19,7 +21,7 @@ the calibration is judged here (no reconstruction, no surface noise): bench_unce
 judges whole budgets.
 
 Usage: .venv/bin/python benchmarks/bench_calibration_mc.py [--seeds 0,1,3,4,5,6] [--draws 3]
-       [--trials 12] [--noise-px 0.5] [--points 300]
+       [--trials 12] [--noise-px 0.5] [--points 300] [--stripe-models conservative,measured]
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import numpy as np
 KINDS = ("h", "dz", "xy")
 
 
-def one(seed: int, draw: int, noise_px: float, trials: int, n_points: int) -> dict:
+def one(seed: int, draw: int, noise_px: float, trials: int, n_points: int, models) -> dict:
     import impress_gui.core.calibration.uncertainty as CU
     from impress_gui.core.calibration.target import TargetModel
     from impress_gui.sim.truth import true_cal_params
@@ -45,11 +47,20 @@ def one(seed: int, draw: int, noise_px: float, trials: int, n_points: int) -> di
     target = TargetModel.load(d / "target.json")
     t0 = time.perf_counter()
     cal = common.calibrate(d, noise_px=noise_px, seed=1000 * seed + draw + 1)
-    t1 = time.perf_counter()
-    ens = CU.calibration_ensemble(cal, target, n=trials)
-    t2 = time.perf_counter()
     nominal, true = CU.CalParams.of_calibration(cal), true_cal_params(d, cal)
-    rng = np.random.default_rng(10 * seed + draw)
+    res = {"seed": seed, "draw": draw, "t_cal": time.perf_counter() - t0}
+    for model in models:
+        t1 = time.perf_counter()
+        ens = CU.calibration_ensemble(cal, target, n=trials, stripe_model=model)
+        res[model] = _compare(cal, ens, nominal, true, n_points, np.random.default_rng(
+            10 * seed + draw))
+        res[model]["t_mc"] = time.perf_counter() - t1
+    return res
+
+
+def _compare(cal, ens, nominal, true, n_points: int, rng) -> dict:
+    import impress_gui.core.calibration.uncertainty as CU
+
     t_o = np.asarray(cal.target_translation_mm)
     out: dict = {k: ([], []) for k in KINDS}
     for laser in ("green", "red"):
@@ -70,8 +81,7 @@ def one(seed: int, draw: int, noise_px: float, trials: int, n_points: int) -> di
             ok = s > 0  # a pair of one point with itself has no spread
             out[k][0].append(e[ok])
             out[k][1].append(s[ok])
-    return {"seed": seed, "draw": draw, "t_cal": t1 - t0, "t_mc": t2 - t1,
-            **{k: (np.concatenate(v[0]), np.concatenate(v[1])) for k, v in out.items()}}
+    return {k: (np.concatenate(v[0]), np.concatenate(v[1])) for k, v in out.items()}
 
 
 def line(e: np.ndarray, s: np.ndarray) -> str:
@@ -88,28 +98,32 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=12)
     ap.add_argument("--noise-px", type=float, default=0.5)
     ap.add_argument("--points", type=int, default=300)
+    ap.add_argument("--stripe-models", default="conservative,measured")
     args = ap.parse_args()
+    models = [m for m in args.stripe_models.split(",") if m]
     seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     rows = []
     for seed in seeds:
         for draw in range(args.draws):
             try:
-                r = one(seed, draw, args.noise_px, args.trials, args.points)
+                r = one(seed, draw, args.noise_px, args.trials, args.points, models)
             except Exception as exc:  # noqa: BLE001 - a refused calibration is reported
                 print(f"rig {seed:2d} draw {draw}: not measured ({exc})", flush=True)
                 continue
             rows.append(r)
-            print(f"rig {seed:2d} draw {draw} (calibration {r['t_cal']:.1f} s, Monte Carlo "
-                  f"{r['t_mc']:.1f} s)", flush=True)
-            for k in KINDS:
-                print(f"    {k:3s} {line(*r[k])}", flush=True)
-    print(f"\nall {len(rows)} calibrations ({args.trials} trials each, click noise "
-          f"{args.noise_px} px):")
-    for k in KINDS:
-        if rows:
-            e = np.concatenate([r[k][0] for r in rows])
-            s = np.concatenate([r[k][1] for r in rows])
-            print(f"    {k:3s} {line(e, s)}")
+            print(f"rig {seed:2d} draw {draw} (calibration {r['t_cal']:.1f} s)", flush=True)
+            for m in models:
+                print(f"  {m} (Monte Carlo {r[m]['t_mc']:.1f} s)")
+                for k in KINDS:
+                    print(f"    {k:3s} {line(*r[m][k])}", flush=True)
+    for m in models:
+        print(f"\nall {len(rows)} calibrations, stripe model {m} ({args.trials} trials each, "
+              f"click noise {args.noise_px} px):")
+        for k in KINDS:
+            if rows:
+                e = np.concatenate([r[m][k][0] for r in rows])
+                s = np.concatenate([r[m][k][1] for r in rows])
+                print(f"    {k:3s} {line(e, s)}")
 
 
 if __name__ == "__main__":

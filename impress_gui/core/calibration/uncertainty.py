@@ -13,22 +13,22 @@ counts and frames, the reprojection RMS of the picks - and the target model:
    planes were fitted to the stripes, the tilt refinement by the stripes on the rebuilt
    stripes of step 3, and levels its frame across the scan as the calibration does
    (:func:`~impress_gui.core.calibration.solve.level_across`: each trial in its own levelled
-   frame, its planes fitted there as the calibration fits them: with the stripe on the ground
-   beside the target when the calibration's fit used it) (:func:`_trial`). Checked against
-   real recalibrations (29 November 2026: random rigs 0, 1, 3, 4, 5, 6 at 640x360, three
-   recalibrations each from the exact corners plus 0.5 px of click noise, each against its own
-   Monte Carlo of 12 trials; errors against the simulator's truth): RMS of error / stated SD
-   1.04 for lengths in xy, 1.30 for absolute heights. Before the stripe noise was split as
-   measured and the ground rebuilt, the Monte Carlo over-stated heights about fivefold
-   (docs/uncertainty.md);
+   frame, its planes fitted there) (:func:`_trial`);
 3. each laser's stripe on the target is rebuilt from the recorded plane: in each recorded frame
-   the line where the plane cuts each top face (and, when the calibration's fit used it, the
-   ground beside the target), seen as camera rays. A trial intersects those rays with the
-   target faces (the base plane) of its own pose and travel, adds stripe noise as the
-   calibration measured it (one offset per frame and face of ``segment_sd_mm`` -
-   neighbouring stripe points are not independent - and ``point_sd_mm`` per point:
-   :func:`~impress_gui.core.calibration.planes.stripe_noise`; for an older calibration without
-   them half of the plane's residual variance each) and fits the plane again;
+   the line where the plane cuts each top face, seen as camera rays. A trial intersects those
+   rays with the target faces of its own pose (and its own travel), adds stripe noise and fits
+   the plane again. How (``stripe_model``, :data:`STRIPE_MODELS`): "conservative", the
+   default, adds half of the plane's recorded residual variance as one offset per frame and
+   face (neighbouring stripe points are not independent) and half per point; "measured" does
+   what the calibration did and draws what it measured - the stripe on the ground beside the
+   target rebuilt too and fitted with the faces', the recorded ``segment_sd_mm``,
+   ``point_sd_mm`` and ``face_sd_mm`` (:func:`~impress_gui.core.calibration.planes.
+   stripe_noise`) drawn, each point moved within its face. Checked against real
+   recalibrations (``benchmarks/bench_calibration_mc.py``, docs/uncertainty.md): "measured"
+   states the calibration's own error about right (lengths) or somewhat low (heights: the
+   calibration's own bias with exact picks is not in it), "conservative" over-states heights
+   1.5-5 fold - which, on scans without a validation record, stands in for the method's own
+   error; the default stays "conservative" until a method component replaces it;
 4. a trial's parameters map any reconstructed cell to where that trial would have put it
    (:meth:`CalibrationEnsemble.map_points`: the same camera ray at the same time, through the
    trial's rotation, laser plane and reference plane). The spread of a reading over the trials
@@ -73,6 +73,17 @@ SEGMENT_POINTS = 24
 MAX_SEGMENT_POINTS = 160
 #: positions tried along a ground line across the ring around the target
 LINE_SAMPLES = 2000
+#: how a trial rebuilds the stripes and draws their noise. "conservative" (the default): the
+#: stripes on the target's faces only, half of each plane's residual variance as one offset
+#: per frame and face and half per point (along the plane's normal) - it over-states the
+#: calibration's own error of heights 1.5-5 fold, which on scans without a validation record
+#: stands in for the method's own error (docs/uncertainty.md). "measured": as the
+#: calibration works and measured its stripes (the ground beside the target rebuilt and
+#: fitted with, the recorded segment_sd_mm / point_sd_mm / face_sd_mm drawn, points moved
+#: within their face): about right for the calibration alone (benchmarks/bench_calibration_mc.py)
+#: but, without a method component, it under-states heights (bench_uncertainty.py: 87 %)
+STRIPE_MODELS = ("conservative", "measured")
+DEFAULT_STRIPE_MODEL = "conservative"
 
 
 @dataclass(frozen=True)
@@ -238,7 +249,7 @@ def segment_points(fit) -> int:
     return int(np.clip(round(on_faces / (len(fit.frames) * faces)), 8, MAX_SEGMENT_POINTS))
 
 
-def _segments(cal, target: TargetModel, laser: str):
+def _segments(cal, target: TargetModel, laser: str, n_seg: int | None = None):
     """The rebuilt stripe of ``laser``: per (frame, face) ``(frame, time since t1 (s), points
     in the ideal frame of that frame's camera (M, 3))`` on the recorded plane."""
     fit = cal.planes[laser]
@@ -246,7 +257,7 @@ def _segments(cal, target: TargetModel, laser: str):
     n, d = fit.plane.normal, fit.plane.offset_mm
     r_o, t_o = cal.target_rotation, cal.target_translation_mm
     v_pose = cal.implied_speed_mm_s
-    n_seg = segment_points(fit)
+    n_seg = segment_points(fit) if n_seg is None else int(n_seg)
     out = []
     for fi, face in enumerate(target.top_faces()):
         poly = face.vertices_mm @ r_o.T + t_o  # rail frame
@@ -345,7 +356,7 @@ def stripe_sigmas(fit, rms_mm: float) -> tuple[float, float, float]:
 
 
 def _observations(cal, target, segs, rng, laser_rms: dict | None,
-                  ground: dict | None = None) -> StripeObservations:
+                  ground: dict | None = None, model: str = "measured") -> StripeObservations:
     """Stripe observations (camera rays) of the rebuilt stripes (``segs`` on the faces,
     ``ground`` beside the target), with stripe noise when ``laser_rms`` (each plane's
     recorded RMS) is given: :func:`stripe_sigmas`, one offset per frame and face (or ground
@@ -353,7 +364,9 @@ def _observations(cal, target, segs, rng, laser_rms: dict | None,
     moved within its face (the target's faces and its base plane share one normal) so that
     its distance from the laser plane changes by the drawn amount: the detector's error moves
     the ray along the surface it meets (moved along the laser plane's normal, the point's
-    ray met the face again only about 80 % as far from the plane)."""
+    ray met the face again only about 80 % as far from the plane). ``model`` "conservative"
+    (:data:`STRIPE_MODELS`): half of the plane's residual variance per frame and face and
+    half per point, moved along the plane's normal, no face offsets."""
     m = np.asarray(cal.target_rotation, float)[:, 2]  # the faces' normal (rail frame)
 
     def rays_of(laser, segments):
@@ -362,14 +375,20 @@ def _observations(cal, target, segs, rng, laser_rms: dict | None,
         along = (nrm - c * m) / max(1.0 - c * c, 1e-6)  # in the face; along . nrm = 1
         s_seg, s_pt, s_face = stripe_sigmas(cal.planes[laser], laser_rms[laser]) \
             if laser_rms else (0.0, 0.0, 0.0)
+        if model == "conservative":
+            along = nrm
+            s_seg = s_pt = laser_rms[laser] / math.sqrt(2) if laser_rms else 0.0
+            s_face = 0.0
         face_offset: dict[int, float] = {}  # one per face and trial (the ground has none)
         by_frame: dict[int, list] = {}
         for seg in segments:
             k, dt, pts = seg[:3]
             if laser_rms:
                 off = rng.normal(0.0, s_seg) + rng.normal(0.0, s_pt, (len(pts), 1))
-                if len(seg) > 3:
-                    off = off + face_offset.setdefault(seg[3], float(rng.normal(0.0, s_face)))
+                if len(seg) > 3 and s_face > 0:
+                    if seg[3] not in face_offset:
+                        face_offset[seg[3]] = float(rng.normal(0.0, s_face))
+                    off = off + face_offset[seg[3]]
                 pts = pts + along * off
             cam = pts @ cal.rotation  # rows R^T X: camera frame
             by_frame.setdefault(k, [dt, []])[1].append(cam / cam[:, 2:3])
@@ -383,7 +402,7 @@ def _observations(cal, target, segs, rng, laser_rms: dict | None,
 
 
 def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, refine: bool,
-           ground: dict | None = None):
+           ground: dict | None = None, model: str = "measured"):
     """One trial: ``(rotation, {laser: (normal, offset)}, ref coeffs, roll, tilt, implied)``:
     the product's pose solver on noisy picks, its tilt refinement and plane fits on the
     rebuilt, noisy stripes."""
@@ -395,7 +414,7 @@ def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, ref
                           for c, v in getattr(picks, key).items()}
         picks = Picks("", picks.t1, picks.t2, noisy["corners_t1"], noisy["corners_t2"])
     rms = {la: float(cal.planes[la].rms_mm) for la in LASERS} if sigma_px > 0 else None
-    obs = _observations(cal, target, segs, rng, rms, ground)
+    obs = _observations(cal, target, segs, rng, rms, ground, model)
     pose = solve_pose(cal.intrinsics, target, picks, cal.speed_mm_s, dt)
     if refine:
         fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
@@ -425,44 +444,55 @@ _CACHE: dict = {}
 _CACHE_LOCK = threading.Lock()
 
 
-def calibration_key(cal, target: TargetModel, sigma_px: float, n: int, seed: int) -> str:
+def calibration_key(cal, target: TargetModel, sigma_px: float, n: int, seed: int,
+                    model: str = "conservative") -> str:
     h = hashlib.sha256(json.dumps(cal.to_json() | {"software": "", "inputs": {}},
                                   sort_keys=True, default=str).encode())
     h.update(json.dumps({n: (f.vertices_mm.tolist()) for n, f in
                          zip(range(99), target.faces)}, sort_keys=True).encode())
     h.update(json.dumps(target.corner_array().tolist()).encode())
     h.update(f"{sigma_px:.6f}/{n}/{seed}".encode())
+    if model != "conservative":
+        h.update(model.encode())
     return h.hexdigest()
 
 
 def calibration_ensemble(cal, target: TargetModel, click_sigma_px: float | None = None,
                          n: int = DEFAULT_TRIALS, seed: int = DEFAULT_SEED,
-                         cancel=None) -> CalibrationEnsemble:
+                         cancel=None, stripe_model: str = DEFAULT_STRIPE_MODEL
+                         ) -> CalibrationEnsemble:
     """The Monte Carlo trials of ``cal`` (fitted with ``target``); ``click_sigma_px`` None:
     :func:`click_sigma`. Deterministic (``seed``) and cached. ``cancel``: a
-    :class:`~impress_gui.core.base.progress.CancelToken` checked before each trial."""
+    :class:`~impress_gui.core.base.progress.CancelToken` checked before each trial.
+    ``stripe_model``: how the stripes are rebuilt and made noisy (:data:`STRIPE_MODELS`)."""
+    if stripe_model not in STRIPE_MODELS:
+        raise ValueError(f"stripe_model must be one of {STRIPE_MODELS}")
     if click_sigma_px is None:
         sigma, source = click_sigma(cal)
     else:
         sigma, source = float(click_sigma_px), "given"
-    key = calibration_key(cal, target, sigma, n, seed)
+    key = calibration_key(cal, target, sigma, n, seed, stripe_model)
     with _CACHE_LOCK:
         hit = _CACHE.get(key)
     if hit is not None:
         return hit
     check_target(cal, target)
     picks = model_picks(cal, target)
-    segs = {laser: _segments(cal, target, laser) for laser in LASERS}
-    ground = {laser: _ground_segments(cal, target, laser) for laser in LASERS}
+    measured = stripe_model == "measured"
+    segs = {laser: _segments(cal, target, laser, None if measured else SEGMENT_POINTS)
+            for laser in LASERS}
+    ground = {laser: _ground_segments(cal, target, laser) for laser in LASERS} if measured \
+        else {}
     dt = (cal.t2 - cal.t1) / cal.fps
     rng = np.random.default_rng(seed)
     refine = all(f.method == "stripe-fit" for f in cal.planes.values())
-    results = [_trial(cal, target, picks, segs, rng, 0.0, dt, refine, ground)]
+    results = [_trial(cal, target, picks, segs, rng, 0.0, dt, refine, ground, stripe_model)]
     for _ in range(n):
         if cancel is not None:
             cancel.check()
         try:
-            results.append(_trial(cal, target, picks, segs, rng, sigma, dt, refine, ground))
+            results.append(_trial(cal, target, picks, segs, rng, sigma, dt, refine, ground,
+                                  stripe_model))
         except CalibrationError:  # a trial the solver refuses is left out (counted)
             continue
 
