@@ -24,11 +24,12 @@ counts and frames, the reprojection RMS of the picks - and the target model:
    target rebuilt too and fitted with the faces', the recorded ``segment_sd_mm``,
    ``point_sd_mm`` and ``face_sd_mm`` (:func:`~impress_gui.core.calibration.planes.
    stripe_noise`) drawn, each point moved within its face. Checked against real
-   recalibrations (``benchmarks/bench_calibration_mc.py``, docs/uncertainty.md): "measured"
-   states the calibration's own error about right (lengths) or somewhat low (heights: the
-   calibration's own bias with exact picks is not in it), "conservative" over-states heights
-   1.5-5 fold - which, on scans without a validation record, stands in for the method's own
-   error; the default stays "conservative" until a method component replaces it;
+   recalibrations (``benchmarks/bench_calibration_mc.py``, docs/uncertainty.md; 18
+   calibrations of random rigs, their whole errors against the truth): "conservative" RMS
+   error / SD 0.96 for heights, 1.04 for lengths; "measured" 1.34 and 1.12 - it draws the
+   recalibrations' spread right but not the calibration's own bias with exact picks, which
+   the default's larger offsets happen to cover; the default stays "conservative" until a
+   component carries that bias;
 4. a trial's parameters map any reconstructed cell to where that trial would have put it
    (:meth:`CalibrationEnsemble.map_points`: the same camera ray at the same time, through the
    trial's rotation, laser plane and reference plane). The spread of a reading over the trials
@@ -75,13 +76,12 @@ MAX_SEGMENT_POINTS = 160
 LINE_SAMPLES = 2000
 #: how a trial rebuilds the stripes and draws their noise. "conservative" (the default): the
 #: stripes on the target's faces only, half of each plane's residual variance as one offset
-#: per frame and face and half per point (along the plane's normal) - it over-states the
-#: calibration's own error of heights 1.5-5 fold, which on scans without a validation record
-#: stands in for the method's own error (docs/uncertainty.md). "measured": as the
-#: calibration works and measured its stripes (the ground beside the target rebuilt and
-#: fitted with, the recorded segment_sd_mm / point_sd_mm / face_sd_mm drawn, points moved
-#: within their face): about right for the calibration alone (benchmarks/bench_calibration_mc.py)
-#: but, without a method component, it under-states heights (bench_uncertainty.py: 87 %)
+#: per frame and face and half per point (along the plane's normal): about right against a
+#: calibration's whole error (benchmarks/bench_calibration_mc.py), over-stated against the
+#: spread of recalibrations of one video. "measured": as the calibration works and measured
+#: its stripes (the ground beside the target rebuilt and fitted with, the recorded
+#: segment_sd_mm / point_sd_mm / face_sd_mm drawn, points moved within their face): the
+#: spread right, the calibration's own bias not (heights' coverage 87 % in bench_uncertainty)
 STRIPE_MODELS = ("conservative", "measured")
 DEFAULT_STRIPE_MODEL = "conservative"
 
