@@ -238,10 +238,11 @@ def test_the_monte_carlo_rebuilds_the_stripe_on_the_ground_beside_the_target(fla
     # back, the ground joining the fit with about as many points as the calibration's had
     from impress_gui.core.calibration.planes import GROUND_MIN_POINTS, stripe_noise
 
-    segs = {n: CU._segments(cal, target, n) for n in CU.LASERS}
+    segs = {n: CU._segments(cal, target, n, None) for n in CU.LASERS}  # the fit's density
     ground = {n: CU._ground_segments(cal, target, n) for n in CU.LASERS}
     pose = (cal.target_rotation, cal.target_translation_mm)
-    obs = CU._observations(cal, target, segs, np.random.default_rng(0), None, ground)
+    obs = CU._observations(cal, target, segs, np.random.default_rng(0), None, ground,
+                           "measured")
     fits = obs.fit_planes(cal.rotation, pose, with_ground=True)
     for n in CU.LASERS:
         f, want = fits[n][0], cal.planes[n]
@@ -251,7 +252,7 @@ def test_the_monte_carlo_rebuilds_the_stripe_on_the_ground_beside_the_target(fla
         assert abs(f.plane.offset_mm - want.plane.offset_mm) < 1e-9
     # with noise: the stripes scatter about the plane as the calibration measured
     rms = {n: cal.planes[n].rms_mm for n in CU.LASERS}
-    obs = CU._observations(cal, target, segs, np.random.default_rng(1), rms, ground)
+    obs = CU._observations(cal, target, segs, np.random.default_rng(1), rms, ground, "measured")
     for n in CU.LASERS:
         pts, hts, _ = obs.points(n, cal.rotation, pose)
         seg, pt, _ = stripe_noise(cal.planes[n].plane, pts, hts)

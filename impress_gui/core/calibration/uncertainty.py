@@ -249,7 +249,7 @@ def segment_points(fit) -> int:
     return int(np.clip(round(on_faces / (len(fit.frames) * faces)), 8, MAX_SEGMENT_POINTS))
 
 
-def _segments(cal, target: TargetModel, laser: str, n_seg: int | None = None):
+def _segments(cal, target: TargetModel, laser: str, n_seg: int | None = SEGMENT_POINTS):
     """The rebuilt stripe of ``laser``: per (frame, face) ``(frame, time since t1 (s), points
     in the ideal frame of that frame's camera (M, 3))`` on the recorded plane."""
     fit = cal.planes[laser]
@@ -356,7 +356,8 @@ def stripe_sigmas(fit, rms_mm: float) -> tuple[float, float, float]:
 
 
 def _observations(cal, target, segs, rng, laser_rms: dict | None,
-                  ground: dict | None = None, model: str = "measured") -> StripeObservations:
+                  ground: dict | None = None, model: str = DEFAULT_STRIPE_MODEL
+                  ) -> StripeObservations:
     """Stripe observations (camera rays) of the rebuilt stripes (``segs`` on the faces,
     ``ground`` beside the target), with stripe noise when ``laser_rms`` (each plane's
     recorded RMS) is given: :func:`stripe_sigmas`, one offset per frame and face (or ground
@@ -369,7 +370,7 @@ def _observations(cal, target, segs, rng, laser_rms: dict | None,
     half per point, moved along the plane's normal, no face offsets."""
     m = np.asarray(cal.target_rotation, float)[:, 2]  # the faces' normal (rail frame)
 
-    def rays_of(laser, segments):
+    def rays_of(laser: str, segments: list) -> list:
         nrm = np.asarray(cal.planes[laser].plane.normal, float)
         c = float(nrm @ m)
         along = (nrm - c * m) / max(1.0 - c * c, 1e-6)  # in the face; along . nrm = 1
@@ -402,7 +403,7 @@ def _observations(cal, target, segs, rng, laser_rms: dict | None,
 
 
 def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, refine: bool,
-           ground: dict | None = None, model: str = "measured"):
+           ground: dict | None = None, model: str = DEFAULT_STRIPE_MODEL):
     """One trial: ``(rotation, {laser: (normal, offset)}, ref coeffs, roll, tilt, implied)``:
     the product's pose solver on noisy picks, its tilt refinement and plane fits on the
     rebuilt, noisy stripes."""

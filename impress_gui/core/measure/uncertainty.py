@@ -195,8 +195,8 @@ class UncertaintyContext:
             from impress_gui.core.calibration import uncertainty as CU
 
             try:
-                kw = {} if trials is None else {"n": trials}
-                ens = CU.calibration_ensemble(cal, target, **kw)
+                ens = CU.calibration_ensemble(
+                    cal, target, n=CU.DEFAULT_TRIALS if trials is None else int(trials))
             except Exception as exc:  # noqa: BLE001 - any failure leaves the component out
                 notes.append(f"calibration component not evaluated: {exc}")
         elif cal is None:
