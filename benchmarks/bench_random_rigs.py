@@ -64,8 +64,10 @@ def scan_for(seed: int, width: int, height: int) -> Path:
 
 
 def fill_mask(scan_dir: Path, spec, frames: tuple[int, int], rotation=None) -> np.ndarray:
-    """Cells either laser lit where the camera saw them (the simulator's exact stripe points),
-    in the reconstruction's frame (of the calibration whose camera -> frame rotation is
+    """Cells either laser lit where the camera saw them (the simulator's exact stripe points
+    whose image position lies within the outermost pixel centres: the renderer traces the
+    stripe a pixel or two beyond the picture's edges, ground no camera column shows), in the
+    reconstruction's frame (of the calibration whose camera -> frame rotation is
     ``rotation``), closed along the scan over one frame's travel."""
     import cv2
 
@@ -73,11 +75,14 @@ def fill_mask(scan_dir: Path, spec, frames: tuple[int, int], rotation=None) -> n
 
     truth = json.loads((scan_dir / "truth.json").read_text())
     renderer, _ = _make_renderer(SimConfig(**truth["config"]))
+    width, height = truth["image_size"]
     mask = np.zeros(spec.shape, np.uint8)
     for k in range(*frames):
         for laser in renderer.rig.lasers:
-            p = rail_to_reconstruction(scan_dir, renderer.laser_points(laser, k).points_rail_mm,
-                                       rotation)
+            tr = renderer.laser_points(laser, k)
+            u, v = tr.uv_px[:, 0], tr.uv_px[:, 1]
+            inside = (u >= 0) & (u <= width - 1) & (v >= 0) & (v <= height - 1)
+            p = rail_to_reconstruction(scan_dir, tr.points_rail_mm[inside], rotation)
             j = np.rint((p[:, 0] - spec.x0_mm) / spec.pixel_mm).astype(int)
             i = np.rint((p[:, 1] - spec.y0_mm) / spec.pixel_mm).astype(int)
             ok = (i >= 0) & (i < spec.shape[0]) & (j >= 0) & (j < spec.shape[1])

@@ -201,3 +201,66 @@ def test_short_runs():
     assert short_runs(f, 3).tolist() == [0, 0, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0]
     assert short_runs(f, 4).tolist() == [0, 0, 1, 1, 0, 0, 1, 1, 1, 1, 0, 0]
     assert not short_runs(np.zeros(5, bool), 3).any()
+
+
+def _mixed_stripe_frame(rows, colours, w=120, h=80, blobs=()):
+    """Grey soil with a stripe at ``rows`` whose added light per column is ``colours[c]``
+    (RGB; a red stripe's (160, 40, 30), a grey one the colour tests refuse, the green laser's
+    (40, 160, 30)); ``blobs``: grey single-column blobs ``(column, row)``."""
+    yy = np.arange(h)[:, None]
+    rgb = np.full((h, w, 3), (90.0, 85.0, 80.0))
+    prof = np.nan_to_num(np.exp(-0.5 * ((yy - rows[None, :]) / 1.2) ** 2))
+    rgb += prof[..., None] * np.asarray(colours, float)[None, :, :]
+    for c, r in blobs:
+        rgb[r - 1:r + 2, c] += 90.0
+    return Planes.from_rgb(np.clip(rgb, 0, 255).astype(np.uint8))
+
+
+def test_guided_pass_keeps_an_uncoloured_peak_where_the_stripe_continues():
+    """Where the stripe's continuing neighbours predict its row, a peak there that the colour
+    tests refuse (a stripe gone grey on bright soil: rig 13's green stripe at 1080p, 4 % of its
+    columns missed, a third of them with a clear peak at the predicted row) is kept; a grey
+    blob off the predicted row, a column with no light at that row and the other laser's
+    colour at that row are not."""
+    w, h = 120, 80
+    rows = 30.3 + 0.05 * np.arange(w)
+    red, grey, green = (160.0, 40.0, 30.0), (70.0, 70.0, 70.0), (40.0, 160.0, 30.0)
+    colours = np.tile(red, (w, 1))
+    colours[40:43] = grey  # refused by colour, continuing neighbours either side
+    colours[95:98] = green  # the other laser's light at the predicted row
+    rows = rows.copy()
+    rows[70:73] = np.nan  # no stripe light (a hidden spot) ...
+    blobs = [(71, 40)]  # ... and a grey blob 8 rows below the row predicted there
+    planes = _mixed_stripe_frame(rows, colours, w, h, blobs)
+    band = (np.zeros(w, np.int64), h)
+    other = (np.full(w, 200, np.int64), 40)  # known, and nowhere near
+    got = {}
+    for fn in (detect_planes, detect_planes_numpy):
+        plain = fn("red", planes, *band, StripeParams(guided=False), None, other).rows
+        assert np.isnan(plain[40:43]).all()  # the colour tests alone refuse the grey peak
+        g = fn("red", planes, *band, StripeParams(guided=True), None, other).rows
+        assert np.abs(g[40:43] - rows[40:43]).max() < 0.3  # kept, on the stripe
+        assert np.isnan(g[70:73]).all()  # nothing invented where there is no light
+        assert np.isnan(g[95:98]).all()  # the other laser's light is not taken
+        ok = np.isfinite(g)
+        assert np.abs(g[ok] - rows[ok]).max() < 0.3
+        got[fn] = g
+    a, b = got[detect_planes], got[detect_planes_numpy]
+    assert np.array_equal(np.isfinite(a), np.isfinite(b))
+    assert np.abs(a[np.isfinite(a)] - b[np.isfinite(b)]).max() < 1e-6
+
+
+def test_guided_pass_keeps_no_uncoloured_peak_without_the_white_core_rule():
+    """The position vouches for a peak only where the white-core rule's lean limit applies
+    (the combined method with the other band known): with ``white_core`` off nothing
+    changes."""
+    w, h = 120, 80
+    rows = 30.3 + 0.05 * np.arange(w)
+    colours = np.tile((160.0, 40.0, 30.0), (w, 1))
+    colours[40:43] = (70.0, 70.0, 70.0)
+    planes = _mixed_stripe_frame(rows, colours, w, h)
+    band, other = (np.zeros(w, np.int64), h), (np.full(w, 200, np.int64), 40)
+    for fn in (detect_planes, detect_planes_numpy):
+        g = fn("red", planes, *band, StripeParams(guided=True, white_core=False), None,
+               other).rows
+        assert np.isnan(g[40:43]).all()

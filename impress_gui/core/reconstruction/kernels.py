@@ -231,12 +231,17 @@ def _candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, first, gap, step):
 
 
 @_jit
-def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, sig, strict):
+def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, sig, strict,
+             vouched):
     """Steps 2-4 of :func:`detect_stripe` for column ``c`` at candidate row ``coarse``:
     ``(row, strength, why)`` - the refined centre (NaN when a test refuses the peak), its
     strength, and why it was refused: 0 kept, or refused by colour outside the other laser's
     band; 1 refused in that band; 2 not a peak (too weak, at the band's edge, an edge, too
-    wide). ``strict``: the lean test of the other laser's band applies everywhere."""
+    wide). ``strict``: the lean test of the other laser's band applies everywhere.
+    ``vouched``: the row was predicted by the stripe's continuing neighbours (the guided
+    pass): a peak the colour tests refuse is kept (why 5) when its halo does not lean to the
+    other laser's colour by the white-core rule's limit or more (inside the other laser's
+    band the lean test above has already required its light to lean to this laser's)."""
     _, band_height, other_start, other_height = band
     sign, ch, o1, o2 = laser
     min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, _, bloom_level, \
@@ -343,6 +348,8 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
         if _saturated_core(y, cb, cr, sh, c, cc, rr, k, ch, bloom_level):
             # kept by this rule alone (why 3): confirmed by _confirm_white or dropped
             return (_window_refine(rr, sig, n, top, centre) if refine else centre), top, 3
+    if not ok and vouched and white_lean < np.inf and lean / max(nh, 1) > -white_lean:
+        return (_window_refine(rr, sig, n, top, centre) if refine else centre), top, 5
     if not ok:
         return np.nan, top, 1 if inside else 0
     return (_window_refine(rr, sig, n, top, centre) if refine else centre), top, 0
@@ -440,11 +447,11 @@ def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, streng
         if coarse < b0 or coarse >= b0 + band_height:
             continue
         row, top, why = _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv,
-                                 rr, sig, False)
+                                 rr, sig, False, True)
         if not math.isnan(row) and abs(row - p) <= GUIDE_DEV:
             rows[c] = row
             strength[c] = top
-            white[c] = why >= 3
+            white[c] = why == 3 or why == 4
             weak[c] = False
 
 
@@ -600,7 +607,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
             continue  # no row of the column's band was searched
         coarse = r0 + 2 * (4095 - (best[c] & 4095))
         row, top, why = _peak_at(y, cb, cr, sh, c, coarse, band_start[c], band, laser, peak,
-                                 colour, hsv, rr, sig, False)
+                                 colour, hsv, rr, sig, False, False)
         w4 = why == 4
         if math.isnan(row) and why and retry & 1:
             if why == 1:
@@ -617,7 +624,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
                                     coarse, k, RIDGE_STEP)
             if second >= 0:
                 row, top, why = _peak_at(y, cb, cr, sh, c, second, band_start[c], band, laser,
-                                         peak, colour, hsv, rr, sig, why == 2)
+                                         peak, colour, hsv, rr, sig, why == 2, False)
         white[c] = False
         weak[c] = False
         if not math.isnan(row):
@@ -639,7 +646,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
                                     first[c], k, RIDGE_STEP)
                 if second >= 0:
                     row, top, _ = _peak_at(y, cb, cr, sh, c, second, band_start[c], band,
-                                           laser, peak, colour, hsv, rr, sig, True)
+                                           laser, peak, colour, hsv, rr, sig, True, False)
                     if not math.isnan(row):
                         rows_out[c] = row
                         strength_out[c] = top

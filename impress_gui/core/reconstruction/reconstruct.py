@@ -829,7 +829,7 @@ def _band_rays(cal: SceneCalibration, band: tuple[np.ndarray, int], height: int)
 CONNECT_PX = 2.0
 #: the longest run of a stripe's columns missed in one frame (with the columns either side
 #: found) that the heightmap is filled across, from the frames before and after
-BRIDGE_COLUMNS = 3
+BRIDGE_COLUMNS = 8
 #: a stripe piece at least this share of the image width long sets the frame's typical strength
 #: (see :func:`~impress_gui.core.reconstruction.kernels.prune_weak_runs`); shorter pieces must
 #: be at least ``ProcessParams.weak_run_ratio`` as strong
