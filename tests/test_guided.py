@@ -230,7 +230,9 @@ def test_guided_pass_keeps_an_uncoloured_peak_where_the_stripe_continues():
     colours[95:98] = green  # the other laser's light at the predicted row
     rows = rows.copy()
     rows[70:73] = np.nan  # no stripe light (a hidden spot) ...
-    blobs = [(71, 40)]  # ... and a grey blob 8 rows below the row predicted there
+    # ... and a grey blob 3 rows below the row predicted there (33.85): within the search
+    # window, so found as a peak, and refused for lying more than GUIDE_DEV off the prediction
+    blobs = [(71, 37)]
     planes = _mixed_stripe_frame(rows, colours, w, h, blobs)
     band = (np.zeros(w, np.int64), h)
     other = (np.full(w, 200, np.int64), 40)  # known, and nowhere near
@@ -264,3 +266,46 @@ def test_guided_pass_keeps_no_uncoloured_peak_without_the_white_core_rule():
         g = fn("red", planes, *band, StripeParams(guided=True, white_core=False), None,
                other).rows
         assert np.isnan(g[40:43]).all()
+
+
+def _detect_both(planes, band, other, **kw):
+    return {fn: fn("red", planes, *band, StripeParams(**kw), None, other).rows
+            for fn in (detect_planes, detect_planes_numpy)}
+
+
+def test_a_white_line_is_not_vouched_for():
+    """A neutral white line (a highlight), saturated in most columns and grey in every fourth:
+    the white-core rule's chain check drops it, and the position does not vouch for its grey
+    columns (a vouched peak is confirmed like a white core and confirms none)."""
+    w, h = 120, 80
+    rows = 30.3 + 0.05 * np.arange(w)
+    colours = np.tile((250.0, 250.0, 250.0), (w, 1))
+    colours[::4] = (70.0, 70.0, 70.0)
+    planes = _mixed_stripe_frame(rows, colours, w, h)
+    band, other = (np.zeros(w, np.int64), h), (np.full(w, 200, np.int64), 40)
+    for g in _detect_both(planes, band, other, guided=True).values():
+        assert np.isfinite(g).sum() == 0
+
+
+def test_weak_and_other_band_peaks_are_not_vouched_for():
+    """A faint grey peak (below min_peak) at the predicted row is not kept; inside the other
+    laser's band a grey peak is not kept, a slightly red one is."""
+    w, h = 120, 80
+    rows = 30.3 + 0.05 * np.arange(w)
+    colours = np.tile((160.0, 40.0, 30.0), (w, 1))
+    colours[40:43] = (18.0, 18.0, 18.0)  # about 18 grey levels: weak
+    planes = _mixed_stripe_frame(rows, colours, w, h)
+    band, far = (np.zeros(w, np.int64), h), (np.full(w, 200, np.int64), 40)
+    for g in _detect_both(planes, band, far, guided=True).values():
+        assert np.isnan(g[40:43]).all()
+        assert np.isfinite(g[:40]).all() and np.isfinite(g[43:]).all()
+    colours[40:43] = (70.0, 70.0, 70.0)
+    colours[80:83] = (76.0, 62.0, 62.0)  # a faint red tint, below the tint test's 12
+    planes = _mixed_stripe_frame(rows, colours, w, h)
+    everywhere = (np.zeros(w, np.int64), h)  # the other laser's band covers the frame
+    got = _detect_both(planes, band, everywhere, guided=True)
+    for g in got.values():
+        assert np.isnan(g[40:43]).all()  # grey: leans to neither colour there
+        assert np.abs(g[80:83] - rows[80:83]).max() < 0.3
+    a, b = got.values()
+    assert np.array_equal(np.isfinite(a), np.isfinite(b))

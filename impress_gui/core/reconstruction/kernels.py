@@ -241,7 +241,8 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
     ``vouched``: the row was predicted by the stripe's continuing neighbours (the guided
     pass): a peak the colour tests refuse is kept (why 5) when its halo does not lean to the
     other laser's colour by the white-core rule's limit or more (inside the other laser's
-    band the lean test above has already required its light to lean to this laser's)."""
+    band the lean test above, or the headroom test, has already passed it); like a white
+    core, it is kept only where its chain holds colour-accepted columns (_confirm_white)."""
     _, band_height, other_start, other_height = band
     sign, ch, o1, o2 = laser
     min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, _, bloom_level, \
@@ -451,27 +452,32 @@ def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, streng
         if not math.isnan(row) and abs(row - p) <= GUIDE_DEV:
             rows[c] = row
             strength[c] = top
-            white[c] = why == 3 or why == 4
+            # 1: kept by the white-core rule alone; 2: vouched for by its position (why 5),
+            # confirmed like a white core by its chain's colour-accepted columns, and counted
+            # neither as one of those nor against them (_confirm_white): a white line whose
+            # unsaturated columns the position vouches for is still a white line
+            white[c] = 2 if why == 5 else (1 if why >= 3 else 0)
             weak[c] = False
 
 
 @_jit
 def _drop_white(rows, strength, white, start, last):
     """For :func:`_confirm_white`: in the chain of found columns ``start..last``, drop each
-    white column with less than ``WHITE_SHARE`` of the found columns within ``WHITE_HALF``
-    columns of it (in the chain) accepted by the colour tests."""
+    white or vouched column (``white`` 1 or 2) with less than ``WHITE_SHARE`` of the found
+    columns within ``WHITE_HALF`` columns of it (in the chain; vouched ones not counted)
+    accepted by the colour tests."""
     keep = np.empty(last - start + 1, np.bool_)
     for j in range(start, last + 1):
         keep[j - start] = True
-        if not white[j]:
+        if white[j] == 0:
             continue
         found = 0
         coloured = 0
         for i in range(max(start, j - WHITE_HALF), min(last, j + WHITE_HALF) + 1):
-            if not math.isnan(rows[i]):
+            if not math.isnan(rows[i]) and white[i] != 2:
                 found += 1
-                coloured += not white[i]
-        keep[j - start] = coloured >= WHITE_SHARE * found
+                coloured += white[i] == 0
+        keep[j - start] = found > 0 and coloured >= WHITE_SHARE * found
     for j in range(start, last + 1):
         if not keep[j - start]:
             rows[j] = np.nan
@@ -506,7 +512,7 @@ def _confirm_white(rows, strength, white):
             start = c
             coloured = 0
             total = 0
-        coloured += not white[c]
+        coloured += white[c] == 0
         total += 1
         last = c
 
@@ -567,7 +573,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
     # which compiles to vector instructions, picks the first row of equal maxima
     # rows inside every column's band skip the per-column band test
     best = np.full(w, np.int32(-(1 << 30)), np.int32)
-    white = np.zeros(w, np.bool_)  # kept by the white-core rule alone
+    white = np.zeros(w, np.uint8)  # 1: kept by the white-core rule alone; 2: vouched for
     weak = np.zeros(w, np.bool_)  # ... from a weak first candidate
     first = np.zeros(w, np.int64)  # the first candidate's row
     crx = np.empty(w, np.int32)
@@ -625,12 +631,12 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
             if second >= 0:
                 row, top, why = _peak_at(y, cb, cr, sh, c, second, band_start[c], band, laser,
                                          peak, colour, hsv, rr, sig, why == 2, False)
-        white[c] = False
+        white[c] = 0
         weak[c] = False
         if not math.isnan(row):
             rows_out[c] = row
             strength_out[c] = top
-            white[c] = why >= 3
+            white[c] = 1 if why >= 3 else 0
             weak[c] = w4  # (from the first candidate: a retried column has no row then)
             first[c] = coarse
     if retry & 2:

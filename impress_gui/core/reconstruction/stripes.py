@@ -331,7 +331,8 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         column): the lean test of the other laser's band applies everywhere. ``vouched`` (per
         column): rows predicted by the stripe's continuing neighbours (the guided pass), where
         a peak the colour tests refuse is kept (why 5) if its halo does not lean to the other
-        laser's colour by the white-core rule's limit or more."""
+        laser's colour by the white-core rule's limit or more; like a white core it must then
+        be confirmed by its chain (confirmed_by_colour)."""
         # fine: the brightest luma row within +-2 rows of the coarse candidate
         fine_offs = np.arange(-2, 3)
         fr = np.clip(coarse[None, :] + fine_offs[:, None], 0, h - 1)
@@ -453,6 +454,7 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
     ok, centre, top, why = attempt(coarse)
     white = ok & (why >= 3)  # kept by the white-core rule alone
     weak = ok & (why == 4)  # ... from a weak first candidate
+    vouched_cols = np.zeros(w, bool)  # kept by the guided pass for their position alone
     why = np.where(searched & ~ok, why, 0)
     retry = params.second_candidate and other is not None
     none = np.iinfo(np.int32).min
@@ -504,10 +506,11 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
                 take = want & ok3 & (np.abs(centre3 - pred) <= _guide()["dev"])
             out_rows = np.where(take, centre3, out_rows)
             strength = np.where(take, top3, strength).astype(np.float32)
-            white = np.where(take, (why3 == 3) | (why3 == 4), white)
+            white = np.where(take, why3 >= 3, white)  # vouched (5): confirmed like a white core
+            vouched_cols = take & (why3 == 5)
             weak &= ~take
     if white.any():
-        drop = white & ~confirmed_by_colour(out_rows, white)
+        drop = white & ~confirmed_by_colour(out_rows, white, vouched_cols)
         out_rows = np.where(drop, np.nan, out_rows)
         strength = np.where(drop, 0, strength).astype(np.float32)
         redo = drop & weak
@@ -524,7 +527,8 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
     return StripeResult(out_rows, strength)
 
 
-def confirmed_by_colour(rows: np.ndarray, white: np.ndarray) -> np.ndarray:
+def confirmed_by_colour(rows: np.ndarray, white: np.ndarray,
+                        vouched: np.ndarray | None = None) -> np.ndarray:
     """Per column: whether, on its chain of found columns and within ``kernels.WHITE_HALF``
     columns of it, at least ``kernels.WHITE_SHARE`` of the found columns were accepted by the
     colour tests (``~white``). A chain continues
@@ -534,7 +538,9 @@ def confirmed_by_colour(rows: np.ndarray, white: np.ndarray) -> np.ndarray:
     white line (a highlight, a white edge) has no or few coloured columns on its chain (a
     neutral white line on yellow soil: 4 % of its columns pass the blooming test as green;
     random rig 13's green stripe at 1080p: 40-57 % pass the colour tests). The numpy reference
-    of the compiled ``kernels._confirm_white``."""
+    of the compiled ``kernels._confirm_white``. ``vouched`` columns (the guided pass's peaks
+    kept for their position alone, also ``white``) link chains but count neither as found nor
+    as accepted."""
     g = _guide()
     link, reach = g["link"], g["reach"]
     cols = np.flatnonzero(np.isfinite(rows))
@@ -549,8 +555,9 @@ def confirmed_by_colour(rows: np.ndarray, white: np.ndarray) -> np.ndarray:
     half, share = kernels().WHITE_HALF, kernels().WHITE_SHARE
     w = len(rows)
     found = np.isfinite(rows)
-    pf = np.concatenate([[0], np.cumsum(found)])
-    pc = np.concatenate([[0], np.cumsum(found & ~white)])
+    counted = found if vouched is None else found & ~vouched
+    pf = np.concatenate([[0], np.cumsum(counted)])
+    pc = np.concatenate([[0], np.cumsum(counted & ~white)])
     # each found column's chain runs from its first to its last column
     breaks = np.flatnonzero(~cont)
     first = cols[np.concatenate([[0], breaks + 1])]
@@ -558,7 +565,8 @@ def confirmed_by_colour(rows: np.ndarray, white: np.ndarray) -> np.ndarray:
     lo = np.maximum(first[chain], cols - half)
     hi = np.minimum(last[chain], cols + half) + 1
     hi = np.minimum(hi, w)
-    out[cols] = (pc[hi] - pc[lo]) >= share * (pf[hi] - pf[lo])
+    n = pf[hi] - pf[lo]
+    out[cols] = (n > 0) & ((pc[hi] - pc[lo]) >= share * n)
     return out
 
 
