@@ -49,6 +49,17 @@ WHITE_HALF = 48  # columns either side (on the chain) over which that share is c
 # ... and may be weaker than min_peak, down to this share of it (a stripe clipped white on the
 # brightest soil: 10-25 grey levels above it; random rig 13 at 1080p)
 WEAK_SHARE = 0.4
+# a faint stripe: a red laser on a light surface adds mostly red, which moves the luma by a
+# third of it (a consumer camera's photograph: pinkish on white, 10-20 grey levels of luma
+# where the red channel rises 20-40); a peak weaker than min_peak, down to FAINT_SHARE of it,
+# is a peak when the laser's channel rises by at least FAINT_RISE x min_peak above the
+# window's ends and the light added is of the laser's colour more than the surface is: each
+# other channel's rise over the laser channel's at most FAINT_TINT x the surface's own ratio
+# of those channels (a brighter speck of red soil adds light of the soil's colour)
+# (``_faint``; ``stripes`` reads these from here)
+FAINT_SHARE = 0.3
+FAINT_RISE = 0.6
+FAINT_TINT = 0.8
 
 HSV_SHIFT = 12
 
@@ -191,6 +202,38 @@ def _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch):
 
 
 @_jit
+def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak):
+    """Whether column ``c``'s window holds light of this laser's colour that the luma hardly
+    shows (``FAINT_RISE``, ``FAINT_TINT``): on the central three rows the laser's channel
+    ``ch`` rises at least ``FAINT_RISE * min_peak`` above the mean of the window's end rows
+    (the surface), and on that row each other channel (``o1``, ``o2``) rises by at most
+    ``FAINT_TINT`` x the laser channel's rise x the surface's ratio of that channel to the
+    laser's."""
+    a = _rgb(float(y[rr[0], c]), float(cb[rr[0] >> sh, cc]), float(cr[rr[0] >> sh, cc]))
+    b = _rgb(float(y[rr[n - 1], c]), float(cb[rr[n - 1] >> sh, cc]),
+             float(cr[rr[n - 1] >> sh, cc]))
+    best = -1e9
+    at = 0
+    for j in range(k - 1, k + 2):
+        r = rr[j]
+        px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+        d = px[ch] - 0.5 * (a[ch] + b[ch])
+        if d > best:
+            best = d
+            at = j
+    if not best >= FAINT_RISE * min_peak:
+        return False
+    r = rr[at]
+    px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+    bc = max(0.5 * (a[ch] + b[ch]), 1.0)
+    for o in (o1, o2):
+        bo = 0.5 * (a[o] + b[o])
+        if (px[o] - bo) * bc > FAINT_TINT * best * bo:
+            return False
+    return True
+
+
+@_jit
 def _score(y, cr, sh, c, r, sign):
     """The first pass's score of row ``r`` of column ``c``: its luma biased towards the
     laser's chroma."""
@@ -245,7 +288,7 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
     core, it is kept only where its chain holds colour-accepted columns (_confirm_white)."""
     _, band_height, other_start, other_height = band
     sign, ch, o1, o2 = laser
-    min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, _, bloom_level, \
+    min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, retry, bloom_level, \
         bloom_lean, light_lean, white_lean = peak
     use_hue, hue_lo, hue_hi, min_sat, min_value, use_tint, min_tint, lut, lut_margin = colour
     sdiv, hdiv = hsv
@@ -269,9 +312,15 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
     ob0 = other_start[c]
     inside = strict or (pk + k >= ob0 and pk - k < ob0 + other_height)
     pi = pk - b0
+    # a faint stripe (FAINT_SHARE): its light of this laser's colour makes it a peak
+    faint = ((retry & 4) != 0 and top < min_peak and top >= FAINT_SHARE * min_peak and wsum > 0
+             and pi >= k and pi < band_height - k
+             and _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak))
     # a weaker peak is tested further only for the white-core rule (WEAK_SHARE)
-    weak = top < min_peak and white_lean < np.inf and not inside and top >= WEAK_SHARE * min_peak
-    if not ((top >= min_peak or weak) and wsum > 0 and pi >= k and pi < band_height - k):
+    weak = (top < min_peak and white_lean < np.inf and not inside
+            and top >= WEAK_SHARE * min_peak and not faint)
+    if not ((top >= min_peak or weak or faint) and wsum > 0 and pi >= k
+            and pi < band_height - k):
         return np.nan, top, 2  # too weak (or at the band's edge)
     if not (sig[0] < 0.7 * top and sig[n - 1] < 0.7 * top):
         return np.nan, top, 2  # an edge, not a peak
@@ -541,7 +590,8 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
       whose lean to this laser's colour is at most ``-max_wrong_lean`` is refused in the
       other band unless the headroom test keeps it: ``stripes._wrong_lean``), whether the
       centre is refined (``stripes.SUBPIXEL``: 1 ``window``, 0 ``half-max``), ``retry``: bit 1
-      a refused candidate gets a second one, bit 2 the guided pass (:func:`_guided`) runs; the blooming test's level and lean
+      a refused candidate gets a second one, bit 2 the guided pass (:func:`_guided`) runs,
+      bit 4 a faint peak of this laser's colour counts (:func:`_faint`); the blooming test's level and lean
       (``stripes.BLOOM_LEVEL``, ``BLOOM_LEAN``; inf: no test), and whether that lean is the
       lean of all the stripe's light rather than of its halo, the last four only when the
       other laser's band is known; ``white_lean``: outside the other laser's band a peak the

@@ -93,6 +93,14 @@ class StripeParams:
     # faint halo is tinted; there the band tells the lasers apart (issue 18, random rig 13 at
     # 1920x1080: 43 % of the green stripe's columns refused by colour alone)
     white_core: bool = True
+    # a peak weaker than min_peak in the luma (down to kernels.FAINT_SHARE of it) is a peak
+    # when its light is of this laser's colour: the laser's channel rises by at least
+    # kernels.FAINT_RISE x min_peak and the other channels, against the surface's own colour,
+    # clearly less (kernels.FAINT_TINT; faint_light). A red laser on a light surface adds
+    # mostly red, a third of which shows in the luma: on photographs of a pinkish stripe on a
+    # white object the luma rose 10-20 grey levels and the stripe was found in none of the
+    # columns where plain background subtraction finds it (issue 18, real laser light)
+    faint: bool = True
     max_width_px: int = 20
     # the centre's sub-pixel estimate: "window" (the centre of mass above half maximum refined
     # by window_refine: less locked to the pixel grid; docs/accuracy.md) or "half-max" (that
@@ -254,7 +262,7 @@ class StripeDetector:
              _wrong_lean(params, other), float(params.min_headroom_lean),
              int(params.subpixel == "window"),
              int(params.second_candidate and other is not None)
-             | 2 * int(params.guided and other is not None),
+             | 2 * int(params.guided and other is not None) | 4 * int(params.faint),
              float(BLOOM_LEVEL), _bloom_lean(params, other), other is not None,
              _white_lean(params, other)),
             (method in ("hue", "combined"), np.array([a for a, _ in ranges], np.int64),
@@ -364,10 +372,16 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         # only for the white-core rule, away from the other laser's band: a stripe clipped
         # white on the brightest soil stands only 10-25 grey levels above it
         inside0 = (peak + k >= o_start) & (peak - k < o_start + o_height) | strict
+        # a faint stripe (kernels.FAINT_SHARE): its light of this laser's colour makes it a peak
+        placed = (wsum > 0) & (peak_i >= k) & (peak_i < band_height - k)
+        faint = ((top < params.min_peak) & (top >= _guide()["faint"][0] * params.min_peak)
+                 & placed & params.faint)
+        if faint.any():
+            faint[faint] = faint_light(name, planes, rr[:, faint], cols[faint],
+                                       params.min_peak)
         weak = ((top < params.min_peak) & (_white_lean(params, other) < np.inf) & ~inside0
-                & (top >= _guide()["weak"] * params.min_peak))
-        ok = (((top >= params.min_peak) | weak) & (wsum > 0) & (peak_i >= k)
-              & (peak_i < band_height - k))
+                & (top >= _guide()["weak"] * params.min_peak) & ~faint)
+        ok = ((top >= params.min_peak) | weak | faint) & placed
         ok &= width <= params.max_width_px
         ok &= (sig[0] < 0.7 * top) & (sig[-1] < 0.7 * top)
         peakish = ok.copy()
@@ -576,7 +590,43 @@ def _guide() -> dict:
 
     k = kernels()
     return {"link": k.GUIDE_LINK, "reach": k.GUIDE_REACH, "dev": k.GUIDE_DEV,
-            "weak": k.WEAK_SHARE}
+            "weak": k.WEAK_SHARE, "faint": (k.FAINT_SHARE, k.FAINT_RISE, k.FAINT_TINT)}
+
+
+def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
+                min_peak: float) -> np.ndarray:
+    """Whether each column's window of rows ``rr`` (``(2k+1, N)``) holds light of laser
+    ``name``'s colour that the luma hardly shows: on the central three rows the laser's
+    channel rises at least ``kernels.FAINT_RISE * min_peak`` above the mean of the window's
+    end rows (the surface), and on that row each other channel rises by at most
+    ``kernels.FAINT_TINT`` x the laser channel's rise x the surface's ratio of that channel to
+    the laser's (a brighter speck of red soil adds light of the soil's own colour). A red laser
+    on a light surface adds mostly red, which moves the luma by a third of it: a consumer
+    camera's photograph of one, pinkish on white, shows 10-20 grey levels of luma where the red
+    channel rises by 20-40. The numpy reference of the compiled ``kernels._faint``."""
+    _, rise, tint = _guide()["faint"]
+    s = planes.chroma_step
+    n = rr.shape[0]
+    k = n // 2
+    c, (o1, o2) = _CH[name], _OTHERS[name]
+
+    def rgb(rows):
+        y = (planes.y[rows, cols].astype(np.float64) - 16.0) * 1.164
+        cb = planes.cb[rows // s, cols // s].astype(np.float64) - 128.0
+        cr = planes.cr[rows // s, cols // s].astype(np.float64) - 128.0
+        return np.clip(np.stack([y + 1.596 * cr, y - 0.392 * cb - 0.813 * cr,
+                                 y + 2.017 * cb], axis=-1), 0.0, 255.0)
+
+    bg = 0.5 * (rgb(rr[0]) + rgb(rr[n - 1]))  # (N, 3)
+    mid = rgb(rr[k - 1:k + 2]) - bg[None]  # (3, N, 3)
+    j = mid[..., c].argmax(axis=0)
+    at = mid[j, np.arange(len(j))]  # (N, 3)
+    best = at[:, c]
+    bc = np.maximum(bg[:, c], 1.0)
+    ok = best >= rise * min_peak
+    for o in (o1, o2):
+        ok &= ~(at[:, o] * bc > tint * best * bg[:, o])
+    return ok
 
 
 def guided_prediction(rows: np.ndarray) -> np.ndarray:
