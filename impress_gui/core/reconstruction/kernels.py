@@ -386,6 +386,12 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
                 ok = True
         if ok:
             break
+    if not ok and (retry & 4) != 0 and (faint or _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1,
+                                                        o2, min_peak)):
+        # the light the peak adds is of this laser's colour, against the surface's (_faint):
+        # on a tinted light surface the laser's tint over the other channels can be under
+        # min_tint and its saturation under min_sat
+        ok = True
     if not ok and bloom_lean < np.inf and lean / max(nh, 1) > -max_wrong_lean:
         # (with the band known, -max_wrong_lean is the halo's least lean to this laser's
         # colour: a white line on yellow soil leans to neither and is refused)

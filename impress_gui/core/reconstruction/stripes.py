@@ -429,6 +429,15 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         if method in ("lut", "combined") and lut is not None:
             colour |= lut.mask(name, np.clip(rgb + 0.5, 0, 255).astype(np.uint8), params.lut_margin)
         colour = colour.any(axis=0)
+        if params.faint:
+            # the light the peak adds is of this laser's colour, against the surface's
+            # (faint_light): on a tinted light surface the laser's tint over the other
+            # channels can be under min_tint and its saturation under min_sat
+            need = ok & ~colour & ~faint
+            if need.any():
+                colour[need] = faint_light(name, planes, rr[:, need], cols[need],
+                                           params.min_peak)
+            colour |= ok & faint
         if _bloom_lean(params, other) < np.inf and (ok & ~colour).any():
             # the blooming test (blooming_lean) where the colour tests refuse
             c, (o1, o2) = _CH[name], _OTHERS[name]
