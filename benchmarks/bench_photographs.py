@@ -17,8 +17,8 @@ background subtraction finds the stripe (the laser's channel minus its 31 x 31 m
 at least 12 grey levels within 3 rows of the stripe), the share the detector finds on the
 stripe (within 1.5 px of its row), with the faint rule (``StripeParams.faint``, the default)
 and without it; and the columns it finds off the stripe (more than 3 px). Then control
-photographs without a laser (red, orange, white and grey objects, coarse texture): the columns
-found at all.
+photographs without a laser (red, orange, white and grey objects, coarse texture; images of
+independent pixel noise, dark and light): the columns found at all.
 
 Usage: .venv/bin/python benchmarks/bench_photographs.py [--draws 40] [--seed 0]
 """
@@ -107,6 +107,15 @@ def draw(rng: np.random.Generator) -> dict:
             "seed": int(rng.integers(0, 2**31))}
 
 
+def _found(img: np.ndarray) -> str:
+    """Columns found per laser, with the faint rule and without it."""
+    out = []
+    for laser in ("red", "green"):
+        n = [int(np.isfinite(detected(laser, img, faint=f)).sum()) for f in (True, False)]
+        out.append(f"{laser} {n[0]} (without the faint rule {n[1]})")
+    return ", ".join(out) + f" of {img.shape[1]}"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--draws", type=int, default=40, help="photographs with a laser")
@@ -145,9 +154,11 @@ def main() -> None:
                "white": (0.85, 0.85, 0.85), "grey": (0.4, 0.4, 0.4)}
     for name, albedo in control.items():
         img, _ = photograph(None, 0.0, albedo, texture=0.12, seed=args.seed + 7)
-        n = {laser: int(np.isfinite(detected(laser, img)).sum()) for laser in ("red", "green")}
-        print(f"no laser, {name} object (coarse texture): columns found red {n['red']}, "
-              f"green {n['green']} of {img.shape[1]}")
+        print(f"no laser, {name} object (coarse texture): columns found {_found(img)}")
+    noise = np.random.default_rng(args.seed + 11)
+    for lo, hi in ((40, 90), (150, 230)):
+        img = noise.integers(lo, hi, (H, W, 3), np.uint8)
+        print(f"no laser, independent pixel noise {lo}-{hi}: columns found {_found(img)}")
 
 
 if __name__ == "__main__":

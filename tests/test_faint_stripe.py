@@ -102,3 +102,13 @@ def test_a_faint_green_stripe_is_not_taken_for_red(fn):
     assert not (np.abs(red - row) <= 3).any()
     green = detect(fn, "green", img)
     assert (np.abs(green - row) <= 1.5).mean() > 0.9
+
+
+@pytest.mark.parametrize("fn", DETECTORS, ids=["kernel", "numpy"])
+def test_dark_pixel_noise_is_no_faint_stripe(fn):
+    # independent noise in every pixel and channel (40-90): a pixel's red over its row's
+    # neighbours is no light of the laser's colour (the surface is four rows, the rise the
+    # mean of three, and the channel must reach min_value)
+    img = np.random.default_rng(0).integers(40, 90, (SIZE[1], SIZE[0], 3), np.uint8)
+    for laser in ("red", "green"):
+        assert np.isfinite(detect(fn, laser, img)).sum() == 0

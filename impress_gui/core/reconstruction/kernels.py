@@ -52,10 +52,11 @@ WEAK_SHARE = 0.4
 # a faint stripe: a red laser on a light surface adds mostly red, which moves the luma by a
 # third of it (a consumer camera's photograph: pinkish on white, 10-20 grey levels of luma
 # where the red channel rises 20-40); a peak weaker than min_peak, down to FAINT_SHARE of it,
-# is a peak when the laser's channel rises by at least FAINT_RISE x min_peak above the
-# window's ends and the light added is of the laser's colour more than the surface is: each
-# other channel's rise over the laser channel's at most FAINT_TINT x the surface's own ratio
-# of those channels (a brighter speck of red soil adds light of the soil's colour)
+# is a peak when the laser's channel rises on average by at least FAINT_RISE x min_peak over
+# the central three rows above the window's ends and the light added is of the laser's colour
+# more than the surface is: each other channel's rise over the laser channel's at most
+# FAINT_TINT x the surface's own ratio of those channels (a brighter speck of red soil adds
+# light of the soil's colour)
 # (``_faint``; ``stripes`` reads these from here)
 FAINT_SHARE = 0.3
 FAINT_RISE = 0.6
@@ -202,33 +203,41 @@ def _headroom_lean(y, cb, cr, sh, c, cc, rr, n, ch):
 
 
 @_jit
-def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak):
-    """Whether column ``c``'s window holds light of this laser's colour that the luma hardly
-    shows (``FAINT_RISE``, ``FAINT_TINT``): on the central three rows the laser's channel
-    ``ch`` rises at least ``FAINT_RISE * min_peak`` above the mean of the window's end rows
-    (the surface), and on that row each other channel (``o1``, ``o2``) rises by at most
-    ``FAINT_TINT`` x the laser channel's rise x the surface's ratio of that channel to the
-    laser's."""
-    a = _rgb(float(y[rr[0], c]), float(cb[rr[0] >> sh, cc]), float(cr[rr[0] >> sh, cc]))
-    b = _rgb(float(y[rr[n - 1], c]), float(cb[rr[n - 1] >> sh, cc]),
-             float(cr[rr[n - 1] >> sh, cc]))
-    best = -1e9
-    at = 0
+def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
+    """Whether column ``c``'s window holds light of this laser's colour against the surface it
+    falls on (``FAINT_RISE``, ``FAINT_TINT``): over the central three rows the laser's channel
+    ``ch`` rises on average at least ``FAINT_RISE * min_peak`` above the surface (the mean of
+    the window's two end rows on each side) and reaches ``min_value`` on one of them, and
+    each other channel (``o1``, ``o2``) rises on average by at most ``FAINT_TINT`` x the laser
+    channel's rise x the surface's ratio of that channel to the laser's."""
+    bg0 = 0.0
+    bg1 = 0.0
+    bg2 = 0.0
+    for j in (0, 1, n - 2, n - 1):
+        r = rr[j]
+        px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+        bg0 += 0.25 * px[0]
+        bg1 += 0.25 * px[1]
+        bg2 += 0.25 * px[2]
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    top = 0.0
     for j in range(k - 1, k + 2):
         r = rr[j]
         px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
-        d = px[ch] - 0.5 * (a[ch] + b[ch])
-        if d > best:
-            best = d
-            at = j
-    if not best >= FAINT_RISE * min_peak:
+        m0 += px[0] / 3.0
+        m1 += px[1] / 3.0
+        m2 += px[2] / 3.0
+        top = max(top, px[ch])
+    bg = (bg0, bg1, bg2)
+    rise = (m0 - bg0, m1 - bg1, m2 - bg2)
+    best = rise[ch]
+    if not (best >= FAINT_RISE * min_peak and top >= min_value):
         return False
-    r = rr[at]
-    px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
-    bc = max(0.5 * (a[ch] + b[ch]), 1.0)
+    bc = max(bg[ch], 1.0)
     for o in (o1, o2):
-        bo = 0.5 * (a[o] + b[o])
-        if (px[o] - bo) * bc > FAINT_TINT * best * bo:
+        if rise[o] * bc > FAINT_TINT * best * bg[o]:
             return False
     return True
 
@@ -315,7 +324,7 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
     # a faint stripe (FAINT_SHARE): its light of this laser's colour makes it a peak
     faint = ((retry & 4) != 0 and top < min_peak and top >= FAINT_SHARE * min_peak and wsum > 0
              and pi >= k and pi < band_height - k
-             and _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak))
+             and _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value))
     # a weaker peak is tested further only for the white-core rule (WEAK_SHARE)
     weak = (top < min_peak and white_lean < np.inf and not inside
             and top >= WEAK_SHARE * min_peak and not faint)
@@ -387,7 +396,7 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
         if ok:
             break
     if not ok and (retry & 4) != 0 and (faint or _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1,
-                                                        o2, min_peak)):
+                                                        o2, min_peak, min_value)):
         # the light the peak adds is of this laser's colour, against the surface's (_faint):
         # on a tinted light surface the laser's tint over the other channels can be under
         # min_tint and its saturation under min_sat

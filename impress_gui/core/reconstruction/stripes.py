@@ -378,7 +378,7 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
                  & placed & params.faint)
         if faint.any():
             faint[faint] = faint_light(name, planes, rr[:, faint], cols[faint],
-                                       params.min_peak)
+                                       params.min_peak, params.min_value)
         weak = ((top < params.min_peak) & (_white_lean(params, other) < np.inf) & ~inside0
                 & (top >= _guide()["weak"] * params.min_peak) & ~faint)
         ok = ((top >= params.min_peak) | weak | faint) & placed
@@ -436,7 +436,7 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
             need = ok & ~colour & ~faint
             if need.any():
                 colour[need] = faint_light(name, planes, rr[:, need], cols[need],
-                                           params.min_peak)
+                                           params.min_peak, params.min_value)
             colour |= ok & faint
         if _bloom_lean(params, other) < np.inf and (ok & ~colour).any():
             # the blooming test (blooming_lean) where the colour tests refuse
@@ -603,16 +603,17 @@ def _guide() -> dict:
 
 
 def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
-                min_peak: float) -> np.ndarray:
+                min_peak: float, min_value: float) -> np.ndarray:
     """Whether each column's window of rows ``rr`` (``(2k+1, N)``) holds light of laser
-    ``name``'s colour that the luma hardly shows: on the central three rows the laser's
-    channel rises at least ``kernels.FAINT_RISE * min_peak`` above the mean of the window's
-    end rows (the surface), and on that row each other channel rises by at most
-    ``kernels.FAINT_TINT`` x the laser channel's rise x the surface's ratio of that channel to
-    the laser's (a brighter speck of red soil adds light of the soil's own colour). A red laser
-    on a light surface adds mostly red, which moves the luma by a third of it: a consumer
-    camera's photograph of one, pinkish on white, shows 10-20 grey levels of luma where the red
-    channel rises by 20-40. The numpy reference of the compiled ``kernels._faint``."""
+    ``name``'s colour against the surface it falls on: over the central three rows the
+    laser's channel rises on average at least ``kernels.FAINT_RISE * min_peak`` above the
+    surface (the mean of the window's two end rows on each side) and reaches ``min_value`` on
+    one of them, and each other channel rises on average by at most ``kernels.FAINT_TINT`` x
+    the laser channel's rise x the surface's ratio of that channel to the laser's (a brighter
+    speck of red soil adds light of the soil's own colour). A red laser on a light surface
+    adds mostly red, which moves the luma by a third of it: a consumer camera's photograph of
+    one, pinkish on white, shows 10-20 grey levels of luma where the red channel rises by
+    20-40. The numpy reference of the compiled ``kernels._faint``."""
     _, rise, tint = _guide()["faint"]
     s = planes.chroma_step
     n = rr.shape[0]
@@ -626,15 +627,14 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
         return np.clip(np.stack([y + 1.596 * cr, y - 0.392 * cb - 0.813 * cr,
                                  y + 2.017 * cb], axis=-1), 0.0, 255.0)
 
-    bg = 0.5 * (rgb(rr[0]) + rgb(rr[n - 1]))  # (N, 3)
-    mid = rgb(rr[k - 1:k + 2]) - bg[None]  # (3, N, 3)
-    j = mid[..., c].argmax(axis=0)
-    at = mid[j, np.arange(len(j))]  # (N, 3)
-    best = at[:, c]
+    bg = 0.25 * rgb(rr[0]) + 0.25 * rgb(rr[1]) + 0.25 * rgb(rr[n - 2]) + 0.25 * rgb(rr[n - 1])
+    mid = rgb(rr[k - 1:k + 2])  # (3, N, 3)
+    up = mid[0] / 3.0 + mid[1] / 3.0 + mid[2] / 3.0 - bg
+    best = up[:, c]
     bc = np.maximum(bg[:, c], 1.0)
-    ok = best >= rise * min_peak
+    ok = (best >= rise * min_peak) & (mid[..., c].max(axis=0) >= min_value)
     for o in (o1, o2):
-        ok &= ~(at[:, o] * bc > tint * best * bg[:, o])
+        ok &= ~(up[:, o] * bc > tint * best * bg[:, o])
     return ok
 
 
