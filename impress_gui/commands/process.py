@@ -36,7 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--roi", type=_roi, action="append", default=[],
                    help="region of interest rows, e.g. green=600:800 (default automatic)")
     p.add_argument("--min-peak", type=float, default=25.0,
-                   help="minimum stripe peak above background, grey levels")
+                   help="minimum stripe peak above background, grey levels of luma (light of "
+                   "the laser's colour counts down to 0.3 of it)")
     p.add_argument("--weak-run-ratio", type=float, default=0.5,
                    help="drop short stripe pieces weaker than this share of the frame's stripe "
                    "(0 keeps every piece; default 0.5)")
