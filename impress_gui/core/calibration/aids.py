@@ -220,7 +220,7 @@ def _stripe_profiles(video, step: int, progress: ProgressCallback | None,
     # stripe further than a margin); their inner sides stay apart
     lo, hi = sorted(LASERS, key=lambda name: rois[name][0])
     rois = {lo: (0, rois[lo][1]), hi: (rois[hi][0], h)}
-    params = StripeParams(rois=rois)
+    params = StripeParams(rois=rois, faint=False)  # as the calibration (planes.py)
     rows: dict[str, list] = {name: [] for name in LASERS}
     frames = []
     for k, rgb in video.iter_frames(0, n):
@@ -244,7 +244,7 @@ def _dim_rois(probe: list[np.ndarray]) -> dict[str, tuple[int, int]]:
     stripe, it is the one found more often's, and the other takes its next most frequent row
     elsewhere), the two bands split halfway between."""
     h = probe[0].shape[0]
-    params = StripeParams()
+    params = StripeParams(faint=False)  # as the calibration (planes.py)
     hists = {}
     for name in LASERS:
         found = np.concatenate([detect_band_blooming(name, f, 0, params).rows for f in probe])
