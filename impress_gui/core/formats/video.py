@@ -82,12 +82,13 @@ class Planes:
             views.append(arr[:ph, :pw])
         return cls(views[0], views[1], views[2], 2)
 
-    def rgb(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """RGB (float32, 0..255) of the pixels at ``rows``/``cols`` (broadcast arrays)."""
+    def rgb(self, rows: np.ndarray, cols: np.ndarray, dtype=np.float32) -> np.ndarray:
+        """RGB (``dtype``, 0..255) of the pixels at ``rows``/``cols`` (broadcast arrays);
+        float64 computes as the compiled kernels' ``_rgb`` does."""
         s = self.chroma_step
-        y = (self.y[rows, cols].astype(np.float32) - 16) * 1.164
-        cb = self.cb[rows // s, cols // s].astype(np.float32) - 128
-        cr = self.cr[rows // s, cols // s].astype(np.float32) - 128
+        y = (self.y[rows, cols].astype(dtype) - 16) * 1.164
+        cb = self.cb[rows // s, cols // s].astype(dtype) - 128
+        cr = self.cr[rows // s, cols // s].astype(dtype) - 128
         rgb = np.stack([y + 1.596 * cr, y - 0.392 * cb - 0.813 * cr, y + 2.017 * cb], axis=-1)
         return np.clip(rgb, 0, 255)
 

@@ -615,17 +615,12 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     one, pinkish on white, shows 10-20 grey levels of luma where the red channel rises by
     20-40. The numpy reference of the compiled ``kernels._faint``."""
     _, rise, tint = _guide()["faint"]
-    s = planes.chroma_step
     n = rr.shape[0]
     k = n // 2
     c, (o1, o2) = _CH[name], _OTHERS[name]
 
     def rgb(rows):
-        y = (planes.y[rows, cols].astype(np.float64) - 16.0) * 1.164
-        cb = planes.cb[rows // s, cols // s].astype(np.float64) - 128.0
-        cr = planes.cr[rows // s, cols // s].astype(np.float64) - 128.0
-        return np.clip(np.stack([y + 1.596 * cr, y - 0.392 * cb - 0.813 * cr,
-                                 y + 2.017 * cb], axis=-1), 0.0, 255.0)
+        return planes.rgb(rows, cols, np.float64)
 
     bg = 0.25 * rgb(rr[0]) + 0.25 * rgb(rr[1]) + 0.25 * rgb(rr[n - 2]) + 0.25 * rgb(rr[n - 1])
     mid = rgb(rr[k - 1:k + 2])  # (3, N, 3)
