@@ -112,3 +112,24 @@ def test_dark_pixel_noise_is_no_faint_stripe(fn):
     img = np.random.default_rng(0).integers(40, 90, (SIZE[1], SIZE[0], 3), np.uint8)
     for laser in ("red", "green"):
         assert np.isfinite(detect(fn, laser, img)).sum() == 0
+
+
+def test_the_calibration_overlay_shows_what_the_calibration_detects():
+    # the calibration fits its planes without the faint rule (calibration_stripe_params); the
+    # calibration tab's stripe overlay must not show a stripe the plane fit cannot use
+    from impress_gui.core.calibration.planes import calibration_stripe_params
+    from impress_gui.core.reconstruction.stripes import detect as detect_frame
+    from impress_gui.ui.calibration.overlays import stripe_rows
+
+    assert calibration_stripe_params().faint is False
+    img, row = photos.photograph("red", 0.3, (0.6, 0.6, 0.6), size=SIZE)
+    shown = stripe_rows(img)
+    calib = detect_frame(img, calibration_stripe_params())
+    product = detect_frame(img, StripeParams())
+    for name in shown:
+        assert np.array_equal(shown[name], calib[name].rows, equal_nan=True)
+    # the picture is one where the two settings differ: the reconstruction finds the faint red
+    # stripe, the calibration (and so the overlay) far less of it
+    found = np.isfinite(product["red"].rows).mean()
+    assert found > 0.9
+    assert np.isfinite(shown["red"]).mean() < found - 0.3

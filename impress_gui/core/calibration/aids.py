@@ -13,11 +13,10 @@ from impress_gui.core.base.errors import CalibrationError, InputError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.calibration.geometry import Intrinsics, Plane
 from impress_gui.core.calibration.picks import LASER_NAMES, Picks
-from impress_gui.core.calibration.planes import LaserPlaneFit
+from impress_gui.core.calibration.planes import LaserPlaneFit, calibration_stripe_params
 from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
 from impress_gui.core.reconstruction.stripes import (
     LASERS,
-    StripeParams,
     auto_rois,
     detect_band_blooming,
 )
@@ -220,7 +219,7 @@ def _stripe_profiles(video, step: int, progress: ProgressCallback | None,
     # stripe further than a margin); their inner sides stay apart
     lo, hi = sorted(LASERS, key=lambda name: rois[name][0])
     rois = {lo: (0, rois[lo][1]), hi: (rois[hi][0], h)}
-    params = StripeParams(rois=rois, faint=False)  # as the calibration (planes.py)
+    params = calibration_stripe_params(rois=rois)
     rows: dict[str, list] = {name: [] for name in LASERS}
     frames = []
     for k, rgb in video.iter_frames(0, n):
@@ -244,7 +243,7 @@ def _dim_rois(probe: list[np.ndarray]) -> dict[str, tuple[int, int]]:
     stripe, it is the one found more often's, and the other takes its next most frequent row
     elsewhere), the two bands split halfway between."""
     h = probe[0].shape[0]
-    params = StripeParams(faint=False)  # as the calibration (planes.py)
+    params = calibration_stripe_params()
     hists = {}
     for name in LASERS:
         found = np.concatenate([detect_band_blooming(name, f, 0, params).rows for f in probe])

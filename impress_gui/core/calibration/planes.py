@@ -38,6 +38,16 @@ ROWS_BLOOMING = "blooming fallback (centre of mass)"
 #: a ring this wide (mm) around the target's footprint, leaving out this margin (mm) along it
 GROUND_RING_MM = 30.0
 GROUND_MARGIN_MM = 3.0
+
+
+def calibration_stripe_params(**kw):
+    """The stripe detector's settings the calibration uses (``StripeParams``; ``kw`` as
+    there): the default ones without the faint rule (``StripeParams.faint``), with which stray
+    light on random rig 22's target faces passed as stripe and its tilt refinement went
+    0.0045 -> 0.064 deg wrong. The calibration tab's stripe overlay shows what these find."""
+    from impress_gui.core.reconstruction.stripes import StripeParams
+
+    return StripeParams(faint=False, **kw)
 #: a ground point joins the fit when it lies within max(GROUND_GATE_RMS x the faces' fit
 #: RMS, GROUND_GATE_MM) of the plane fitted to the faces alone ...
 GROUND_GATE_RMS = 6.0
@@ -95,7 +105,6 @@ def _stripe_uv_in_region(rgb: np.ndarray, laser: str, uv: np.ndarray, params=Non
     :func:`stripe_uv_on_target` returns them."""
     from impress_gui.core.reconstruction.stripes import (
         Planes,
-        StripeParams,
         detect_band,
         detect_band_blooming,
         half_max_midpoints,
@@ -108,9 +117,7 @@ def _stripe_uv_in_region(rgb: np.ndarray, laser: str, uv: np.ndarray, params=Non
     c1 = int(min(w, np.ceil(uv[:, 0].max()) + 1))
     if r1 - r0 < 10 or c1 - c0 < 10:
         return (np.zeros((0, 2)), np.zeros((0, 2))) if midpoints else np.zeros((0, 2))
-    # without the faint rule (StripeParams.faint): with it, stray light on random rig 22's
-    # target faces passed as stripe and its tilt refinement went 0.0045 -> 0.064 deg wrong
-    params = params or StripeParams(faint=False)
+    params = params or calibration_stripe_params()
     band = rgb[r0:r1, c0:c1]
     if blooming:
         res = detect_band_blooming(laser, band, r0, params)

@@ -1,14 +1,16 @@
 """What the calibration tab draws over a frame: the target as the calibration placed it, and
-the laser stripes the detector finds (computed off the GUI thread, newest frame only)."""
+the laser stripes the detector finds with the calibration's settings (computed off the GUI
+thread, newest frame only)."""
 
 from __future__ import annotations
 
 import numpy as np
 from PySide6.QtCore import QObject
 
+from impress_gui.core.calibration.planes import calibration_stripe_params
 from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.calibration.target import TargetModel
-from impress_gui.core.reconstruction.stripes import StripeParams, detect
+from impress_gui.core.reconstruction.stripes import detect
 from impress_gui.ui.frame_view import FrameView
 from impress_gui.ui.worker import LatestOnly
 
@@ -23,7 +25,9 @@ def fitted_target_px(cal: SceneCalibration, target: TargetModel, time_s: float) 
 
 
 def stripe_rows(rgb: np.ndarray) -> dict[str, np.ndarray]:
-    return {name: res.rows for name, res in detect(rgb, StripeParams()).items()}
+    """Each laser's stripe rows in a frame as the calibration's detector finds them (so a
+    stripe the overlay shows is one the plane fit can use)."""
+    return {name: res.rows for name, res in detect(rgb, calibration_stripe_params()).items()}
 
 
 class Overlays(QObject):
