@@ -42,12 +42,14 @@ GROUND_MARGIN_MM = 3.0
 
 def calibration_stripe_params(**kw):
     """The stripe detector's settings the calibration uses (``StripeParams``; ``kw`` as
-    there): the default ones without the faint rule (``StripeParams.faint``), with which stray
-    light on random rig 22's target faces passed as stripe and its tilt refinement went
-    0.0045 -> 0.064 deg wrong. The calibration tab's stripe overlay shows what these find."""
+    there): the reconstruction's, the faint rule (``StripeParams.faint``) included, so a dim or
+    pinkish stripe on the light target is found as it is on the ground. (Before the rule
+    refused light whose other laser's channel is clipped, kernels.FAINT_CLIP, it took the red
+    stripe's clipped core on random rig 22's target for green light, and the calibration ran
+    without it.) The calibration tab's stripe overlay shows what these find."""
     from impress_gui.core.reconstruction.stripes import StripeParams
 
-    return StripeParams(faint=False, **kw)
+    return StripeParams(**kw)
 #: a ground point joins the fit when it lies within max(GROUND_GATE_RMS x the faces' fit
 #: RMS, GROUND_GATE_MM) of the plane fitted to the faces alone ...
 GROUND_GATE_RMS = 6.0

@@ -61,6 +61,14 @@ WEAK_SHARE = 0.4
 FAINT_SHARE = 0.3
 FAINT_RISE = 0.6
 FAINT_TINT = 0.8
+# ... and not where the other laser's channel is clipped (reaches FAINT_CLIP) on more of the
+# window's rows than the laser's own: a clipped channel's rise is only a lower bound, and the
+# core of the other laser's stripe, clipped on a light target, rises less in its own channel
+# than in the one tested (random rig 22 at 1080p: the red stripe's core, (255, 250, 205) on a
+# surface of (180, 158, 140), red clipped on 6 rows and green on 4, passed the green test). A
+# stripe of this laser that clips everything on a light object clips its own channel at least
+# as widely.
+FAINT_CLIP = 250.0
 
 HSV_SHIFT = 12
 
@@ -209,7 +217,9 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
     ``ch`` rises on average at least ``FAINT_RISE * min_peak`` above the surface (the mean of
     the window's two end rows on each side) and reaches ``min_value`` on one of them, and
     each other channel (``o1``, ``o2``) rises on average by at most ``FAINT_TINT`` x the laser
-    channel's rise x the surface's ratio of that channel to the laser's."""
+    channel's rise x the surface's ratio of that channel to the laser's; the other laser's
+    channel (``1 - ch``) not clipped (``FAINT_CLIP``) on more of the window's rows than
+    ``ch``."""
     bg0 = 0.0
     bg1 = 0.0
     bg2 = 0.0
@@ -230,6 +240,15 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
         m1 += px[1] / 3.0
         m2 += px[2] / 3.0
         top = max(top, px[ch])
+    clip_own = 0
+    clip_other = 0
+    for j in range(n):
+        r = rr[j]
+        px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+        clip_own += px[ch] >= FAINT_CLIP
+        clip_other += px[1 - ch] >= FAINT_CLIP
+    if clip_other > clip_own:
+        return False
     bg = (bg0, bg1, bg2)
     rise = (m0 - bg0, m1 - bg1, m2 - bg2)
     best = rise[ch]

@@ -599,7 +599,7 @@ def _guide() -> dict:
 
     k = kernels()
     return {"link": k.GUIDE_LINK, "reach": k.GUIDE_REACH, "dev": k.GUIDE_DEV,
-            "weak": k.WEAK_SHARE, "faint": (k.FAINT_SHARE, k.FAINT_RISE, k.FAINT_TINT)}
+            "weak": k.WEAK_SHARE, "faint": (k.FAINT_SHARE, k.FAINT_RISE, k.FAINT_TINT, k.FAINT_CLIP)}
 
 
 def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
@@ -610,11 +610,14 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     surface (the mean of the window's two end rows on each side) and reaches ``min_value`` on
     one of them, and each other channel rises on average by at most ``kernels.FAINT_TINT`` x
     the laser channel's rise x the surface's ratio of that channel to the laser's (a brighter
-    speck of red soil adds light of the soil's own colour). A red laser on a light surface
+    speck of red soil adds light of the soil's own colour); the other laser's channel is not
+    clipped (``kernels.FAINT_CLIP``) on more of the window's rows than the laser's own (a
+    clipped channel's rise is only a lower bound: the other laser's stripe clipped on a light
+    target). A red laser on a light surface
     adds mostly red, which moves the luma by a third of it: a consumer camera's photograph of
     one, pinkish on white, shows 10-20 grey levels of luma where the red channel rises by
     20-40. The numpy reference of the compiled ``kernels._faint``."""
-    _, rise, tint = _guide()["faint"]
+    _, rise, tint, clip = _guide()["faint"]
     n = rr.shape[0]
     k = n // 2
     c, (o1, o2) = _CH[name], _OTHERS[name]
@@ -630,6 +633,8 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     ok = (best >= rise * min_peak) & (mid[..., c].max(axis=0) >= min_value)
     for o in (o1, o2):
         ok &= ~(up[:, o] * bc > tint * best * bg[:, o])
+    win = rgb(rr)  # (n, N, 3)
+    ok &= (win[..., 1 - c] >= clip).sum(axis=0) <= (win[..., c] >= clip).sum(axis=0)
     return ok
 
 
