@@ -388,6 +388,13 @@ def test_bad_inputs_give_their_codes(cast_recon, tmp_path, capsys):
     _fails(capsys, ["cast", str(cast_recon), "-o", str(tmp_path / "dir.stl")], "E-OUTPUT-NOT-FILE")
     (tmp_path / "other.stl.json").write_text('{"format": "someone.else"}')
     _fails(capsys, ["cast", str(cast_recon), "-o", str(tmp_path / "other.stl")], "E-OUTPUT-EXISTS")
+    # a file of a mesh's name that no cast wrote (another folder's point cloud, a video
+    # renamed): not replaced (a hostile-input audit found both replaced)
+    foreign = tmp_path / "cloud.ply"
+    foreign.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 0\nend_header\n")
+    _fails(capsys, ["cast", str(cast_recon), "-o", str(foreign)], "E-OUTPUT-EXISTS")
+    assert foreign.read_bytes().startswith(b"ply\nformat ascii")
+    assert not (tmp_path / "cloud.ply.json").exists()
     assert not (tmp_path / "o.stl").exists() and not (tmp_path / "other.stl").exists()
     assert sorted(p.name for p in cast_recon.iterdir()) == ["heightmap.tif", "metadata.json"]
     # a heightmap changed after processing

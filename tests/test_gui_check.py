@@ -100,3 +100,39 @@ def test_check_without_it_a_broken_project_still_exits_0(tmp_path):
     assert subprocess.run(cmd, capture_output=True, timeout=60, env=env).returncode == 0
     res = run_check(folder, tmp_path)
     assert res.returncode == 1 and "version 7 is not supported" in res.stderr
+
+
+def _gui(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "QT_QPA_PLATFORM": "offscreen", "HOME": str(tmp_path)}
+    cmd = [sys.executable, "-m", "impress_gui", "gui", *args, "--no-motor", "--quit-after", "0.5",
+           "--settings", str(tmp_path / "settings.ini")]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=env)
+
+
+def test_screenshot_never_replaces_evidence(tmp_path):
+    # a hostile-input audit: `--screenshot` pointed at the video it opened left it 0 bytes; a
+    # .png name inside the opened reconstruction replaced a result's picture
+    video = tmp_path / "scan.mp4"
+    video.write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 8)
+    notes = tmp_path / "notes.png"  # not a picture, whatever its name says
+    notes.write_text("case notes\n")
+    recon = tmp_path / "recon"
+    recon.mkdir()
+    view = recon / "heightmap_color.png"
+    view.write_bytes(b"\x89PNG\r\n\x1a\n" + b"x" * 100)
+    before = {p: p.read_bytes() for p in (video, notes, view)}
+    cases = [((str(video), "--screenshot", str(video)), "E-USAGE"),
+             ((str(video), "--screenshot", str(notes)), "E-OUTPUT-EXISTS"),
+             ((str(recon), "--screenshot", str(view)), "E-OUTPUT-HOLDS-INPUT")]
+    for args, code in cases:
+        res = _gui(tmp_path, *args)
+        assert res.returncode != 0 and code in res.stderr, (args, res.stderr)
+        assert "Traceback" not in res.stderr
+    assert {p: p.read_bytes() for p in before} == before
+    # an earlier screenshot (a PNG picture) is replaced by the new one
+    old = tmp_path / "old.png"
+    old.write_bytes(b"\x89PNG\r\n\x1a\n" + b"y" * 100)
+    res = _gui(tmp_path, "--screenshot", str(old))
+    assert res.returncode == 0, res.stderr
+    img = QImage(str(old))
+    assert img.width() > 0 and not [p for p in tmp_path.iterdir() if p.name.endswith(".partial")]

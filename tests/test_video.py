@@ -1,5 +1,7 @@
 """Video input: camcorder-style MPEG-TS, frame folders, seeking, damaged files."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -131,3 +133,44 @@ def test_planes_from_rgb_by_blocks_equals_bt601_per_pixel():
         y_cv = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY).astype(float)
         assert np.abs(p.y.astype(float) - (16 + y_cv * 219 / 255)).max() <= 1.5
     assert p.chroma_step == 1
+
+
+def _frames(folder, names, size=(40, 30)):
+    import cv2
+
+    folder.mkdir()
+    for i, name in enumerate(names):
+        img = np.full((size[1], size[0], 3), 10 * i % 250, np.uint8)
+        cv2.imwrite(str(folder / name), img)
+
+
+def test_frame_folder_numbers_order_and_time_the_frames(tmp_path):
+    # a hostile-input audit: a frame folder with frame_000050.png missing was processed with
+    # every later frame moved up one interval (the map 1.5 mm short, no warning); unpadded
+    # numbers were taken in name order (frame_10 before frame_9)
+    names = [f"frame_{k}.png" for k in (0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11)]
+    _frames(tmp_path / "gap", names)
+    v = open_video(tmp_path / "gap", fps=25.0)
+    assert v.frame_count == 11
+    assert np.allclose(v.times_s * 25.0, [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11])
+    gaps = [w for w in v.open_warnings if w.startswith("W-VIDEO-GAP")]
+    assert len(gaps) == 1 and "frame_4.png and frame_6.png" in gaps[0]
+    # frame 9 (the 9th image, numbered 10) is the one drawn 9th: numeric, not name, order
+    assert int(v.read(9)[0, 0, 0]) == 90
+    # complete numbering: no warning, one interval apart
+    _frames(tmp_path / "whole", [f"f{k:04d}.png" for k in range(6)])
+    w = open_video(tmp_path / "whole", fps=30.0)
+    assert not w.open_warnings and np.allclose(np.diff(w.times_s), 1 / 30.0)
+
+
+def test_frame_folder_refuses_entries_that_are_not_frames(tmp_path):
+    _frames(tmp_path / "fifo", [f"frame_{k}.png" for k in range(4)])
+    (tmp_path / "fifo" / "frame_2.png").unlink()
+    os.mkfifo(tmp_path / "fifo" / "frame_2.png")
+    with pytest.raises(VideoError) as e:
+        open_video(tmp_path / "fifo")
+    assert e.value.code == "E-VIDEO-OPEN" and "frame_2.png" in str(e.value)
+    _frames(tmp_path / "twice", ["frame_1.png", "frame_001.png", "frame_2.png"])
+    with pytest.raises(VideoError) as e:
+        open_video(tmp_path / "twice")
+    assert e.value.code == "E-VIDEO-OPEN" and "two files" in str(e.value)

@@ -31,7 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         metavar="PNG",
-        help="save a picture of the window once it has opened the path",
+        help="save a picture of the window once it has opened the path (a .png file; "
+        "an existing file is replaced only if it is a PNG picture, and never inside the "
+        "opened path)",
     )
     p.add_argument(
         "--quit-after",
@@ -77,6 +79,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def check_screenshot(shot: Path, opened: Path | None) -> Path:
+    """Where ``--screenshot`` may write (before the window opens): a ``.png`` name, not the
+    opened path nor inside it, not a link or folder; an existing file is replaced only when it
+    is a PNG picture (an earlier screenshot), never a video, a document or a result."""
+    from impress_gui.core.base.errors import InputError
+    from impress_gui.core.base.outdir import check_output_file
+
+    if shot.suffix.lower() != ".png":
+        raise InputError(f"--screenshot {shot}: name a .png file for the picture",
+                         code=codes.E_USAGE)
+    inputs = () if opened is None else (opened,)
+    real = check_output_file(shot, inputs=inputs, formats=None)
+    if real.is_file():
+        try:
+            with open(real, "rb") as fh:
+                head = fh.read(len(PNG_MAGIC))
+        except OSError:
+            head = b""
+        if head != PNG_MAGIC:
+            return check_output_file(shot, inputs=inputs, formats=())  # raises E-OUTPUT-EXISTS
+    return real
+
+
 def run(args: argparse.Namespace) -> int:
     from impress_gui.ui.app import run_gui
 
@@ -85,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
         from impress_gui.core.base.errors import InputError
 
         raise InputError(f"{path}: no such project folder or video", code=codes.E_FILE_MISSING)
+    if args.screenshot is not None:
+        check_screenshot(args.screenshot, path)
     extra = {}
     if getattr(args, "check", False):
         extra = {"check": True, "check_timeout_s": args.check_timeout}

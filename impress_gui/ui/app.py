@@ -225,6 +225,32 @@ class OpenCheck:
         return 0
 
 
+def save_png(pixmap, path: str | Path) -> bool:
+    """Write ``pixmap`` as a PNG file at ``path`` atomically (encoded in memory, then a
+    temporary file renamed into place: a failed write leaves what was there); False with the
+    reason on stderr when it cannot be written."""
+    from PySide6.QtCore import QBuffer, QByteArray, QIODevice
+
+    from impress_gui.core.base.errors import ImpressError
+    from impress_gui.core.base.fileio import atomic_write_bytes
+
+    data = QByteArray()
+    buf = QBuffer(data)
+    buf.open(QIODevice.OpenModeFlag.WriteOnly)
+    ok = pixmap.save(buf, "PNG")
+    buf.close()
+    if not ok:
+        print(f"impress gui: error [{codes.E_WRITE}]: the picture for {path} could not be made",
+              file=sys.stderr)
+        return False
+    try:
+        atomic_write_bytes(path, bytes(data))
+    except ImpressError as exc:
+        print(f"impress gui: error [{exc.code}]: {exc}", file=sys.stderr)
+        return False
+    return True
+
+
 def run_gui(
     path: str | Path | None = None,
     screenshot: str | Path | None = None,
@@ -285,11 +311,10 @@ def run_gui(
             checker.finished(busy, check_timeout_s)
         if screenshot:
             app.processEvents()
-            if not grab(window).save(str(screenshot)):
-                print(f"impress gui: cannot write {screenshot}", file=sys.stderr)
-                result["code"] = 1
-            else:
+            if save_png(grab(window), screenshot):
                 print(f"screenshot written to {screenshot}")
+            else:
+                result["code"] = 1
         if checker is not None:
             result["code"] = checker.report(path) or result["code"]
         if quit_after_s is not None or checker is not None:

@@ -8,6 +8,7 @@ Files are opened read-only; nothing here ever writes to an evidence file.
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterator
 from contextlib import closing
 from dataclasses import dataclass
@@ -657,7 +658,26 @@ class AVVideo(VideoSource):
         self._close_fd()
 
 
+_FRAME_NUMBER = re.compile(r"^(.*?)(\d+)$")
+
+
+def frame_numbers(names: list[str]) -> list[int] | None:
+    """The frame number of each file name (``frame_000123.png`` -> 123) when every name is a
+    common prefix followed by digits; None otherwise (the frames are then taken in name
+    order, one frame interval apart)."""
+    found = [_FRAME_NUMBER.match(Path(n).stem) for n in names]
+    if not all(found) or len({m.group(1) for m in found}) != 1:
+        return None
+    return [int(m.group(2)) for m in found]
+
+
 class FrameFolder(VideoSource):
+    """A folder of numbered still frames (``.png``, ``.jpg``, ``.tif``, ``.bmp``). Frames
+    named by a common prefix and a number are taken in the numbers' order (``frame_9`` before
+    ``frame_10``) and timed by their numbers: a missing number is a missing frame, warned about
+    (``W-VIDEO-GAP``) and left out of the time line, not closed up. An entry with a frame's
+    name that is not a regular file (a folder, a pipe, a device) is refused."""
+
     def __init__(self, path: Path, fps: float = 30.0) -> None:
         import cv2
 
@@ -665,10 +685,26 @@ class FrameFolder(VideoSource):
         self.open_warnings = []
         self.damage = {}
         try:
-            self._files = sorted(p for p in self.path.iterdir()
-                                 if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+            named = [p for p in self.path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+            odd = sorted(p.name for p in named if not p.is_file())
         except OSError:
             raise VideoError(f"{self.path}: the folder cannot be read", code=codes.E_VIDEO_OPEN) from None
+        if odd:
+            raise VideoError(f"{self.path}: {', '.join(odd[:3])}{' ...' if len(odd) > 3 else ''} "
+                             "named as frames but not regular image files (a folder, a pipe, a "
+                             "device or a broken link): the frames cannot be read as evidence",
+                             code=codes.E_VIDEO_OPEN)
+        files = sorted(named)
+        numbers = frame_numbers([p.name for p in files])
+        if numbers is not None:
+            order = sorted(range(len(files)), key=lambda i: (numbers[i], files[i].name))
+            files = [files[i] for i in order]
+            numbers = [numbers[i] for i in order]
+            twice = sorted({a for a, b in zip(numbers, numbers[1:]) if a == b})
+            if twice:
+                raise VideoError(f"{self.path}: frame number {twice[0]} is on two files: which "
+                                 "comes first is not known", code=codes.E_VIDEO_OPEN)
+        self._files = files
         if not self._files:
             raise VideoError(f"{self.path}: the folder holds no frames (.png, .jpg, .tif)",
                              code=codes.E_VIDEO_EMPTY)
@@ -678,7 +714,20 @@ class FrameFolder(VideoSource):
             raise VideoError(f"{self._files[0]}: not a readable image", code=codes.E_VIDEO_OPEN)
         self.size = (first.shape[1], first.shape[0])
         self.fps = float(fps)
-        self.times_s = np.arange(len(self._files)) / self.fps
+        if numbers is None:
+            self.times_s = np.arange(len(self._files)) / self.fps
+        else:
+            steps = np.diff(np.array(numbers, np.int64))
+            for i in np.flatnonzero(steps > 1)[:10]:
+                self.open_warnings.append(
+                    f"W-VIDEO-GAP: {self.path.name}: {int(steps[i]) - 1} frame(s) missing "
+                    f"between {self._files[i].name} and {self._files[i + 1].name} (frames "
+                    f"{i} and {i + 1}); they are timed by their numbers")
+            if (steps > 1).sum() > 10:
+                self.open_warnings.append(
+                    f"W-VIDEO-GAP: {self.path.name}: {int((steps > 1).sum())} gaps in the frame "
+                    "numbers in all")
+            self.times_s = (np.array(numbers, np.float64) - numbers[0]) / self.fps
 
     def _stats(self) -> list[tuple]:
         out: list[tuple] = []

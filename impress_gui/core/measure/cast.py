@@ -994,15 +994,18 @@ def cast_document(mesh: CastMesh, spec: GridSpec, source: Mapping, heightmap_sha
 
 def write_cast(recon: str | Path, output: str | Path, params: CastParams,
                progress: ProgressCallback | None = None,
-               cancel: CancelToken | None = None, context: Mapping | None = None) -> dict:
+               cancel: CancelToken | None = None, context: Mapping | None = None,
+               replace: bool = False) -> dict:
     """Make the cast of a reconstruction folder and write it to ``output`` (.stl, .ply or
     .obj) with its sidecar ``output + ".json"``; both atomically. Returns the sidecar's
     document. Every check (folder, output, parameters) is made before any work; the mesh is
     verified (:func:`verify_mesh`, recorded as ``checks``; a failure writes nothing) and its
     surface measured against the heightmap (``surface_deviation``). ``context`` (e.g. the
-    viewer's case and its signature) is recorded as ``export``."""
+    viewer's case and its signature) is recorded as ``export``. An existing file at
+    ``output`` is replaced only when it is an earlier cast (its sidecar a cast document) or
+    ``replace`` (a save dialog that has asked); otherwise E-OUTPUT-EXISTS, before any work."""
     from impress_gui.core.base.fileio import atomic_write_bytes, dumps_json, sha256_file
-    from impress_gui.core.base.outdir import check_output_file
+    from impress_gui.core.base.outdir import OutputError, check_output_file
     from impress_gui.core.base.progress import sub_progress
     from impress_gui.core.formats.provenance import reconstruction_source
     from impress_gui.core.formats.recon_files import HEIGHTMAP_FILE
@@ -1021,6 +1024,11 @@ def write_cast(recon: str | Path, output: str | Path, params: CastParams,
                          "format)", code=codes.E_CAST_SUFFIX)
     sidecar = check_output_file(out.with_name(out.name + ".json"), inputs=(folder,),
                                 formats=(CAST_FORMAT,))
+    if out.exists() and not replace and not sidecar.is_file():
+        # another file of that name (a point cloud, a video renamed) is not a cast to replace
+        raise OutputError(f"{output} exists and is not a cast this command wrote (no "
+                          f"{sidecar.name} beside it): it is not replaced; name a new file",
+                          code=codes.E_OUTPUT_EXISTS)
     params.check()
     report(progress, 0.0, f"reading {folder}")
     data = load_reconstruction(folder, layers=("fused",))

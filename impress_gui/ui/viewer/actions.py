@@ -593,7 +593,7 @@ class ViewerExports(QObject):
         def task(progress, cancel):
             # never over the evidence (the folder's own files are checked by write_cast)
             check_output_file(p, inputs=inputs, formats=None)
-            return write_cast(folder, p, params, progress, cancel, context)
+            return write_cast(folder, p, params, progress, cancel, context, replace=True)
 
         def done(doc: dict) -> None:
             fmt = SUFFIXES.get(p.suffix.lower(), "mesh")
