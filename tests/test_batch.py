@@ -123,3 +123,45 @@ def test_a_foreign_batch_folder_is_refused(flat_scan, flat_calibration, tmp_path
     assert cli.main(["batch", str(manifest), "-o", str(tmp_path / "photos")]) == 2
     assert "[E-OUTPUT-NOT-EMPTY]" in capsys.readouterr().err
     assert [p.name for p in (tmp_path / "photos").iterdir()] == ["IMG_1.JPG"]
+
+
+def test_ctrl_c_stops_the_batch_and_keeps_what_is_done(flat_scan, flat_calibration, tmp_path):
+    # a hostile-input audit: Ctrl-C at 4 s let a 10-scan batch run on through 8 more scans
+    # and end without a summary
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    doc = {"format": "impress.batch", "version": 1, "scans": [
+        {"name": f"s{k}", "video": str(flat_scan / "scan.mp4"),
+         "calibration": str(flat_calibration),
+         "parameters": {"frame_start": 40, "frame_stop": 70, "texture": False}}
+        for k in range(10)]}
+    manifest = tmp_path / "manifest.json"
+    manifest.write_text(json.dumps(doc))
+    out = tmp_path / "batch"
+    proc = subprocess.Popen([sys.executable, "-m", "impress_gui", "batch", str(manifest), "-o",
+                             str(out), "--jobs", "2"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        if any((out / f"s{k}" / "metadata.json").exists() for k in range(10)):
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.communicate()
+    os.kill(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode != 0 and "interrupted" in err and "Traceback" not in err
+    with open(out / "summary.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["name"] for r in rows] == [f"s{k}" for k in range(10)]
+    status = [r["status"] for r in rows]
+    assert status.count("processed") >= 1
+    assert status.count("not run (interrupted)") >= 5
+    for r in rows:
+        if r["status"] == "processed":
+            assert (out / r["name"] / "heightmap.tif").is_file()
+        else:
+            assert not (out / r["name"]).exists()

@@ -136,3 +136,25 @@ def test_screenshot_never_replaces_evidence(tmp_path):
     assert res.returncode == 0, res.stderr
     img = QImage(str(old))
     assert img.width() > 0 and not [p for p in tmp_path.iterdir() if p.name.endswith(".partial")]
+
+
+def test_an_unreadable_settings_file_is_not_overwritten(tmp_path):
+    # a hostile-input audit: `--settings bad.ini` replaced a malformed file with the defaults
+    bad = tmp_path / "settings.ini"
+    bad.write_bytes(b"[[[broken\n\x00")
+    res = _gui(tmp_path)
+    assert res.returncode != 0 and "E-FORMAT" in res.stderr and "Traceback" not in res.stderr
+    assert bad.read_bytes() == b"[[[broken\n\x00"
+    # the user's own settings: moved aside (its bytes kept), the window starts with defaults
+    env = {**os.environ, "QT_QPA_PLATFORM": "offscreen", "HOME": str(tmp_path),
+           "XDG_CONFIG_HOME": str(tmp_path / "config")}
+    own = tmp_path / "config" / "IMPREsS" / "impress-workstation.ini"
+    own.parent.mkdir(parents=True)
+    own.write_bytes(b"not an ini")
+    res = subprocess.run([sys.executable, "-m", "impress_gui", "gui", "--no-motor",
+                          "--quit-after", "0.5"], capture_output=True, text=True, timeout=120,
+                         env=env)
+    assert res.returncode == 0, res.stderr
+    assert "W-SETTINGS" in res.stderr
+    kept = [p for p in own.parent.iterdir() if p.name.startswith(own.name + ".unreadable-")]
+    assert len(kept) == 1 and kept[0].read_bytes() == b"not an ini"

@@ -214,6 +214,20 @@ CASES: list[Case] = [
          "E-OUTPUT-NOT-EMPTY"),
     Case("validate into a link", ["validate", "--quick", "--out", "{box}/vl"],
          "E-OUTPUT-LINK", _chain(_mkdir("vt"), _symlink("vl", "vt"))),
+    # --- options out of range (a hostile-input audit: a billion plane frames hung; 0 and -3
+    # were taken as 1; --workers 0 and 100000 were taken) -----------------------------------
+    Case("calibrate --plane-frames 0", _calib("{ev}/scan.mp4", "{ev}/intrinsics.json",
+                                              "{ev}/picks.json", "{box}/cal.json",
+                                              "--plane-frames", "0"), "E-VALUE"),
+    Case("calibrate --plane-frames 1e9", _calib("{ev}/scan.mp4", "{ev}/intrinsics.json",
+                                                "{ev}/picks.json", "{box}/cal.json",
+                                                "--plane-frames", "1000000000"), "E-VALUE"),
+    Case("simulate --workers 0", ["simulate", "{box}/sw", "--preset", "flat", "--workers", "0"],
+         "E-SIM-OPTION"),
+    Case("simulate --workers 100000", ["simulate", "{box}/sw", "--preset", "flat", "--workers",
+                                       "100000"], "E-SIM-OPTION"),
+    Case("validate --workers 0", ["validate", "--quick", "--out", "{box}/vw", "--workers", "0"],
+         "E-VAL-OPTION"),
     # --- item 3: damaged video -----------------------------------------------------------------
     Case("video: missing", _proc(video="{box}/none.mp4"), "E-FILE-MISSING"),
     Case("video: empty", _proc(video="{box}/e.mp4"), "E-VIDEO-EMPTY", _write("e.mp4", b"")),

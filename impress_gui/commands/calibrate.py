@@ -18,7 +18,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="rail speed in mm/s (or slow, medium, fast)")
     p.add_argument("--fps", type=float, default=None, help="frame rate (default: from the video)")
     p.add_argument("--plane-frames", type=int, default=15,
-                   help="frames used per laser plane around t1/t2 (1 = the seed's single frame)")
+                   help="frames used per laser plane around t1/t2 (1 = the seed's single "
+                        "frame; at most 300)")
     p.add_argument("--planes", choices=("stripe-fit", "three-point"), default="stripe-fit",
                    help="laser planes: fitted to each stripe on the target's faces (default), "
                         "or the seed's fallback through three stripe points per laser picked "

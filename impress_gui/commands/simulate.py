@@ -187,6 +187,11 @@ def _preset_config(args: argparse.Namespace, blocks: dict):
                     target_yaw_deg=args.target_yaw, blocks=blocks, shoe=_shoe_options(args))
 
 
+#: the most render processes ``--workers`` starts (each holds the scene; more than the
+#: machine's cores only slows it)
+MAX_WORKERS = 64
+
+
 def _run(args: argparse.Namespace, cfg) -> int:
     from impress_gui.commands._progress import progress_printer
     from impress_gui.core.base.errors import InputError
@@ -194,9 +199,11 @@ def _run(args: argparse.Namespace, cfg) -> int:
 
     cfg.validate()
     n = make_motion(cfg).frame_count
-    workers = args.workers or (1 if n < 300 else min(2, os.cpu_count() or 1))
-    if workers < 1:
-        raise InputError("--workers must be at least 1", code=codes.E_SIM_OPTION)
+    workers = (args.workers if args.workers is not None
+               else (1 if n < 300 else min(2, os.cpu_count() or 1)))
+    if not 1 <= workers <= MAX_WORKERS:
+        raise InputError(f"--workers {workers}: give 1 to {MAX_WORKERS} render processes",
+                         code=codes.E_SIM_OPTION)
     progress = progress_printer()
 
     t0 = time.perf_counter()

@@ -8,6 +8,9 @@ import argparse
 import sys
 from pathlib import Path
 
+#: the most render processes ``--workers`` starts
+MAX_WORKERS = 64
+
 
 def _resolution(text: str) -> tuple[int, int]:
     from impress_gui.commands.simulate import _resolution as parse
@@ -65,7 +68,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="noise added to the simulated corner clicks (pixels, default 0)",
     )
-    p.add_argument("--workers", type=int, default=2, help="render processes (default 2)")
+    p.add_argument("--workers", type=int, default=2,
+                   help=f"render processes (default 2; 1 to {MAX_WORKERS})")
     p.add_argument("--fresh", action="store_true", help="render every scan again")
     p.add_argument(
         "--spec",
@@ -89,12 +93,18 @@ def run(args: argparse.Namespace) -> int:
     from impress_gui.validation.run import RunConfig, run_real, run_simulated
 
     progress = progress_printer(5)
+    if not 1 <= args.workers <= MAX_WORKERS:
+        from impress_gui.core.base import codes
+        from impress_gui.core.base.errors import InputError
+
+        raise InputError(f"--workers {args.workers}: give 1 to {MAX_WORKERS} render processes",
+                         code=codes.E_VAL_OPTION)
 
     if args.spec is not None:
         record = run_real(args.spec, args.out, progress)
     else:
         kw: dict = {
-            "workers": max(1, args.workers),
+            "workers": args.workers,
             "reuse_scans": not args.fresh,
             "click_noise_px": args.click_noise_px,
             "keep_reconstructions": args.keep_reconstructions,

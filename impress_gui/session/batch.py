@@ -217,13 +217,25 @@ def run_batch(items: list[BatchItem], out_dir: str | os.PathLike, jobs: int | No
             progress(len(rows) / n, f"{row['name']}: {row['status']}"
                      + (f" [{row['code']}]" if row.get("code") else ""))
 
-    if scheduler is not None:
-        _run_dask(items, str(out), scheduler, done)
-    else:
-        _run_local(items, str(out), jobs or default_jobs(), done)
+    try:
+        if scheduler is not None:
+            _run_dask(items, str(out), scheduler, done)
+        else:
+            _run_local(items, str(out), jobs or default_jobs(), done)
+    except KeyboardInterrupt:
+        # what finished is kept and summarised; the rest is marked, and a run again with
+        # the same manifest resumes there
+        write_summary([rows.get(i.name) or _not_run(i) for i in items], out)
+        raise
     ordered = [rows[name] for name in names]
     write_summary(ordered, out)
     return ordered
+
+
+def _not_run(item: BatchItem) -> dict[str, Any]:
+    return {"name": item.name, "status": "not run (interrupted)", "video": str(item.video),
+            "calibration": str(item.calibration),
+            "message": "the batch was interrupted before this scan was done: run it again"}
 
 
 def _run_local(items: list[BatchItem], out: str, jobs: int, done) -> None:
@@ -235,10 +247,22 @@ def _run_local(items: list[BatchItem], out: str, jobs: int, done) -> None:
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     # "spawn": a clean interpreter per worker (no inherited threads or Qt state)
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as pool:
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"))
+    try:
         futures = [pool.submit(process_one, item, out) for item in items]
         for fut in as_completed(futures):
             done(fut.result())
+    except BaseException:
+        # interrupted (Ctrl-C): no further scan is started, and the scans in progress are
+        # stopped (their outputs are written atomically: nothing half-made is left as a result)
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in procs:
+            proc.terminate()
+        for proc in procs:
+            proc.join(10)
+        raise
+    pool.shutdown()
 
 
 def _run_dask(items: list[BatchItem], out: str, scheduler: Any, done) -> None:

@@ -43,12 +43,40 @@ def create_app(argv: list[str] | None = None) -> QApplication:
 
 
 def make_settings(path: str | Path | None = None) -> QSettings:
-    """Settings in an explicit INI file (tests, portable installs) or the user's config."""
+    """Settings in an explicit INI file (tests, portable installs) or the user's config.
+
+    A file Qt cannot read as INI would be overwritten with the defaults at the first change:
+    an explicit one is refused (``E-FORMAT``, the file untouched); the user's own config is
+    moved aside (``<name>.unreadable-<time>``, its bytes kept) with a warning on stderr, and
+    the window starts with the defaults."""
+    from impress_gui.core.base.errors import FormatError
+
     if path is not None:
-        return QSettings(str(path), QSettings.Format.IniFormat)
-    return QSettings(
+        settings = QSettings(str(path), QSettings.Format.IniFormat)
+        settings.allKeys()  # reads the file
+        if settings.status() != QSettings.Status.NoError:
+            raise FormatError(f"{path} is not a readable settings (INI) file: it is left as it "
+                              "is; name another file or remove it", code=codes.E_FORMAT)
+        return settings
+    settings = QSettings(
         QSettings.Format.IniFormat, QSettings.Scope.UserScope, ORGANISATION, APPLICATION
     )
+    settings.allKeys()
+    if settings.status() != QSettings.Status.NoError:
+        bad = Path(settings.fileName())
+        kept = bad.with_name(f"{bad.name}.unreadable-{time.strftime('%Y%m%d-%H%M%S')}")
+        try:
+            bad.rename(kept)
+        except OSError as exc:
+            raise FormatError(f"{bad} is not a readable settings (INI) file and cannot be "
+                              f"moved aside ({exc.strerror}): it is left as it is; repair or "
+                              "remove it", code=codes.E_FORMAT) from None
+        print(f"impress: warning [W-SETTINGS]: {bad} was not a readable settings file: it is "
+              f"kept as {kept.name}; starting with the default settings", file=sys.stderr)
+        settings = QSettings(
+            QSettings.Format.IniFormat, QSettings.Scope.UserScope, ORGANISATION, APPLICATION
+        )
+    return settings
 
 
 def build_main_window(

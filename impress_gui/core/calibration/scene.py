@@ -290,6 +290,10 @@ def check_picks(picks: Picks, intrinsics: Intrinsics, frame_count: int) -> None:
                                "further apart", code=codes.E_PICKS)
 
 
+#: the most frames a laser plane is fitted from (``plane_frames``; 15 by default)
+MAX_PLANE_FRAMES = 300
+
+
 def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: Picks,
                     speed_mm_s: float, fps: float | None = None, plane_frames: int = 15,
                     plane_span: int = 300, plane_travel_mm: float = 25.0,
@@ -309,6 +313,10 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
                                f"{', '.join(PLANE_METHODS)})", code=codes.E_CALIB)
     if not np.isfinite(speed_mm_s) or not 0.01 <= speed_mm_s <= 1000:
         raise CalibrationError(f"rail speed {speed_mm_s} mm/s is not plausible", code=codes.E_SPEED)
+    if (isinstance(plane_frames, bool) or not isinstance(plane_frames, (int, np.integer))
+            or not 1 <= plane_frames <= MAX_PLANE_FRAMES):
+        raise CalibrationError(f"{plane_frames} frames per laser plane: give 1 to "
+                               f"{MAX_PLANE_FRAMES}", code=codes.E_VALUE)
     w, h = video.size
     intrinsics.check_image_size(w, h)
     check_picks(picks, intrinsics, video.frame_count)
