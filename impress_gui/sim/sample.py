@@ -30,6 +30,57 @@ def sample_config(small: bool = False):
     return SimConfig(preset="shoe", width=960, height=540, seed=7, click_noise_px=0.0)
 
 
+#: what a sample cache folder and its project hold (anything else is not replaced)
+CACHE_NAMES = {"sample.json", "project", "scan"}
+PROJECT_NAMES = {"project.json", "calibration.json", "log.jsonl", "reconstruction"}
+SAMPLE_CASE = "SAMPLE-0001"
+
+
+def _check_cache(cache_dir: Path) -> None:
+    """Refuse (E-OUTPUT-NOT-EMPTY, before anything is removed) to rebuild the sample in a
+    folder that holds anything the sample did not write: its ``sample.json`` must be the
+    sample's stamp and its project the sample's case, with nothing added (an examiner's notes
+    there are never deleted)."""
+    from impress_gui.core.base import codes
+    from impress_gui.core.base.outdir import OutputError
+
+    def refuse(what: str) -> None:
+        raise OutputError(f"{cache_dir} {what}: it is not a sample this command made, and "
+                          "nothing there is replaced; name another --cache folder",
+                          code=codes.E_OUTPUT_NOT_EMPTY)
+
+    if not cache_dir.exists():
+        return
+    if cache_dir.is_symlink() or not cache_dir.is_dir():
+        refuse("is not a folder")
+    foreign = sorted(p.name for p in cache_dir.iterdir()
+                     if p.name not in CACHE_NAMES and not p.name.startswith("."))
+    if foreign:
+        refuse(f"holds {', '.join(foreign[:5])}")
+    stamp = cache_dir / "sample.json"
+    if stamp.exists():
+        try:
+            ok = "sample_version" in json.loads(stamp.read_text(encoding="utf-8"))
+        except (OSError, ValueError, TypeError):
+            ok = False
+        if not ok:
+            refuse("holds a sample.json that is not the sample's")
+    project = cache_dir / "project"
+    if project.exists():
+        if project.is_symlink() or not project.is_dir():
+            refuse("holds a 'project' that is not a folder")
+        extra = sorted(p.name for p in project.iterdir() if p.name not in PROJECT_NAMES)
+        if extra:
+            refuse(f"holds a project with {', '.join(extra[:5])} added")
+        try:
+            doc = json.loads((project / "project.json").read_text(encoding="utf-8"))
+            case = doc.get("case_id")
+        except (OSError, ValueError, AttributeError):
+            case = None
+        if case != SAMPLE_CASE and any(project.iterdir()):
+            refuse("holds a project that is not the sample's case")
+
+
 def make_sample(cache_dir: Path, workers: int = 2, progress: ProgressCallback | None = None,
                 cancel: CancelToken | None = None, small: bool | None = None) -> Path:
     """Build (or reuse) the sample project under ``cache_dir``; return the project folder.
@@ -60,6 +111,7 @@ def make_sample(cache_dir: Path, workers: int = 2, progress: ProgressCallback | 
                 return project_dir
         except (OSError, ValueError):
             pass
+    _check_cache(cache_dir)
     cfg = sample_config(small)
     stamp.unlink(missing_ok=True)  # rebuilt: stale until the new sample is complete
     scan = cache_dir / "scan"
@@ -76,7 +128,7 @@ def make_sample(cache_dir: Path, workers: int = 2, progress: ProgressCallback | 
         import shutil
 
         shutil.rmtree(project_dir)
-    proj: Project = create_project(project_dir, case_id="SAMPLE-0001", evidence_id="SIM-SHOE-1",
+    proj: Project = create_project(project_dir, case_id=SAMPLE_CASE, evidence_id="SIM-SHOE-1",
                                    examiner="demo",
                                    notes="Simulated shoe impression (impress simulate, seed 7); "
                                          "corner picks are the simulator's exact positions.")

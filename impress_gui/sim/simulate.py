@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -119,6 +120,8 @@ class SimConfig:
             bad("--grid-mm must be between 0.02 and 1 mm")
         if not 0 <= self.click_noise_px <= 20:
             bad("--click-noise-px must be between 0 and 20")
+        if self.bitrate_mbit is not None and not 0.001 <= self.bitrate_mbit <= 500:
+            bad("--bitrate-mbit must be between 0.001 and 500 Mbit/s")
         if not 0 <= self.seed < 2**32:
             bad("--seed must be between 0 and 4294967295")
         if self.shoe:
@@ -305,6 +308,11 @@ def _make_renderer(cfg: SimConfig, scene=None):
 
 
 def _worker_init(cfg_json: str, scene) -> None:
+    import signal
+
+    # Ctrl-C is the parent's to handle (it stops handing out frames); a worker interrupted
+    # while it builds its renderer printed a traceback
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     cfg = SimConfig(**json.loads(cfg_json))
     _WORKER["renderer"] = _make_renderer(cfg, scene)[0]
 
@@ -347,6 +355,7 @@ def simulate(cfg: SimConfig, out_dir: Path, workers: int = 1,
     cancel = cancel or CancelToken()
     final_dir = Path(out_dir)
     _adopt_legacy(final_dir)
+    _check_frames_folder(final_dir)
     # everything is written into a hidden sibling folder that replaces the old one at the end:
     # an interrupted run leaves the previous simulation whole; a folder that is not a previous
     # simulation is refused before any work (E-OUTPUT-*)
@@ -364,9 +373,38 @@ SIM_FILES = ("scan.mp4", "scan.mov", "scan.mts", "frames", "intrinsics.json", "t
              "simulator.txt")
 
 
+#: the only names a simulation's frame folder holds
+SIM_FRAME = re.compile(r"frame_\d{6}\.png")
+
+
+def _frames_only(frames: Path) -> bool:
+    """Whether ``frames`` holds nothing but the simulator's frame files (regular, no links)."""
+    return all(SIM_FRAME.fullmatch(p.name) and p.is_file() and not p.is_symlink()
+               for p in frames.iterdir())
+
+
+def _check_frames_folder(folder: Path) -> None:
+    """A simulation folder about to be replaced must not hold anything the simulator did not
+    write below its top level either (its ``frames`` folder holds frame files only)."""
+    from impress_gui.core.base.outdir import OutputError
+
+    frames = folder / "frames"
+    try:
+        ok = frames.is_symlink() is False and (not frames.is_dir() or _frames_only(frames))
+    except OSError:
+        ok = False
+    if not ok:
+        raise OutputError(f"{frames} holds files a simulation did not write: nothing is "
+                          "replaced; move them or name another folder",
+                          code=codes.E_OUTPUT_NOT_EMPTY)
+
+
 def _adopt_legacy(folder: Path) -> None:
-    """A simulation written before folders were marked (truth.json, nothing but simulator
-    files, no links) gets the mark, so that it can be replaced like a marked one."""
+    """A simulation written before folders were marked gets the mark, so that it can be
+    replaced like a marked one: nothing but simulator files, no links, a truth.json of the
+    simulator's format whose video hash is the video's (a folder of a lab's own files that
+    happen to have these names is not one)."""
+    from impress_gui.core.base.fileio import sha256_path
     from impress_gui.core.base.outdir import MARK_FILE, mark_bytes, read_mark
 
     try:
@@ -374,9 +412,17 @@ def _adopt_legacy(folder: Path) -> None:
                 or not (folder / "truth.json").is_file()):
             return
         names = [p for p in folder.iterdir()]
-        if all(p.name in SIM_FILES and not p.is_symlink() for p in names):
-            (folder / MARK_FILE).write_bytes(mark_bytes("simulation"))
-    except OSError:
+        if not all(p.name in SIM_FILES and not p.is_symlink() for p in names):
+            return
+        truth = json.loads((folder / "truth.json").read_text(encoding="utf-8"))
+        video = folder / str(truth.get("video", ""))
+        if (truth.get("format") != "impress.sim-truth" or video.parent != folder
+                or video.name not in SIM_FILES or not video.exists()
+                or (video.is_dir() and not _frames_only(video))
+                or sha256_path(video) != truth.get("video_sha256")):
+            return
+        (folder / MARK_FILE).write_bytes(mark_bytes("simulation"))
+    except (OSError, ValueError, AttributeError):
         return
 
 

@@ -19,6 +19,12 @@ TARGET_FORMAT = "impress.target"
 CORNER_NAMES = ("A", "B", "C", "D", "E", "F")
 
 
+#: the most faces a target file may describe, and vertices per face (the L target has 7
+#: faces of 4 vertices; a lab's own target a few more)
+MAX_FACES = 64
+MAX_FACE_VERTICES = 64
+
+
 @dataclass(frozen=True)
 class Face:
     """A planar convex polygon of the target; ``vertices_mm`` is ``(N, 3)`` counter-clockwise
@@ -101,13 +107,19 @@ class TargetModel:
         if min(np.linalg.norm(arr[i] - arr[j]) for i in range(6) for j in range(i)) < 1.0:
             raise FormatError(f"{where}two target corners coincide")
         faces = []
-        for i, fd in enumerate(require(doc, "faces", list, where)):
+        face_docs = require(doc, "faces", list, where)
+        if len(face_docs) > MAX_FACES:
+            # every face is projected and searched for stripe points in every plane frame:
+            # a thousand faces made the calibration run for minutes
+            raise FormatError(f"{where}{len(face_docs)} faces: a target has at most "
+                              f"{MAX_FACES}")
+        for i, fd in enumerate(face_docs):
             if not isinstance(fd, dict):
                 raise FormatError(f"{where}face {i} must be an object")
             verts = require(fd, "vertices_mm", list, where)
             v = float_array(verts, (len(verts), 3), f"face {i} vertices")
-            if len(v) < 3:
-                raise FormatError(f"{where}face {i} needs at least 3 vertices")
+            if not 3 <= len(v) <= MAX_FACE_VERTICES:
+                raise FormatError(f"{where}face {i} needs 3 to {MAX_FACE_VERTICES} vertices")
             if not np.linalg.norm(np.cross(v[1] - v[0], v[2] - v[0])) > 1e-9:
                 raise FormatError(f"{where}face {i} is degenerate (its first vertices are on "
                                   "one line)")
