@@ -107,6 +107,16 @@ def test_a_failing_scan_is_reported_and_the_others_finish(flat_scan, flat_calibr
       {"name": "a", "video": "w.mp4", "calibration": "c.json"}], "E-BATCH"),
     ([{"name": "a", "video": "v.mp4", "calibration": "c.json",
        "parameters": {"rm": "-rf"}}], "E-BATCH"),
+    # a hostile-input audit: a NUL in a name or a path was an internal error (and left an
+    # empty batch folder); a string for a switch was stored as given
+    ([{"name": "a\u0000b", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),
+    ([{"name": "a", "video": "v\u0000.mp4", "calibration": "c.json"}], "E-BATCH"),
+    ([{"name": "a\nb", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),
+    ([{"name": "a", "video": 7, "calibration": "c.json"}], "E-BATCH"),
+    ([{"name": "a", "video": "v.mp4", "calibration": "c.json",
+       "parameters": {"texture": "no"}}], "E-BATCH"),
+    ([{"name": "a", "video": "v.mp4", "calibration": "c.json",
+       "parameters": {"grid_mm": True}}], "E-BATCH"),
 ])
 def test_bad_manifests_are_refused(scans, code, tmp_path, capsys):
     manifest = tmp_path / "m.json"

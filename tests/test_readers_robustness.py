@@ -441,6 +441,10 @@ def _central_entries(data: bytes):
             lambda x: x.replace("<Increment>0.0001</Increment>", "<Increment>0</Increment>", 1),
             "E-VALUE",
         ),
+        (  # both axes of 1e-300 m: square, positive, finite - and no surface's cell
+            lambda x: x.replace("<Increment>0.0001</Increment>", "<Increment>1e-300</Increment>"),
+            "E-VALUE",
+        ),
         (
             lambda x: x.replace("<DataType>D</DataType></CZ>", "<DataType>Q</DataType></CZ>"),
             "E-X3P-DATA",

@@ -50,9 +50,27 @@ class BatchItem:
     params: dict = field(default_factory=dict)
 
 
+#: the type each manifest parameter must have (bool is not a number here)
+PARAM_TYPES = {"method": (str,), "frame_start": (int, type(None)), "frame_stop": (int, type(None)),
+               "grid_mm": (int, float), "min_peak": (int, float), "subpixel": (bool,),
+               "texture": (bool,), "fps": (int, float, type(None))}
+
+
+def _control(text: str) -> bool:
+    return any(ord(ch) < 32 or ord(ch) == 127 for ch in text)
+
+
+def _path_field(s: dict, key: str, where: str) -> str:
+    v = s[key]
+    if not isinstance(v, str) or not v.strip() or _control(v):
+        raise FormatError(f"{where}: {key!r} must be a file path (text without control "
+                          "characters)", code=codes.E_BATCH)
+    return v
+
+
 def _safe_name(name: str, where: str) -> str:
     if (not name or name.startswith(".") or "/" in name or "\\" in name or name in SUMMARY_FILES
-            or len(name) > 120 or name != name.strip()):
+            or len(name) > 120 or name != name.strip() or _control(name)):
         raise FormatError(f"{where}: the scan name {name!r} cannot be a folder name (no '/', no "
                           "leading dot, at most 120 characters)", code=codes.E_BATCH)
     return name
@@ -73,9 +91,10 @@ def load_manifest(path: str | os.PathLike) -> list[BatchItem]:
         if not isinstance(s, dict):
             raise FormatError(f"{where} must be an object", code=codes.E_BATCH)
         try:
-            name = _safe_name(str(s.get("name") or Path(str(s["video"])).stem), where)
-            video = base / str(s["video"])
-            cal = base / str(s["calibration"])
+            video_text = _path_field(s, "video", where)
+            name = _safe_name(str(s.get("name") or Path(video_text).stem), where)
+            video = base / video_text
+            cal = base / _path_field(s, "calibration", where)
         except KeyError as exc:
             raise FormatError(f"{where}: the field {exc.args[0]!r} is missing",
                               code=codes.E_BATCH) from None
@@ -86,6 +105,12 @@ def load_manifest(path: str | os.PathLike) -> list[BatchItem]:
         if not isinstance(params, dict) or set(params) - set(PARAM_KEYS):
             raise FormatError(f"{where}: parameters may only set {', '.join(PARAM_KEYS)}",
                               code=codes.E_BATCH)
+        for key, value in params.items():
+            types = PARAM_TYPES[key]
+            if not isinstance(value, types) or (isinstance(value, bool) and bool not in types):
+                names = " or ".join("null" if t is type(None) else t.__name__ for t in types)
+                raise FormatError(f"{where}: the parameter {key!r} must be {names}, not "
+                                  f"{value!r}", code=codes.E_BATCH)
         items.append(BatchItem(name, video, cal, dict(params)))
     return items
 

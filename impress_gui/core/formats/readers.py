@@ -173,6 +173,11 @@ def _xml_text(root, path_: str, ns: dict, path: Path, required: bool = True) -> 
     return el.text.strip()
 
 
+#: the cell sizes an X3P surface is read with (metres): 0.1 um to 10 mm
+MIN_INCREMENT_M = 1e-7
+MAX_INCREMENT_M = 1e-2
+
+
 def _finite(text: str | None, what: str, path: Path, positive: bool = False) -> float:
     try:
         v = float(text)  # type: ignore[arg-type]
@@ -235,6 +240,10 @@ def read_x3p(path: str | os.PathLike, max_cells: int = MAX_CELLS) -> X3PData:
                 _finite(t(f"Record1/Axes/{ax}/Increment"), f"{ax} increment", path, positive=True),
                 _finite(t(f"Record1/Axes/{ax}/Offset", False) or "0", f"{ax} offset", path),
             )
+        if not MIN_INCREMENT_M <= axes["CX"][0] <= MAX_INCREMENT_M:
+            # a cell of 1e-300 m left the registration without a single sample
+            raise _err(path, f"a cell of {axes['CX'][0]:g} m is not a surface scan's (give "
+                       f"{MIN_INCREMENT_M:g} to {MAX_INCREMENT_M:g} m)", codes.E_VALUE)
         if abs(axes["CX"][0] - axes["CY"][0]) > 1e-9 * max(axes["CX"][0], 1e-12):
             raise _err(path, "x and y increments differ (only square cells are read)", codes.E_X3P_DATA)
         ztype = t("Record1/Axes/CZ/DataType")
