@@ -391,3 +391,20 @@ def test_cli_reports_the_position_while_a_bank_runs(capsys):
     positions = [float(ln.split(":")[1].split("mm")[0]) for ln in lines]
     assert positions == sorted(positions) and positions[-1] > positions[0]
     assert "position:" in out
+
+
+@pytest.mark.parametrize("argv", [
+    ["motor", "--port", "sim", "--timeout", "-1", "status"],
+    ["motor", "--port", "sim", "--timeout", "1e9", "status"],
+    ["motor", "--port", "sim", "--sim-time-scale", "0", "status"],
+    ["motor", "calibrate", "--commanded-pulses", "1e300", "--measured-mm", "1e-300"],
+])
+def test_link_values_out_of_range_are_refused_with_a_code(argv, capsys):
+    # a hostile-input audit: --timeout -1 was an internal error (pyserial), --sim-time-scale 0
+    # ran into E-MOTOR-TIMEOUT, a calibration printed "pulses per mm: inf"
+    try:
+        rc = main(argv)
+    except SystemExit as exc:  # argparse's refusal of an option's value
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert rc == 2 and "[E-" in err and "Traceback" not in err and "E-INTERNAL" not in err

@@ -51,6 +51,18 @@ def finite_float(text: str) -> float:
     return value
 
 
+def ranged_float(lo: float, hi: float):
+    """An argparse type: a finite number from ``lo`` to ``hi``; else ``E-MOTOR-VALUE``."""
+
+    def parse(text: str) -> float:
+        value = finite_float(text)
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"[E-MOTOR-VALUE] {text!r} is outside {lo:g}..{hi:g}")
+        return value
+
+    return parse
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     link = parser.add_argument_group("link and units")
     link.add_argument(
@@ -69,10 +81,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     link.add_argument("--accel", type=int, default=100, help="acceleration A value (default 100)")
     link.add_argument(
-        "--timeout", type=finite_float, default=1.0, help="reply timeout, s (default 1)"
+        "--timeout", type=ranged_float(0.01, 60.0), default=1.0,
+        help="reply timeout, s (default 1; 0.01 to 60)"
     )
     link.add_argument(
-        "--sim-time-scale", type=finite_float, default=1.0, help="speed-up of the simulated motor"
+        "--sim-time-scale", type=ranged_float(0.01, 1000.0), default=1.0,
+        help="speed-up of the simulated motor (0.01 to 1000)"
     )
     link.add_argument(
         "--travel-mm",

@@ -93,7 +93,17 @@ def pulses_per_mm_from_measurement(commanded_pulses: float, measured_mm: float) 
         raise InputError("the measured distance must be a non-zero number of mm")
     if not (math.isfinite(commanded_pulses) and abs(commanded_pulses) > 0):
         raise InputError("the commanded move must be a non-zero number of pulses")
-    return abs(float(commanded_pulses)) / abs(float(measured_mm))
+    ppm = abs(float(commanded_pulses)) / abs(float(measured_mm))
+    if not (math.isfinite(ppm) and PULSES_PER_MM_RANGE[0] <= ppm <= PULSES_PER_MM_RANGE[1]):
+        # 1e300 pulses over 1e-300 mm gave "pulses per mm: inf"
+        raise InputError(f"{abs(commanded_pulses):g} pulses over {abs(measured_mm):g} mm is "
+                         f"{ppm:g} pulses per mm: no rail drive has that (give a measurement "
+                         f"of {PULSES_PER_MM_RANGE[0]:g} to {PULSES_PER_MM_RANGE[1]:g} per mm)")
+    return ppm
+
+
+#: pulses per mm a measured calibration may give (the Cool Muscle on its rail: about 78)
+PULSES_PER_MM_RANGE = (0.01, 1.0e6)
 
 
 def speed_unit_from_measurement(
