@@ -441,3 +441,20 @@ def test_the_method_component_comes_from_a_validation_record(run, tmp_path):
         assert session.method_validation == rec  # unchanged
     session.set_method_validation(None)
     assert session.method_validation is None
+
+
+def test_an_interrupted_validation_leaves_no_folder_behind(tmp_path):
+    # a hostile-input audit: Ctrl-C left the output folder with its mark and an empty scans/
+    from impress_gui.core.base.progress import CancelToken
+    from impress_gui.validation.run import RunConfig, run_simulated
+
+    token = CancelToken()
+    token.cancel()
+    with pytest.raises(Cancelled):
+        run_simulated(RunConfig.quick(), tmp_path / "v", cancel=token)
+    assert not (tmp_path / "v").exists()
+    # a folder that was there is left as it was
+    (tmp_path / "w").mkdir()
+    with pytest.raises(Cancelled):
+        run_simulated(RunConfig.quick(), tmp_path / "w", cancel=token)
+    assert (tmp_path / "w").is_dir()

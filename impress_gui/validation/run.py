@@ -456,6 +456,45 @@ def disk_usage_bytes(folder: Path) -> int:
     return sum(f.stat().st_size for f in Path(folder).rglob("*") if f.is_file() and not f.is_symlink())
 
 
+def _only_marks(folder: Path) -> bool:
+    """Whether ``folder`` holds nothing but the product's mark and empty folders."""
+    from impress_gui.core.base.outdir import MARK_FILE
+
+    for p in folder.iterdir():
+        if p.is_symlink() or (p.is_file() and p.name != MARK_FILE):
+            return False
+        if p.is_dir() and not _only_marks(p):
+            return False
+    return True
+
+
+def _cleared_on_failure(run):
+    """``run`` (``run_simulated`` or ``run_real``): a validation folder it made anew and that
+    holds nothing of value when the run fails or is interrupted (only its mark and empty
+    folders: no scan was kept) is removed again, so no half-made output stays behind. A folder
+    that existed, or holds rendered scans to reuse, is left."""
+    import functools
+    import shutil
+
+    @functools.wraps(run)
+    def wrapper(first, out_dir, *args, **kw):
+        folder = Path(out_dir)
+        existed = folder.exists() or folder.is_symlink()
+        try:
+            return run(first, out_dir, *args, **kw)
+        except BaseException:
+            try:
+                if not existed and folder.is_dir() and not folder.is_symlink() \
+                        and _only_marks(folder):
+                    shutil.rmtree(folder)
+            except OSError:
+                pass
+            raise
+
+    return wrapper
+
+
+@_cleared_on_failure
 def run_simulated(
     cfg: RunConfig,
     out_dir: str | os.PathLike[str],
@@ -465,7 +504,8 @@ def run_simulated(
 ) -> dict[str, Any]:
     """The protocol on simulator scans; writes ``validation.json`` (and the spec of its
     readings) into ``out_dir`` and returns the record. Rendered scans are kept in
-    ``scans_dir`` (default ``out_dir/scans``) and reused while unchanged."""
+    ``scans_dir`` (default ``out_dir/scans``) and reused while unchanged. A folder made anew
+    is removed again when the run fails or is interrupted before any scan was kept."""
     from impress_gui.core.measure.readings import load_reconstruction
     from impress_gui.core.reconstruction.reconstruct import ProcessParams
 
@@ -545,6 +585,7 @@ def run_simulated(
     return record
 
 
+@_cleared_on_failure
 def run_real(
     spec_path: str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
