@@ -679,3 +679,21 @@ def test_normal_metric_is_the_distance_to_a_on_walls(truths):
     assert np.percentile(vertical, 95) > 2.5 * np.percentile(normal, 95)
     flat = slope(win)[ok] < 0.05
     assert np.allclose(normal[flat], vertical[flat], rtol=0.002, atol=1e-6)
+
+
+def test_point_pairs_out_of_range_are_refused(tmp_path):
+    # a hostile-input audit: a coordinate of 1e308 overflowed in numpy (a warning on stderr)
+    # and three coordinates were accepted
+    from impress_gui.core.base.errors import InputError
+    from impress_gui.core.compare.record import load_pairs
+
+    ok = [{"a": [0.0, 0.0], "b": [1.0, 1.0]}, {"a": [5.0, 0.0], "b": [6.0, 1.0]},
+          {"a": [0.0, 5.0], "b": [1.0, 6.0]}]
+    for bad in ({"a": [1e308, 0.0], "b": [0.0, 0.0]}, {"a": [0.0, 0.0, 1.0], "b": [0.0, 0.0]},
+                {"a": [0.0, 0.0], "b": [2e6, 0.0]}):
+        (tmp_path / "p.json").write_text(json.dumps({"pairs": [*ok, bad]}))
+        with pytest.raises(InputError) as e:
+            load_pairs(tmp_path / "p.json")
+        assert e.value.code == "E-COMPARE-PAIRS"
+    (tmp_path / "p.json").write_text(json.dumps({"pairs": ok}))
+    assert len(load_pairs(tmp_path / "p.json")) == 3

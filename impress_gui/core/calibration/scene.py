@@ -199,6 +199,14 @@ class SceneCalibration:
                         "the reprojection RMS (px)", where)
             check_range(doc.get("cross_tilt_deg", 0.0), (-90.0, 90.0),
                         "the turn about the motion axis (deg)", where)
+            for key, rot in (("rotation_camera_to_ideal", doc.get("rotation_camera_to_ideal")),
+                             ("target_pose.rotation", pose.get("rotation"))):
+                r = float_array(rot, (3, 3), key)
+                if not (np.allclose(r @ r.T, np.eye(3), atol=1e-6)
+                        and abs(np.linalg.det(r) - 1.0) < 1e-6):
+                    raise FormatError(f"{where}{key} is not a rotation (not orthonormal with "
+                                      "determinant 1): the file is damaged or forged",
+                                      code=codes.E_VALUE)
             return cls(
                 intrinsics=intr, speed_mm_s=speed, fps=fps,
                 t1=int(require(doc, "t1", int, where)), t2=int(require(doc, "t2", int, where)),

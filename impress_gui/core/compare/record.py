@@ -528,14 +528,16 @@ def load_pairs(path: str | Path) -> tuple:
     out = []
     try:
         for it in list(items or []):
+            if len(it["a"]) != 2 or len(it["b"]) != 2:
+                raise ValueError
             a = (float(it["a"][0]), float(it["a"][1]))
             b = (float(it["b"][0]), float(it["b"][1]))
-            if not all(math.isfinite(v) for v in (*a, *b)):
+            if not all(math.isfinite(v) and abs(v) <= 1e6 for v in (*a, *b)):
                 raise ValueError
             out.append((a, b))
     except (TypeError, KeyError, IndexError, ValueError):
         raise InputError(f"{p}: each pair must be {{\"a\": [x, y], \"b\": [x, y]}} with finite "
-                         "numbers (mm)", code=codes.E_COMPARE_PAIRS) from None
+                         "numbers (mm, within 1 km)", code=codes.E_COMPARE_PAIRS) from None
     if len(out) < 3:
         raise InputError(f"{p}: {len(out)} point pair(s); at least 3 are needed",
                          code=codes.E_COMPARE_PAIRS)
