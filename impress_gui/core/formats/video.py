@@ -665,8 +665,8 @@ def frame_numbers(names: list[str]) -> list[int] | None:
     """The frame number of each file name (``frame_000123.png`` -> 123) when every name is a
     common prefix followed by digits; None otherwise (the frames are then taken in name
     order, one frame interval apart)."""
-    found = [_FRAME_NUMBER.match(Path(n).stem) for n in names]
-    if not all(found) or len({m.group(1) for m in found}) != 1:
+    found = [m for m in (_FRAME_NUMBER.match(Path(n).stem) for n in names) if m is not None]
+    if len(found) != len(names) or len({m.group(1) for m in found}) != 1:
         return None
     return [int(m.group(2)) for m in found]
 
@@ -697,10 +697,11 @@ class FrameFolder(VideoSource):
         files = sorted(named)
         numbers = frame_numbers([p.name for p in files])
         if numbers is not None:
-            order = sorted(range(len(files)), key=lambda i: (numbers[i], files[i].name))
+            nums: list[int] = numbers
+            order = sorted(range(len(files)), key=lambda i: (nums[i], files[i].name))
             files = [files[i] for i in order]
-            numbers = [numbers[i] for i in order]
-            twice = sorted({a for a, b in zip(numbers, numbers[1:]) if a == b})
+            numbers = [nums[i] for i in order]
+            twice = sorted({a for a, b in zip(numbers, numbers[1:], strict=False) if a == b})
             if twice:
                 raise VideoError(f"{self.path}: frame number {twice[0]} is on two files: which "
                                  "comes first is not known", code=codes.E_VIDEO_OPEN)
