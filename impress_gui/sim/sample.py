@@ -77,7 +77,7 @@ def _check_cache(cache_dir: Path) -> None:
             case = doc.get("case_id")
         except (OSError, ValueError, AttributeError):
             case = None
-        if case != SAMPLE_CASE and any(project.iterdir()):
+        if case != SAMPLE_CASE and (project / "project.json").exists():
             refuse("holds a project that is not the sample's case")
 
 
