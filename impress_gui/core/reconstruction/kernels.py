@@ -240,15 +240,6 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
         m1 += px[1] / 3.0
         m2 += px[2] / 3.0
         top = max(top, px[ch])
-    clip_own = 0
-    clip_other = 0
-    for j in range(n):
-        r = rr[j]
-        px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
-        clip_own += px[ch] >= FAINT_CLIP
-        clip_other += px[1 - ch] >= FAINT_CLIP
-    if clip_other > clip_own:
-        return False
     bg = (bg0, bg1, bg2)
     rise = (m0 - bg0, m1 - bg1, m2 - bg2)
     best = rise[ch]
@@ -258,7 +249,15 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
     for o in (o1, o2):
         if rise[o] * bc > FAINT_TINT * best * bg[o]:
             return False
-    return True
+    # last (the rarest to be reached): the clipped rows of the two lasers' channels
+    clip_own = 0
+    clip_other = 0
+    for j in range(n):
+        r = rr[j]
+        px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
+        clip_own += px[ch] >= FAINT_CLIP
+        clip_other += px[1 - ch] >= FAINT_CLIP
+    return clip_other <= clip_own
 
 
 @_jit
