@@ -158,3 +158,28 @@ def test_an_unreadable_settings_file_is_not_overwritten(tmp_path):
     assert "W-SETTINGS" in res.stderr
     kept = [p for p in own.parent.iterdir() if p.name.startswith(own.name + ".unreadable-")]
     assert len(kept) == 1 and kept[0].read_bytes() == b"not an ini"
+
+
+def test_check_leaves_the_users_configuration_as_it_was(sample_project, tmp_path):
+    """``--check`` without ``--settings`` (a smoke test on an analyst's machine) reads the
+    user's configuration but writes nothing into it: the recent projects and what the window
+    remembers stay as they were, and no file is made beside it."""
+    config = tmp_path / "config"
+    user = config / "IMPREsS" / "impress-workstation.ini"
+    user.parent.mkdir(parents=True)
+    before = "[General]\nsomething_of_the_user=42\n"
+    user.write_text(before)
+    env = {**os.environ, "QT_QPA_PLATFORM": "offscreen", "HOME": str(tmp_path),
+           "XDG_CONFIG_HOME": str(config), "IMPRESS_KEY_DIR": str(tmp_path / "keys")}
+    cmd = [sys.executable, "-m", "impress_gui", "gui", str(sample_project), "--no-motor"]
+    res = subprocess.run([*cmd, "--check"], capture_output=True, text=True, timeout=120, env=env)
+    assert res.returncode == 0, res.stderr
+    assert f"check passed: opened {sample_project}" in res.stdout
+    assert user.read_text() == before
+    assert sorted(p.name for p in config.rglob("*")) == ["IMPREsS", user.name]
+    # the same without --check records the project among the recent ones (so the check's
+    # copy is what kept the configuration as it was)
+    res = subprocess.run([*cmd, "--quit-after", "1"], capture_output=True, text=True,
+                         timeout=120, env=env)
+    assert res.returncode == 0, res.stderr
+    assert user.read_text() != before and "something_of_the_user=42" in user.read_text()

@@ -51,3 +51,21 @@ def test_the_window_opens_on_the_xcb_platform_under_xvfb(x_display, tmp_path):
     assert img.shape[0] >= 400 and img.shape[1] >= 600
     grey = img.mean(axis=2)
     assert grey.std() > 20 and (grey > 200).mean() > 0.2 and (grey < 60).mean() > 0.05
+
+
+def test_without_a_display_the_window_refuses_with_a_coded_error(tmp_path):
+    """No display at all, and one named that no X server answers: Qt's xcb platform cannot
+    start. Qt would abort (exit 134, a core dump); the user gets one coded line (E-DISPLAY)
+    naming Qt's reason and what to do, exit status 2, and nothing is written."""
+    base = {k: v for k, v in os.environ.items()
+            if not k.startswith("QT_") and k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    for extra in ({}, {"DISPLAY": ":97"}):
+        home = tmp_path / f"home{len(extra)}"
+        home.mkdir()
+        env = base | extra | {"HOME": str(home), "XDG_CONFIG_HOME": str(home / ".config")}
+        res = subprocess.run([sys.executable, "-m", "impress_gui", "gui", "--no-motor"],
+                             env=env, capture_output=True, text=True, timeout=120, cwd=home)
+        assert res.returncode == 2, f"exit {res.returncode}\n{res.stderr}"
+        assert "error [E-DISPLAY]" in res.stderr and "could not connect to display" in res.stderr
+        assert "QT_QPA_PLATFORM=offscreen" in res.stderr and "Traceback" not in res.stderr
+        assert list(home.rglob("*")) == []

@@ -68,7 +68,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "viewer when the project has one), take the --screenshot if asked, and close: exit "
         "status 0 if everything opened, 1 with the reasons on stderr if anything failed or "
         "an error message was shown (for smoke tests; with QT_QPA_PLATFORM=offscreen no "
-        "display is needed)",
+        "display is needed; without --settings it runs on a copy of the user's settings, "
+        "which it leaves as they were)",
     )
     p.add_argument(
         "--check-timeout",

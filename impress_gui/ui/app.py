@@ -34,11 +34,50 @@ def create_app(argv: list[str] | None = None) -> QApplication:
     pyside_fix.guard()
     app = QApplication.instance()
     if app is None:
-        app = QApplication(list(argv if argv is not None else sys.argv[:1]))
+        app = _new_application(list(argv if argv is not None else sys.argv[:1]))
     app.setOrganizationName(ORGANISATION)
     app.setApplicationName(APPLICATION)
     app.setApplicationVersion(__version__)
     pg.setConfigOptions(imageAxisOrder="row-major", antialias=True)
+    return app
+
+
+NO_DISPLAY_EXIT = 2
+
+
+def _new_application(argv: list[str]) -> QApplication:
+    """QApplication(argv), but when Qt cannot start its platform (no display, an X server it
+    cannot reach, the X11 libraries missing) one coded line on stderr and exit status 2
+    instead of Qt's abort (status 134): Qt reports that through its fatal message, which
+    the handler installed while the application is made turns into ``E-DISPLAY``. Qt's
+    other messages of those moments are passed on to stderr as Qt prints them."""
+    import os
+
+    from PySide6.QtCore import QtMsgType, qInstallMessageHandler
+
+    said: list[str] = []
+
+    def handler(mode, _context, message) -> None:
+        if mode != QtMsgType.QtFatalMsg:
+            said.append(str(message))
+            return
+        reasons = [m.strip() for m in said if m.strip()] or [str(message).splitlines()[0]]
+        sys.stderr.write(
+            f"impress: error [{codes.E_DISPLAY}]: the window cannot open: Qt found no display "
+            f"it can use ({'; '.join(reasons)}). Start it in a desktop session; see "
+            "docs/troubleshooting.md for the libraries Qt needs on Linux. Without a display, "
+            "QT_QPA_PLATFORM=offscreen impress gui PROJECT --screenshot out.png --quit-after 1 "
+            "makes a picture of the window.\n")
+        sys.stderr.flush()
+        os._exit(NO_DISPLAY_EXIT)  # Qt aborts when the handler returns
+
+    previous = qInstallMessageHandler(handler)
+    try:
+        app = QApplication(argv)
+    finally:
+        qInstallMessageHandler(previous)
+        for line in said:
+            sys.stderr.write(line + "\n")
     return app
 
 
@@ -294,7 +333,41 @@ def run_gui(
     holds (the viewer's reconstruction) have loaded, then close; exit status 1 with the
     reasons on stderr if anything failed to open or an error message was shown, else 0."""
     app = create_app()
-    window = build_main_window(make_settings(settings_path), with_motor=with_motor)
+    scratch = None
+    if check and settings_path is None:
+        scratch, settings_path = _scratch_settings()
+    try:
+        return _run_window(app, path, screenshot, quit_after_s, size, make_settings(settings_path),
+                           with_motor, tab, check, check_timeout_s)
+    finally:
+        if scratch is not None:
+            scratch.cleanup()
+
+
+def _scratch_settings():
+    """A check (``--check`` without ``--settings``) must not change the user's configuration
+    (window geometry, recent files): it runs on a copy of it in a temporary folder, removed
+    afterwards; an unreadable configuration is neither copied nor moved aside."""
+    import shutil
+    import tempfile
+
+    scratch = tempfile.TemporaryDirectory(prefix="impress-check-")
+    copy = Path(scratch.name) / "settings.ini"
+    user = QSettings(QSettings.Format.IniFormat, QSettings.Scope.UserScope, ORGANISATION,
+                     APPLICATION)
+    user.allKeys()
+    source = Path(user.fileName())
+    if user.status() == QSettings.Status.NoError and source.is_file():
+        try:
+            shutil.copyfile(source, copy)
+        except OSError:
+            pass
+    return scratch, copy
+
+
+def _run_window(app, path, screenshot, quit_after_s, size, settings, with_motor, tab, check,
+                check_timeout_s) -> int:
+    window = build_main_window(settings, with_motor=with_motor)
     window.resize(*size)
     window.show()
     checker = OpenCheck(window) if check else None
