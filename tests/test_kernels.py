@@ -110,7 +110,7 @@ def test_stripe_profile_kernel_equals_numpy_steps(frames, flat_calibration):
                 def tri(valid, r=r, b0=b0, rays=rays, plane=plane):
                     x, y, hh = np.empty(w), np.empty(w), np.empty(w)
                     kern.triangulate(r, valid, b0, rays, plane.normal, float(plane.offset_mm),
-                                     12.5, ref, x, y, hh)
+                                     12.5, 0.0, ref, x, y, hh)
                     return x, y, hh
 
                 def ups(x, y, hh, ok, k_, step):
@@ -124,7 +124,7 @@ def test_stripe_profile_kernel_equals_numpy_steps(frames, flat_calibration):
                 got = (np.empty(n_up), np.empty(n_up), np.empty(n_up), np.empty(n_up, bool))
                 y_range = np.empty(2)
                 n_ok = kern.stripe_profile(r, 2.0, min_cols, b0, rays, plane.normal,
-                                           float(plane.offset_mm), 12.5, ref, max_step, k,
+                                           float(plane.offset_mm), 12.5, 0.0, ref, max_step, k,
                                            valid, x, y, hh, *got, y_range)
                 assert n_ok == want_valid.sum()
                 assert np.array_equal(valid, want_valid)

@@ -111,6 +111,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="scene grid (truth) spacing in mm (default 0.1)")
     p.add_argument("--click-noise-px", type=float, default=0.0,
                    help="add Gaussian noise of this SD to the written corner picks")
+    p.add_argument("--readout-ms", type=float, default=0.0, metavar="MS",
+                   help="a rolling shutter: the time from the first image row's exposure to "
+                   "the last's, ms (0, the default: a global shutter; a CMOS camcorder reads "
+                   "its rows over most of a frame interval, e.g. 20-30 ms at 30 frames/s); "
+                   "recorded in truth.json")
     p.add_argument("--target-yaw", type=float, default=3.0,
                    help="rotation of the L target on the ground, degrees (default 3)")
     g = p.add_argument_group("blocks preset placements (thesis section 4.2)")
@@ -138,7 +143,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "scene, soil, motion, noise and bitrate from SEED over the documented "
                    "family (docs/accuracy.md, Random rigs), every drawn value recorded in "
                    "truth.json's random_rig section; only --resolution, --format, --grid-mm, "
-                   "--click-noise-px and --workers still apply")
+                   "--click-noise-px, --readout-ms and --workers still apply")
     p.add_argument("--workers", type=int, default=None,
                    help="render processes (default: 1 for short clips, else up to 2)")
 
@@ -169,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--resolution must be between 64x36 and 4096x2304, even width "
                              "and height", code=codes.E_SIM_OPTION)
         cfg = SimConfig.random(args.random_rig, w, h, args.video_format, args.grid_mm,
-                               args.click_noise_px)
+                               args.click_noise_px, args.readout_ms)
     else:
         cfg = _preset_config(args, blocks)
     return _run(args, cfg)
@@ -184,7 +189,8 @@ def _preset_config(args: argparse.Namespace, blocks: dict):
                     seed=args.seed, video_format=args.video_format,
                     bitrate_mbit=args.bitrate_mbit, speckle=args.speckle, noise_dn=args.noise,
                     grid_mm=args.grid_mm, click_noise_px=args.click_noise_px,
-                    target_yaw_deg=args.target_yaw, blocks=blocks, shoe=_shoe_options(args))
+                    target_yaw_deg=args.target_yaw, blocks=blocks, shoe=_shoe_options(args),
+                    readout_ms=args.readout_ms)
 
 
 #: the most render processes ``--workers`` starts (each holds the scene; more than the

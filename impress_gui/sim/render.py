@@ -33,6 +33,10 @@ class RenderOptions:
     #: ``antialias x antialias`` rays over their area (1 = one ray per pixel everywhere)
     antialias: int = 3
     antialias_step_mm: float = 4.0
+    #: rolling shutter: the time (s) from one image row's exposure to the next (0: a global
+    #: shutter, the whole frame at its time); row ``v`` of frame ``k`` shows the scene at
+    #: ``k / fps + v * line_time_s``, the camera and its lasers moved on by then
+    line_time_s: float = 0.0
 
 
 @dataclass
@@ -137,23 +141,33 @@ class Renderer:
     def travel(self, k: int) -> float:
         return float(self.motion.travel_mm(k / self.motion.fps))
 
-    def _camera_depth(self, s: float) -> np.ndarray:
-        """Depth of the surface seen by every pixel, ``(H*W,)`` float32."""
+    def row_travel(self, k: int, rows) -> np.ndarray:
+        """The travel (mm) at which rows ``rows`` (pixel row coordinates) of frame ``k`` are
+        exposed: the frame's own for a global shutter."""
+        t = k / self.motion.fps + np.asarray(rows, float) * self.opt.line_time_s
+        return np.asarray(self.motion.travel_mm(t), float)
+
+    def _camera_depth(self, s: float, rays: slice = slice(None)) -> np.ndarray:
+        """Depth of the surface seen by every pixel (or the pixels ``rays`` of the flattened
+        image), ``(H*W,)`` float32."""
         sc = self.scene
-        n = self._cam_dx.shape[0]
+        dx, dy = self._cam_dx[rays], self._cam_dy[rays]
+        n = dx.shape[0]
         bx = np.float32(-sc.x0_mm / sc.pixel_mm)
         by = np.float32((s - sc.y0_mm) / sc.pixel_mm)
         zl = np.full(n, self._cam_z[0], np.float32)
         zh = np.full(n, self._cam_z[1], np.float32)
         cx, cy, table = self._cam_first
-        first = self.bounds.query_at(bx + cx, by + cy, table)
-        z = self.caster.cast(bx, by, self._cam_dx, self._cam_dy, zl, zh, refine=8, ftol=2e-3,
+        first = self.bounds.query_at(bx + cx[rays], by + cy[rays],
+                                     tuple(v[rays] for v in table))
+        z = self.caster.cast(bx, by, dx, dy, zl, zh, refine=8, ftol=2e-3,
                        ztol=2e-3, first=first)
         return np.where(np.isfinite(z), z, zh)
 
-    def _antialias(self, s: float, z: np.ndarray, rgb: np.ndarray) -> None:
+    def _antialias(self, s: float, z: np.ndarray, rgb: np.ndarray, row0: int = 0) -> None:
         """Average ``n x n`` rays over the area of pixels beside depth steps (occluding edges:
-        the sensor integrates over the pixel, so an edge falls between pixels as a blend)."""
+        the sensor integrates over the pixel, so an edge falls between pixels as a blend).
+        ``z`` and ``rgb`` may be a band of rows starting at image row ``row0``."""
         n = int(self.opt.antialias)
         if n <= 1:
             return
@@ -174,7 +188,7 @@ class Renderer:
         other = np.abs(du) + np.abs(dv) > 1e-9  # the pixel centre is already rendered
         du, dv = du[other], dv[other]
         mu = (u[None, :] + du[:, None]).astype(np.float32).ravel()
-        mv = (v[None, :] + dv[:, None]).astype(np.float32).ravel()
+        mv = (v[None, :] + row0 + dv[:, None]).astype(np.float32).ravel()
         sc = self.scene
         inv = np.float32(1.0 / sc.pixel_mm)
         dx = remap_points(self.ax, mu, mv) * inv  # ray slopes vary smoothly over a pixel
@@ -198,8 +212,57 @@ class Renderer:
         return self.ax * zh, np.float32(s) + self.ay * zh, zh
 
     def laser_points(self, laser: Laser, k: int) -> StripeTruth:
-        """Cast the laser's fan from its source; keep lit points the camera can see."""
-        s = self.travel(k)
+        """Cast the laser's fan from its source; keep lit points the camera can see (with a
+        rolling shutter: each where the row that shows it was exposed)."""
+        if self.opt.line_time_s <= 0:
+            uv, p, keep = self._fan(laser, self.travel(k))
+            return StripeTruth(uv[keep], p[keep])
+        return self._fan_rolling(laser, k)
+
+    def _fan_rolling(self, laser: Laser, k: int) -> StripeTruth:
+        """The fan's lit points under a rolling shutter: the fan cast at the travel of the
+        first and of the last row its stripe reaches, each ray's point taken between the two
+        where its own row's time and travel agree (the carriage moves well under a
+        millimetre during a frame's readout, so the point moves along a straight piece of
+        surface; a ray whose point jumps between the two - an occluding edge - keeps the
+        cast whose time is nearer its row's)."""
+        s0 = self.travel(k)
+        uv0, _, keep0 = self._fan(laser, s0)
+        if not keep0.any():
+            return StripeTruth(uv0[keep0], np.zeros((0, 3)))
+        v_lo = float(np.clip(uv0[keep0, 1].min() - 2.0, 0.0, self.height - 1))
+        v_hi = float(np.clip(uv0[keep0, 1].max() + 2.0, v_lo + 1.0, self.height + 1))
+        sa, sb = (float(v) for v in self.row_travel(k, [v_lo, v_hi]))
+        uva, pa, ka = self._fan(laser, sa)
+        uvb, pb, kb = self._fan(laser, sb)
+        ds = sb - sa
+        both = ka & kb & (np.linalg.norm(pb - pa, axis=1) <= 3.0 * abs(ds) + 0.05)
+        uv = np.where(ka[:, None], uva, uvb)
+        p = np.where(ka[:, None], pa, pb)
+        if abs(ds) > 1e-12:
+            # the row as the travel changes (linear between the casts) against the travel
+            # at which each row is exposed (linear in the row over the bracket): where they meet
+            alpha = (uvb[both, 1] - uva[both, 1]) / ds
+            beta = ds / (v_hi - v_lo)
+            v = (uva[both, 1] - alpha * beta * v_lo) / (1.0 - alpha * beta)
+            f = (self.row_travel(k, v) - sa) / ds
+            uv[both] = uva[both] + f[:, None] * (uvb[both] - uva[both])
+            p[both] = pa[both] + f[:, None] * (pb[both] - pa[both])
+        one = (ka | kb) & ~both
+        if one.any():
+            # the cast whose travel is nearer the one its row was exposed at
+            sv_a = self.row_travel(k, uva[one, 1])
+            sv_b = self.row_travel(k, uvb[one, 1])
+            use_b = ~ka[one] | (kb[one] & (np.abs(sv_b - sb) < np.abs(sv_a - sa)))
+            idx = np.flatnonzero(one)[use_b]
+            uv[idx], p[idx] = uvb[idx], pb[idx]
+        keep = ka | kb
+        return StripeTruth(uv[keep], p[keep])
+
+    def _fan(self, laser: Laser, s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The laser's fan cast with the carriage at travel ``s``: every ray's image point
+        ``(N, 2)``, rail point ``(N, 3)`` and whether the camera sees it lit ``(N,)`` (the
+        same rays at any travel)."""
         n_rays = 6 * self.width
         normal = laser.plane.normal
         down = laser.fan_dir_mm
@@ -235,8 +298,11 @@ class Renderer:
             r_n = np.hypot(pc[:, 0], pc[:, 1]) / pc[:, 2]
         inside = (uv[:, 0] > -2) & (uv[:, 0] < self.width + 1) & (uv[:, 1] > -2) & (
             uv[:, 1] < self.height + 1) & (pc[:, 2] > 0) & (r_n < self.fold_radius)
-        keep = np.flatnonzero(vis)[inside]
-        return StripeTruth(uv[inside], p[keep])
+        keep = np.zeros(len(p), bool)
+        keep[np.flatnonzero(vis)[inside]] = True
+        uv_all = np.full((len(p), 2), np.nan)
+        uv_all[vis] = uv
+        return uv_all, p, keep
 
     def _surface_normals(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Unit normals (x, y, up) of the height surface at rail points, ``(N, 3)``."""
@@ -300,22 +366,47 @@ class Renderer:
             band *= sp
         return r0, band
 
+    def _rolling_background(self, k: int) -> np.ndarray:
+        """The lit surface under a rolling shutter: bands of rows, each at the travel of its
+        middle row (a band spans at most 0.005 mm of travel, or one row)."""
+        h, w = self.height, self.width
+        sc = self.scene
+        per_row = max(self.motion.speed_mm_s * self.opt.line_time_s, 1e-12)
+        rows = int(np.clip(np.floor(0.005 / per_row), 1, h))
+        rgb = np.empty((h, w, 3), np.float32)
+        for r0 in range(0, h, rows):
+            r1 = min(h, r0 + rows)
+            sb = float(self.row_travel(k, 0.5 * (r0 + r1 - 1)))
+            sl = slice(r0 * w, r1 * w)
+            z = self._camera_depth(sb, sl)
+            mx = np.float32(-sc.x0_mm / sc.pixel_mm) + z * self._cam_dx[sl]
+            my = np.float32((sb - sc.y0_mm) / sc.pixel_mm) + z * self._cam_dy[sl]
+            band = remap_points(self.shaded, mx, my).reshape(r1 - r0, w, 3).astype(np.float32)
+            self._antialias(sb, z.reshape(r1 - r0, w), band, row0=r0)
+            rgb[r0:r1] = band
+        return rgb
+
     def render(self, k: int) -> tuple[np.ndarray, dict[str, StripeTruth]]:
         """Frame ``k`` as RGB uint8 ``(H, W, 3)`` and the exact stripe centres of each laser."""
         rng = np.random.default_rng([self.opt.seed, k])
         s = self.travel(k)
         h, w = self.height, self.width
         sc = self.scene
-        z = self._camera_depth(s)
-        mx = np.float32(-sc.x0_mm / sc.pixel_mm) + z * self._cam_dx
-        my = np.float32((s - sc.y0_mm) / sc.pixel_mm) + z * self._cam_dy
-        rgb = remap_points(self.shaded, mx, my).reshape(h, w, 3).astype(np.float32)
-        self._antialias(s, z.reshape(h, w), rgb)
+        if self.opt.line_time_s <= 0:
+            z = self._camera_depth(s)
+            mx = np.float32(-sc.x0_mm / sc.pixel_mm) + z * self._cam_dx
+            my = np.float32((s - sc.y0_mm) / sc.pixel_mm) + z * self._cam_dy
+            rgb = remap_points(self.shaded, mx, my).reshape(h, w, 3).astype(np.float32)
+            self._antialias(s, z.reshape(h, w), rgb)
+        else:
+            rgb = self._rolling_background(k)
         truths = {}
         for laser in self.rig.lasers:
             tr = self.laser_points(laser, k)
             truths[laser.name] = tr
-            r0, band = self._stripe_band(laser, tr, s, rng)
+            s_laser = s if self.opt.line_time_s <= 0 or not len(tr.uv_px) else float(
+                self.row_travel(k, float(np.median(tr.uv_px[:, 1]))))
+            r0, band = self._stripe_band(laser, tr, s_laser, rng)
             if band.size:
                 gain = 255.0 * np.asarray(laser.rgb_response, np.float32)
                 rgb[r0 : r0 + band.shape[0]] += band[..., None] * gain

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,12 +55,24 @@ class SimConfig:
     #: a rig drawn from this seed (sim.random_rig); the fields above then come from the draw
     #: (:meth:`random`), the rig, lens, lasers, target and soil from :func:`random_rig`
     random_rig: int | None = None
+    #: a rolling shutter's readout: the time (ms) from the exposure of the first image row to
+    #: that of the last (0: a global shutter). Row ``v`` of frame ``k`` shows the scene at
+    #: ``k / fps + v * readout_ms / 1000 / (height - 1)``: a CMOS camcorder's rows are read one
+    #: after another while the carriage moves on
+    readout_ms: float = 0.0
+
+    @property
+    def line_time_s(self) -> float:
+        """The time from one image row's exposure to the next, s (0: a global shutter)."""
+        return self.readout_ms / 1000.0 / max(self.height - 1, 1)
 
     @classmethod
     def random(cls, rig_seed: int, width: int = 1920, height: int = 1080,
                video_format: str = "mp4", grid_mm: float = 0.1,
-               click_noise_px: float = 0.0) -> SimConfig:
-        """The configuration of random rig ``rig_seed`` (``impress simulate --random-rig``)."""
+               click_noise_px: float = 0.0, readout_ms: float = 0.0) -> SimConfig:
+        """The configuration of random rig ``rig_seed`` (``impress simulate --random-rig``);
+        ``readout_ms``: a rolling shutter's readout (not drawn: the rig's other draws stay
+        those of the seed)."""
         from impress_gui.sim.random_rig import draw_random_rig
 
         p = draw_random_rig(int(rig_seed), width, height).params
@@ -71,7 +84,8 @@ class SimConfig:
                    bitrate_mbit=p["bitrate_mbit_1080p"] * width * height / (1920 * 1080),
                    speckle=p["speckle"], noise_dn=p["noise_dn"], grid_mm=grid_mm,
                    ramp_s=p["ramp_s"], click_noise_px=click_noise_px,
-                   target_yaw_deg=p["target_yaw_deg"], random_rig=int(rig_seed))
+                   target_yaw_deg=p["target_yaw_deg"], random_rig=int(rig_seed),
+                   readout_ms=float(readout_ms))
 
     def to_json(self) -> dict:
         """The fields (``random_rig`` only when set: a preset's truth stays as it was)."""
@@ -80,6 +94,8 @@ class SimConfig:
             del d["random_rig"]
         if not d["shoe"]:
             del d["shoe"]
+        if not d["readout_ms"]:
+            del d["readout_ms"]  # a global shutter: the truth as before rolling shutters
         return d
 
     def validate(self) -> None:
@@ -104,7 +120,8 @@ class SimConfig:
             if self.blocks:
                 bad("placement options (--rotate90, ...) do not go with --random-rig")
             mine = SimConfig.random(self.random_rig, self.width, self.height,
-                                    self.video_format, self.grid_mm, self.click_noise_px)
+                                    self.video_format, self.grid_mm, self.click_noise_px,
+                                    self.readout_ms)
             if mine != self:
                 bad("a random rig's configuration comes from its seed: use "
                     "SimConfig.random(seed, ...)")
@@ -118,6 +135,9 @@ class SimConfig:
             bad("--speckle must be in [0, 1] and --noise in [0, 50] DN")
         if not 0.02 <= self.grid_mm <= 1.0:
             bad("--grid-mm must be between 0.02 and 1 mm")
+        if not (math.isfinite(self.readout_ms) and 0 <= self.readout_ms <= 1000.0 / self.fps):
+            bad("--readout-ms must be between 0 (a global shutter) and one frame interval "
+                f"({1000.0 / self.fps:.4g} ms at {self.fps:g} frames/s)")
         if not 0 <= self.click_noise_px <= 20:
             bad("--click-noise-px must be between 0 and 20")
         if self.bitrate_mbit is not None and not 0.001 <= self.bitrate_mbit <= 500:
@@ -220,9 +240,31 @@ def target_world_corners(target: TargetModel, pose, standoff_mm: float) -> np.nd
     return target_to_rail(target.corner_array(), pose, standoff_mm)
 
 
-def project_rail(rig: Rig, pts_rail: np.ndarray, travel_mm: float) -> np.ndarray:
-    rel = np.asarray(pts_rail, float) - np.array([0.0, travel_mm, 0.0])
+def project_rail(rig: Rig, pts_rail: np.ndarray, travel_mm) -> np.ndarray:
+    """Image points of rail points with the optical centre at ``travel_mm`` (one travel, or
+    one per point)."""
+    pts = np.asarray(pts_rail, float)
+    rel = pts - np.column_stack([np.zeros(len(pts)), np.broadcast_to(travel_mm, len(pts)),
+                                 np.zeros(len(pts))])
     return rig.intrinsics.project(rel @ rig.rotation)
+
+
+def project_rail_rolling(rig: Rig, motion: Motion, pts_rail: np.ndarray, k: int,
+                         line_time_s: float) -> np.ndarray:
+    """Where rail points appear in frame ``k`` under a rolling shutter: each at the travel of
+    the row it appears on (solved by iteration: a row's time moves the point by well under a
+    pixel, so it converges in a few steps). A global shutter (``line_time_s`` 0): the
+    frame's travel."""
+    t = k / motion.fps
+    uv = project_rail(rig, pts_rail, float(motion.travel_mm(t)))
+    if line_time_s <= 0:
+        return uv
+    for _ in range(20):
+        before = uv
+        uv = project_rail(rig, pts_rail, motion.travel_mm(t + uv[:, 1] * line_time_s))
+        if np.max(np.abs(uv - before)) < 1e-9:
+            break
+    return uv
 
 
 def _stripe_on_faces(rig: Rig, laser_name: str, target: TargetModel, pose, travel: float,
@@ -292,7 +334,7 @@ def _make_renderer(cfg: SimConfig, scene=None):
                                 target_pose(cfg), **cfg.blocks, **cfg.shoe)
         opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle,
                              seed=cfg.seed, stripe_sigma_px=max(1.2, 1.6 * cfg.width / 1920.0),
-                             laser_peak=3.5)
+                             laser_peak=3.5, line_time_s=cfg.line_time_s)
     else:
         from impress_gui.sim.random_rig import soil_of
 
@@ -303,7 +345,8 @@ def _make_renderer(cfg: SimConfig, scene=None):
         opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle,
                              seed=cfg.seed, laser_peak=p["laser_peak"], ambient=p["ambient"],
                              stripe_sigma_px=max(0.9, p["stripe_sigma_px_1080p"]
-                                                 * cfg.width / 1920.0))
+                                                 * cfg.width / 1920.0),
+                             line_time_s=cfg.line_time_s)
     return Renderer(scene, rig, motion, opts), scene
 
 
@@ -495,7 +538,8 @@ def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
         raise
 
     # ----- ground truth -------------------------------------------------------------------
-    intr = rig.intrinsics
+    # the camera as a lab knows it: its lens, and its rolling shutter's readout (if any)
+    intr = dataclasses.replace(rig.intrinsics, readout_ms=cfg.readout_ms)
     intr.save(out_dir / "intrinsics.json")
     target.save(out_dir / "target.json")
     times = motion.times_s()
@@ -504,7 +548,7 @@ def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
     rng = np.random.default_rng([cfg.seed, 7])
     picks_doc = {}
     for key, k in (("t1", t1), ("t2", t2)):
-        uv = project_rail(rig, corners_rail, float(travel[k]))
+        uv = project_rail_rolling(rig, motion, corners_rail, k, cfg.line_time_s)
         if cfg.click_noise_px > 0:
             uv = uv + rng.normal(0, cfg.click_noise_px, uv.shape)
         picks_doc[key] = (k, {c: uv[i].tolist() for i, c in enumerate(CORNER_NAMES)})
@@ -542,6 +586,12 @@ def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
                    "corners_rail_mm": {c: corners_rail[i].tolist()
                                        for i, c in enumerate(CORNER_NAMES)}},
         "calibration_frames": {"t1": t1, "t2": t2},
+        **({"rolling_shutter": {
+            "readout_ms": cfg.readout_ms, "line_time_s": cfg.line_time_s,
+            "convention": "row v (pixel row coordinate, 0 = the first row's centre) of frame "
+                          "k shows the scene at frame_times_s[k] + v * line_time_s; "
+                          "travel_mm and the picks' frames are the frames' own times"}}
+           if cfg.readout_ms else {}),
         "frame_times_s": times.tolist(),
         "travel_mm": travel.tolist(),
         "heightmap": {"file": "truth_height.tif", "texture": "truth_texture.png",

@@ -12,6 +12,7 @@ Frames (all lengths in mm):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +22,8 @@ from impress_gui.core.base.errors import FormatError, InputError
 from impress_gui.core.base.fileio import float_array, read_json, require, write_json
 
 INTRINSICS_FORMAT = "impress.intrinsics"
+#: the longest rolling-shutter readout accepted (ms): a frame interval at 10 frames/s
+MAX_READOUT_MS = 100.0
 
 
 def rot_x(angle_rad: float) -> np.ndarray:
@@ -59,6 +62,11 @@ class Intrinsics:
     """Pinhole camera with OpenCV distortion ``(k1, k2, p1, p2, k3)``.
 
     ``camera_matrix`` is 3x3 in pixels; ``image_size`` is ``(width, height)`` in pixels.
+    ``readout_ms``: a rolling shutter's readout, the time from the exposure of the first image
+    row to that of the last (0: a global shutter, or not known). A CMOS camcorder reads its
+    rows one after another, so while the carriage moves, row ``v`` of a frame shows the scene
+    ``v * line_time_s`` after row 0; the calibration and the reconstruction place each row
+    where the camera was then.
     """
 
     camera_matrix: np.ndarray
@@ -67,6 +75,7 @@ class Intrinsics:
     rms_px: float | None = None
     frames_used: tuple[int, ...] = field(default_factory=tuple)
     source: str = ""
+    readout_ms: float = 0.0
 
     def __post_init__(self) -> None:
         k = np.asarray(self.camera_matrix, dtype=float)
@@ -80,9 +89,19 @@ class Intrinsics:
         w, h = (int(v) for v in self.image_size)
         if w <= 0 or h <= 0:
             raise InputError("image size must be positive")
+        ro = float(self.readout_ms)
+        if not (math.isfinite(ro) and 0.0 <= ro <= MAX_READOUT_MS):
+            raise InputError(f"readout_ms (a rolling shutter's readout) must be between 0 and "
+                             f"{MAX_READOUT_MS:g} ms")
         object.__setattr__(self, "camera_matrix", k)
         object.__setattr__(self, "dist_coeffs", d)
         object.__setattr__(self, "image_size", (w, h))
+        object.__setattr__(self, "readout_ms", ro)
+
+    @property
+    def line_time_s(self) -> float:
+        """The time from one image row's exposure to the next, s (0: a global shutter)."""
+        return self.readout_ms / 1000.0 / max(self.image_size[1] - 1, 1)
 
     @property
     def fx(self) -> float:
@@ -177,6 +196,8 @@ class Intrinsics:
             "rms_px": self.rms_px,
             "frames_used": list(self.frames_used),
             "source": self.source,
+            # only a rolling shutter's: the files of a global shutter stay as they were
+            **({"readout_ms": self.readout_ms} if self.readout_ms else {}),
         }
 
     @classmethod
@@ -190,10 +211,13 @@ class Intrinsics:
             raise FormatError(f"{where}dist_coeffs must have 4, 5 or 8 values")
         d = float_array(d_raw, (len(d_raw),), "dist_coeffs")
         rms = doc.get("rms_px")
+        readout = doc.get("readout_ms", 0.0)
+        if isinstance(readout, bool) or not isinstance(readout, (int, float)):
+            raise FormatError(f"{where}readout_ms must be a number of milliseconds")
         try:
             return cls(k, d, (size[0], size[1]), rms_px=rms,
                        frames_used=tuple(doc.get("frames_used", [])),
-                       source=str(doc.get("source", "")))
+                       source=str(doc.get("source", "")), readout_ms=float(readout))
         except (InputError, TypeError, ValueError) as exc:
             raise FormatError(f"{where}{exc}") from None
 

@@ -17,10 +17,9 @@ from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.solve import (
     SPEED_WARN_FRACTION,
     PoseSolution,
-    ideal_pair,
+    parallax_corners,
     project_points,
     refine_bundle,
-    triangulate_parallax,
     umeyama,
 )
 from impress_gui.core.calibration.target import TargetModel, _inside_convex
@@ -169,7 +168,25 @@ def stripe_uv_on_ground(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.n
     return _stripe_uv_in_region(rgb, laser, uv, params, blooming, midpoints)
 
 
-def points_on_ground(rays: np.ndarray, pose, target: TargetModel, travel_mm: float
+def _shift(travel_mm) -> np.ndarray:
+    """The camera's displacement along the rail: ``(3,)`` for one travel, ``(N, 3)`` for one
+    per point (a rolling shutter: each image row was exposed at its own travel)."""
+    if np.ndim(travel_mm) == 0:
+        return np.array([0.0, travel_mm, 0.0])
+    tr = np.asarray(travel_mm, float)
+    return np.column_stack([np.zeros(len(tr)), tr, np.zeros(len(tr))])
+
+
+def row_times_s(dt_s: float, uv: np.ndarray, intr: Intrinsics):
+    """The times (s since frame t1) at which the image points ``uv`` were exposed: the
+    frame's ``dt_s`` for a global shutter, plus each point's row times the line time for a
+    rolling shutter (one per point then)."""
+    if intr.line_time_s <= 0:
+        return dt_s
+    return dt_s + np.asarray(uv, float)[:, 1] * intr.line_time_s
+
+
+def points_on_ground(rays: np.ndarray, pose, target: TargetModel, travel_mm
                      ) -> np.ndarray:
     """Intersect ideal-frame rays with the target's base plane (height 0) and keep the hits
     in the ring around the target: outside its footprint by :data:`GROUND_MARGIN_MM`, within
@@ -177,7 +194,7 @@ def points_on_ground(rays: np.ndarray, pose, target: TargetModel, travel_mm: flo
     camera-fixed ideal frame ``(N, 3)``."""
     r_o, t_o = pose
     feet, lo, hi = _ground_ring(target)
-    shift = np.array([0.0, travel_mm, 0.0])
+    shift = _shift(travel_mm)
     n = r_o[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = ((t_o - shift) @ n) / (rays @ n)
@@ -194,8 +211,10 @@ def points_on_ground(rays: np.ndarray, pose, target: TargetModel, travel_mm: flo
     top = max(float(f.vertices_mm[0, 2]) for f in target.top_faces())
     idx = np.flatnonzero(keep)
     qq = q[idx]
+    if cam.ndim == 2:  # a rolling shutter: each point's own camera position
+        cam = cam[idx]
     hidden = np.zeros(len(idx), bool)
-    rise = np.maximum(cam[2] - qq[:, 2], 1e-9)
+    rise = np.maximum(cam[..., 2] - qq[:, 2], 1e-9)
     for z in np.linspace(0.0, top, 41)[1:]:
         pp = qq + (cam - qq) * (z / rise)[:, None]
         hf = target.heightfield(pp[:, 0], pp[:, 1], grow_mm=GROUND_MARGIN_MM)
@@ -212,7 +231,7 @@ def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
-def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: float):
+def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm):
     """Intersect ideal-frame rays with the target's top faces (seen from a frame whose camera
     travelled ``travel_mm``): 3D points in the camera-fixed ideal frame and face heights, for
     the rays that hit a face (inside it by 1 mm).
@@ -228,10 +247,10 @@ def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm: floa
     for height, poly_in, poly in _face_polygons(pose, target):
         n = _cross3(poly[1] - poly[0], poly[2] - poly[0])
         n /= np.linalg.norm(n)
-        p0 = poly[0] - np.array([0.0, travel_mm, 0.0])
+        p0 = poly[0] - _shift(travel_mm)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (p0 @ n) / (rays @ n)
-        hit = rays * t[:, None] + np.array([0.0, travel_mm, 0.0])  # rail frame
+        hit = rays * t[:, None] + _shift(travel_mm)  # rail frame
         e1 = poly[1] - poly[0]
         e1 /= np.linalg.norm(e1)
         e2 = _cross3(n, e1)
@@ -336,7 +355,8 @@ def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames,
 @dataclass(frozen=True)
 class StripeObservations:
     """Each laser's stripe on the target (as camera rays) in frames around its calibration
-    frame: ``rays[name]`` lists ``(frame, time since frame t1 in s, rays (N, 3))``."""
+    frame: ``rays[name]`` lists ``(frame, time since frame t1 in s, rays (N, 3))``; under a
+    rolling shutter the time is one per ray (its row's, :func:`row_times_s`)."""
 
     target: TargetModel
     speed_mm_s: float  # the travel between frames that matches the target's pose
@@ -460,13 +480,15 @@ def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: Ta
                    ROWS_BLOOMING: stripe_uv_on_target(*args, blooming=True)}
             for v, uv in uvs.items():
                 if len(uv):
-                    found[v][name].append((int(k), dt_k, intrinsics.rays(uv)))
+                    found[v][name].append((int(k), row_times_s(dt_k, uv, intrinsics),
+                                           intrinsics.rays(uv)))
             g_com, g_mid = stripe_uv_on_ground(*args, midpoints=True)
             guvs = {ROWS_CENTRE: g_com, ROWS_MIDPOINT: g_mid,
                     ROWS_BLOOMING: stripe_uv_on_ground(*args, blooming=True)}
             for v, uv in guvs.items():
                 if len(uv):
-                    on_ground[v][name].append((int(k), dt_k, intrinsics.rays(uv)))
+                    on_ground[v][name].append((int(k), row_times_s(dt_k, uv, intrinsics),
+                                               intrinsics.rays(uv)))
     # a blooming stripe (a saturated, nearly white core on the light target) escapes the
     # colour tests in most columns: a laser is detected with the fallback in all its frames
     # when the strict tests give less than BLOOM_SWITCH of the fallback's points on the faces
@@ -540,7 +562,8 @@ def refine_tilt(obs: StripeObservations, planes0: dict, intrinsics: Intrinsics,
         roll = pose.roll_rad
         _, _, ro, to, _, rms = refine_bundle(intrinsics, target, picks,
                                              (roll, tilt, base[2], base[3]),
-                                             d_use, fixed_travel=True, fixed_rotation=True)
+                                             d_use, fixed_travel=True, fixed_rotation=True,
+                                             dt_s=dt)
         rot = ideal_rotation(roll, tilt)
         total = 24 * (rms / click_sigma_px) ** 2
         for name in ("green", "red"):
@@ -574,12 +597,10 @@ def refine_tilt(obs: StripeObservations, planes0: dict, intrinsics: Intrinsics,
     roll_r, tilt_r = pose.roll_rad, float(res.x)
     _, _, r_o, t_o, _, rms_px = refine_bundle(intrinsics, target, picks,
                                               (roll_r, tilt_r, base[2], base[3]), d_use,
-                                              fixed_travel=True, fixed_rotation=True)
+                                              fixed_travel=True, fixed_rotation=True, dt_s=dt)
     rot_b = ideal_rotation(roll_r, tilt_r)
     m_b = rot_b.T @ np.array([0.0, 1.0, 0.0])
-    n1 = intrinsics.undistort_points(picks.array("t1"))
-    n2 = intrinsics.undistort_points(picks.array("t2"))
-    corners = triangulate_parallax(*ideal_pair(intrinsics, rot_b, n1, n2), speed_mm_s * dt)
+    corners = parallax_corners(intrinsics, rot_b, picks, speed_mm_s * dt, dt)
     _, r_e, t_e = umeyama(target.corner_array(), corners, with_scale=False)
     residuals = np.linalg.norm(corners - (target.corner_array() @ r_e.T + t_e), axis=1)
     return replace(pose, roll_rad=float(roll_r), tilt_rad=float(tilt_r), rotation=rot_b,

@@ -34,15 +34,45 @@ def vanishing_point(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
     return vt[-1] / np.linalg.norm(vt[-1])
 
 
-def triangulate_parallax(a1, b1, a2, b2, travel_mm: float) -> np.ndarray:
+def triangulate_parallax(a1, b1, a2, b2, travel_mm, start_mm=0.0) -> np.ndarray:
     """Rail-frame points from ideal normalized coordinates in two frames separated by a pure
-    +Y travel: least squares of ``X = a1 Z = a2 Z``, ``Y = b1 Z``, ``Y - d = b2 Z``."""
+    +Y travel: least squares of ``X = a1 Z = a2 Z``, ``Y - c = b1 Z``, ``Y - d = b2 Z`` (``c``
+    = ``start_mm``, 0 but under a rolling shutter; ``d`` = ``travel_mm``; either one per
+    point: each point's row was exposed at its own travel)."""
+    n = len(a1)
+    c = np.broadcast_to(np.asarray(start_mm, float), (n,))
+    d = np.broadcast_to(np.asarray(travel_mm, float), (n,))
     pts = []
-    for i in range(len(a1)):
+    for i in range(n):
         A = np.array([[-1, 0, a1[i]], [0, -1, b1[i]], [-1, 0, a2[i]], [0, -1, b2[i]]], float)
-        rhs = np.array([0.0, 0.0, 0.0, -travel_mm])
+        rhs = np.array([0.0, -c[i] if c[i] else 0.0, 0.0, -d[i]])
         pts.append(np.linalg.lstsq(A, rhs, rcond=None)[0])
     return np.array(pts)
+
+
+def row_offsets(intr: Intrinsics, picks: Picks, dt_s: float | None
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Under a rolling shutter, how far the camera had moved when each pick's row was
+    exposed, per mm of travel from frame t1 to t2: ``(r1, r2)`` for the picks of t1 and t2
+    (the travel at a pick of t1 is ``d r1``, at one of t2 ``d (1 + r2)``). None for a global
+    shutter (or when the frames' time apart is not known)."""
+    lt = intr.line_time_s
+    if lt <= 0 or not dt_s:
+        return None
+    return (picks.array("t1")[:, 1] * lt / dt_s, picks.array("t2")[:, 1] * lt / dt_s)
+
+
+def parallax_corners(intr: Intrinsics, rot: np.ndarray, picks: Picks, d: float,
+                     dt_s: float | None = None) -> np.ndarray:
+    """The picks' corners triangulated in the rail frame from the travel ``d`` between t1
+    and t2 (each at its row's travel under a rolling shutter)."""
+    n1 = intr.undistort_points(picks.array("t1"))
+    n2 = intr.undistort_points(picks.array("t2"))
+    rows = row_offsets(intr, picks, dt_s)
+    if rows is None:
+        return triangulate_parallax(*ideal_pair(intr, rot, n1, n2), d)
+    return triangulate_parallax(*ideal_pair(intr, rot, n1, n2), d * (1.0 + rows[1]),
+                                d * rows[0])
 
 
 def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool):
@@ -77,15 +107,22 @@ def _rot_to_vec(r: np.ndarray) -> np.ndarray:
 
 def project_points(intr: Intrinsics, rot: np.ndarray, pts_rail: np.ndarray,
                    travel: float) -> np.ndarray:
-    """Distorted pixels of rail-frame points seen from a camera that travelled ``travel``."""
-    rel = pts_rail - np.array([0.0, travel, 0.0])
+    """Distorted pixels of rail-frame points seen from a camera that travelled ``travel``
+    (one travel, or one per point)."""
+    if np.ndim(travel) == 0:
+        rel = pts_rail - np.array([0.0, travel, 0.0])
+    else:
+        tr = np.asarray(travel, float)
+        rel = pts_rail - np.column_stack([np.zeros(len(tr)), tr, np.zeros(len(tr))])
     return intr.project(rel @ rot)  # rows: R^T (P - C)
 
 
 def refine_bundle(intr, target, picks, init, d0, fixed_travel: bool = False,
-                  fixed_rotation: bool = False):
+                  fixed_rotation: bool = False, dt_s: float | None = None):
     """Refine roll, tilt (unless ``fixed_rotation``), the target pose and the travel (unless
-    ``fixed_travel``) by the reprojection error of all 12 picks."""
+    ``fixed_travel``) by the reprojection error of all 12 picks. ``dt_s``: the time from t1
+    to t2, with which a rolling shutter's rows are placed at their own travel
+    (:func:`row_offsets`)."""
     from scipy.optimize import least_squares
 
     obj = target.corner_array()
@@ -99,11 +136,17 @@ def refine_bundle(intr, target, picks, init, d0, fixed_travel: bool = False,
         d = d0 if fixed_travel else p[i + 6]
         return rot, _rodrigues(p[i:i + 3]), p[i + 3:i + 6], d
 
+    rows = row_offsets(intr, picks, dt_s)
+
     def resid(p):
         rot, r_o, t_o, d = unpack(p)
         pts = obj @ r_o.T + t_o
-        return np.concatenate([(project_points(intr, rot, pts, 0.0) - uv1).ravel(),
-                               (project_points(intr, rot, pts, d) - uv2).ravel()])
+        if rows is None:
+            return np.concatenate([(project_points(intr, rot, pts, 0.0) - uv1).ravel(),
+                                   (project_points(intr, rot, pts, d) - uv2).ravel()])
+        return np.concatenate([(project_points(intr, rot, pts, d * rows[0]) - uv1).ravel(),
+                               (project_points(intr, rot, pts, d * (1.0 + rows[1]))
+                                - uv2).ravel()])
 
     p0 = np.concatenate(([] if fixed_rotation else [[roll, tilt]]) + [_rot_to_vec(r_o), t_o]
                         + ([] if fixed_travel else [[d0]]))
@@ -152,16 +195,12 @@ def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_
         x = np.column_stack([n, np.ones(len(n))]) @ rot.T
         return x[:, 0] / x[:, 2], x[:, 1] / x[:, 2]
 
-    a1, b1 = ideal(n1)
-    a2, b2 = ideal(n2)
-    corners = triangulate_parallax(a1, b1, a2, b2, d)
+    corners = parallax_corners(intrinsics, rot, picks, d, dt_s)
     if np.median(corners[:, 2]) < 0:  # the sign of the vanishing point: depths must be positive
         m = -m
         roll, tilt = roll_tilt_from_direction(m)
         rot = ideal_rotation(roll, tilt)
-        a1, b1 = ideal(n1)
-        a2, b2 = ideal(n2)
-        corners = triangulate_parallax(a1, b1, a2, b2, d)
+        corners = parallax_corners(intrinsics, rot, picks, d, dt_s)
     if np.any(corners[:, 2] <= 0):
         raise CalibrationError("the picks give corners behind the camera; check that t1/t2 and "
                                "the corner order match the target diagram", code=codes.E_PICKS)
@@ -178,14 +217,14 @@ def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_
     fix_rot = False
     roll_b, tilt_b, r_o, t_o, d_fit, rms_px = refine_bundle(
         intrinsics, target, picks, (roll, tilt, r_s, t_s / scale), d / scale,
-        fixed_rotation=fix_rot)
+        fixed_rotation=fix_rot, dt_s=dt_s)
     implied = d_fit / dt_s
     warnings = []
     if abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s:
         # the entered speed is confirmed: the known travel constrains the pose better
         roll_b, tilt_b, r_o, t_o, _, rms_px = refine_bundle(
             intrinsics, target, picks, (roll_b, tilt_b, r_o, t_o), d, fixed_travel=True,
-            fixed_rotation=fix_rot)
+            fixed_rotation=fix_rot, dt_s=dt_s)
     rot_b = ideal_rotation(roll_b, tilt_b)
     m_b = rot_b.T @ np.array([0.0, 1.0, 0.0])
     if abs(implied - speed_mm_s) > SPEED_WARN_FRACTION * speed_mm_s:
@@ -196,7 +235,7 @@ def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_
     if rms_px > 2.0:
         warnings.append(f"the corner picks fit the target poorly (reprojection RMS {rms_px:.2f} px)")
     # the corners in the rail frame with the entered speed (what the reconstruction uses)
-    corners_entered = triangulate_parallax(*ideal_pair(intrinsics, rot_b, n1, n2), d)
+    corners_entered = parallax_corners(intrinsics, rot_b, picks, d, dt_s)
     _, r_e, t_e = umeyama(obj, corners_entered, with_scale=False)
     residuals = np.linalg.norm(corners_entered - (obj @ r_e.T + t_e), axis=1)
 

@@ -742,17 +742,19 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
 
 
 @_kernel(
-    "void(float64[:], boolean[:], int64[:], float64[:, :, :], float64[:], float64, float64, float64[:], float64[:], float64[:], float64[:])"
+    "void(float64[:], boolean[:], int64[:], float64[:, :, :], float64[:], float64, float64, float64, float64[:], float64[:], float64[:], float64[:])"
 )
-def triangulate(rows, valid, band_start, rays, normal, offset, travel, ref, x_out, y_out,
-                h_out):
+def triangulate(rows, valid, band_start, rays, normal, offset, travel, row_mm, ref, x_out,
+                y_out, h_out):
     """Stripe rows -> rail-frame points on the laser plane and their heights.
 
     ``rays[c, j]`` is the rail-frame ray direction through column ``c`` at image row
     ``band_start[c] + j`` (lens distortion undone once, before the loop); a sub-pixel row
     interpolates linearly between the two rows around it. ``ref = (c0, cx, cy)``: the
     reference surface depth ``c0 + cx x + cy y`` (height = reference depth - depth). Travel is
-    added to y. NaN where not ``valid`` or where the ray runs parallel to the plane."""
+    added to y, and under a rolling shutter ``row_mm`` per image row (the camera's travel
+    while the rows above were read; 0 for a global shutter). NaN where not ``valid`` or where
+    the ray runs parallel to the plane."""
     nt = rays.shape[1]
     for c in range(rows.shape[0]):
         x_out[c] = np.nan
@@ -772,6 +774,8 @@ def triangulate(rows, valid, band_start, rays, normal, offset, travel, ref, x_ou
         lam = offset / den
         x = lam * d0
         yy = lam * d1 + travel
+        if row_mm != 0.0:
+            yy += row_mm * rows[c]
         x_out[c] = x
         y_out[c] = yy
         h_out[c] = ref[0] + ref[1] * x + ref[2] * yy - lam * d2
@@ -814,10 +818,10 @@ def _nanmax(a, b):
 
 
 @_kernel(
-    "int64(float64[:], float64, int64, int64[:], float64[:, :, :], float64[:], float64, float64, float64[:], float64, int64, boolean[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], boolean[:], float64[:])"
+    "int64(float64[:], float64, int64, int64[:], float64[:, :, :], float64[:], float64, float64, float64, float64[:], float64, int64, boolean[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], boolean[:], float64[:])"
 )
-def stripe_profile(rows, tol_px, min_cols, band_start, rays, normal, offset, travel, ref,
-                   max_step, k, valid, x, y, h, xo, yo, ho, vo, y_range):
+def stripe_profile(rows, tol_px, min_cols, band_start, rays, normal, offset, travel, row_mm,
+                   ref, max_step, k, valid, x, y, h, xo, yo, ho, vo, y_range):
     """One laser's stripe rows -> the upsampled profile to add to its heightmap, in one call:
 
     * ``valid``: columns whose row continues into a neighbouring column within ``tol_px``
@@ -846,7 +850,7 @@ def stripe_profile(rows, tol_px, min_cols, band_start, rays, normal, offset, tra
     y_range[1] = np.nan
     if n_ok < min_cols:
         return n_ok
-    triangulate(rows, valid, band_start, rays, normal, offset, travel, ref, x, y, h)
+    triangulate(rows, valid, band_start, rays, normal, offset, travel, row_mm, ref, x, y, h)
     # despiked heights; the columns kept are those with a finite one
     hd = np.empty(n)
     for c in range(n):

@@ -486,6 +486,11 @@ class _Tables:
     offsets: dict[str, tuple[float, float]]  # per laser: stripe points' y - travel range
     max_gap_mm: float  # profiles farther apart than this are not joined
     texture: _TextureRow | None
+    #: a rolling shutter: the camera's travel (mm) from one image row's exposure to the next
+    #: (0: a global shutter)
+    row_mm: float = 0.0
+    #: the texture row's travel per frame (its image row's, under a rolling shutter)
+    texture_travel: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -517,6 +522,11 @@ def _tables(run: _Run) -> _Tables:
     # along the travel of the frame range), and 2 mm more
     foot = [stripe_footprint(rays[n], cal.planes[n].plane.normal,
                              float(cal.planes[n].plane.offset_mm)) for n in LASERS]
+    # a rolling shutter: row v of a frame was exposed row_mm * v further along the rail
+    row_mm = float(cal.speed_mm_s * intr.line_time_s)
+    if row_mm:
+        reach = (min(0.0, row_mm * (h - 1)), max(0.0, row_mm * (h - 1)))
+        foot = [(f[0], (f[1][0] + reach[0], f[1][1] + reach[1])) for f in foot]
     x_rng = (min(f[0][0] for f in foot) - 2, max(f[0][1] for f in foot) + 2)
     t0, t1 = travel[start], travel[stop - 1]
     y_rng = (min(t0, t1) + min(f[1][0] for f in foot) - 2,
@@ -527,6 +537,7 @@ def _tables(run: _Run) -> _Tables:
                          code=codes.E_PARAM)
     max_gap = 2.5 * per_frame_travel + 2 * params.grid_mm + 0.1
     texture = None
+    texture_travel = None
     if params.texture and run.spool is not None:
         x_px = (np.arange(w) - intr.cx) / intr.fx
         px_rays = np.column_stack([x_px, np.zeros(w), np.ones(w)]) @ rot.T
@@ -540,8 +551,10 @@ def _tables(run: _Run) -> _Tables:
         v0 = np.clip(np.floor(tv).astype(np.int64), 0, h - 2)
         texture = _TextureRow(run.spool, tex_rays, (u0, v0, tu - u0, tv - v0),
                               np.empty((len(tu), 3), np.uint8))
+        texture_travel = travel + row_mm * float(np.median(tv)) if row_mm else travel
     return _Tables(spec, travel, reference_coeffs(cal), bands, rays, k_up,
-                   dict(zip(LASERS, (f[1] for f in foot))), max_gap, texture)
+                   dict(zip(LASERS, (f[1] for f in foot))), max_gap, texture, row_mm,
+                   texture_travel)
 
 
 @dataclass
@@ -568,7 +581,9 @@ def _process(run: _Run) -> Reconstruction:
     tex = tab.texture
     finisher = RowFinisher(tab.spec, acc, params.fuse_tolerance_mm, tab.offsets,
                            _direction(tab.travel[run.start:run.stop]),
-                           TextureInputs(tex.spool, tex.rays, tab.travel, tab.ref,
+                           TextureInputs(tex.spool, tex.rays, tab.travel
+                                         if tab.texture_travel is None else tab.texture_travel,
+                                         tab.ref,
                                          ColorAccumulator(tab.spec, tab.max_gap_mm))
                            if tex is not None else None,
                            weight_green=fusion_weight(run.cal, run.video.size))
@@ -647,7 +662,8 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
             pl = plane[name]
             n_ok = kern.stripe_profile(
                 res.rows, CONNECT_PX, min_cols, tab.bands[name][0], tab.rays[name], pl.normal,
-                float(pl.offset_mm), s_k, tab.ref, params.max_step_mm, pr.k, pr.valid,
+                float(pl.offset_mm), s_k, tab.row_mm, tab.ref, params.max_step_mm, pr.k,
+                pr.valid,
                 pr.x, pr.y, pr.h, *up, pr.y_range)
             if n_ok < min_cols:  # a few isolated hits are not a stripe
                 acc[name].reset_chain()

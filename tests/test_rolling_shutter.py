@@ -1,0 +1,111 @@
+"""A rolling shutter (issue 18): a CMOS camcorder exposes its image rows one after another, so
+while the carriage moves, each row shows the scene from a camera a little further along the
+rail. The simulator renders it (``impress simulate --readout-ms``), the camera's readout is
+part of its intrinsics, and the calibration places each pick at its row's travel."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from impress_gui.core.base.errors import FormatError, InputError
+from impress_gui.core.calibration.geometry import Intrinsics
+from impress_gui.core.calibration.picks import Picks
+from impress_gui.core.calibration.solve import solve_pose
+from impress_gui.core.calibration.target import CORNER_NAMES
+from impress_gui.sim.simulate import (
+    SimConfig,
+    _make_renderer,
+    calibration_frames,
+    make_motion,
+    make_rig,
+    make_target,
+    project_rail,
+    project_rail_rolling,
+    target_pose,
+    target_world_corners,
+)
+
+READOUT_MS = 30.0
+
+
+def _scene(seed: int, readout_ms: float, size=(1920, 1080)):
+    cfg = SimConfig.random(seed, *size, readout_ms=readout_ms)
+    rig, motion, target = make_rig(cfg), make_motion(cfg), make_target(cfg)
+    return cfg, rig, motion, target
+
+
+def _picks(cfg, rig, motion, target) -> Picks:
+    t1, t2 = calibration_frames(cfg, rig, motion, target)
+    corners = target_world_corners(target, target_pose(cfg), cfg.standoff_mm)
+    uv = {k: project_rail_rolling(rig, motion, corners, t, cfg.line_time_s)
+          for k, t in (("t1", t1), ("t2", t2))}
+    return Picks(video="scan.mp4", t1=t1, t2=t2,
+                 corners_t1={c: tuple(uv["t1"][i]) for i, c in enumerate(CORNER_NAMES)},
+                 corners_t2={c: tuple(uv["t2"][i]) for i, c in enumerate(CORNER_NAMES)})
+
+
+def test_the_readout_is_part_of_the_camera_and_its_file():
+    cfg, rig, _, _ = _scene(3, READOUT_MS)
+    intr = dataclasses.replace(rig.intrinsics, readout_ms=READOUT_MS)
+    assert intr.line_time_s == pytest.approx(0.030 / 1079)
+    doc = intr.to_json()
+    assert doc["readout_ms"] == READOUT_MS
+    assert Intrinsics.from_json(doc).readout_ms == READOUT_MS
+    # a global shutter's file is as it always was (no key), and reads back as 0
+    assert "readout_ms" not in rig.intrinsics.to_json()
+    assert Intrinsics.from_json(rig.intrinsics.to_json()).line_time_s == 0.0
+    for bad in (-1.0, 1e9, float("nan")):
+        with pytest.raises(InputError):
+            dataclasses.replace(rig.intrinsics, readout_ms=bad)
+    with pytest.raises(FormatError):
+        Intrinsics.from_json({**doc, "readout_ms": "fast"})
+
+
+def test_rolling_picks_lie_where_each_rows_camera_was():
+    cfg, rig, motion, target = _scene(3, READOUT_MS)
+    corners = target_world_corners(target, target_pose(cfg), cfg.standoff_mm)
+    t1, _ = calibration_frames(cfg, rig, motion, target)
+    uv = project_rail_rolling(rig, motion, corners, t1, cfg.line_time_s)
+    travel = motion.travel_mm(t1 / cfg.fps + uv[:, 1] * cfg.line_time_s)
+    assert np.abs(project_rail(rig, corners, travel) - uv).max() < 1e-6
+    still = project_rail(rig, corners, float(motion.travel_mm(t1 / cfg.fps)))
+    # the rows lower in the picture were exposed later, the camera further on: the corners
+    # move by up to a few pixels against a global shutter's
+    shift = np.abs(uv - still).max()
+    assert 0.3 < shift < 20
+
+
+@pytest.mark.parametrize("seed", [3, 7, 12])
+def test_the_calibration_fits_rolling_picks_exactly_when_it_knows_the_readout(seed):
+    cfg, rig, motion, target = _scene(seed, READOUT_MS)
+    picks = _picks(cfg, rig, motion, target)
+    dt = (picks.t2 - picks.t1) / cfg.fps
+    rolling = dataclasses.replace(rig.intrinsics, readout_ms=READOUT_MS)
+    known = solve_pose(rolling, target, picks, cfg.speed_mm_s, dt)
+    unknown = solve_pose(rig.intrinsics, target, picks, cfg.speed_mm_s, dt)
+    # the exact picks of a rolling shutter fit a rigid pose only with each row at its travel
+    assert known.reprojection_rms_px < 0.002
+    assert unknown.reprojection_rms_px > 10 * known.reprojection_rms_px
+    assert abs(known.implied_speed_mm_s / cfg.speed_mm_s - 1) < 1e-5
+    assert abs(unknown.implied_speed_mm_s / cfg.speed_mm_s - 1) > 1e-4
+
+
+def test_a_global_shutters_render_is_unchanged_by_the_rolling_code():
+    """readout 0 renders through the global shutter's path: the same frame as a rolling
+    shutter of a vanishing readout, and the rolling render differs where rows were late."""
+    cfg0 = SimConfig.random(5, 320, 180)
+    r0, _ = _make_renderer(cfg0)
+    rgb0, tr0 = r0.render(40)
+    cfg1 = SimConfig.random(5, 320, 180, readout_ms=READOUT_MS)
+    r1, _ = _make_renderer(cfg1)
+    rgb1, tr1 = r1.render(40)
+    assert rgb0.shape == rgb1.shape
+    assert np.mean(rgb0 != rgb1) > 0.01  # the rows moved on
+    for name, st in tr1.items():
+        s = r1.row_travel(40, st.uv_px[:, 1])
+        assert np.abs(project_rail(r1.rig, st.points_rail_mm, s) - st.uv_px).max() < 0.2
+        assert s.max() > r1.travel(40)  # later rows: further along
+    assert r0.opt.line_time_s == 0.0 and r1.opt.line_time_s == pytest.approx(0.030 / 179)
