@@ -193,6 +193,15 @@ def test_cli_writes_an_intrinsics_file(tmp_path, frames_dir, truth, capsys):
     doc = json.loads(out.read_text())
     assert doc["rms_px"] > 0 and len(doc["frames_used"]) >= 18
     assert "RMS reprojection error" in text and str(out) in text
+    assert "readout_ms" not in doc and "shutter          global" in text
+    # a rolling-shutter camera: its readout is recorded with the lens
+    out2 = tmp_path / "rolling.json"
+    code = main(["calibrate-camera", str(frames_dir), "--board", "9x6", "--square-mm", "25",
+                 "-o", str(out2), "--quiet", "--readout-ms", "27.5"])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert Intrinsics.load(out2).readout_ms == 27.5 and "readout 27.5 ms" in text
+    assert np.array_equal(Intrinsics.load(out2).camera_matrix, est.camera_matrix)
 
 
 @pytest.mark.parametrize("args, message", [
@@ -200,6 +209,8 @@ def test_cli_writes_an_intrinsics_file(tmp_path, frames_dir, truth, capsys):
     (["--board", "8x5"], "E-TOO-FEW-BOARDS"),
     (["--square-mm", "0"], "square size"),
     (["-o", "intrinsics.txt"], "--output"),
+    (["--readout-ms", "-3"], "E-VALUE"),
+    (["--readout-ms", "500"], "--readout-ms"),
 ])
 def test_cli_errors_are_clear(tmp_path, frames_dir, capsys, args, message):
     from impress_gui.cli import main

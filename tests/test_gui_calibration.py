@@ -587,3 +587,23 @@ def test_corners_can_be_marked_again_on_the_fitted_target_after_clear_frame(
     got = np.array([tab.editor.state.corners("t2")[c] for c in CORNER_NAMES])
     assert np.abs(got - want).max() < 1.5
     assert set(tab.view.markers) == set(CORNER_NAMES)
+
+
+def test_the_intrinsics_dialog_takes_a_rolling_shutters_readout(qtbot, tab):
+    """The camera's rolling-shutter readout is entered with the lens and shown in the setup's
+    summary; 0 is a global shutter (the spin box says so)."""
+    from impress_gui.ui.calibration.setup import IntrinsicsDialog
+
+    dlg = IntrinsicsDialog(None, (1920, 1080), tab)
+    qtbot.addWidget(dlg)
+    assert dlg.readout_spin.value() == 0.0 and dlg.readout_spin.text() == "global shutter"
+    assert dlg.intrinsics().readout_ms == 0.0
+    dlg.readout_spin.setValue(27.5)
+    intr = dlg.intrinsics()
+    assert intr.readout_ms == 27.5 and intr.line_time_s == pytest.approx(0.0275 / 1079)
+    panel = tab.setup
+    panel.set_intrinsics(intr)
+    assert "rolling shutter 27.5 ms" in panel.intrinsics_label.text()
+    again = IntrinsicsDialog(intr, None, tab)
+    qtbot.addWidget(again)
+    assert again.readout_spin.value() == 27.5

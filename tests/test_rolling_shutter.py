@@ -104,7 +104,7 @@ def test_a_global_shutters_render_is_unchanged_by_the_rolling_code():
     rgb1, tr1 = r1.render(40)
     assert rgb0.shape == rgb1.shape
     assert np.mean(rgb0 != rgb1) > 0.01  # the rows moved on
-    for name, st in tr1.items():
+    for st in tr1.values():
         s = r1.row_travel(40, st.uv_px[:, 1])
         assert np.abs(project_rail(r1.rig, st.points_rail_mm, s) - st.uv_px).max() < 0.2
         assert s.max() > r1.travel(40)  # later rows: further along

@@ -32,15 +32,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also fit the third radial coefficient k3 (default: k3 = 0)")
     p.add_argument("--fps", type=float, default=None,
                    help="frame rate of an image folder (only used in messages)")
+    p.add_argument("--readout-ms", type=float, default=0.0, metavar="MS",
+                   help="record the camera's rolling-shutter readout, the time from the first "
+                   "image row's exposure to the last (ms; from the camera's data sheet or "
+                   "measured; 0, the default: a global shutter); the scene calibration and "
+                   "the reconstruction place each row where the camera was when it was exposed")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
 def run(args: argparse.Namespace) -> int:
+    import math
+
     from impress_gui.commands._progress import progress_printer
     from impress_gui.core.base.errors import InputError
+    from impress_gui.core.calibration.geometry import MAX_READOUT_MS
     from impress_gui.core.calibration.intrinsics import parse_board, run_camera_calibration
     from impress_gui.core.formats.video import open_video
 
+    if not (math.isfinite(args.readout_ms) and 0.0 <= args.readout_ms <= MAX_READOUT_MS):
+        raise InputError(f"--readout-ms must be between 0 (a global shutter) and "
+                         f"{MAX_READOUT_MS:g} ms", code=codes.E_VALUE)
     board = parse_board(args.board)
     if args.max_frames < 3:
         raise InputError("--max-frames must be at least 3", code=codes.E_BOARD)
@@ -58,6 +69,10 @@ def run(args: argparse.Namespace) -> int:
                                      min_boards=args.min_boards, max_frames=args.max_frames,
                                      fix_k3=not args.k3)
     intr = res.intrinsics
+    if args.readout_ms:
+        import dataclasses
+
+        intr = dataclasses.replace(intr, readout_ms=args.readout_ms)
     intr.save(args.output)
     w, h = intr.image_size
     k1, k2, p1, p2, k3 = intr.dist_coeffs[:5]
@@ -72,5 +87,7 @@ def run(args: argparse.Namespace) -> int:
     if res.rejected_frames:
         print(f"  dropped as outliers: frames {', '.join(map(str, res.rejected_frames))}")
     print(f"  frames used: {', '.join(map(str, intr.frames_used))}")
+    print(f"  rolling shutter  readout {intr.readout_ms:g} ms" if intr.readout_ms else
+          "  shutter          global (no --readout-ms given)")
     print(f"wrote {args.output}")
     return 0

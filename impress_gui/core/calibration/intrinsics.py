@@ -129,7 +129,16 @@ def _fit(views, obj, size, flags):
 
     img = [v.corners_px.astype(np.float32).reshape(-1, 1, 2) for v in views]
     objs = [obj] * len(views)
-    rms, k, dist, rvecs, tvecs = cv2.calibrateCamera(objs, img, size, None, None, flags=flags)
+    # one thread: OpenCV's parallel sums make the fit differ in the last digits from run to
+    # run (the same views gave camera matrices 1e-10 apart), and the same input must give the
+    # same file
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        rms, k, dist, rvecs, tvecs = cv2.calibrateCamera(objs, img, size, None, None,
+                                                         flags=flags)
+    finally:
+        cv2.setNumThreads(threads)
     errs = []
     for v, r, t in zip(views, rvecs, tvecs, strict=True):
         proj, _ = cv2.projectPoints(obj, r, t, k, dist)

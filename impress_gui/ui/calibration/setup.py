@@ -22,7 +22,7 @@ from PySide6.QtWidgets import (
 )
 
 from impress_gui.core.base.errors import ImpressError, InputError
-from impress_gui.core.calibration.geometry import Intrinsics
+from impress_gui.core.calibration.geometry import MAX_READOUT_MS, Intrinsics
 from impress_gui.core.calibration.target import TargetModel, default_target
 from impress_gui.hardware.rail import SPEED_PRESETS_MM_S as SPEED_PRESETS
 from impress_gui.ui.messages import Dialogs, Messenger
@@ -46,7 +46,9 @@ def describe_intrinsics(intr: Intrinsics | None) -> str:
     k1 = intr.dist_coeffs[0]
     rms = f", RMS {intr.rms_px:.2f} px" if intr.rms_px is not None else ""
     src = f" ({intr.source})" if intr.source else ""
-    return f"{w}x{h}, f = {intr.fx:.1f} px, centre ({intr.cx:.1f}, {intr.cy:.1f}), k1 {k1:+.3f}{rms}{src}"
+    shutter = f", rolling shutter {intr.readout_ms:g} ms" if intr.readout_ms else ""
+    return (f"{w}x{h}, f = {intr.fx:.1f} px, centre ({intr.cx:.1f}, {intr.cy:.1f}), "
+            f"k1 {k1:+.3f}{rms}{shutter}{src}")
 
 
 class IntrinsicsDialog(QDialog):
@@ -88,6 +90,18 @@ class IntrinsicsDialog(QDialog):
                 spin.setSuffix(" px")
             form.addRow(name, spin)
             self.fields[name] = spin
+        self.readout_spin = QDoubleSpinBox()
+        self.readout_spin.setRange(0.0, MAX_READOUT_MS)
+        self.readout_spin.setDecimals(2)
+        self.readout_spin.setSuffix(" ms")
+        self.readout_spin.setSpecialValueText("global shutter")
+        self.readout_spin.setValue(float(intr.readout_ms) if intr else 0.0)
+        self.readout_spin.setToolTip(
+            "A rolling shutter's readout: the time from the exposure of the first image row to "
+            "the last (a CMOS camcorder's, from its data sheet or measured; often 15-30 ms). "
+            "While the carriage moves, each row is placed where the camera was when it was "
+            "exposed. 0: a global shutter.")
+        form.addRow("Rolling-shutter readout", self.readout_spin)
         buttons = QDialogButtonBox(
             QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
         )
@@ -100,7 +114,8 @@ class IntrinsicsDialog(QDialog):
         k = np.array([[f["fx"], 0.0, f["cx"]], [0.0, f["fy"], f["cy"]], [0.0, 0.0, 1.0]])
         d = np.array([f["k1"], f["k2"], f["p1"], f["p2"], f["k3"]])
         return Intrinsics(
-            k, d, (self.width_spin.value(), self.height_spin.value()), source="entered by hand"
+            k, d, (self.width_spin.value(), self.height_spin.value()), source="entered by hand",
+            readout_ms=float(self.readout_spin.value()),
         )
 
 
