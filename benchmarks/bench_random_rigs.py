@@ -52,12 +52,18 @@ COLUMNS = [  # key, header, format
 ]
 
 
+#: a rolling shutter's readout (ms) for the scans (``--readout-ms``; 0: a global shutter, the
+#: renders cached without a suffix)
+READOUT_MS = 0.0
+
+
 def scan_for(seed: int, width: int, height: int) -> Path:
     from impress_gui.sim.simulate import SimConfig, simulate
 
-    out = CACHE / f"random-{seed}-{width}x{height}-{SIM_KEY}"
+    rs = f"-rs{READOUT_MS:g}ms" if READOUT_MS else ""
+    out = CACHE / f"random-{seed}-{width}x{height}{rs}-{SIM_KEY}"
     if not (out / "truth.json").exists():
-        cfg = SimConfig.random(seed, width, height)
+        cfg = SimConfig.random(seed, width, height, readout_ms=READOUT_MS)
         print(f"[simulating random rig {seed} at {width}x{height}: {cfg.preset}]", flush=True)
         simulate(cfg, out, workers=1)
     return out
@@ -208,7 +214,12 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
     ap.add_argument("--no-fill", action="store_true", help="skip the fill figure (it replays "
                     "every frame's laser casting)")
+    ap.add_argument("--readout-ms", type=float, default=0.0,
+                    help="render the rigs with a rolling shutter of this readout (ms; written "
+                    "into their intrinsics; cached apart; 0: a global shutter)")
     args = ap.parse_args()
+    global READOUT_MS
+    READOUT_MS = args.readout_ms
     seeds = ([int(s) for s in args.seeds.split(",") if s] if "," in args.seeds
              else list(range(int(args.seeds))))
     w, h = (int(v) for v in args.resolution.lower().split("x"))

@@ -27,7 +27,10 @@ the figure that decides it.
 
 Usage: .venv/bin/python benchmarks/bench_robustness.py [--seeds 24 | --seeds 3,7,11]
        [--resolution 1920x1080] [--draws 5] [--click-noise 0.5] [--no-fill] [--json out.json]
-       [--cache-key KEY]
+       [--cache-key KEY] [--readout-ms MS]
+
+``--readout-ms`` renders the rigs with a rolling shutter of that readout (cached apart from
+the global-shutter renders; the intrinsics file carries it, as a lab's would).
 
 ``--cache-key`` reuses renders cached under another simulator key (only when the simulator's
 output for random rigs is unchanged since, e.g. after adding options whose defaults render the
@@ -225,9 +228,13 @@ def main() -> None:
     ap.add_argument("--no-fill", action="store_true", help="skip the fill figure")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
     ap.add_argument("--cache-key", default=None, help="simulator key of cached renders to use")
+    ap.add_argument("--readout-ms", type=float, default=0.0,
+                    help="render the rigs with a rolling shutter of this readout (ms; the "
+                    "intrinsics carry it, as a lab's would; cached apart; 0: a global shutter)")
     args = ap.parse_args()
     if args.cache_key:
         R.SIM_KEY = args.cache_key
+    R.READOUT_MS = args.readout_ms
     seeds = ([int(s) for s in args.seeds.split(",") if s] if "," in args.seeds
              else list(range(int(args.seeds))))
     w, h = (int(v) for v in args.resolution.lower().split("x"))
