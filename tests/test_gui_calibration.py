@@ -591,13 +591,13 @@ def test_corners_can_be_marked_again_on_the_fitted_target_after_clear_frame(
 
 def test_the_intrinsics_dialog_takes_a_rolling_shutters_readout(qtbot, tab):
     """The camera's rolling-shutter readout is entered with the lens and shown in the setup's
-    summary; 0 is a global shutter (the spin box says so)."""
+    summary; left at 0 it is not given (the spin box says so)."""
     from impress_gui.ui.calibration.setup import IntrinsicsDialog
 
     dlg = IntrinsicsDialog(None, (1920, 1080), tab)
     qtbot.addWidget(dlg)
-    assert dlg.readout_spin.value() == 0.0 and dlg.readout_spin.text() == "global shutter"
-    assert dlg.intrinsics().readout_ms == 0.0
+    assert dlg.readout_spin.value() == 0.0 and dlg.readout_spin.text() == "not given"
+    assert dlg.intrinsics().readout_ms is None  # estimated from the picks by the calibration
     dlg.readout_spin.setValue(27.5)
     intr = dlg.intrinsics()
     assert intr.readout_ms == 27.5 and intr.line_time_s == pytest.approx(0.0275 / 1079)

@@ -54,9 +54,12 @@ def test_the_readout_is_part_of_the_camera_and_its_file():
     doc = intr.to_json()
     assert doc["readout_ms"] == READOUT_MS
     assert Intrinsics.from_json(doc).readout_ms == READOUT_MS
-    # a global shutter's file is as it always was (no key), and reads back as 0
+    # not given: a file as it always was (no key), read back as not given (line time 0)
     assert "readout_ms" not in rig.intrinsics.to_json()
-    assert Intrinsics.from_json(rig.intrinsics.to_json()).line_time_s == 0.0
+    back = Intrinsics.from_json(rig.intrinsics.to_json())
+    assert back.readout_ms is None and back.line_time_s == 0.0
+    zero = dataclasses.replace(rig.intrinsics, readout_ms=0.0)  # a global shutter, given
+    assert Intrinsics.from_json(zero.to_json()).readout_ms == 0.0
     for bad in (-1.0, 1e9, float("nan")):
         with pytest.raises(InputError):
             dataclasses.replace(rig.intrinsics, readout_ms=bad)
@@ -85,7 +88,9 @@ def test_the_calibration_fits_rolling_picks_exactly_when_it_knows_the_readout(se
     dt = (picks.t2 - picks.t1) / cfg.fps
     rolling = dataclasses.replace(rig.intrinsics, readout_ms=READOUT_MS)
     known = solve_pose(rolling, target, picks, cfg.speed_mm_s, dt)
-    unknown = solve_pose(rig.intrinsics, target, picks, cfg.speed_mm_s, dt)
+    # taken for a global shutter (readout 0 given)
+    unknown = solve_pose(dataclasses.replace(rig.intrinsics, readout_ms=0.0), target, picks,
+                         cfg.speed_mm_s, dt)
     # the exact picks of a rolling shutter fit a rigid pose only with each row at its travel
     assert known.reprojection_rms_px < 0.002
     assert unknown.reprojection_rms_px > 10 * known.reprojection_rms_px
@@ -109,3 +114,36 @@ def test_a_global_shutters_render_is_unchanged_by_the_rolling_code():
         assert np.abs(project_rail(r1.rig, st.points_rail_mm, s) - st.uv_px).max() < 0.2
         assert s.max() > r1.travel(40)  # later rows: further along
     assert r0.opt.line_time_s == 0.0 and r1.opt.line_time_s == pytest.approx(0.030 / 179)
+
+
+@pytest.mark.parametrize("seed", [3, 9, 12])
+def test_a_readout_not_given_is_estimated_from_exact_picks(seed):
+    """The intrinsics give no readout (a lab's camera calibration): exact picks of a rolling
+    shutter show it plainly and the calibration estimates it; picks of a global shutter, and
+    the same picks with 0.5 px of click noise, show none (the pose stays the rigid one)."""
+    cfg, rig, motion, target = _scene(seed, READOUT_MS)
+    picks = _picks(cfg, rig, motion, target)
+    dt = (picks.t2 - picks.t1) / cfg.fps
+    assert rig.intrinsics.readout_ms is None
+    pose = solve_pose(rig.intrinsics, target, picks, cfg.speed_mm_s, dt)
+    assert pose.readout_ms_estimated == pytest.approx(READOUT_MS, rel=1e-3)
+    assert pose.reprojection_rms_px < 0.002
+    assert any("rolling shutter" in w for w in pose.warnings)
+    # a global shutter: nothing to estimate
+    cfg0, rig0, motion0, target0 = _scene(seed, 0.0)
+    picks0 = _picks(cfg0, rig0, motion0, target0)
+    pose0 = solve_pose(rig0.intrinsics, target0, picks0, cfg0.speed_mm_s, dt)
+    assert pose0.readout_ms_estimated is None
+    rng = np.random.default_rng(seed)
+    for _ in range(10):
+        noisy = Picks(video="scan.mp4", t1=picks0.t1, t2=picks0.t2,
+                      corners_t1={c: tuple(np.add(v, rng.normal(0, 0.5, 2)))
+                                  for c, v in picks0.corners_t1.items()},
+                      corners_t2={c: tuple(np.add(v, rng.normal(0, 0.5, 2)))
+                                  for c, v in picks0.corners_t2.items()})
+        assert solve_pose(rig0.intrinsics, target0, noisy, cfg0.speed_mm_s,
+                          dt).readout_ms_estimated is None
+    # given as 0 (a global shutter, known): never estimated, even from rolling picks
+    known_global = dataclasses.replace(rig.intrinsics, readout_ms=0.0)
+    assert solve_pose(known_global, target, picks, cfg.speed_mm_s,
+                      dt).readout_ms_estimated is None

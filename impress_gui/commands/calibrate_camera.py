@@ -32,11 +32,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also fit the third radial coefficient k3 (default: k3 = 0)")
     p.add_argument("--fps", type=float, default=None,
                    help="frame rate of an image folder (only used in messages)")
-    p.add_argument("--readout-ms", type=float, default=0.0, metavar="MS",
+    p.add_argument("--readout-ms", type=float, default=None, metavar="MS",
                    help="record the camera's rolling-shutter readout, the time from the first "
                    "image row's exposure to the last (ms; from the camera's data sheet or "
-                   "measured; 0, the default: a global shutter); the scene calibration and "
-                   "the reconstruction place each row where the camera was when it was exposed")
+                   "measured; 0: a global shutter); the scene calibration and the "
+                   "reconstruction place each row where the camera was when it was exposed. "
+                   "Not given: the scene calibration estimates it from the corner picks")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -49,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     from impress_gui.core.calibration.intrinsics import parse_board, run_camera_calibration
     from impress_gui.core.formats.video import open_video
 
-    if not (math.isfinite(args.readout_ms) and 0.0 <= args.readout_ms <= MAX_READOUT_MS):
+    if args.readout_ms is not None and not (math.isfinite(args.readout_ms)
+                                            and 0.0 <= args.readout_ms <= MAX_READOUT_MS):
         raise InputError(f"--readout-ms must be between 0 (a global shutter) and "
                          f"{MAX_READOUT_MS:g} ms", code=codes.E_VALUE)
     board = parse_board(args.board)
@@ -69,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
                                      min_boards=args.min_boards, max_frames=args.max_frames,
                                      fix_k3=not args.k3)
     intr = res.intrinsics
-    if args.readout_ms:
+    if args.readout_ms is not None:
         import dataclasses
 
         intr = dataclasses.replace(intr, readout_ms=args.readout_ms)
@@ -88,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"  dropped as outliers: frames {', '.join(map(str, res.rejected_frames))}")
     print(f"  frames used: {', '.join(map(str, intr.frames_used))}")
     print(f"  rolling shutter  readout {intr.readout_ms:g} ms" if intr.readout_ms else
-          "  shutter          global (no --readout-ms given)")
+          "  shutter          global (--readout-ms 0)" if intr.readout_ms == 0 else
+          "  shutter          not given (--readout-ms): the scene calibration estimates a "
+          "rolling shutter's readout from the picks")
     print(f"wrote {args.output}")
     return 0

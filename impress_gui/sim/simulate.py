@@ -539,7 +539,7 @@ def _simulate_into(cfg: SimConfig, out_dir: Path, workers: int,
 
     # ----- ground truth -------------------------------------------------------------------
     # the camera as a lab knows it: its lens, and its rolling shutter's readout (if any)
-    intr = dataclasses.replace(rig.intrinsics, readout_ms=cfg.readout_ms)
+    intr = dataclasses.replace(rig.intrinsics, readout_ms=cfg.readout_ms or None)
     intr.save(out_dir / "intrinsics.json")
     target.save(out_dir / "target.json")
     times = motion.times_s()

@@ -63,10 +63,11 @@ class Intrinsics:
 
     ``camera_matrix`` is 3x3 in pixels; ``image_size`` is ``(width, height)`` in pixels.
     ``readout_ms``: a rolling shutter's readout, the time from the exposure of the first image
-    row to that of the last (0: a global shutter, or not known). A CMOS camcorder reads its
-    rows one after another, so while the carriage moves, row ``v`` of a frame shows the scene
-    ``v * line_time_s`` after row 0; the calibration and the reconstruction place each row
-    where the camera was then.
+    row to that of the last (0: a global shutter; None: not given - the scene calibration
+    then estimates it from the picks and uses it when they clearly show one). A CMOS camcorder
+    reads its rows one after another, so while the carriage moves, row ``v`` of a frame shows
+    the scene ``v * line_time_s`` after row 0; the calibration and the reconstruction place
+    each row where the camera was then.
     """
 
     camera_matrix: np.ndarray
@@ -75,7 +76,7 @@ class Intrinsics:
     rms_px: float | None = None
     frames_used: tuple[int, ...] = field(default_factory=tuple)
     source: str = ""
-    readout_ms: float = 0.0
+    readout_ms: float | None = None
 
     def __post_init__(self) -> None:
         k = np.asarray(self.camera_matrix, dtype=float)
@@ -89,8 +90,8 @@ class Intrinsics:
         w, h = (int(v) for v in self.image_size)
         if w <= 0 or h <= 0:
             raise InputError("image size must be positive")
-        ro = float(self.readout_ms)
-        if not (math.isfinite(ro) and 0.0 <= ro <= MAX_READOUT_MS):
+        ro = None if self.readout_ms is None else float(self.readout_ms)
+        if ro is not None and not (math.isfinite(ro) and 0.0 <= ro <= MAX_READOUT_MS):
             raise InputError(f"readout_ms (a rolling shutter's readout) must be between 0 and "
                              f"{MAX_READOUT_MS:g} ms")
         object.__setattr__(self, "camera_matrix", k)
@@ -100,7 +101,10 @@ class Intrinsics:
 
     @property
     def line_time_s(self) -> float:
-        """The time from one image row's exposure to the next, s (0: a global shutter)."""
+        """The time from one image row's exposure to the next, s (0: a global shutter, or
+        the readout not given)."""
+        if not self.readout_ms:
+            return 0.0
         return self.readout_ms / 1000.0 / max(self.image_size[1] - 1, 1)
 
     @property
@@ -196,8 +200,8 @@ class Intrinsics:
             "rms_px": self.rms_px,
             "frames_used": list(self.frames_used),
             "source": self.source,
-            # only a rolling shutter's: the files of a global shutter stay as they were
-            **({"readout_ms": self.readout_ms} if self.readout_ms else {}),
+            # only when given: the files written before rolling shutters stay as they were
+            **({"readout_ms": self.readout_ms} if self.readout_ms is not None else {}),
         }
 
     @classmethod
@@ -211,13 +215,15 @@ class Intrinsics:
             raise FormatError(f"{where}dist_coeffs must have 4, 5 or 8 values")
         d = float_array(d_raw, (len(d_raw),), "dist_coeffs")
         rms = doc.get("rms_px")
-        readout = doc.get("readout_ms", 0.0)
-        if isinstance(readout, bool) or not isinstance(readout, (int, float)):
+        readout = doc.get("readout_ms")
+        if readout is not None and (isinstance(readout, bool)
+                                    or not isinstance(readout, (int, float))):
             raise FormatError(f"{where}readout_ms must be a number of milliseconds")
         try:
             return cls(k, d, (size[0], size[1]), rms_px=rms,
                        frames_used=tuple(doc.get("frames_used", [])),
-                       source=str(doc.get("source", "")), readout_ms=float(readout))
+                       source=str(doc.get("source", "")),
+                       readout_ms=None if readout is None else float(readout))
         except (InputError, TypeError, ValueError) as exc:
             raise FormatError(f"{where}{exc}") from None
 

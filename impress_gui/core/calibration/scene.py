@@ -17,7 +17,7 @@ laser planes and the tilt refinement from the stripes in :mod:`~impress_gui.core
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -340,6 +340,10 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
     report(progress, 0.05, "motion direction and pose")
     pose = solve_pose(intrinsics, target, picks, speed_mm_s, dt)
     implied, warnings = pose.implied_speed_mm_s, list(pose.warnings)
+    if pose.readout_ms_estimated is not None:
+        # the picks showed a rolling shutter the intrinsics did not give: the stripes, the
+        # calibration file and the reconstruction use the readout estimated
+        intrinsics = replace(intrinsics, readout_ms=pose.readout_ms_estimated)
     if plane_method == "three-point":
         pose = level_across(pose)
         report(progress, 0.5, "laser planes from the three stripe points")

@@ -12,6 +12,7 @@ import numpy as np
 from impress_gui.core.base import codes
 from impress_gui.core.base.errors import CalibrationError
 from impress_gui.core.calibration.geometry import (
+    MAX_READOUT_MS,
     Intrinsics,
     ideal_rotation,
     roll_tilt_from_direction,
@@ -177,6 +178,57 @@ class PoseSolution:
     initial_tilt_rad: float
     #: the turn about the motion axis Y of :func:`level_across` (0 until it is applied)
     cross_tilt_rad: float = 0.0
+    #: a rolling shutter's readout (ms) the picks showed where the intrinsics gave none
+    #: (:func:`estimate_readout`; the pose is then solved with it), else None
+    readout_ms_estimated: float | None = None
+
+
+#: a readout estimated from the picks is used only when the fit with it is better beyond
+#: chance at this level (an F test of the one added parameter against the picks' residual)
+READOUT_F_LEVEL = 0.999
+#: ... and when it takes the picks' reprojection RMS below this share of the rigid pose's
+READOUT_RMS_SHARE = 0.5
+#: ... from at least this RMS (px): picks that a rigid pose already fits hold nothing to gain
+READOUT_MIN_RMS_PX = 0.05
+
+
+def estimate_readout(intrinsics: Intrinsics, target: TargetModel, picks: Picks,
+                     pose: PoseSolution, d: float, dt_s: float, fixed_travel: bool
+                     ) -> tuple[float, float, float]:
+    """A rolling shutter's readout (ms) from the 12 picks: the bundle of
+    :func:`refine_bundle` with the line time free (each pick at its row's travel). Returns
+    ``(readout_ms, rms_px with it, F statistic of the added parameter)``; the readout is
+    signed (negative: the rows read bottom to top)."""
+    from scipy.optimize import least_squares
+
+    obj = target.corner_array()
+    uv1, uv2 = picks.array("t1"), picks.array("t2")
+    v1, v2 = uv1[:, 1], uv2[:, 1]
+
+    def unpack(p):
+        rot = ideal_rotation(p[0], p[1])
+        d_ = d if fixed_travel else p[8]
+        return rot, _rodrigues(p[2:5]), p[5:8], d_, p[-1]
+
+    def resid(p):
+        rot, r_o, t_o, d_, q = unpack(p)
+        pts = obj @ r_o.T + t_o
+        return np.concatenate([(project_points(intr_, rot, pts, d_ * q * v1) - uv1).ravel(),
+                               (project_points(intr_, rot, pts, d_ * (1.0 + q * v2))
+                                - uv2).ravel()])
+
+    intr_ = intrinsics
+    p0 = np.concatenate([[pose.roll_rad, pose.tilt_rad], _rot_to_vec(pose.target_rotation),
+                         pose.target_translation_mm] + ([] if fixed_travel else [[d]]) + [[0.0]])
+    sol = least_squares(resid, p0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14,
+                        max_nfev=4000)
+    n = sol.fun.size
+    rss1 = float(np.sum(sol.fun**2))
+    rss0 = n * pose.reprojection_rms_px**2
+    dof = n - len(p0)
+    f_stat = (rss0 - rss1) / max(rss1 / max(dof, 1), 1e-300)
+    readout_ms = float(sol.x[-1]) * dt_s * 1000.0 * (intrinsics.image_size[1] - 1)
+    return readout_ms, float(np.sqrt(rss1 / n)), float(f_stat)
 
 
 def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_mm_s: float,
@@ -239,8 +291,40 @@ def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_
     _, r_e, t_e = umeyama(obj, corners_entered, with_scale=False)
     residuals = np.linalg.norm(corners_entered - (obj @ r_e.T + t_e), axis=1)
 
-    return PoseSolution(m_b, roll_b, tilt_b, rot_b, corners_entered, residuals, r_o, t_o,
+    pose = PoseSolution(m_b, roll_b, tilt_b, rot_b, corners_entered, residuals, r_o, t_o,
                         float(implied), rms_px, tuple(warnings), roll, tilt)
+    if intrinsics.readout_ms is None and rms_px >= READOUT_MIN_RMS_PX and dt_s:
+        return _with_readout(intrinsics, target, picks, speed_mm_s, dt_s, pose, d,
+                             abs(implied - speed_mm_s) <= SPEED_WARN_FRACTION * speed_mm_s)
+    return pose
+
+
+def _with_readout(intrinsics, target, picks, speed_mm_s, dt_s, pose, d, speed_ok):
+    """The pose with a rolling shutter's readout estimated from the picks
+    (:func:`estimate_readout`) when they clearly show one: better beyond chance
+    (:data:`READOUT_F_LEVEL`), the RMS below :data:`READOUT_RMS_SHARE` of the rigid pose's and
+    the readout within one frame interval, rows read top to bottom; else ``pose`` as it is."""
+    from scipy.stats import f as f_dist
+
+    readout, rms1, f_stat = estimate_readout(intrinsics, target, picks, pose, d, dt_s,
+                                             speed_ok)
+    frame_ms = 1000.0 * abs(dt_s) / max(abs(picks.t2 - picks.t1), 1)
+    dof = 24 - (9 if speed_ok else 10)
+    if not (f_stat > f_dist.ppf(READOUT_F_LEVEL, 1, dof)
+            and rms1 < READOUT_RMS_SHARE * pose.reprojection_rms_px
+            and 0.0 < readout <= min(1.05 * frame_ms, MAX_READOUT_MS)):
+        return pose
+    from dataclasses import replace as _replace
+
+    rolling = _replace(intrinsics, readout_ms=round(readout, 3))
+    solved = solve_pose(rolling, target, picks, speed_mm_s, dt_s)
+    note = (f"the corner picks show a rolling shutter: a readout of {rolling.readout_ms:.3g} ms "
+            f"(reprojection RMS {pose.reprojection_rms_px:.3f} px with a global shutter, "
+            f"{solved.reprojection_rms_px:.3f} px with it); each row is placed at its own "
+            "travel. Record the camera's readout in its intrinsics (impress calibrate-camera "
+            "--readout-ms) to use the known value")
+    return _replace(solved, warnings=(*solved.warnings, note),
+                    readout_ms_estimated=rolling.readout_ms)
 
 
 def rot_y(angle_rad: float) -> np.ndarray:

@@ -94,13 +94,14 @@ class IntrinsicsDialog(QDialog):
         self.readout_spin.setRange(0.0, MAX_READOUT_MS)
         self.readout_spin.setDecimals(2)
         self.readout_spin.setSuffix(" ms")
-        self.readout_spin.setSpecialValueText("global shutter")
-        self.readout_spin.setValue(float(intr.readout_ms) if intr else 0.0)
+        self.readout_spin.setSpecialValueText("not given")
+        self.readout_spin.setValue(float(intr.readout_ms or 0.0) if intr else 0.0)
         self.readout_spin.setToolTip(
             "A rolling shutter's readout: the time from the exposure of the first image row to "
             "the last (a CMOS camcorder's, from its data sheet or measured; often 15-30 ms). "
             "While the carriage moves, each row is placed where the camera was when it was "
-            "exposed. 0: a global shutter.")
+            "exposed. Not given: the scene calibration estimates it from the corner picks "
+            "and uses it when they clearly show one.")
         form.addRow("Rolling-shutter readout", self.readout_spin)
         buttons = QDialogButtonBox(
             QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
@@ -115,7 +116,7 @@ class IntrinsicsDialog(QDialog):
         d = np.array([f["k1"], f["k2"], f["p1"], f["p2"], f["k3"]])
         return Intrinsics(
             k, d, (self.width_spin.value(), self.height_spin.value()), source="entered by hand",
-            readout_ms=float(self.readout_spin.value()),
+            readout_ms=float(self.readout_spin.value()) or None,
         )
 
 
