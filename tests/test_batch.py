@@ -152,9 +152,12 @@ def test_ctrl_c_stops_the_batch_and_keeps_what_is_done(flat_scan, flat_calibrati
     manifest = tmp_path / "manifest.json"
     manifest.write_text(json.dumps(doc))
     out = tmp_path / "batch"
+    # SIGINT as a terminal's: a suite started in the background (nohup, &) passes it on
+    # ignored, and Python then leaves it ignored in the child
     proc = subprocess.Popen([sys.executable, "-m", "impress_gui", "batch", str(manifest), "-o",
                              str(out), "--jobs", "2"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline and proc.poll() is None:
         if any((out / f"s{k}" / "metadata.json").exists() for k in range(10)):

@@ -218,8 +218,12 @@ def estimate_readout(intrinsics: Intrinsics, target: TargetModel, picks: Picks,
                                 - uv2).ravel()])
 
     intr_ = intrinsics
-    p0 = np.concatenate([[pose.roll_rad, pose.tilt_rad], _rot_to_vec(pose.target_rotation),
-                         pose.target_translation_mm] + ([] if fixed_travel else [[d]]) + [[0.0]])
+    parts: list[np.ndarray] = [np.array([pose.roll_rad, pose.tilt_rad]),
+                               _rot_to_vec(pose.target_rotation),
+                               np.asarray(pose.target_translation_mm, float)]
+    if not fixed_travel:
+        parts.append(np.array([d]))
+    p0 = np.concatenate([*parts, np.zeros(1)])
     sol = least_squares(resid, p0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14,
                         max_nfev=4000)
     n = sol.fun.size
