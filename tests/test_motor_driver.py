@@ -175,6 +175,10 @@ def test_move_duration_matches_speed(rig):
     t0_before = emu.clock()
     watch = driver.start_move_mm(60.0, 8.0)
     t0_after = emu.clock()
+    # the move the motor was given (its own record: speed and ramps as commanded)
+    commanded = emu._move
+    assert commanded is not None
+    assert commanded.duration_s == pytest.approx(expected_s, rel=1e-3)
     samples: list[tuple[float, float]] = []
     last_moving_s = t0_before
     while True:
@@ -189,7 +193,8 @@ def test_move_duration_matches_speed(rig):
     # whatever the load on the machine running the test
     shortest_s, longest_s = last_moving_s - t0_after, after - t0_before
     assert shortest_s <= expected_s <= longest_s
-    assert longest_s - shortest_s < 3.0
+    # (how tightly the polls bracket the end depends on how busy the machine is: 3 emulated s
+    # = 0.15 s here; the commanded duration above is the precise check)
     t, x = np.array(samples).T
     cruise = (x > 5.0) & (x < 55.0)
     assert cruise.sum() > 10
