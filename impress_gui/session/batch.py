@@ -250,11 +250,29 @@ def run_batch(items: list[BatchItem], out_dir: str | os.PathLike, jobs: int | No
     except KeyboardInterrupt:
         # what finished is kept and summarised; the rest is marked, and a run again with
         # the same manifest resumes there
-        write_summary([rows.get(i.name) or _not_run(i) for i in items], out)
+        write_summary([rows.get(i.name) or _finished_unreported(i, out) or _not_run(i)
+                       for i in items], out)
         raise
     ordered = [rows[name] for name in names]
     write_summary(ordered, out)
     return ordered
+
+
+def _finished_unreported(item: BatchItem, out: Path) -> dict[str, Any] | None:
+    """The row of a scan whose worker finished its result folder but was interrupted before
+    it reported back (Ctrl-C between the two): the complete result of exactly this job, read
+    back as :func:`_done_earlier` reads one; None when there is none."""
+    folder = out / item.name
+    if not (folder / "metadata.json").is_file():
+        return None
+    try:
+        done = _done_earlier(item, folder, _params(item))
+    except (ImpressError, OSError, ValueError):
+        return None
+    if done is None:
+        return None
+    return {"name": item.name, "video": str(item.video), "calibration": str(item.calibration),
+            "folder": str(folder)} | done | {"status": "processed"}
 
 
 def _not_run(item: BatchItem) -> dict[str, Any]:
