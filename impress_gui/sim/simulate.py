@@ -17,7 +17,7 @@ from impress_gui.core.base.errors import InputError
 from impress_gui.core.base.fileio import atomic_write_bytes, sha256_path, write_json
 from impress_gui.core.base.outdir import OutputFolder
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
-from impress_gui.core.calibration.geometry import Plane
+from impress_gui.core.calibration.geometry import Plane, rail_shift
 from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel, default_target
 from impress_gui.core.formats.images import png_bytes, tiff_bytes
@@ -243,10 +243,8 @@ def target_world_corners(target: TargetModel, pose, standoff_mm: float) -> np.nd
 def project_rail(rig: Rig, pts_rail: np.ndarray, travel_mm) -> np.ndarray:
     """Image points of rail points with the optical centre at ``travel_mm`` (one travel, or
     one per point)."""
-    pts = np.asarray(pts_rail, float)
-    rel = pts - np.column_stack([np.zeros(len(pts)), np.broadcast_to(travel_mm, len(pts)),
-                                 np.zeros(len(pts))])
-    return rig.intrinsics.project(rel @ rig.rotation)
+    return rig.intrinsics.project((np.asarray(pts_rail, float) - rail_shift(travel_mm))
+                                  @ rig.rotation)
 
 
 def project_rail_rolling(rig: Rig, motion: Motion, pts_rail: np.ndarray, k: int,

@@ -26,6 +26,15 @@ INTRINSICS_FORMAT = "impress.intrinsics"
 MAX_READOUT_MS = 100.0
 
 
+def rail_shift(travel_mm) -> np.ndarray:
+    """The camera's displacement along the rail (the Y axis): ``(3,)`` for one travel, ``(N, 3)``
+    for one per point (a rolling shutter: each image row was exposed at its own travel)."""
+    if np.ndim(travel_mm) == 0:
+        return np.array([0.0, float(travel_mm), 0.0])
+    tr = np.asarray(travel_mm, float)
+    return np.column_stack([np.zeros(len(tr)), tr, np.zeros(len(tr))])
+
+
 def rot_x(angle_rad: float) -> np.ndarray:
     """R_x with second row (0, cos a, sin a): the seed's eq. 3.10 with its misprint fixed."""
     c, s = np.cos(angle_rad), np.sin(angle_rad)

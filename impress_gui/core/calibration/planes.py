@@ -12,7 +12,13 @@ import numpy as np
 from impress_gui.core.base import codes
 from impress_gui.core.base.errors import CalibrationError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
-from impress_gui.core.calibration.geometry import Intrinsics, Plane, fit_plane, ideal_rotation
+from impress_gui.core.calibration.geometry import (
+    Intrinsics,
+    Plane,
+    fit_plane,
+    ideal_rotation,
+    rail_shift,
+)
 from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.solve import (
     SPEED_WARN_FRACTION,
@@ -168,15 +174,6 @@ def stripe_uv_on_ground(rgb: np.ndarray, laser: str, intr: Intrinsics, rot: np.n
     return _stripe_uv_in_region(rgb, laser, uv, params, blooming, midpoints)
 
 
-def _shift(travel_mm) -> np.ndarray:
-    """The camera's displacement along the rail: ``(3,)`` for one travel, ``(N, 3)`` for one
-    per point (a rolling shutter: each image row was exposed at its own travel)."""
-    if np.ndim(travel_mm) == 0:
-        return np.array([0.0, travel_mm, 0.0])
-    tr = np.asarray(travel_mm, float)
-    return np.column_stack([np.zeros(len(tr)), tr, np.zeros(len(tr))])
-
-
 def row_times_s(dt_s: float, uv: np.ndarray, intr: Intrinsics):
     """The times (s since frame t1) at which the image points ``uv`` were exposed: the
     frame's ``dt_s`` for a global shutter, plus each point's row times the line time for a
@@ -194,7 +191,7 @@ def points_on_ground(rays: np.ndarray, pose, target: TargetModel, travel_mm
     camera-fixed ideal frame ``(N, 3)``."""
     r_o, t_o = pose
     feet, lo, hi = _ground_ring(target)
-    shift = _shift(travel_mm)
+    shift = rail_shift(travel_mm)
     n = r_o[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = ((t_o - shift) @ n) / (rays @ n)
@@ -247,10 +244,10 @@ def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm):
     for height, poly_in, poly in _face_polygons(pose, target):
         n = _cross3(poly[1] - poly[0], poly[2] - poly[0])
         n /= np.linalg.norm(n)
-        p0 = poly[0] - _shift(travel_mm)
+        p0 = poly[0] - rail_shift(travel_mm)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (p0 @ n) / (rays @ n)
-        hit = rays * t[:, None] + _shift(travel_mm)  # rail frame
+        hit = rays * t[:, None] + rail_shift(travel_mm)  # rail frame
         e1 = poly[1] - poly[0]
         e1 /= np.linalg.norm(e1)
         e2 = _cross3(n, e1)

@@ -15,6 +15,7 @@ from impress_gui.core.calibration.geometry import (
     MAX_READOUT_MS,
     Intrinsics,
     ideal_rotation,
+    rail_shift,
     roll_tilt_from_direction,
 )
 from impress_gui.core.calibration.picks import Picks
@@ -110,12 +111,7 @@ def project_points(intr: Intrinsics, rot: np.ndarray, pts_rail: np.ndarray,
                    travel: float) -> np.ndarray:
     """Distorted pixels of rail-frame points seen from a camera that travelled ``travel``
     (one travel, or one per point)."""
-    if np.ndim(travel) == 0:
-        rel = pts_rail - np.array([0.0, travel, 0.0])
-    else:
-        tr = np.asarray(travel, float)
-        rel = pts_rail - np.column_stack([np.zeros(len(tr)), tr, np.zeros(len(tr))])
-    return intr.project(rel @ rot)  # rows: R^T (P - C)
+    return intr.project((pts_rail - rail_shift(travel)) @ rot)  # rows: R^T (P - C)
 
 
 def refine_bundle(intr, target, picks, init, d0, fixed_travel: bool = False,
