@@ -27,10 +27,13 @@ the figure that decides it.
 
 Usage: .venv/bin/python benchmarks/bench_robustness.py [--seeds 24 | --seeds 3,7,11]
        [--resolution 1920x1080] [--draws 5] [--click-noise 0.5] [--no-fill] [--json out.json]
-       [--cache-key KEY] [--readout-ms MS]
+       [--cache-key KEY] [--readout-ms MS [--readout-unknown]]
 
 ``--readout-ms`` renders the rigs with a rolling shutter of that readout (cached apart from
 the global-shutter renders; the intrinsics file carries it, as a lab's would).
+``--readout-unknown`` calibrates them without it, as a lab that did not record its camera's
+readout: the calibration estimates it from the picks where they show it and otherwise takes
+the camera for a global shutter (each rig's line says which, ``readout``).
 
 ``--cache-key`` reuses renders cached under another simulator key (only when the simulator's
 output for random rigs is unchanged since, e.g. after adding options whose defaults render the
@@ -127,6 +130,16 @@ def physical_mae(scan_dir, cal, rec) -> float:
     return float(np.mean(np.abs(rec.height_mm[ok] - truth[ok]))) if ok.any() else float("nan")
 
 
+#: calibrate without the intrinsics' readout (``--readout-unknown``)
+READOUT_GIVEN = True
+
+
+def _readout_text(cal) -> str:
+    r = cal.intrinsics.readout_ms
+    how = "given" if READOUT_GIVEN else ("estimated" if r else "not estimated")
+    return f"{how} {r or 0.0:.1f} ms"
+
+
 def measure(seed: int, w: int, h: int, with_fill: bool, draws: int, noise_px: float) -> dict:
     from impress_gui.core.formats.video import open_video
     from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
@@ -142,7 +155,8 @@ def measure(seed: int, w: int, h: int, with_fill: bool, draws: int, noise_px: fl
     row["edge_mm"] = row["noise_mae"] = float("nan")
     t0 = time.perf_counter()
     try:
-        cal = calibrate(d)
+        cal = calibrate(d, readout_given=READOUT_GIVEN)
+        row["readout"] = _readout_text(cal)
         row.update(R.calibration_figures(d, cal))
         with open_video(d / truth["video"]) as v:
             rec = reconstruct(v, cal, ProcessParams())
@@ -155,11 +169,13 @@ def measure(seed: int, w: int, h: int, with_fill: bool, draws: int, noise_px: fl
         refused = 0
         for k in range(draws):
             try:
-                cal_n = calibrate(d, noise_px=noise_px, seed=1000 * seed + k)
+                cal_n = calibrate(d, noise_px=noise_px, seed=1000 * seed + k,
+                                  readout_given=READOUT_GIVEN)
             except ImpressError as exc:  # refused clicks: counted, not the rig's failure
                 refused += 1
                 row["warnings"].append(f"click-noise draw {k} refused: {exc.code}")
                 continue
+            row.setdefault("noise_readout", []).append(_readout_text(cal_n))
             with open_video(d / truth["video"]) as v:
                 rec_n = reconstruct(v, cal_n, ProcessParams())
             m = physical_mae(d, cal_n, rec_n)
@@ -231,7 +247,11 @@ def main() -> None:
     ap.add_argument("--readout-ms", type=float, default=0.0,
                     help="render the rigs with a rolling shutter of this readout (ms; the "
                     "intrinsics carry it, as a lab's would; cached apart; 0: a global shutter)")
+    ap.add_argument("--readout-unknown", action="store_true",
+                    help="calibrate without the readout (estimated from the picks, or none)")
     args = ap.parse_args()
+    global READOUT_GIVEN
+    READOUT_GIVEN = not args.readout_unknown
     if args.cache_key:
         R.SIM_KEY = args.cache_key
     R.READOUT_MS = args.readout_ms
@@ -251,6 +271,8 @@ def main() -> None:
               f"{row.get('edge_n_y', 0)}), "
               f"noise MAE {row['noise_mae']:.4f} mm (cell {row.get('noise_mae_cell', np.nan):.4f},"
               f" refused {row.get('noise_refused', 0)}/{args.draws}); "
+              + (f"readout {row.get('readout', '-')} (click-noise draws: "
+                 f"{', '.join(row.get('noise_readout', [])) or '-'}); " if args.readout_ms else "")
               + "; ".join(row["warnings"]), flush=True)
         if args.json:
             args.json.write_text(json.dumps(rows, indent=1))

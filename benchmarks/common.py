@@ -48,7 +48,13 @@ def scan(name: str, **cfg) -> Path:
 
 
 def calibrate(scan_dir: Path, picks_file: str = "picks.json", noise_px: float = 0.0, seed: int = 0,
-              speed_mm_s: float | None = None):
+              speed_mm_s: float | None = None, readout_given: bool = True):
+    """Calibrate a cached scan from its picks (``noise_px``: normal click noise added, seeded)
+    with its true intrinsics; ``readout_given`` False: without the rolling shutter's readout
+    the intrinsics carry (as a lab that did not record it: the calibration estimates it from
+    the picks, or takes the camera for a global shutter)."""
+    from dataclasses import replace
+
     from impress_gui.core.calibration.geometry import Intrinsics
     from impress_gui.core.calibration.picks import Picks
     from impress_gui.core.calibration.scene import calibrate_scene
@@ -64,8 +70,11 @@ def calibrate(scan_dir: Path, picks_file: str = "picks.json", noise_px: float = 
             d = getattr(picks, key)
             noisy[key] = {c: tuple(np.add(v, rng.normal(0, noise_px, 2))) for c, v in d.items()}
         picks = Picks(picks.video, picks.t1, picks.t2, noisy["corners_t1"], noisy["corners_t2"])
+    intr = Intrinsics.load(scan_dir / "intrinsics.json")
+    if not readout_given:
+        intr = replace(intr, readout_ms=None)
     with open_video(scan_dir / truth["video"]) as v:
-        return calibrate_scene(v, Intrinsics.load(scan_dir / "intrinsics.json"),
+        return calibrate_scene(v, intr,
                                TargetModel.load(scan_dir / "target.json"), picks,
                                truth["speed_mm_s"] if speed_mm_s is None else speed_mm_s)
 
