@@ -3,6 +3,7 @@
 Example::
 
     impress calibrate-camera board.MTS --board 9x6 --square-mm 25 -o intrinsics.json
+    impress calibrate-camera board.MTS --readout-from-flicker lamp.MTS --flicker-hz 100
 """
 
 from __future__ import annotations
@@ -38,6 +39,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "measured; 0: a global shutter); the scene calibration and the "
                    "reconstruction place each row where the camera was when it was exposed. "
                    "Not given: the scene calibration estimates it from the corner picks")
+    p.add_argument("--readout-from-flicker", type=Path, default=None, metavar="VIDEO",
+                   help="measure the readout from a video, in the scans' recording mode, of a "
+                   "plain light surface lit only by a mains lamp (short exposure): the "
+                   "rolling shutter draws the lamp's flicker as bands whose spacing gives it "
+                   "(needs --flicker-hz; docs/camera-calibration.md)")
+    p.add_argument("--flicker-hz", type=float, default=None, metavar="HZ",
+                   help="the lamp's flicker: twice the mains frequency, 100 on 50 Hz mains, "
+                   "120 on 60 Hz")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -54,6 +63,13 @@ def run(args: argparse.Namespace) -> int:
                                             and 0.0 <= args.readout_ms <= MAX_READOUT_MS):
         raise InputError(f"--readout-ms must be between 0 (a global shutter) and "
                          f"{MAX_READOUT_MS:g} ms", code=codes.E_VALUE)
+    if args.readout_from_flicker is not None and args.readout_ms is not None:
+        raise InputError("give the readout (--readout-ms) or a video to measure it from "
+                         "(--readout-from-flicker), not both", code=codes.E_VALUE)
+    if (args.readout_from_flicker is None) != (args.flicker_hz is None):
+        raise InputError("--readout-from-flicker and --flicker-hz go together: the video of "
+                         "the flickering lamp and its flicker (100 Hz on 50 Hz mains, 120 Hz "
+                         "on 60 Hz)", code=codes.E_VALUE)
     board = parse_board(args.board)
     if args.max_frames < 3:
         raise InputError("--max-frames must be at least 3", code=codes.E_BOARD)
@@ -62,8 +78,18 @@ def run(args: argparse.Namespace) -> int:
                          code=codes.E_OUTPUT)
     from impress_gui.core.base.outdir import check_output_file
 
-    check_output_file(args.output, inputs=(args.input,), formats=("impress.intrinsics",))
+    flicker_inputs = () if args.readout_from_flicker is None else (args.readout_from_flicker,)
+    check_output_file(args.output, inputs=(args.input, *flicker_inputs),
+                      formats=("impress.intrinsics",))
     progress = progress_printer(2, quiet=args.quiet)
+    flicker = None
+    lamp_size: tuple = ()
+    if args.readout_from_flicker is not None:
+        from impress_gui.core.calibration.readout import readout_from_flicker
+
+        with open_video(args.readout_from_flicker) as lamp:
+            flicker = readout_from_flicker(lamp, args.flicker_hz)
+            lamp_size = tuple(lamp.size)
 
     t0 = time.perf_counter()
     with open_video(args.input, args.fps) as video:
@@ -71,7 +97,15 @@ def run(args: argparse.Namespace) -> int:
                                      min_boards=args.min_boards, max_frames=args.max_frames,
                                      fix_k3=not args.k3)
     intr = res.intrinsics
-    if args.readout_ms is not None:
+    if flicker is not None:
+        import dataclasses
+
+        if lamp_size != tuple(intr.image_size):
+            raise InputError(f"the flicker video is {lamp_size[0]}x{lamp_size[1]}, the board's "
+                             f"{intr.image_size[0]}x{intr.image_size[1]}: film both in the "
+                             "scans' recording mode", code=codes.E_VALUE)
+        intr = dataclasses.replace(intr, readout_ms=round(flicker.readout_ms, 3))
+    elif args.readout_ms is not None:
         import dataclasses
 
         intr = dataclasses.replace(intr, readout_ms=args.readout_ms)
@@ -93,5 +127,7 @@ def run(args: argparse.Namespace) -> int:
           "  shutter          global (--readout-ms 0)" if intr.readout_ms == 0 else
           "  shutter          not given (--readout-ms): the scene calibration estimates a "
           "rolling shutter's readout from the picks")
+    if flicker is not None:
+        print(f"  measured from {args.readout_from_flicker.name}: {flicker.summary()}")
     print(f"wrote {args.output}")
     return 0

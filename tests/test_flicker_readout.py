@@ -1,0 +1,147 @@
+"""A rolling shutter's readout measured from a video of a flickering lamp
+(``core.calibration.readout``, ``impress calibrate-camera --readout-from-flicker``).
+
+The lamp's pictures are drawn as a rolling-shutter camera takes them: each row exposed for a
+short time starting one line time after the row above, the light of a mains lamp (twice the
+mains frequency, a partial modulation) integrated over that exposure, on a textured, shaded
+surface with sensor noise, the rows written as 8-bit images (a frame folder) or H.264. The
+readout found is compared with the one drawn.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from impress_gui.core.base.errors import InputError
+from impress_gui.core.calibration.geometry import Intrinsics
+from impress_gui.core.calibration.readout import readout_from_flicker
+from impress_gui.core.formats.video import open_video
+
+# the readout found against the one drawn, relative (seen: below 0.1 % from 20 frames of
+# 360 rows with 15-60 ms; the H.264 video 0.2 %)
+READOUT_REL = 0.01
+
+
+def lamp_frames(w: int, h: int, readout_ms: float, flicker_hz: float = 100.0, n: int = 20,
+                fps: float = 30.0, exposure_s: float = 1 / 2000, depth: float = 0.3,
+                seed: int = 0) -> list[np.ndarray]:
+    """RGB frames of a plain, slightly textured surface under a flickering lamp, through a
+    rolling shutter of ``readout_ms`` (0: a global shutter)."""
+    rng = np.random.default_rng(seed)
+    line_s = readout_ms / 1000.0 / (h - 1)
+    albedo = 0.9 + 0.1 * rng.random((h, w))
+    shade = np.linspace(0.75, 1.05, h)[:, None] * np.linspace(0.9, 1.1, w)[None]
+    om = 2 * math.pi * flicker_hz
+    out = []
+    for k in range(n):
+        t0 = k / fps + np.arange(h) * line_s  # each row's exposure start
+        # the mean of 1 + depth cos(om t) over [t0, t0 + exposure]
+        light = 1 + depth * (np.sin(om * (t0 + exposure_s)) - np.sin(om * t0)) / (om * exposure_s)
+        img = 170 * light[:, None] * albedo * shade + rng.normal(0, 2.0, (h, w))
+        grey = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        out.append(np.dstack([grey, grey, (grey * 0.95).astype(np.uint8)]))
+    return out
+
+
+def write_folder(path, frames) -> None:
+    path.mkdir()
+    for k, f in enumerate(frames):
+        cv2.imwrite(str(path / f"lamp_{k:04d}.png"), f[..., ::-1])
+
+
+@pytest.mark.parametrize("readout_ms", [15.0, 28.0, 60.0])
+def test_readout_from_a_frame_folder(tmp_path, readout_ms):
+    write_folder(tmp_path / "lamp", lamp_frames(160, 360, readout_ms, seed=int(readout_ms)))
+    with open_video(tmp_path / "lamp") as v:
+        r = readout_from_flicker(v, 100.0)
+    assert r.readout_ms == pytest.approx(readout_ms, rel=READOUT_REL)
+    assert r.period_rows == pytest.approx(359 / (100 * readout_ms / 1000), rel=READOUT_REL)
+    assert r.frames == 20 and r.band_share > 0.9
+    # the spread over the frames is stated and covers the error
+    assert 0 < r.sd_ms < 0.05 * readout_ms
+    assert abs(r.readout_ms - readout_ms) < 3 * r.sd_ms + 0.001 * readout_ms
+
+
+def test_readout_at_60_hz_mains_and_from_h264(tmp_path):
+    """120 Hz of flicker (60 Hz mains) and a compressed video: the same readout."""
+    frames = lamp_frames(320, 240, 22.0, flicker_hz=120.0, n=24, seed=3)
+    path = tmp_path / "lamp.mp4"
+    import av
+
+    with av.open(str(path), "w") as box:
+        st = box.add_stream("libx264", rate=30)
+        st.width, st.height, st.pix_fmt = 320, 240, "yuv420p"
+        st.options = {"crf": "23"}
+        for f in frames:
+            for pkt in st.encode(av.VideoFrame.from_ndarray(f, format="rgb24")):
+                box.mux(pkt)
+        for pkt in st.encode():
+            box.mux(pkt)
+    with open_video(path) as v:
+        r = readout_from_flicker(v, 120.0)
+    assert r.readout_ms == pytest.approx(22.0, rel=READOUT_REL)
+    # taken for 100 Hz of flicker the same bands give a readout 1.2 times longer
+    with open_video(path) as v:
+        assert readout_from_flicker(v, 100.0).readout_ms == pytest.approx(26.4, rel=READOUT_REL)
+
+
+@pytest.mark.parametrize("case", ["global", "steady"])
+def test_no_bands_no_readout(tmp_path, case):
+    """A global shutter (the whole frame brighter or darker, no bands) or a lamp that does not
+    flicker: refused with a clear code, never a readout."""
+    frames = (lamp_frames(160, 360, 0.0, seed=5) if case == "global"
+              else lamp_frames(160, 360, 30.0, depth=0.0, seed=5))
+    write_folder(tmp_path / "lamp", frames)
+    with open_video(tmp_path / "lamp") as v, pytest.raises(InputError) as e:
+        readout_from_flicker(v, 100.0)
+    assert e.value.code == "E-NO-FLICKER" and "no clear flicker bands" in str(e.value)
+
+
+def test_implausible_flicker_frequency(tmp_path):
+    write_folder(tmp_path / "lamp", lamp_frames(64, 120, 30.0, n=3))
+    with open_video(tmp_path / "lamp") as v:
+        for hz in (0.0, float("nan"), 1e6):
+            with pytest.raises(InputError) as e:
+                readout_from_flicker(v, hz)
+            assert e.value.code == "E-VALUE"
+
+
+def test_cli_records_the_measured_readout(tmp_path, capsys):
+    """``calibrate-camera --readout-from-flicker``: the readout measured goes into the
+    intrinsics with the lens; the lamp video must be of the board's size; the options go
+    together and exclude ``--readout-ms``; nothing is written on refusal."""
+    from impress_gui.cli import main
+    from impress_gui.sim.checkerboard import Board, write_views
+    from impress_gui.sim.rig import default_intrinsics
+
+    truth = default_intrinsics(640, 360)
+    (tmp_path / "b").mkdir()
+    board = write_views(tmp_path / "b", truth, Board(9, 6, 25.0), n_views=12, seed=3)
+    write_folder(tmp_path / "lamp", lamp_frames(640, 360, 31.0, seed=9))
+    out = tmp_path / "intrinsics.json"
+    base = ["calibrate-camera", str(board), "--board", "9x6", "--square-mm", "25", "--quiet",
+            "--min-boards", "6"]
+    code = main(base + ["-o", str(out), "--readout-from-flicker", str(tmp_path / "lamp"),
+                        "--flicker-hz", "100"])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert Intrinsics.load(out).readout_ms == pytest.approx(31.0, rel=READOUT_REL)
+    assert "measured from lamp" in text and "bands" in text
+    for extra, message in (
+            (["--readout-from-flicker", str(tmp_path / "lamp")], "--flicker-hz"),
+            (["--flicker-hz", "100"], "go together"),
+            (["--readout-from-flicker", str(tmp_path / "lamp"), "--flicker-hz", "100",
+              "--readout-ms", "30"], "not both")):
+        o = tmp_path / "x.json"
+        assert main(base + ["-o", str(o)] + extra) == 2
+        assert message in capsys.readouterr().err and not o.exists()
+    # a lamp filmed at another size than the board: refused, nothing written
+    write_folder(tmp_path / "small", lamp_frames(320, 180, 31.0, seed=9))
+    o = tmp_path / "y.json"
+    assert main(base + ["-o", str(o), "--readout-from-flicker", str(tmp_path / "small"),
+                        "--flicker-hz", "100"]) == 2
+    assert "recording mode" in capsys.readouterr().err and not o.exists()
