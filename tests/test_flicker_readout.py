@@ -69,18 +69,7 @@ def test_readout_from_a_frame_folder(tmp_path, readout_ms):
 def test_readout_at_60_hz_mains_and_from_h264(tmp_path):
     """120 Hz of flicker (60 Hz mains) and a compressed video: the same readout."""
     frames = lamp_frames(320, 240, 22.0, flicker_hz=120.0, n=24, seed=3)
-    path = tmp_path / "lamp.mp4"
-    import av
-
-    with av.open(str(path), "w") as box:
-        st = box.add_stream("libx264", rate=30)
-        st.width, st.height, st.pix_fmt = 320, 240, "yuv420p"
-        st.options = {"crf": "23"}
-        for f in frames:
-            for pkt in st.encode(av.VideoFrame.from_ndarray(f, format="rgb24")):
-                box.mux(pkt)
-        for pkt in st.encode():
-            box.mux(pkt)
+    path = _h264(tmp_path / "lamp.mp4", frames)
     with open_video(path) as v:
         r = readout_from_flicker(v, 120.0)
     assert r.readout_ms == pytest.approx(22.0, rel=READOUT_REL)
@@ -145,3 +134,57 @@ def test_cli_records_the_measured_readout(tmp_path, capsys):
     assert main(base + ["-o", str(o), "--readout-from-flicker", str(tmp_path / "small"),
                         "--flicker-hz", "100"]) == 2
     assert "recording mode" in capsys.readouterr().err and not o.exists()
+
+
+def _h264(path, frames, fps=30):
+    import av
+
+    h, w = frames[0].shape[:2]
+    with av.open(str(path), "w") as box:
+        st = box.add_stream("libx264", rate=fps)
+        st.width, st.height, st.pix_fmt = w, h, "yuv420p"
+        st.options = {"crf": "23"}
+        for f in frames:
+            for pkt in st.encode(av.VideoFrame.from_ndarray(f, format="rgb24")):
+                box.mux(pkt)
+        for pkt in st.encode():
+            box.mux(pkt)
+    return path
+
+
+def test_intrinsics_dialog_measures_the_readout(qtbot, tmp_path):
+    """The window's intrinsics dialog: **Measure from a lamp video...** with the lamp's
+    flicker chosen puts the measured readout in the field and says how it was found; a video
+    of another size or without bands leaves the field as it was and says why."""
+    from PySide6.QtCore import Qt
+
+    from impress_gui.ui.calibration.setup import IntrinsicsDialog
+
+    lamp = _h264(tmp_path / "lamp.mp4", lamp_frames(320, 240, 24.0, flicker_hz=120.0, seed=4))
+    other = _h264(tmp_path / "other.mp4", lamp_frames(160, 120, 24.0, seed=4))
+    steady = _h264(tmp_path / "steady.mp4", lamp_frames(320, 240, 24.0, depth=0.0, seed=4))
+    chosen: list[str] = []
+
+    class Chooser:
+        def open_file(self, title, filters, start=""):
+            return chosen.pop(0)
+
+    dlg = IntrinsicsDialog(None, (320, 240), None, Chooser())
+    qtbot.addWidget(dlg)
+    assert dlg.readout_spin.text() == "not given"
+    dlg.flicker_combo.setCurrentIndex(dlg.flicker_combo.findData(120.0))
+    chosen.append(str(lamp))
+    qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
+    assert dlg.readout_spin.value() == pytest.approx(24.0, rel=READOUT_REL)
+    assert dlg.readout_note.text().startswith("Measured: readout")
+    assert dlg.intrinsics().readout_ms == pytest.approx(24.0, rel=READOUT_REL)
+    before = dlg.readout_spin.value()
+    for path, code in ((other, "E-VALUE"), (steady, "E-NO-FLICKER")):
+        chosen.append(str(path))
+        qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
+        assert dlg.readout_spin.value() == before
+        assert dlg.readout_note.text().startswith(f"Not measured ({code})")
+    # cancelled file chooser: nothing changes
+    chosen.append("")
+    qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
+    assert dlg.readout_spin.value() == before

@@ -21,6 +21,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from impress_gui.core.base import codes
 from impress_gui.core.base.errors import ImpressError, InputError
 from impress_gui.core.calibration.geometry import MAX_READOUT_MS, Intrinsics
 from impress_gui.core.calibration.target import TargetModel, default_target
@@ -55,9 +56,11 @@ class IntrinsicsDialog(QDialog):
     """Type the camera matrix and distortion in by hand (e.g. from the camera's data sheet)."""
 
     def __init__(
-        self, intr: Intrinsics | None, size: tuple[int, int] | None, parent: QWidget | None = None
+        self, intr: Intrinsics | None, size: tuple[int, int] | None, parent: QWidget | None = None,
+        dialogs: Dialogs | None = None,
     ) -> None:
         super().__init__(parent)
+        self.dialogs = dialogs or Dialogs(self)
         self.setWindowTitle("Camera intrinsics")
         form = QFormLayout(self)
         w, h = intr.image_size if intr else (size or (1920, 1080))
@@ -102,13 +105,65 @@ class IntrinsicsDialog(QDialog):
             "While the carriage moves, each row is placed where the camera was when it was "
             "exposed. Not given: the scene calibration estimates it from the corner picks "
             "and uses it when they clearly show one.")
-        form.addRow("Rolling-shutter readout", self.readout_spin)
+        self.flicker_combo = QComboBox()
+        for hz, text in ((100.0, "lamp flicker 100 Hz (50 Hz mains)"),
+                         (120.0, "lamp flicker 120 Hz (60 Hz mains)")):
+            self.flicker_combo.addItem(text, hz)
+        self.measure_button = QPushButton("Measure from a lamp video...")
+        self.measure_button.setToolTip(
+            "A video, in the scans' recording mode, of a plain light surface lit only by a mains "
+            "lamp, with the shortest exposure: the rolling shutter draws the lamp's flicker as "
+            "bands whose spacing gives the readout (docs/camera-calibration.md).")
+        self.measure_button.clicked.connect(lambda: self.measure_readout())
+        self.readout_note = QLabel("")
+        self.readout_note.setWordWrap(True)
+        ro = QGridLayout()
+        ro.addWidget(self.readout_spin, 0, 0)
+        ro.addWidget(self.flicker_combo, 0, 1)
+        ro.addWidget(self.measure_button, 0, 2)
+        ro.addWidget(self.readout_note, 1, 0, 1, 3)
+        form.addRow("Rolling-shutter readout", ro)
         buttons = QDialogButtonBox(
             QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
         )
         buttons.accepted.connect(self.accept)
         buttons.rejected.connect(self.reject)
         form.addRow(buttons)
+
+    def measure_readout(self, path: str | None = None) -> bool:
+        """Measure the readout from a video of a flickering lamp
+        (:func:`~impress_gui.core.calibration.readout.readout_from_flicker`, as
+        ``impress calibrate-camera --readout-from-flicker``) and put it in the field; the
+        result or the reason for a refusal is shown under it."""
+        from PySide6.QtCore import Qt
+        from PySide6.QtWidgets import QApplication
+
+        from impress_gui.core.calibration.readout import readout_from_flicker
+        from impress_gui.core.formats.video import open_video
+        from impress_gui.ui.calibration.checkerboard_dialog import VIDEO_FILTER
+
+        path = path or self.dialogs.open_file("Video of a flickering lamp", VIDEO_FILTER)
+        if not path:
+            return False
+        hz = float(self.flicker_combo.currentData())
+        QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
+        try:
+            with open_video(path) as lamp:
+                size = tuple(lamp.size)
+                if size != (self.width_spin.value(), self.height_spin.value()):
+                    raise InputError(
+                        f"the lamp video is {size[0]}x{size[1]}, the image size here "
+                        f"{self.width_spin.value()}x{self.height_spin.value()}: film it in the "
+                        "scans' recording mode", code=codes.E_VALUE)
+                r = readout_from_flicker(lamp, hz)
+        except ImpressError as exc:
+            self.readout_note.setText(f"Not measured ({exc.code}): {exc}")
+            return False
+        finally:
+            QApplication.restoreOverrideCursor()
+        self.readout_spin.setValue(round(r.readout_ms, 2))
+        self.readout_note.setText(f"Measured: {r.summary()}")
+        return True
 
     def intrinsics(self) -> Intrinsics:
         f = {k: s.value() for k, s in self.fields.items()}
@@ -254,7 +309,7 @@ class SetupPanel(QGroupBox):
         return True
 
     def enter_intrinsics(self) -> None:
-        dlg = IntrinsicsDialog(self.intrinsics, self.video_size, self)
+        dlg = IntrinsicsDialog(self.intrinsics, self.video_size, self, self.dialogs)
         if dlg.exec() != QDialog.DialogCode.Accepted:
             return
         try:
