@@ -188,3 +188,12 @@ def test_intrinsics_dialog_measures_the_readout(qtbot, tmp_path):
     chosen.append("")
     qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
     assert dlg.readout_spin.value() == before
+
+
+def test_one_frame_gives_a_readout_without_a_spread(tmp_path):
+    write_folder(tmp_path / "lamp", lamp_frames(320, 240, 31.0, n=1, seed=2))
+    with open_video(tmp_path / "lamp") as v:
+        r = readout_from_flicker(v, 100.0)
+    assert r.frames == 1 and not math.isfinite(r.sd_ms)
+    assert r.readout_ms == pytest.approx(31.0, rel=3 * READOUT_REL)
+    assert "one frame: no spread" in r.summary()

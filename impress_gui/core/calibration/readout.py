@@ -51,8 +51,9 @@ class FlickerReadout:
     flicker_hz: float
 
     def summary(self) -> str:
-        return (f"readout {self.readout_ms:.2f} ms (SD {self.sd_ms:.2f} ms over {self.frames} "
-                f"frames): bands {self.period_rows:.1f} rows apart at {self.flicker_hz:g} Hz "
+        spread = (f"SD {self.sd_ms:.2f} ms over {self.frames} frames" if np.isfinite(self.sd_ms)
+                  else "one frame: no spread")
+        return (f"readout {self.readout_ms:.2f} ms ({spread}): bands {self.period_rows:.1f} rows apart at {self.flicker_hz:g} Hz "
                 f"of flicker, {100 * self.band_share:.0f} % of the rows' variation")
 
 
