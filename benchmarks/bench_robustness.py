@@ -27,13 +27,14 @@ the figure that decides it.
 
 Usage: .venv/bin/python benchmarks/bench_robustness.py [--seeds 24 | --seeds 3,7,11]
        [--resolution 1920x1080] [--draws 5] [--click-noise 0.5] [--no-fill] [--json out.json]
-       [--cache-key KEY] [--readout-ms MS [--readout-unknown]]
+       [--cache-key KEY] [--readout-ms MS [--readout given|unknown|global]]
 
 ``--readout-ms`` renders the rigs with a rolling shutter of that readout (cached apart from
 the global-shutter renders; the intrinsics file carries it, as a lab's would).
-``--readout-unknown`` calibrates them without it, as a lab that did not record its camera's
+``--readout unknown`` calibrates them without it, as a lab that did not record its camera's
 readout: the calibration estimates it from the picks where they show it and otherwise takes
-the camera for a global shutter (each rig's line says which, ``readout``).
+the camera for a global shutter (each rig's line says which); ``--readout global`` takes the
+camera for a global shutter (readout recorded as 0), as before the readout was modelled.
 
 ``--cache-key`` reuses renders cached under another simulator key (only when the simulator's
 output for random rigs is unchanged since, e.g. after adding options whose defaults render the
@@ -130,13 +131,14 @@ def physical_mae(scan_dir, cal, rec) -> float:
     return float(np.mean(np.abs(rec.height_mm[ok] - truth[ok]))) if ok.any() else float("nan")
 
 
-#: calibrate without the intrinsics' readout (``--readout-unknown``)
-READOUT_GIVEN = True
+#: how the calibration gets the readout (``--readout``: given, unknown, global)
+READOUT = "given"
 
 
 def _readout_text(cal) -> str:
     r = cal.intrinsics.readout_ms
-    how = "given" if READOUT_GIVEN else ("estimated" if r else "not estimated")
+    how = {"given": "given", "global": "taken as global"}.get(
+        READOUT, "estimated" if r else "not estimated")
     return f"{how} {r or 0.0:.1f} ms"
 
 
@@ -155,7 +157,7 @@ def measure(seed: int, w: int, h: int, with_fill: bool, draws: int, noise_px: fl
     row["edge_mm"] = row["noise_mae"] = float("nan")
     t0 = time.perf_counter()
     try:
-        cal = calibrate(d, readout_given=READOUT_GIVEN)
+        cal = calibrate(d, readout=READOUT)
         row["readout"] = _readout_text(cal)
         row.update(R.calibration_figures(d, cal))
         with open_video(d / truth["video"]) as v:
@@ -170,7 +172,7 @@ def measure(seed: int, w: int, h: int, with_fill: bool, draws: int, noise_px: fl
         for k in range(draws):
             try:
                 cal_n = calibrate(d, noise_px=noise_px, seed=1000 * seed + k,
-                                  readout_given=READOUT_GIVEN)
+                                  readout=READOUT)
             except ImpressError as exc:  # refused clicks: counted, not the rig's failure
                 refused += 1
                 row["warnings"].append(f"click-noise draw {k} refused: {exc.code}")
@@ -247,11 +249,13 @@ def main() -> None:
     ap.add_argument("--readout-ms", type=float, default=0.0,
                     help="render the rigs with a rolling shutter of this readout (ms; the "
                     "intrinsics carry it, as a lab's would; cached apart; 0: a global shutter)")
-    ap.add_argument("--readout-unknown", action="store_true",
-                    help="calibrate without the readout (estimated from the picks, or none)")
+    ap.add_argument("--readout", choices=("given", "unknown", "global"), default="given",
+                    help="with --readout-ms: the calibration given the readout (default), "
+                    "without it (estimated from the picks, or none), or told the camera has a "
+                    "global shutter")
     args = ap.parse_args()
-    global READOUT_GIVEN
-    READOUT_GIVEN = not args.readout_unknown
+    global READOUT
+    READOUT = args.readout
     if args.cache_key:
         R.SIM_KEY = args.cache_key
     R.READOUT_MS = args.readout_ms

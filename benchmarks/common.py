@@ -48,11 +48,12 @@ def scan(name: str, **cfg) -> Path:
 
 
 def calibrate(scan_dir: Path, picks_file: str = "picks.json", noise_px: float = 0.0, seed: int = 0,
-              speed_mm_s: float | None = None, readout_given: bool = True):
+              speed_mm_s: float | None = None, readout: str = "given"):
     """Calibrate a cached scan from its picks (``noise_px``: normal click noise added, seeded)
-    with its true intrinsics; ``readout_given`` False: without the rolling shutter's readout
-    the intrinsics carry (as a lab that did not record it: the calibration estimates it from
-    the picks, or takes the camera for a global shutter)."""
+    with its true intrinsics. ``readout``: ``"given"``, the rolling shutter's readout as the
+    intrinsics carry it; ``"unknown"``, without it (as a lab that did not record it: the
+    calibration estimates it from the picks, or takes the camera for a global shutter);
+    ``"global"``, recorded as a global shutter (0: no estimate)."""
     from dataclasses import replace
 
     from impress_gui.core.calibration.geometry import Intrinsics
@@ -71,8 +72,10 @@ def calibrate(scan_dir: Path, picks_file: str = "picks.json", noise_px: float = 
             noisy[key] = {c: tuple(np.add(v, rng.normal(0, noise_px, 2))) for c, v in d.items()}
         picks = Picks(picks.video, picks.t1, picks.t2, noisy["corners_t1"], noisy["corners_t2"])
     intr = Intrinsics.load(scan_dir / "intrinsics.json")
-    if not readout_given:
-        intr = replace(intr, readout_ms=None)
+    if readout not in ("given", "unknown", "global"):
+        raise ValueError(f"readout {readout!r}")
+    if readout != "given":
+        intr = replace(intr, readout_ms=None if readout == "unknown" else 0.0)
     with open_video(scan_dir / truth["video"]) as v:
         return calibrate_scene(v, intr,
                                TargetModel.load(scan_dir / "target.json"), picks,
