@@ -70,6 +70,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--readout-from-flicker and --flicker-hz go together: the video of "
                          "the flickering lamp and its flicker (100 Hz on 50 Hz mains, 120 Hz "
                          "on 60 Hz)", code=codes.E_VALUE)
+    if (args.readout_from_flicker is not None
+            and args.readout_from_flicker.resolve() == args.input.resolve()):
+        raise InputError("the lamp video (--readout-from-flicker) is the checkerboard video: "
+                         "film the flickering lamp apart", code=codes.E_VALUE)
     board = parse_board(args.board)
     if args.max_frames < 3:
         raise InputError("--max-frames must be at least 3", code=codes.E_BOARD)
@@ -93,6 +97,10 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     with open_video(args.input, args.fps) as video:
+        if flicker is not None and lamp_size != tuple(video.size):
+            raise InputError(f"the flicker video is {lamp_size[0]}x{lamp_size[1]}, the board's "
+                             f"{video.size[0]}x{video.size[1]}: film both in the scans' "
+                             "recording mode", code=codes.E_VALUE)
         res = run_camera_calibration(video, board, args.square_mm, progress,
                                      min_boards=args.min_boards, max_frames=args.max_frames,
                                      fix_k3=not args.k3)
@@ -100,10 +108,6 @@ def run(args: argparse.Namespace) -> int:
     if flicker is not None:
         import dataclasses
 
-        if lamp_size != tuple(intr.image_size):
-            raise InputError(f"the flicker video is {lamp_size[0]}x{lamp_size[1]}, the board's "
-                             f"{intr.image_size[0]}x{intr.image_size[1]}: film both in the "
-                             "scans' recording mode", code=codes.E_VALUE)
         intr = dataclasses.replace(intr, readout_ms=round(flicker.readout_ms, 3))
     elif args.readout_ms is not None:
         import dataclasses

@@ -7,12 +7,15 @@ while ``p`` rows are read. The readout (first row to last) is then
 ``(height - 1) / (flicker_hz * p)``.
 
 :func:`readout_from_flicker` finds ``p`` in the rows' mean brightness: every sampled frame is
-fitted with a smooth shading (a quadratic in the row) plus one sinusoid whose period all frames
+fitted with a smooth shading (a quadratic in the row) plus one wave whose period all frames
 share and whose phase and amplitude each frame has for itself (the bands drift from frame to
-frame when the frame rate is not a multiple of the flicker). The period is the one with the
-least residual over all frames; its spread is that of the period fitted to each frame alone.
-A picture without clear bands (a global shutter, a lamp that does not flicker, an exposure
-too long) is refused with ``E-NO-FLICKER`` rather than given a readout.
+frame when the frame rate is not a multiple of the flicker): a sinusoid, with its harmonics
+where two or more periods are in view. The period is the one with the least residual over all
+frames; its SD combines the spread of the period fitted to each frame alone and the change a
+freer (quartic) shading makes. At least 1.5 periods must be in view. A picture without clear
+bands (a global shutter, a lamp that does not flicker, an exposure too long), bands a smooth
+shading could take, or a search that ends at its bound, is refused with ``E-NO-FLICKER``
+rather than given a readout.
 """
 
 from __future__ import annotations
@@ -30,9 +33,10 @@ from impress_gui.core.calibration.geometry import MAX_READOUT_MS
 MIN_BAND_SHARE = 0.5
 #: shortest band period searched (rows)
 MIN_PERIOD_ROWS = 8.0
-#: the longest period searched, in picture heights (at least one period must fit in view for
-#: the shading not to take it)
-MAX_PERIOD_HEIGHTS = 2.0
+#: the longest period searched, in picture heights (1.5 periods must be in view: with fewer,
+#: a smooth shading takes part of a band and the period found is percent off while a freer
+#: shading agrees with it)
+MAX_PERIOD_HEIGHTS = 1.0 / 1.5
 #: frames sampled, evenly spread over the video
 DEFAULT_FRAMES = 30
 #: the flicker's wave: its fundamental and harmonics up to this one, where at least
@@ -75,8 +79,8 @@ def _row_profiles(video, n_frames: int) -> np.ndarray:
     idx = np.unique(np.linspace(0, count - 1, min(n_frames, count)).round().astype(int))
     rows = []
     for k in idx:
-        rgb = np.asarray(video.read(int(k)), np.float64)
-        rows.append(rgb.mean(axis=(1, 2)) if rgb.ndim == 3 else rgb.mean(axis=1))
+        img = np.asarray(video.read(int(k)))
+        rows.append(img.mean(axis=(1, 2) if img.ndim == 3 else 1, dtype=np.float64))
     return np.array(rows)
 
 
@@ -99,19 +103,30 @@ def _residual(profiles: np.ndarray, period: float, shading: np.ndarray,
 
 
 def _best_period(profiles: np.ndarray, shading: np.ndarray, lo: float, hi: float,
-                 harmonics: int = 1) -> float:
+                 harmonics: int = 1, grid: bool = True) -> float:
+    """The period in ``[lo, hi]`` with the least residual; refused (``E-NO-FLICKER``) when
+    the search ends at either bound (the bands' period lies outside what was searched)."""
     from scipy.optimize import minimize_scalar
 
     def cost(f):
         return float(_residual(profiles, 1.0 / f, shading, harmonics).sum())
 
-    # a grid even in frequency (the residual's minima are about equally wide there), then the
-    # best step refined
-    freqs = np.linspace(1.0 / hi, 1.0 / lo, 400)
-    k = int(np.argmin([cost(f) for f in freqs]))
-    a, b = freqs[max(k - 1, 0)], freqs[min(k + 1, len(freqs) - 1)]
+    a, b = 1.0 / hi, 1.0 / lo
+    if grid:
+        # a grid even in frequency, steps a tenth of a minimum's width (about one cycle per
+        # picture height), then the best step refined
+        h = profiles.shape[1]
+        freqs = np.linspace(a, b, int(np.clip(10 * (b - a) * h, 50, 4000)))
+        k = int(np.argmin([cost(f) for f in freqs]))
+        a, b = freqs[max(k - 1, 0)], freqs[min(k + 1, len(freqs) - 1)]
     res = minimize_scalar(cost, bounds=(a, b), method="bounded", options={"xatol": 1e-9})
-    return 1.0 / float(res.x)
+    f = float(res.x)
+    if min(f - 1.0 / hi, 1.0 / lo - f) < 0.005 * f:
+        raise InputError(f"the flicker bands' period ended the search at its bound "
+                         f"({1.0 / f:.1f} rows, searched {lo:.1f}-{hi:.1f}): bands too close "
+                         "or too far apart to measure in this picture",
+                         code=codes.E_NO_FLICKER)
+    return 1.0 / f
 
 
 def readout_from_flicker(video, flicker_hz: float, n_frames: int = DEFAULT_FRAMES
@@ -121,10 +136,13 @@ def readout_from_flicker(video, flicker_hz: float, n_frames: int = DEFAULT_FRAME
     flickering at ``flicker_hz``, twice the mains frequency). Raises
     :class:`~impress_gui.core.base.errors.InputError` (``E-NO-FLICKER``) when the frames show
     no clear bands or the readout would be implausible."""
-    if not (np.isfinite(flicker_hz) and 1.0 <= flicker_hz <= 10000.0):
+    if not (np.isfinite(flicker_hz) and 1.0 <= flicker_hz <= 10000.0) or flicker_hz in (50, 60):
         raise InputError(f"flicker frequency {flicker_hz} Hz: give the lamp's flicker, twice "
-                         "the mains frequency (100 or 120)", code=codes.E_VALUE)
-    profiles = _row_profiles(video, n_frames)
+                         "the mains frequency (100 on 50 Hz mains, 120 on 60 Hz)",
+                         code=codes.E_VALUE)
+    # in logarithms: the picture's shading (vignetting, the light's fall-off) multiplies the
+    # flicker, which the log turns into a sum of a smooth shading and the bands
+    profiles = np.log(np.maximum(_row_profiles(video, n_frames), 1.0))
     h = profiles.shape[1]
     if h < 32:
         raise InputError(f"the flicker video's pictures are {h} rows high: too few to see bands",
@@ -132,7 +150,15 @@ def readout_from_flicker(video, flicker_hz: float, n_frames: int = DEFAULT_FRAME
     shading = _design(h)
     lo, hi = MIN_PERIOD_ROWS, MAX_PERIOD_HEIGHTS * h
     # the fundamental first, as the one sinusoid that explains most
-    p0 = _best_period(profiles, shading, lo, hi)
+    try:
+        p0 = _best_period(profiles, shading, lo, hi)
+    except InputError:
+        raise InputError(
+            f"no clear flicker bands in the video (no band period between {lo:.0f} and "
+            f"{hi:.0f} rows, 1.5 periods in view, fits): film a plain light surface lit only by "
+            "a mains lamp, with the shortest exposure; a global-shutter camera shows no bands, "
+            "and a readout under about 1.5 flicker periods (15 ms at 100 Hz) cannot be "
+            "measured this way", code=codes.E_NO_FLICKER) from None
     harmonics = 1
     if h / p0 >= MIN_PERIODS_FOR_HARMONICS:
         # with several periods in view, the wave with its harmonics (a lamp's flicker is seldom
@@ -169,16 +195,29 @@ def readout_from_flicker(video, flicker_hz: float, n_frames: int = DEFAULT_FRAME
             "mains lamp, with the shortest exposure; a global-shutter camera shows no bands",
             code=codes.E_NO_FLICKER)
     readout_ms = 1000.0 * (h - 1) / (flicker_hz * period)
-    if not 0.0 < readout_ms <= MAX_READOUT_MS:
-        raise InputError(f"the bands give a readout of {readout_ms:.1f} ms, above the "
-                         f"{MAX_READOUT_MS:g} ms accepted: check the flicker frequency",
-                         code=codes.E_NO_FLICKER)
+    fps = float(getattr(video, "fps", 0.0) or 0.0)
+    longest = min(MAX_READOUT_MS, 1000.0 / fps) if fps > 0 else MAX_READOUT_MS
+    if not 0.0 < readout_ms <= longest * 1.05:
+        raise InputError(f"the bands give a readout of {readout_ms:.1f} ms, longer than the "
+                         f"{longest:.1f} ms accepted (a frame interval at most): check the "
+                         "flicker frequency", code=codes.E_NO_FLICKER)
     # the spread: the period fitted to each frame alone (near the common one)
-    per = [_best_period(p[None], shading, period / 1.2, period * 1.2, harmonics)
-           for p in profiles]
+    per = []
+    for prof in profiles:
+        try:
+            per.append(_best_period(prof[None], shading, period / 1.2, period * 1.2, harmonics,
+                                    grid=False))
+        except InputError:  # a frame whose own period leaves +-20 %: counted at that bound
+            per.append(np.nan)
+    if np.isnan(per).any():
+        raise InputError(f"{int(np.isnan(per).sum())} of {len(per)} frames give a band period "
+                         f"more than 20 % from the common {period:.1f} rows: the bands are not "
+                         "steady (a lamp that does not flicker cleanly, light changing)",
+                         code=codes.E_NO_FLICKER)
     ro = 1000.0 * (h - 1) / (flicker_hz * np.asarray(per))
     sd = float(np.std(ro, ddof=1)) if len(ro) > 1 else float("nan")
     # and what the shading model moves it by (within MAX_SHADING_CHANGE, above)
-    sd = float(np.hypot(sd, readout_ms * (period / alt - 1.0)))
+    if np.isfinite(sd):
+        sd = float(np.hypot(sd, readout_ms * (period / alt - 1.0)))
     return FlickerReadout(float(readout_ms), float(period), sd, len(profiles), band_share,
                           float(flicker_hz))

@@ -159,6 +159,9 @@ class IntrinsicsDialog(QDialog):
         except ImpressError as exc:
             self.readout_note.setText(f"Not measured ({exc.code}): {exc}")
             return False
+        except (OSError, ValueError, MemoryError) as exc:  # an unreadable file, never a traceback
+            self.readout_note.setText(f"Not measured: {type(exc).__name__}: {exc}")
+            return False
         finally:
             QApplication.restoreOverrideCursor()
         self.readout_spin.setValue(round(r.readout_ms, 2))
