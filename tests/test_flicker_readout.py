@@ -164,12 +164,12 @@ def _h264(path, frames, fps=30):
 
 def test_intrinsics_dialog_measures_the_readout(qtbot, tmp_path):
     """The window's intrinsics dialog: **Measure from a lamp video...** with the lamp's
-    flicker chosen puts the measured readout in the field and says how it was found; a video
-    of another size or without bands leaves the field as it was and says why."""
+    flicker chosen measures in the background (progress under the field), puts the readout in
+    the field and says how it was found; a video of another size or without bands leaves the
+    field as it was and says why; the button cancels a measurement."""
     from PySide6.QtCore import Qt
-    from PySide6.QtWidgets import QApplication
 
-    from impress_gui.ui.calibration.setup import IntrinsicsDialog
+    from impress_gui.ui.calibration.setup import MEASURE_TEXT, IntrinsicsDialog
 
     lamp = _h264(tmp_path / "lamp.mp4", lamp_frames(320, 240, 24.0, flicker_hz=120.0, seed=4))
     other = _h264(tmp_path / "other.mp4", lamp_frames(160, 120, 24.0, seed=4))
@@ -182,24 +182,41 @@ def test_intrinsics_dialog_measures_the_readout(qtbot, tmp_path):
 
     dlg = IntrinsicsDialog(None, (320, 240), None, Chooser())
     qtbot.addWidget(dlg)
+    notes: list[str] = []
+    dlg._flicker.progress.connect(lambda f, m: notes.append(m))
     assert dlg.readout_spin.text() == "not given"
     dlg.flicker_combo.setCurrentIndex(dlg.flicker_combo.findData(120.0))
     chosen.append(str(lamp))
-    qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
+    with qtbot.waitSignal(dlg._flicker.finished, timeout=60_000):
+        qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
+        assert dlg.measure_button.text() == "Cancel measuring"
     assert dlg.readout_spin.value() == pytest.approx(24.0, rel=READOUT_REL)
     assert dlg.readout_note.text().startswith("Measured: readout")
+    assert dlg.measure_button.text() == MEASURE_TEXT
+    assert any("reading frame" in m for m in notes)
     assert dlg.intrinsics().readout_ms == pytest.approx(24.0, rel=READOUT_REL)
     before = dlg.readout_spin.value()
     for path, code in ((other, "E-VALUE"), (steady, "E-NO-FLICKER")):
         chosen.append(str(path))
-        qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
+        with qtbot.waitSignal(dlg._flicker.failed, timeout=60_000):
+            qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
         assert dlg.readout_spin.value() == before
         assert dlg.readout_note.text().startswith(f"Not measured ({code})")
-    assert QApplication.overrideCursor() is None  # the wait cursor restored on every path
-    # cancelled file chooser: nothing changes
+    # cancelled file chooser: nothing starts, nothing changes
     chosen.append("")
     qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
-    assert dlg.readout_spin.value() == before
+    assert not dlg._flicker.is_running() and dlg.readout_spin.value() == before
+    # the button cancels a running measurement; the field stays as it was
+    chosen.append(str(lamp))
+    with qtbot.waitSignal(dlg._flicker.cancelled, timeout=60_000):
+        qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
+        qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
+    assert dlg.readout_spin.value() == before and "cancelled" in dlg.readout_note.text()
+    # closing the dialog while one runs leaves no thread behind
+    chosen.append(str(lamp))
+    qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
+    dlg.reject()
+    assert not dlg._flicker.is_running()
 
 
 def test_one_frame_gives_a_readout_without_a_spread(tmp_path):

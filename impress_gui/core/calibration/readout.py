@@ -71,14 +71,18 @@ class FlickerReadout:
                 f"of flicker, {100 * self.band_share:.0f} % of the rows' variation")
 
 
-def _row_profiles(video, n_frames: int) -> np.ndarray:
+def _row_profiles(video, n_frames: int, progress=None, cancel=None) -> np.ndarray:
     """Each sampled frame's mean brightness per row (``(F, H)``, float64)."""
     count = int(video.frame_count)
     if count < 1:
         raise InputError("the flicker video has no frames", code=codes.E_NO_FLICKER)
     idx = np.unique(np.linspace(0, count - 1, min(n_frames, count)).round().astype(int))
     rows = []
-    for k in idx:
+    for i, k in enumerate(idx):
+        if cancel is not None:
+            cancel.check()
+        if progress is not None:
+            progress(0.7 * i / len(idx), f"reading frame {int(k)} of the lamp video")
         img = np.asarray(video.read(int(k)))
         rows.append(img.mean(axis=(1, 2) if img.ndim == 3 else 1, dtype=np.float64))
     return np.array(rows)
@@ -129,20 +133,24 @@ def _best_period(profiles: np.ndarray, shading: np.ndarray, lo: float, hi: float
     return 1.0 / f
 
 
-def readout_from_flicker(video, flicker_hz: float, n_frames: int = DEFAULT_FRAMES
-                         ) -> FlickerReadout:
+def readout_from_flicker(video, flicker_hz: float, n_frames: int = DEFAULT_FRAMES,
+                         progress=None, cancel=None) -> FlickerReadout:
     """The readout of the camera that filmed ``video`` (an open
     :class:`~impress_gui.core.formats.video.VideoSource`: a plain surface lit by a lamp
     flickering at ``flicker_hz``, twice the mains frequency). Raises
     :class:`~impress_gui.core.base.errors.InputError` (``E-NO-FLICKER``) when the frames show
-    no clear bands or the readout would be implausible."""
+    no clear bands or the readout would be implausible. ``progress(fraction, message)`` and
+    ``cancel`` (a :class:`~impress_gui.core.base.progress.CancelToken`) as the core's other
+    long tasks."""
     if not (np.isfinite(flicker_hz) and 1.0 <= flicker_hz <= 10000.0) or flicker_hz in (50, 60):
         raise InputError(f"flicker frequency {flicker_hz} Hz: give the lamp's flicker, twice "
                          "the mains frequency (100 on 50 Hz mains, 120 on 60 Hz)",
                          code=codes.E_VALUE)
     # in logarithms: the picture's shading (vignetting, the light's fall-off) multiplies the
     # flicker, which the log turns into a sum of a smooth shading and the bands
-    profiles = np.log(np.maximum(_row_profiles(video, n_frames), 1.0))
+    profiles = np.log(np.maximum(_row_profiles(video, n_frames, progress, cancel), 1.0))
+    if progress is not None:
+        progress(0.7, "fitting the bands")
     h = profiles.shape[1]
     if h < 32:
         raise InputError(f"the flicker video's pictures are {h} rows high: too few to see bands",
@@ -204,6 +212,8 @@ def readout_from_flicker(video, flicker_hz: float, n_frames: int = DEFAULT_FRAME
     # the spread: the period fitted to each frame alone (near the common one)
     per = []
     for prof in profiles:
+        if cancel is not None:
+            cancel.check()
         try:
             per.append(_best_period(prof[None], shading, period / 1.2, period * 1.2, harmonics,
                                     grid=False))
@@ -219,5 +229,7 @@ def readout_from_flicker(video, flicker_hz: float, n_frames: int = DEFAULT_FRAME
     # and what the shading model moves it by (within MAX_SHADING_CHANGE, above)
     if np.isfinite(sd):
         sd = float(np.hypot(sd, readout_ms * (period / alt - 1.0)))
+    if progress is not None:
+        progress(1.0, "readout measured")
     return FlickerReadout(float(readout_ms), float(period), sd, len(profiles), band_share,
                           float(flicker_hz))

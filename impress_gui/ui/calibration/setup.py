@@ -29,6 +29,7 @@ from impress_gui.hardware.rail import SPEED_PRESETS_MM_S as SPEED_PRESETS
 from impress_gui.ui.messages import Dialogs, Messenger
 
 JSON_FILTER = "JSON files (*.json);;All files (*)"
+MEASURE_TEXT = "Measure from a lamp video..."
 LOAD_TARGET = "Load a target file..."
 
 
@@ -109,7 +110,7 @@ class IntrinsicsDialog(QDialog):
         for hz, text in ((100.0, "lamp flicker 100 Hz (50 Hz mains)"),
                          (120.0, "lamp flicker 120 Hz (60 Hz mains)")):
             self.flicker_combo.addItem(text, hz)
-        self.measure_button = QPushButton("Measure from a lamp video...")
+        self.measure_button = QPushButton(MEASURE_TEXT)
         self.measure_button.setToolTip(
             "A video, in the scans' recording mode, of a plain light surface lit only by a mains "
             "lamp, with the shortest exposure: the rolling shutter draws the lamp's flicker as "
@@ -117,6 +118,13 @@ class IntrinsicsDialog(QDialog):
         self.measure_button.clicked.connect(lambda: self.measure_readout())
         self.readout_note = QLabel("")
         self.readout_note.setWordWrap(True)
+        from impress_gui.ui.worker import Worker
+
+        self._flicker = Worker(parent=self, name="flicker-readout")
+        self._flicker.progress.connect(self._flicker_progress)
+        self._flicker.finished.connect(self._flicker_done)
+        self._flicker.failed.connect(self._flicker_failed)
+        self._flicker.cancelled.connect(self._flicker_cancelled)
         ro = QGridLayout()
         ro.addWidget(self.readout_spin, 0, 0)
         ro.addWidget(self.flicker_combo, 0, 1)
@@ -131,42 +139,58 @@ class IntrinsicsDialog(QDialog):
         form.addRow(buttons)
 
     def measure_readout(self, path: str | None = None) -> bool:
-        """Measure the readout from a video of a flickering lamp
+        """Measure the readout from a video of a flickering lamp in the background
         (:func:`~impress_gui.core.calibration.readout.readout_from_flicker`, as
-        ``impress calibrate-camera --readout-from-flicker``) and put it in the field; the
-        result or the reason for a refusal is shown under it."""
-        from PySide6.QtCore import Qt
-        from PySide6.QtWidgets import QApplication
-
-        from impress_gui.core.calibration.readout import readout_from_flicker
-        from impress_gui.core.formats.video import open_video
+        ``impress calibrate-camera --readout-from-flicker``); the button cancels while it runs.
+        The readout goes into the field when done; the result or the reason for a refusal is
+        shown under it. Returns whether a measurement was started."""
         from impress_gui.ui.calibration.checkerboard_dialog import VIDEO_FILTER
 
+        if self._flicker.is_running():
+            self._flicker.cancel()
+            return False
         path = path or self.dialogs.open_file("Video of a flickering lamp", VIDEO_FILTER)
         if not path:
             return False
         hz = float(self.flicker_combo.currentData())
-        QApplication.setOverrideCursor(Qt.CursorShape.WaitCursor)
-        try:
+        size = (self.width_spin.value(), self.height_spin.value())
+
+        def task(progress, cancel):
+            from impress_gui.core.calibration.readout import readout_from_flicker
+            from impress_gui.core.formats.video import open_video
+
             with open_video(path) as lamp:
-                size = tuple(lamp.size)
-                if size != (self.width_spin.value(), self.height_spin.value()):
+                if tuple(lamp.size) != size:
                     raise InputError(
-                        f"the lamp video is {size[0]}x{size[1]}, the image size here "
-                        f"{self.width_spin.value()}x{self.height_spin.value()}: film it in the "
-                        "scans' recording mode", code=codes.E_VALUE)
-                r = readout_from_flicker(lamp, hz)
-        except ImpressError as exc:
-            self.readout_note.setText(f"Not measured ({exc.code}): {exc}")
-            return False
-        except (OSError, ValueError, MemoryError) as exc:  # an unreadable file, never a traceback
-            self.readout_note.setText(f"Not measured: {type(exc).__name__}: {exc}")
-            return False
-        finally:
-            QApplication.restoreOverrideCursor()
+                        f"the lamp video is {lamp.size[0]}x{lamp.size[1]}, the image size "
+                        f"here {size[0]}x{size[1]}: film it in the scans' recording mode",
+                        code=codes.E_VALUE)
+                return readout_from_flicker(lamp, hz, progress=progress, cancel=cancel)
+
+        self.measure_button.setText("Cancel measuring")
+        self.readout_note.setText("Measuring...")
+        self._flicker.start(task)
+        return True
+
+    def _flicker_progress(self, fraction: float, message: str) -> None:
+        self.readout_note.setText(f"Measuring: {message} ({100 * fraction:.0f} %)")
+
+    def _flicker_done(self, r) -> None:
+        self.measure_button.setText(MEASURE_TEXT)
         self.readout_spin.setValue(round(r.readout_ms, 2))
         self.readout_note.setText(f"Measured: {r.summary()}")
-        return True
+
+    def _flicker_failed(self, code: str, message: str) -> None:
+        self.measure_button.setText(MEASURE_TEXT)
+        self.readout_note.setText(f"Not measured ({code}): {message}")
+
+    def _flicker_cancelled(self) -> None:
+        self.measure_button.setText(MEASURE_TEXT)
+        self.readout_note.setText("Measuring cancelled; the readout is as it was.")
+
+    def done(self, result: int) -> None:  # accept, reject, close: no thread left running
+        self._flicker.shutdown()
+        super().done(result)
 
     def intrinsics(self) -> Intrinsics:
         f = {k: s.value() for k, s in self.fields.items()}
