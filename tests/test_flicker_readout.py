@@ -127,7 +127,12 @@ def test_cli_records_the_measured_readout(tmp_path, capsys):
                         "--flicker-hz", "100"])
     text = capsys.readouterr().out
     assert code == 0, text
-    assert Intrinsics.load(out).readout_ms == pytest.approx(31.0, rel=READOUT_REL)
+    measured = Intrinsics.load(out)
+    assert measured.readout_ms == pytest.approx(31.0, rel=READOUT_REL)
+    from impress_gui.core.base.fileio import sha256_path
+
+    assert f"readout measured from lamp (SHA-256 {sha256_path(tmp_path / 'lamp')})" in \
+        measured.source
     assert "measured from lamp" in text and "bands" in text
     for extra, message in (
             (["--readout-from-flicker", str(tmp_path / "lamp")], "--flicker-hz"),
@@ -194,7 +199,12 @@ def test_intrinsics_dialog_measures_the_readout(qtbot, tmp_path):
     assert dlg.readout_note.text().startswith("Measured: readout")
     assert dlg.measure_button.text() == MEASURE_TEXT
     assert any("reading frame" in m for m in notes)
-    assert dlg.intrinsics().readout_ms == pytest.approx(24.0, rel=READOUT_REL)
+    intr = dlg.intrinsics()
+    assert intr.readout_ms == pytest.approx(24.0, rel=READOUT_REL)
+    # where it came from is kept with the intrinsics (the lamp video's name and SHA-256)
+    from impress_gui.core.base.fileio import sha256_file
+
+    assert f"lamp.mp4 (SHA-256 {sha256_file(lamp)})" in intr.source
     before = dlg.readout_spin.value()
     for path, code in ((other, "E-VALUE"), (steady, "E-NO-FLICKER")):
         chosen.append(str(path))

@@ -108,7 +108,13 @@ def run(args: argparse.Namespace) -> int:
     if flicker is not None:
         import dataclasses
 
-        intr = dataclasses.replace(intr, readout_ms=round(flicker.readout_ms, 3))
+        from impress_gui.core.base.fileio import sha256_path
+
+        lamp_path = args.readout_from_flicker
+        intr = dataclasses.replace(
+            intr, readout_ms=round(flicker.readout_ms, 3),
+            source=f"{intr.source}; readout measured from {lamp_path.name} (SHA-256 "
+                   f"{sha256_path(lamp_path)}): {flicker.summary()}")
     elif args.readout_ms is not None:
         import dataclasses
 

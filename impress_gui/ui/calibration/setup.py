@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+from pathlib import Path
 
 import numpy as np
 from PySide6.QtCore import Signal
@@ -121,6 +122,7 @@ class IntrinsicsDialog(QDialog):
         from impress_gui.ui.worker import Worker
 
         self._flicker = Worker(parent=self, name="flicker-readout")
+        self._measured: tuple[float, str] | None = None
         self._flicker.progress.connect(self._flicker_progress)
         self._flicker.finished.connect(self._flicker_done)
         self._flicker.failed.connect(self._flicker_failed)
@@ -165,7 +167,10 @@ class IntrinsicsDialog(QDialog):
                         f"the lamp video is {lamp.size[0]}x{lamp.size[1]}, the image size "
                         f"here {size[0]}x{size[1]}: film it in the scans' recording mode",
                         code=codes.E_VALUE)
-                return readout_from_flicker(lamp, hz, progress=progress, cancel=cancel)
+                r = readout_from_flicker(lamp, hz, progress=progress, cancel=cancel)
+            from impress_gui.core.base.fileio import sha256_path
+
+            return r, Path(path).name, sha256_path(path)
 
         self.measure_button.setText("Cancel measuring")
         self.readout_note.setText("Measuring...")
@@ -175,10 +180,14 @@ class IntrinsicsDialog(QDialog):
     def _flicker_progress(self, fraction: float, message: str) -> None:
         self.readout_note.setText(f"Measuring: {message} ({100 * fraction:.0f} %)")
 
-    def _flicker_done(self, r) -> None:
+    def _flicker_done(self, result) -> None:
+        r, name, sha = result
         self.measure_button.setText(MEASURE_TEXT)
         self.readout_spin.setValue(round(r.readout_ms, 2))
         self.readout_note.setText(f"Measured: {r.summary()}")
+        # where the readout came from, kept with the intrinsics while the field holds it
+        self._measured = (self.readout_spin.value(),
+                          f"readout measured from {name} (SHA-256 {sha}): {r.summary()}")
 
     def _flicker_failed(self, code: str, message: str) -> None:
         self.measure_button.setText(MEASURE_TEXT)
@@ -196,8 +205,11 @@ class IntrinsicsDialog(QDialog):
         f = {k: s.value() for k, s in self.fields.items()}
         k = np.array([[f["fx"], 0.0, f["cx"]], [0.0, f["fy"], f["cy"]], [0.0, 0.0, 1.0]])
         d = np.array([f["k1"], f["k2"], f["p1"], f["p2"], f["k3"]])
+        source = "entered by hand"
+        if self._measured is not None and self._measured[0] == self.readout_spin.value():
+            source += f"; {self._measured[1]}"
         return Intrinsics(
-            k, d, (self.width_spin.value(), self.height_spin.value()), source="entered by hand",
+            k, d, (self.width_spin.value(), self.height_spin.value()), source=source,
             readout_ms=float(self.readout_spin.value()) or None,
         )
 
