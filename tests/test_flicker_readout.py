@@ -13,47 +13,17 @@ from __future__ import annotations
 import math
 
 import cv2
-import numpy as np
 import pytest
 
 from impress_gui.core.base.errors import InputError
 from impress_gui.core.calibration.geometry import Intrinsics
 from impress_gui.core.calibration.readout import readout_from_flicker
 from impress_gui.core.formats.video import open_video
+from impress_gui.sim.lamp import lamp_frames, write_lamp_video
 
 # the readout found against the one drawn, relative (seen: below 0.1 % from 20 frames of
 # 360 rows with 20-32 ms; the H.264 video 0.2 %)
 READOUT_REL = 0.01
-
-
-def lamp_frames(w: int, h: int, readout_ms: float, flicker_hz: float = 100.0, n: int = 20,
-                fps: float = 30.0, exposure_s: float = 1 / 2000, depth: float = 0.3,
-                seed: int = 0, wave: str = "sine", vignetting: float = 0.0) -> list[np.ndarray]:
-    """RGB frames of a plain, slightly textured surface under a flickering lamp, through a
-    rolling shutter of ``readout_ms`` (0: a global shutter). ``wave``: the lamp's light over
-    a flicker period, ``"sine"`` (1 + depth cos) or ``"pwm"`` (an LED driver: full light for a
-    fifth of the period, a tenth of it otherwise); ``vignetting``: the picture darker towards
-    its top and bottom by this share."""
-    rng = np.random.default_rng(seed)
-    line_s = readout_ms / 1000.0 / (h - 1)
-    albedo = 0.9 + 0.1 * rng.random((h, w))
-    shade = np.linspace(0.75, 1.05, h)[:, None] * np.linspace(0.9, 1.1, w)[None]
-    om = 2 * math.pi * flicker_hz
-    out = []
-    for k in range(n):
-        t0 = k / fps + np.arange(h) * line_s  # each row's exposure start
-        if wave == "sine":
-            # the mean of 1 + depth cos(om t) over [t0, t0 + exposure]
-            light = 1 + depth * (np.sin(om * (t0 + exposure_s)) - np.sin(om * t0)) / (
-                om * exposure_s)
-        else:  # the mean of the pulse train over the exposure, by sub-steps
-            ts = t0[:, None] + np.linspace(0, exposure_s, 16)[None]
-            light = np.where((flicker_hz * ts) % 1.0 < 0.2, 1.0, 0.1).mean(axis=1)
-        vig = 1 - vignetting * np.linspace(-1, 1, h) ** 2
-        img = 170 * (light * vig)[:, None] * albedo * shade + rng.normal(0, 2.0, (h, w))
-        grey = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-        out.append(np.dstack([grey, grey, (grey * 0.95).astype(np.uint8)]))
-    return out
 
 
 def write_folder(path, frames) -> None:
@@ -271,3 +241,30 @@ def test_a_readout_longer_than_a_frame_is_refused(tmp_path):
         with pytest.raises(InputError) as e:
             readout_from_flicker(v, 55.0)
     assert e.value.code == "E-NO-FLICKER" and "frame interval" in str(e.value)
+
+
+def test_the_simulator_films_the_lamp_with_its_camera(tmp_path, capsys):
+    """``impress simulate ... --lamp-video HZ`` writes lamp.mp4 beside the scan, filmed with
+    the scan's camera: a global shutter's shows no bands (refused as such); the writer with a
+    rolling shutter gives the readout it was drawn with (the command passes the scan's own
+    ``--readout-ms``; a rolling-shutter scan is too slow to render here)."""
+    from impress_gui.cli import main
+
+    out = tmp_path / "scan"
+    code = main(["simulate", str(out), "--preset", "flat", "--length-mm", "60", "--resolution",
+                 "320x180", "--speed", "40", "--fps", "25", "--lamp-video", "100"])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "lamp.mp4" in text and "100 Hz flicker" in text
+    with open_video(out / "lamp.mp4") as v:
+        assert tuple(v.size) == (320, 180) and v.fps == pytest.approx(25.0)
+        with pytest.raises(InputError) as e:
+            readout_from_flicker(v, 100.0)
+    assert e.value.code == "E-NO-FLICKER"
+    assert main(["simulate", str(tmp_path / "x"), "--lamp-video", "5"]) == 2
+    assert "--lamp-video" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+    # the writer with a rolling shutter, another frame rate and flicker
+    path = write_lamp_video(tmp_path / "l.mp4", 320, 240, 25.0, 35.0, flicker_hz=120.0, n=12)
+    with open_video(path) as v:
+        assert readout_from_flicker(v, 120.0).readout_ms == pytest.approx(35.0, rel=READOUT_REL)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import time
 from pathlib import Path
@@ -116,6 +117,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "the last's, ms (0, the default: a global shutter; a CMOS camcorder reads "
                    "its rows over most of a frame interval, e.g. 20-30 ms at 30 frames/s); "
                    "recorded in truth.json")
+    p.add_argument("--lamp-video", type=float, default=None, metavar="HZ",
+                   help="also film a plain card under a lamp flickering at HZ (100 on 50 Hz "
+                   "mains, 120 on 60 Hz) with this camera: lamp.mp4, the input of impress "
+                   "calibrate-camera --readout-from-flicker (bands only with --readout-ms)")
     p.add_argument("--target-yaw", type=float, default=3.0,
                    help="rotation of the L target on the ground, degrees (default 3)")
     g = p.add_argument_group("blocks preset placements (thesis section 4.2)")
@@ -204,6 +209,10 @@ def _run(args: argparse.Namespace, cfg) -> int:
     from impress_gui.sim.simulate import make_motion, simulate
 
     cfg.validate()
+    if args.lamp_video is not None and not (math.isfinite(args.lamp_video)
+                                            and 20.0 <= args.lamp_video <= 1000.0):
+        raise InputError("--lamp-video: give the lamp's flicker in Hz (100 or 120)",
+                         code=codes.E_SIM_OPTION)
     n = make_motion(cfg).frame_count
     workers = (args.workers if args.workers is not None
                else (1 if n < 300 else min(2, os.cpu_count() or 1)))
@@ -223,4 +232,10 @@ def _run(args: argparse.Namespace, cfg) -> int:
     for name in ("intrinsics.json", "target.json", "picks.json", "truth.json",
                  "truth_height.tif", "truth_texture.png"):
         print(f"  {name:<18s} {Path(args.out) / name}")
+    if args.lamp_video is not None:
+        from impress_gui.sim.lamp import write_lamp_video
+
+        lamp = write_lamp_video(Path(args.out) / "lamp.mp4", cfg.width, cfg.height, cfg.fps,
+                                cfg.readout_ms, args.lamp_video, seed=cfg.seed)
+        print(f"  {'lamp.mp4':<18s} {lamp} (a card under a {args.lamp_video:g} Hz flicker)")
     return 0
