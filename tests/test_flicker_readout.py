@@ -159,13 +159,14 @@ def test_intrinsics_dialog_measures_the_readout(qtbot, tmp_path):
     qtbot.addWidget(dlg)
     notes: list[str] = []
     dlg._flicker.progress.connect(lambda f, m: notes.append(m))
-    assert dlg.readout_spin.text() == "not given"
+    assert dlg.shutter() == "not given" and not dlg.readout_spin.isEnabled()
     dlg.flicker_combo.setCurrentIndex(dlg.flicker_combo.findData(120.0))
     chosen.append(str(lamp))
     with qtbot.waitSignal(dlg._flicker.finished, timeout=60_000):
         qtbot.mouseClick(dlg.measure_button, Qt.MouseButton.LeftButton)
         assert dlg.measure_button.text() == "Cancel measuring"
     assert dlg.readout_spin.value() == pytest.approx(24.0, rel=READOUT_REL)
+    assert dlg.shutter() == "rolling" and dlg.readout_spin.isEnabled()
     assert dlg.readout_note.text().startswith("Measured: readout")
     assert dlg.measure_button.text() == MEASURE_TEXT
     assert any("reading frame" in m for m in notes)

@@ -590,20 +590,34 @@ def test_corners_can_be_marked_again_on_the_fitted_target_after_clear_frame(
 
 
 def test_the_intrinsics_dialog_takes_a_rolling_shutters_readout(qtbot, tab):
-    """The camera's rolling-shutter readout is entered with the lens and shown in the setup's
-    summary; left at 0 it is not given (the spin box says so)."""
+    """The camera's shutter is entered with the lens and shown in the setup's summary: not
+    given (the calibration estimates a readout from the picks), a global shutter (recorded as
+    readout 0) or a rolling shutter's readout (the field is open only then)."""
     from impress_gui.ui.calibration.setup import IntrinsicsDialog
 
     dlg = IntrinsicsDialog(None, (1920, 1080), tab)
     qtbot.addWidget(dlg)
-    assert dlg.readout_spin.value() == 0.0 and dlg.readout_spin.text() == "not given"
+    assert dlg.shutter_combo.currentText().startswith("not given")
+    assert not dlg.readout_spin.isEnabled()
     assert dlg.intrinsics().readout_ms is None  # estimated from the picks by the calibration
+    panel = tab.setup
+    dlg.shutter_combo.setCurrentIndex(dlg.shutter_combo.findData("global"))
+    assert not dlg.readout_spin.isEnabled()
+    glob = dlg.intrinsics()
+    assert glob.readout_ms == 0.0 and glob.line_time_s == 0.0
+    panel.set_intrinsics(glob)
+    assert "global shutter" in panel.intrinsics_label.text()
+    back = IntrinsicsDialog(glob, None, tab)
+    qtbot.addWidget(back)
+    assert back.shutter() == "global" and back.intrinsics().readout_ms == 0.0
+    dlg.shutter_combo.setCurrentIndex(dlg.shutter_combo.findData("rolling"))
+    assert dlg.readout_spin.isEnabled()
     dlg.readout_spin.setValue(27.5)
     intr = dlg.intrinsics()
     assert intr.readout_ms == 27.5 and intr.line_time_s == pytest.approx(0.0275 / 1079)
-    panel = tab.setup
     panel.set_intrinsics(intr)
     assert "rolling shutter 27.5 ms" in panel.intrinsics_label.text()
     again = IntrinsicsDialog(intr, None, tab)
     qtbot.addWidget(again)
+    assert again.shutter() == "rolling"
     assert again.readout_spin.value() == 27.5

@@ -87,20 +87,13 @@ def run(args: argparse.Namespace) -> int:
                       formats=("impress.intrinsics",))
     progress = progress_printer(2, quiet=args.quiet)
     flicker = None
-    lamp_size: tuple = ()
-    if args.readout_from_flicker is not None:
-        from impress_gui.core.calibration.readout import readout_from_flicker
-
-        with open_video(args.readout_from_flicker) as lamp:
-            flicker = readout_from_flicker(lamp, args.flicker_hz)
-            lamp_size = tuple(lamp.size)
-
     t0 = time.perf_counter()
     with open_video(args.input, args.fps) as video:
-        if flicker is not None and lamp_size != tuple(video.size):
-            raise InputError(f"the flicker video is {lamp_size[0]}x{lamp_size[1]}, the board's "
-                             f"{video.size[0]}x{video.size[1]}: film both in the scans' "
-                             "recording mode", code=codes.E_VALUE)
+        if args.readout_from_flicker is not None:  # the cheaper refusals before the board's
+            from impress_gui.core.calibration.readout import measure_readout_file
+
+            flicker, flicker_source = measure_readout_file(
+                args.readout_from_flicker, args.flicker_hz, size=tuple(video.size))
         res = run_camera_calibration(video, board, args.square_mm, progress,
                                      min_boards=args.min_boards, max_frames=args.max_frames,
                                      fix_k3=not args.k3)
@@ -108,13 +101,8 @@ def run(args: argparse.Namespace) -> int:
     if flicker is not None:
         import dataclasses
 
-        from impress_gui.core.base.fileio import sha256_path
-
-        lamp_path = args.readout_from_flicker
-        intr = dataclasses.replace(
-            intr, readout_ms=round(flicker.readout_ms, 3),
-            source=f"{intr.source}; readout measured from {lamp_path.name} (SHA-256 "
-                   f"{sha256_path(lamp_path)}): {flicker.summary()}")
+        intr = dataclasses.replace(intr, readout_ms=round(flicker.readout_ms, 3),
+                                   source=f"{intr.source}; {flicker_source}")
     elif args.readout_ms is not None:
         import dataclasses
 

@@ -233,3 +233,26 @@ def readout_from_flicker(video, flicker_hz: float, n_frames: int = DEFAULT_FRAME
         progress(1.0, "readout measured")
     return FlickerReadout(float(readout_ms), float(period), sd, len(profiles), band_share,
                           float(flicker_hz))
+
+
+def measure_readout_file(path, flicker_hz: float, size: tuple[int, int] | None = None,
+                         progress=None, cancel=None) -> tuple[FlickerReadout, str]:
+    """:func:`readout_from_flicker` on the lamp video at ``path`` (opened read-only), with the
+    line that records where the readout came from (the video's name, its SHA-256 and the
+    measurement), as the intrinsics' ``source`` keeps it. ``size``: the image size the
+    intrinsics are for; a lamp video of another size is refused (``E-VALUE``) before anything
+    is measured - the readout belongs to the recording mode. What ``impress calibrate-camera
+    --readout-from-flicker`` and the intrinsics dialog both call."""
+    from pathlib import Path
+
+    from impress_gui.core.formats.video import open_video
+
+    path = Path(path)
+    with open_video(path) as lamp:
+        if size is not None and tuple(lamp.size) != tuple(size):
+            raise InputError(f"the lamp video is {lamp.size[0]}x{lamp.size[1]}, the camera's "
+                             f"images {size[0]}x{size[1]}: film it in the scans' recording "
+                             "mode", code=codes.E_VALUE)
+        r = readout_from_flicker(lamp, flicker_hz, progress=progress, cancel=cancel)
+        digest = lamp.sha256()
+    return r, f"readout measured from {path.name} (SHA-256 {digest}): {r.summary()}"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 
 import numpy as np
 from PySide6.QtCore import Signal
@@ -22,7 +21,6 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from impress_gui.core.base import codes
 from impress_gui.core.base.errors import ImpressError, InputError
 from impress_gui.core.calibration.geometry import MAX_READOUT_MS, Intrinsics
 from impress_gui.core.calibration.target import TargetModel, default_target
@@ -31,6 +29,9 @@ from impress_gui.ui.messages import Dialogs, Messenger
 
 JSON_FILTER = "JSON files (*.json);;All files (*)"
 MEASURE_TEXT = "Measure from a lamp video..."
+SHUTTER_NOT_GIVEN, SHUTTER_GLOBAL, SHUTTER_ROLLING = "not given", "global", "rolling"
+#: the readout field's value before one is entered or measured (a typical CMOS camcorder's)
+DEFAULT_READOUT_MS = 20.0
 LOAD_TARGET = "Load a target file..."
 
 
@@ -49,7 +50,8 @@ def describe_intrinsics(intr: Intrinsics | None) -> str:
     k1 = intr.dist_coeffs[0]
     rms = f", RMS {intr.rms_px:.2f} px" if intr.rms_px is not None else ""
     src = f" ({intr.source})" if intr.source else ""
-    shutter = f", rolling shutter {intr.readout_ms:g} ms" if intr.readout_ms else ""
+    shutter = (f", rolling shutter {intr.readout_ms:g} ms" if intr.readout_ms
+               else ", global shutter" if intr.readout_ms == 0 else "")
     return (f"{w}x{h}, f = {intr.fx:.1f} px, centre ({intr.cx:.1f}, {intr.cy:.1f}), "
             f"k1 {k1:+.3f}{rms}{shutter}{src}")
 
@@ -95,18 +97,33 @@ class IntrinsicsDialog(QDialog):
                 spin.setSuffix(" px")
             form.addRow(name, spin)
             self.fields[name] = spin
+        # the shutter: not given (the scene calibration estimates a readout from the picks),
+        # a global shutter (readout 0, recorded as such) or a rolling shutter's readout
+        self.shutter_combo = QComboBox()
+        for text, kind in (("not given: estimated from the picks", SHUTTER_NOT_GIVEN),
+                           ("global shutter", SHUTTER_GLOBAL),
+                           ("rolling shutter, readout", SHUTTER_ROLLING)):
+            self.shutter_combo.addItem(text, kind)
+        self.shutter_combo.setToolTip(
+            "A CMOS camcorder has a rolling shutter: its rows are exposed one after another "
+            "while the carriage moves, and each row is placed where the camera was when it was "
+            "exposed. Global shutter: every row at once (recorded as readout 0). Not given: "
+            "the scene calibration estimates a readout from the corner picks and uses it when "
+            "they clearly show one.")
         self.readout_spin = QDoubleSpinBox()
-        self.readout_spin.setRange(0.0, MAX_READOUT_MS)
+        self.readout_spin.setRange(0.01, MAX_READOUT_MS)
         self.readout_spin.setDecimals(2)
         self.readout_spin.setSuffix(" ms")
-        self.readout_spin.setSpecialValueText("not given")
-        self.readout_spin.setValue(float(intr.readout_ms or 0.0) if intr else 0.0)
+        self.readout_spin.setValue(float(intr.readout_ms) if intr and intr.readout_ms
+                                   else DEFAULT_READOUT_MS)
         self.readout_spin.setToolTip(
             "A rolling shutter's readout: the time from the exposure of the first image row to "
-            "the last (a CMOS camcorder's, from its data sheet or measured; often 15-30 ms). "
-            "While the carriage moves, each row is placed where the camera was when it was "
-            "exposed. Not given: the scene calibration estimates it from the corner picks "
-            "and uses it when they clearly show one.")
+            "the last (a CMOS camcorder's, from its data sheet or measured; often 15-30 ms).")
+        kind = (SHUTTER_NOT_GIVEN if intr is None or intr.readout_ms is None
+                else SHUTTER_GLOBAL if intr.readout_ms == 0 else SHUTTER_ROLLING)
+        self.shutter_combo.setCurrentIndex(self.shutter_combo.findData(kind))
+        self.shutter_combo.currentIndexChanged.connect(self._shutter_changed)
+        self._shutter_changed()
         self.flicker_combo = QComboBox()
         for hz, text in ((100.0, "lamp flicker 100 Hz (50 Hz mains)"),
                          (120.0, "lamp flicker 120 Hz (60 Hz mains)")):
@@ -128,17 +145,25 @@ class IntrinsicsDialog(QDialog):
         self._flicker.failed.connect(self._flicker_failed)
         self._flicker.cancelled.connect(self._flicker_cancelled)
         ro = QGridLayout()
-        ro.addWidget(self.readout_spin, 0, 0)
-        ro.addWidget(self.flicker_combo, 0, 1)
-        ro.addWidget(self.measure_button, 0, 2)
-        ro.addWidget(self.readout_note, 1, 0, 1, 3)
-        form.addRow("Rolling-shutter readout", ro)
+        ro.addWidget(self.shutter_combo, 0, 0)
+        ro.addWidget(self.readout_spin, 0, 1)
+        ro.addWidget(self.flicker_combo, 1, 0)
+        ro.addWidget(self.measure_button, 1, 1)
+        ro.addWidget(self.readout_note, 2, 0, 1, 2)
+        form.addRow("Shutter", ro)
         buttons = QDialogButtonBox(
             QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
         )
         buttons.accepted.connect(self.accept)
         buttons.rejected.connect(self.reject)
         form.addRow(buttons)
+
+    def shutter(self) -> str:
+        """``SHUTTER_NOT_GIVEN``, ``SHUTTER_GLOBAL`` or ``SHUTTER_ROLLING``."""
+        return str(self.shutter_combo.currentData())
+
+    def _shutter_changed(self) -> None:
+        self.readout_spin.setEnabled(self.shutter() == SHUTTER_ROLLING)
 
     def measure_readout(self, path: str | None = None) -> bool:
         """Measure the readout from a video of a flickering lamp in the background
@@ -158,19 +183,9 @@ class IntrinsicsDialog(QDialog):
         size = (self.width_spin.value(), self.height_spin.value())
 
         def task(progress, cancel):
-            from impress_gui.core.calibration.readout import readout_from_flicker
-            from impress_gui.core.formats.video import open_video
+            from impress_gui.core.calibration.readout import measure_readout_file
 
-            with open_video(path) as lamp:
-                if tuple(lamp.size) != size:
-                    raise InputError(
-                        f"the lamp video is {lamp.size[0]}x{lamp.size[1]}, the image size "
-                        f"here {size[0]}x{size[1]}: film it in the scans' recording mode",
-                        code=codes.E_VALUE)
-                r = readout_from_flicker(lamp, hz, progress=progress, cancel=cancel)
-            from impress_gui.core.base.fileio import sha256_path
-
-            return r, Path(path).name, sha256_path(path)
+            return measure_readout_file(path, hz, size=size, progress=progress, cancel=cancel)
 
         self.measure_button.setText("Cancel measuring")
         self.readout_note.setText("Measuring...")
@@ -181,13 +196,13 @@ class IntrinsicsDialog(QDialog):
         self.readout_note.setText(f"Measuring: {message} ({100 * fraction:.0f} %)")
 
     def _flicker_done(self, result) -> None:
-        r, name, sha = result
+        r, source = result
         self.measure_button.setText(MEASURE_TEXT)
+        self.shutter_combo.setCurrentIndex(self.shutter_combo.findData(SHUTTER_ROLLING))
         self.readout_spin.setValue(round(r.readout_ms, 2))
         self.readout_note.setText(f"Measured: {r.summary()}")
         # where the readout came from, kept with the intrinsics while the field holds it
-        self._measured = (self.readout_spin.value(),
-                          f"readout measured from {name} (SHA-256 {sha}): {r.summary()}")
+        self._measured = (self.readout_spin.value(), source)
 
     def _flicker_failed(self, code: str, message: str) -> None:
         self.measure_button.setText(MEASURE_TEXT)
@@ -206,11 +221,15 @@ class IntrinsicsDialog(QDialog):
         k = np.array([[f["fx"], 0.0, f["cx"]], [0.0, f["fy"], f["cy"]], [0.0, 0.0, 1.0]])
         d = np.array([f["k1"], f["k2"], f["p1"], f["p2"], f["k3"]])
         source = "entered by hand"
-        if self._measured is not None and self._measured[0] == self.readout_spin.value():
+        shutter = self.shutter()
+        readout = (None if shutter == SHUTTER_NOT_GIVEN else 0.0 if shutter == SHUTTER_GLOBAL
+                   else float(self.readout_spin.value()))
+        if (self._measured is not None and shutter == SHUTTER_ROLLING
+                and self._measured[0] == self.readout_spin.value()):
             source += f"; {self._measured[1]}"
         return Intrinsics(
             k, d, (self.width_spin.value(), self.height_spin.value()), source=source,
-            readout_ms=float(self.readout_spin.value()) or None,
+            readout_ms=readout,
         )
 
 
