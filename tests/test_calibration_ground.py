@@ -126,3 +126,39 @@ def test_a_plane_from_a_narrow_range_of_heights_is_warned_about():
     (w,) = plane_span_warnings({"green": narrow, "red": wide})
     assert "green" in w and "spanning only 4 mm" in w and "10, 14 mm" in w
     assert plane_span_warnings({"green": replace(narrow, ground_points=500)}) == []
+
+
+def test_the_other_lasers_light_on_the_ground_is_left_out():
+    """Random rig 28: green's blooming stripe taken for red on the ground beside the target
+    (60 % of red's ground points, on green's plane). Red's ground is still used - its own
+    points on it are flat - and the note says what was left out; counted as red's (before),
+    they made the ground look uneven and it was not used."""
+    rng = np.random.default_rng(1)
+
+    def stripe(xs, h, slope, y0):
+        y = y0 + slope * (h - 25.0)
+        obj = np.column_stack([xs, np.full(len(xs), y), np.full(len(xs), h)])
+        return obj @ R_O.T + T_O + rng.normal(0, 0.003, (len(xs), 3))
+
+    def faces(slope, y0):
+        return np.concatenate([stripe(np.linspace(2, 38, 300), 10.0, slope, y0),
+                               stripe(np.linspace(42, 78, 300), 40.0, slope, y0)])
+
+    xs = np.concatenate([np.linspace(-28, -4, 300), np.linspace(84, 108, 300)])
+    g_green = stripe(xs, 0.0, SLOPE, 35.0)
+    g_red = stripe(xs, 0.0, -SLOPE, 45.0)
+    red_ground = np.concatenate([g_red[::2], g_green[: 450]])  # 300 red's, 450 green's
+    rays = {"green": [(0, 0.0, (p := faces(SLOPE, 35.0)) / p[:, 2:])],
+            "red": [(0, 0.0, (q := faces(-SLOPE, 45.0)) / q[:, 2:])]}
+    ground = {"green": [(0, 0.0, g_green / g_green[:, 2:])],
+              "red": [(0, 0.0, red_ground / red_ground[:, 2:])]}
+    obs = P.StripeObservations(TARGET, 1.0, {"green": 0, "red": 0}, rays, ground=ground)
+    red = obs.fit_planes(np.eye(3), (R_O, T_O), with_ground=True)["red"][0]
+    seen = len(P.points_on_ground(g_red[::2] / g_red[::2, 2:], (R_O, T_O), TARGET, 0.0))
+    assert red.ground_points == seen > 200
+    assert "other laser's plane" in red.ground_note
+    # the former rule: every point on the ground counted as red's -> the ground not used
+    alone = P.StripeObservations(TARGET, 1.0, {"red": 0}, {"red": rays["red"]},
+                                 ground={"red": ground["red"]})
+    before = alone.fit_planes(np.eye(3), (R_O, T_O), with_ground=True)["red"][0]
+    assert before.ground_points == 0 and "not used" in before.ground_note

@@ -266,12 +266,53 @@ def points_on_faces(rays: np.ndarray, pose, target: TargetModel, travel_mm):
     return rays[ok] * best_t[ok, None], best_h[ok], ok
 
 
-def robust_plane(points: np.ndarray, rounds: int = 4, floor_mm: float = 0.02
-                 ) -> tuple[Plane, float, np.ndarray]:
+#: a frame's own plane starts the robust fit when the plain fit through every point leaves
+#: the points' median distance this many times that frame's plane's (light that is not the
+#: laser's on a face - the other laser's blooming stripe, say - turned the plain fit)
+FRAME_START_GAIN = 2.0
+#: a frame's points must spread this far (RMS, mm) in their second direction to define a plane
+FRAME_START_SPREAD_MM = 1.0
+
+
+def _frame_start(points: np.ndarray, groups: np.ndarray, floor_mm: float):
+    """The points near the plane of the frame (``groups``: each point's frame, -1 for none)
+    whose plane leaves the other frames' points the smallest median distance, when that
+    median is well below the plain fit's over all points (:data:`FRAME_START_GAIN`); None
+    otherwise. A frame's stripe on two
+    faces of different heights lies on two lines of the laser's plane, which fix it."""
+    plane0, _, _ = fit_plane(points)
+    best_med = float(np.median(np.abs(plane0.distance(points))))
+    limit, best = best_med / FRAME_START_GAIN, None
+    for g in np.unique(groups[groups >= 0]):
+        p = points[groups == g]
+        if len(p) < 10:
+            continue
+        rest = points[groups != g]  # judged by the points it was not fitted to
+        if len(rest) < len(p):
+            continue
+        pl, _, sv = fit_plane(p)
+        if sv[1] / math.sqrt(len(p)) < FRAME_START_SPREAD_MM:
+            continue
+        med = float(np.median(np.abs(pl.distance(rest))))
+        if med < limit:
+            limit, best = med, pl
+    if best is None:
+        return None
+    return np.abs(best.distance(points)) < max(4 * 1.4826 * limit, floor_mm)
+
+
+def robust_plane(points: np.ndarray, rounds: int = 4, floor_mm: float = 0.02,
+                 groups: np.ndarray | None = None) -> tuple[Plane, float, np.ndarray]:
     """SVD plane through ``points`` with outlier rejection (points farther than 4 robust SDs,
     at least ``floor_mm``, left out; refitted until the set holds): plane, RMS of the kept
-    points and the kept mask."""
+    points and the kept mask. ``groups`` (each point's frame): where the plain fit is turned
+    by gross outliers, the rejection starts from the best frame's own plane
+    (:func:`_frame_start`)."""
     keep = np.ones(len(points), bool)
+    if groups is not None and len(points) >= 3:
+        start = _frame_start(points, np.asarray(groups), floor_mm)
+        if start is not None and start.sum() >= 3:
+            keep = start
     for _ in range(rounds):
         plane, rms, _ = fit_plane(points[keep])
         res = np.abs(plane.distance(points))
@@ -282,6 +323,11 @@ def robust_plane(points: np.ndarray, rounds: int = 4, floor_mm: float = 0.02
         keep = new
     plane, rms, _ = fit_plane(points[keep])
     return plane, rms, keep
+
+
+def frame_groups(pts: list) -> np.ndarray:
+    """Each point's frame index (0, 1, ...) for points given per frame."""
+    return np.repeat(np.arange(len(pts)), [len(p) for p in pts])
 
 
 def stripe_noise(plane: Plane, pts: list, hts: list) -> tuple[float, float, float]:
@@ -329,7 +375,8 @@ SEGMENT_DOF = 6
 
 
 def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames,
-                    ground: np.ndarray | None = None) -> LaserPlaneFit:
+                    ground: np.ndarray | None = None, groups: np.ndarray | None = None
+                    ) -> LaserPlaneFit:
     """SVD plane through the stripe points (and the ``ground`` points, if any) with outlier
     rejection; refuse when the stripe did not cross faces at two different heights (the plane
     would be undetermined)."""
@@ -343,7 +390,9 @@ def fit_laser_plane(name: str, points: np.ndarray, heights: np.ndarray, frames,
             code=codes.E_PLANE_UNDETERMINED)
     if ground is not None and len(ground):
         points = np.concatenate([points, ground])
-    plane, rms, keep = robust_plane(points)
+        if groups is not None:
+            groups = np.concatenate([groups, np.full(len(ground), -1)])
+    plane, rms, keep = robust_plane(points, groups=groups)
     if plane.normal[2] < 0:  # orient consistently: normal with positive depth component
         plane = Plane(-plane.normal, -plane.offset_mm)
     return LaserPlaneFit(name, plane, rms, int(keep.sum()), tuple(frames), tuple(levels))
@@ -388,7 +437,7 @@ class StripeObservations:
         """Each laser's plane fit and the stripe points on the faces (per frame) it was
         fitted to. ``with_ground``: the stripe points on the ground beside the target join
         the fit (:meth:`_with_ground`)."""
-        out = {}
+        faces: dict[str, tuple] = {}  # each laser's fit to the faces alone, first
         for name, t_c in self.frames.items():
             pts, hts, used = self.points(name, rot, pose_rt)
             if not pts:
@@ -400,26 +449,33 @@ class StripeObservations:
             # shadow) are dropped: their travel does not follow the constant speed
             dropped: set[int] = set()
             if len(used) >= 4:
-                first = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
+                first = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used,
+                                        groups=frame_groups(pts))
                 err = np.array([np.median(np.abs(first.plane.distance(p))) for p in pts])
                 good = err <= max(3 * np.median(err), 0.02)
                 dropped = {k for k, g in zip(used, good) if not g}
                 pts = [p for p, g in zip(pts, good) if g]
                 hts = [h for h, g in zip(hts, good) if g]
                 used = [k for k, g in zip(used, good) if g]
-            fit = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used)
+            fit = fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used,
+                                  groups=frame_groups(pts))
+            faces[name] = (fit, pts, hts, dropped)
+        out = {}
+        for name, (fit, pts, hts, dropped) in faces.items():
             if with_ground:
                 # the ground in every frame observed, but those whose face points disagreed
                 frames = {k for k, _, _ in self.ground.get(name, [])} - dropped
+                others = [f for n, (f, _, _, _) in faces.items() if n != name]
                 fit = self._with_ground(name, fit, np.concatenate(pts), np.concatenate(hts),
-                                        rot, pose_rt, frames)
+                                        rot, pose_rt, frames, others)
             seg_sd, point_sd, face_sd = stripe_noise(fit.plane, pts, hts)
             out[name] = (replace(fit, stripe_rows=self.rows.get(name, ""), segment_sd_mm=seg_sd,
                                  point_sd_mm=point_sd, face_sd_mm=face_sd), pts)
         return out
 
     def _with_ground(self, name: str, fit: LaserPlaneFit, pts: np.ndarray, hts: np.ndarray,
-                     rot: np.ndarray, pose_rt, frames: set[int]) -> LaserPlaneFit:
+                     rot: np.ndarray, pose_rt, frames: set[int],
+                     others: list[LaserPlaneFit] | None = None) -> LaserPlaneFit:
         """The plane refitted with the stripe points on the ground beside the target.
 
         The target's faces span a few centimetres; a plane fitted to them alone is tilted by
@@ -428,21 +484,34 @@ class StripeObservations:
         0.4 %). The base plane the target stands on is height 0 of the map: its stripe points
         pin the plane where most of the evidence lies. A ground point is kept when it lies
         near the faces' plane (the ground is flat there), and the ground is used only when
-        enough of its points do; soil heaped or dug beside the target leaves it out."""
+        enough of its points do; soil heaped or dug beside the target leaves it out. Points
+        that lie on the ``others``' planes (fitted to the faces) and not on this one are the
+        other laser's light taken for this one's (random rig 28: green's blooming stripe, 60 %
+        of red's ground points, 70 mm off red's plane); they count neither way."""
         ground = self.ground_points(name, rot, pose_rt, frames)
         g = np.concatenate(ground) if ground else np.zeros((0, 3))
         if not len(g):
             return replace(fit, ground_note="no stripe seen on the ground beside the target")
         gate = max(GROUND_GATE_RMS * fit.rms_mm, GROUND_GATE_MM)
         near = np.abs(fit.plane.distance(g)) <= gate
-        if near.sum() < GROUND_MIN_POINTS or near.mean() < GROUND_MIN_SHARE:
+        foreign = np.zeros(len(g), bool)
+        for o in others or ():
+            foreign |= ~near & (np.abs(o.plane.distance(g))
+                                <= max(GROUND_GATE_RMS * o.rms_mm, GROUND_GATE_MM))
+        n_own = len(g) - int(foreign.sum())
+        other_note = (f" ({int(foreign.sum())} more on the other laser's plane: its light, left "
+                      "out)" if foreign.any() else "")
+        if near.sum() < GROUND_MIN_POINTS or near.sum() < GROUND_MIN_SHARE * n_own:
             return replace(fit, ground_note=(
-                f"ground beside the target not used: {int(near.sum())} of {len(g)} stripe "
-                f"points within {gate:.3f} mm of the faces' plane (not flat there)"))
+                f"ground beside the target not used: {int(near.sum())} of {n_own} stripe "
+                f"points within {gate:.3f} mm of the faces' plane (not flat there)"
+                f"{other_note}"))
+        # the ground's points were gated by the faces' robust plane: a plain start here (a
+        # frame's own plane would outvote the ground it is meant to be corrected by)
         joint = fit_laser_plane(name, pts, hts, fit.frames, g[near])
         return replace(joint, ground_points=int(near.sum()),
-                       ground_note=f"{int(near.sum())} of {len(g)} stripe points on the "
-                       "ground beside the target joined the faces' points")
+                       ground_note=f"{int(near.sum())} of {n_own} stripe points on the "
+                       f"ground beside the target joined the faces' points{other_note}")
 
 
 def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: TargetModel,
@@ -517,7 +586,8 @@ def _plane_rms(obs: StripeObservations, name: str, rot: np.ndarray, pose_rt) -> 
     if not pts:
         return float("inf")
     try:
-        return fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used).rms_mm
+        return fit_laser_plane(name, np.concatenate(pts), np.concatenate(hts), used,
+                               groups=frame_groups(pts)).rms_mm
     except CalibrationError:
         return float("inf")
 
@@ -573,7 +643,8 @@ def refine_tilt(obs: StripeObservations, planes0: dict, intrinsics: Intrinsics,
             # object's light, a frame off the constant speed - would turn a plain fit and
             # hide the tilt's signal in the other points' residuals); they still count,
             # capped, in the cost
-            plane, _, _ = robust_plane(allp, floor_mm=GROSS_OUTLIER_MM)
+            plane, _, _ = robust_plane(allp, floor_mm=GROSS_OUTLIER_MM,
+                                       groups=frame_groups(pts))
             r = np.clip(np.abs(plane.distance(allp)) / sigma_s, 0, 5)  # outliers capped
             # the two lasers weigh alike: their errors are biases per face and frame, not
             # independent per point, and the laser with more points is not the better witness

@@ -50,6 +50,12 @@ PLANE_METHODS = ("stripe-fit", "three-point")
 #: about (issue 18): the random rigs' targets step 10-25 mm, the default target 30 mm, and
 #: the ground beside the target adds height 0
 PLANE_SPAN_WARN_MM = 10.0
+#: a laser plane whose stripe points lie farther than this from it (RMS, mm) is warned about
+#: (the simulator's rigs: 0.01-0.05 mm at 640x360 and 1080p) ...
+PLANE_WARN_MM = 0.2
+#: ... and beyond this it is refused: heights would be off by millimetres (light on the target
+#: that is not this laser's, a wrong target file, a stripe not on the faces)
+PLANE_REFUSE_MM = 1.0
 #: a tilt refined by more than this (deg) from the picks' tilt has the stripes gathered again
 #: with the refined pose, then refined once more (their crops followed the picks' pose)
 REGATHER_TILT_DEG = 0.25
@@ -386,6 +392,7 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
                                  (pose.target_rotation, pose.target_translation_mm),
                                  with_ground=True)
         planes = {name: fit for name, (fit, _) in planes0.items()}
+        warnings += plane_residual_warnings(planes)
         warnings += plane_span_warnings(planes)
         warnings += [f"the {name} stripe blooms (a saturated, nearly white core) on the "
                      "target: found there by the colour it adds to the surface against the "
@@ -406,6 +413,26 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
         warnings=tuple(warnings), inputs=dict(inputs or {}),
         cross_tilt_deg=float(np.degrees(pose.cross_tilt_rad)),
     )
+
+
+def plane_residual_warnings(planes: dict[str, LaserPlaneFit]) -> list[str]:
+    """A warning per laser plane whose stripe points lie more than :data:`PLANE_WARN_MM` (RMS)
+    from it; CalibrationError (``E-CALIB``) beyond :data:`PLANE_REFUSE_MM`."""
+    out = []
+    for name, fit in planes.items():
+        if not np.isfinite(fit.rms_mm) or fit.rms_mm > PLANE_REFUSE_MM:
+            raise CalibrationError(
+                f"the {name} stripe's points on the target lie {fit.rms_mm:.2f} mm (RMS) from "
+                f"the plane fitted to them, more than the {PLANE_REFUSE_MM:g} mm accepted: "
+                "heights would be off by millimetres. Check the target file against the "
+                "target filmed, that the picks are on its corners, and that no other light "
+                "falls on its faces near the calibration frames (choose other frames t1/t2)",
+                code=codes.E_CALIB)
+        if fit.rms_mm > PLANE_WARN_MM:
+            out.append(f"the {name} stripe's points lie {fit.rms_mm:.3f} mm (RMS) from their "
+                       f"plane (usually below 0.05 mm): heights may be off by as much; check "
+                       "the target file and the picks, or choose other frames t1/t2")
+    return out
 
 
 def plane_span_warnings(planes: dict[str, LaserPlaneFit]) -> list[str]:

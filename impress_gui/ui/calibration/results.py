@@ -21,7 +21,7 @@ from PySide6.QtWidgets import (
 )
 
 from impress_gui.core.calibration.geometry import Intrinsics
-from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.calibration.scene import PLANE_WARN_MM, SceneCalibration
 from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
 
 WARN_STYLE = (
@@ -33,7 +33,6 @@ STALE_STYLE = (
     "border-radius: 4px; padding: 6px; font-weight: bold"
 )
 RESIDUAL_WARN_MM = 0.5
-PLANE_WARN_MM = 0.2
 
 
 def changed_inputs(
