@@ -118,12 +118,16 @@ class Rig:
     """One calibrated, reconstructed draw and what the readings need."""
 
     def __init__(self, seed: int, draw: int, noise_px: float, trials: int,
-                 speed_error_rel: float = 0.0) -> None:
+                 speed_error_rel: float = 0.0, stripe_model: str | None = None) -> None:
         from impress_gui.core.calibration.target import TargetModel
         from impress_gui.core.calibration.uncertainty import CalParams
         from impress_gui.core.formats.video import open_video
         from impress_gui.core.measure.uncertainty import UncertaintyContext
-        from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
+        from impress_gui.core.reconstruction.reconstruct import (
+            ProcessParams,
+            height_per_pixel,
+            reconstruct,
+        )
         from impress_gui.sim.truth import truth_for_reconstruction
 
         d = common.CACHE / f"random-{seed}-640x360-{common.SIM_KEY}"
@@ -150,7 +154,8 @@ class Rig:
         self.ctx = UncertaintyContext.for_calibration(
             self.h, rec.spec, cal, TargetModel.load(d / "target.json"), rec.contribution,
             trials=trials, per_laser=rec.per_laser_mm,
-            fusion_weights=rec.stats.get("fusion_weights"))
+            fusion_weights=rec.stats.get("fusion_weights"), stripe_model=stripe_model)
+        self.per_px = height_per_pixel(cal, tuple(truth["image_size"]))
         self.t_mc = time.perf_counter() - t0
         self.nominal = CalParams.of_calibration(cal)
         true = true_params(d, cal)  # the true travel over the entered one: the speed's error
@@ -206,7 +211,9 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
             out.append({"kind": kind, "err": float(err), "U": budget.U_mm, "u_c": budget.u_c_mm,
                         "parts": {c.name: c.u_mm for c in budget.components},
                         "x": x, "y": y, "slope": float(math.hypot(gx, gy)),
-                        "value": budget.value_mm})
+                        "value": budget.value_mm,
+                        # the mm per stripe pixel of the lasers that made the point
+                        "per_px": float(sum(w * rig.per_px[la] for la, w in ctx.lasers_at(x, y)))})
 
     tries = 0
     counts = dict.fromkeys([k for k in KINDS if k != "width (bands)"], 0)
@@ -458,6 +465,9 @@ def main() -> None:
     ap.add_argument("--speed-error-pct", type=float, default=0.1,
                     help="half-width (%%) of the uniform error of the speed entered against "
                          "the rail's true speed (the servo's regulation; 0: exact)")
+    ap.add_argument("--stripe-model", default=None,
+                    help="the calibration Monte Carlo's stripe model (impress_gui.core."
+                         "calibration.uncertainty.STRIPE_MODELS; default: the product's)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--from-json", type=Path, nargs="+", default=None, metavar="JSON",
                     help="print the table of readings saved with --json (several files: "
@@ -475,14 +485,15 @@ def main() -> None:
     for seed in seeds:
         for draw in range(args.first_draw, args.first_draw + args.draws):
             try:
-                rig = Rig(seed, draw, args.noise_px, args.trials, args.speed_error_pct / 100)
+                rig = Rig(seed, draw, args.noise_px, args.trials, args.speed_error_pct / 100,
+                          args.stripe_model)
             except Exception as exc:  # noqa: BLE001 - a rig the product refuses is a result
                 print(f"  seed {seed} draw {draw}: not measured ({type(exc).__name__}: {exc})")
                 continue
             rng = np.random.default_rng(100 * seed + draw)
             got = readings(rig, rng, args.per_kind)
             for r in got:
-                r.update(seed=seed, draw=draw)
+                r.update(seed=seed, draw=draw, per_px_lasers=rig.per_px)
             rows += got
             e = rig.ctx.ensemble
             print(f"  seed {seed} draw {draw}: {len(got)} readings; calibrate+reconstruct "

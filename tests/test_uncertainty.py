@@ -99,9 +99,14 @@ def test_calibration_monte_carlo_grows_with_click_noise_and_is_deterministic(fla
     h_hi, l_hi = _spread(hi)
     # a length is fixed by the clicks: 4x the click noise, about 4x its spread; a height's
     # tilt is fixed by the stripes on the target since the tilt is searched over +-10 deg
-    # (planes.refine_tilt), so its spread grows less (measured 0.0125 -> 0.0156 mm)
+    # (planes.refine_tilt) and its planes by the stripe on the ground beside the target too
+    # (the default stripe model, "measured"), so its spread grows far less (measured
+    # 0.0130 -> 0.0137 mm; "conservative", whose trials fit the faces alone, 0.0125 -> 0.0156)
     assert l_hi > 3 * l_lo
-    assert h_hi > 1.1 * h_lo
+    assert h_hi > h_lo
+    c_lo, c_hi = (CU.calibration_ensemble(cal, target, s, n=TRIALS, stripe_model="conservative")
+                  for s in (0.3, 1.2))
+    assert _spread(c_hi)[0] > 1.1 * _spread(c_lo)[0]
     assert hi.summary["tilt_sd_deg"] > lo.summary["tilt_sd_deg"]
     # cached: the same object; recomputed: the same numbers (a fixed seed)
     assert CU.calibration_ensemble(cal, target, 0.3, n=TRIALS) is lo
@@ -127,8 +132,8 @@ def test_calibration_monte_carlo_grows_with_the_plane_residuals(flat):
                                             point_sd_mm=10 * f.point_sd_mm + 0.07,
                                             face_sd_mm=10 * f.face_sd_mm)
                                  for n, f in cal.planes.items()})
-    smooth = CU.calibration_ensemble(cal, target, 0.05, n=TRIALS)
-    worse = CU.calibration_ensemble(rough, target, 0.05, n=TRIALS)
+    smooth = CU.calibration_ensemble(cal, target, 0.05, n=TRIALS, stripe_model="conservative")
+    worse = CU.calibration_ensemble(rough, target, 0.05, n=TRIALS, stripe_model="conservative")
     assert worse.summary["green_plane_offset_sd_mm"] > smooth.summary["green_plane_offset_sd_mm"]
     assert _spread(worse)[0] > 1.5 * _spread(smooth)[0]
     # an older calibration without the split: half the plane's residual variance each
@@ -138,11 +143,12 @@ def test_calibration_monte_carlo_grows_with_the_plane_residuals(flat):
     f = old.planes["green"]
     assert CU.stripe_sigmas(f, f.rms_mm)[:2] == (f.rms_mm / math.sqrt(2),
                                                  f.rms_mm / math.sqrt(2))
-    older = CU.calibration_ensemble(old, target, 0.05, n=TRIALS)
+    older = CU.calibration_ensemble(old, target, 0.05, n=TRIALS, stripe_model="conservative")
     assert _spread(older)[0] > 1.5 * _spread(smooth)[0]
-    # the stripes as the calibration measured them ("measured"): the spread grows with the
-    # recorded split (on random rigs it is 2-3 times smaller than the default's: the docs)
-    meas = CU.calibration_ensemble(cal, target, 0.05, n=TRIALS, stripe_model="measured")
+    # the stripes as the calibration measured them ("measured", the default): the spread
+    # grows with the recorded split (on random rigs 2-3 times smaller than "conservative"'s)
+    assert CU.DEFAULT_STRIPE_MODEL == "measured"
+    meas = CU.calibration_ensemble(cal, target, 0.05, n=TRIALS)
     meas_rough = CU.calibration_ensemble(rough, target, 0.05, n=TRIALS, stripe_model="measured")
     assert meas is not smooth and 0 < _spread(meas)[0]
     assert _spread(meas_rough)[0] > 1.5 * _spread(meas)[0]
@@ -468,3 +474,47 @@ def test_the_target_check_is_of_the_models_shape_not_of_the_pose(flat):
                                         target.corners_mm.items()})
     with pytest.raises(InputError, match="does not match the calibration"):
         CU.check_target(cal, other)
+
+
+def test_the_methods_own_component_without_a_validation_record():
+    """Without a validation record every height-based reading carries "method (product)": the
+    stripe error (METHOD_STRIPE_PX) times the height per pixel of stripe shift of the laser
+    that made the cells. A height difference between two points of one laser loses it (that
+    laser's bias moves both alike); between a green and a red point it is both lasers' biases
+    in quadrature. A validation record replaces it."""
+    spec, h = _noisy_plane(0.02, 4)
+    code = np.ones(spec.shape, np.uint8)  # green on the left half, red on the right
+    code[:, spec.shape[1] // 2:] = 2
+    per_px = {"green": 0.8, "red": 1.6}
+    ctx = U.UncertaintyContext(h, spec, contribution=code, per_px=per_px)
+    a_px, d_px = U.METHOD_STRIPE_PX["absolute"], U.METHOD_STRIPE_PX["difference"]
+    assert a_px > 0 and d_px > 0
+
+    def method(b):
+        return [c for c in b.components if c.name.startswith("method")]
+
+    green, red = (M.readout(h, spec, x, 20.0, 0.5) for x in (10.0, 30.0))
+    for r, s in ((green, 0.8), (red, 1.6)):
+        (c,) = method(U.height_budget(ctx, r))
+        assert c.name == "method (product)" and c.unit == "px"
+        assert c.u_mm == pytest.approx(a_px * s)
+    # a ruler within the green half: no method component left in dz; across: both lasers
+    same = U.ruler_budgets(ctx, M.ruler(h, spec, (5.0, 20.0), (15.0, 25.0), 0.5))
+    (c,) = method(same["dz"])
+    assert c.u_mm == 0.0
+    across = U.ruler_budgets(ctx, M.ruler(h, spec, (10.0, 20.0), (30.0, 20.0), 0.5))
+    (c,) = method(across["dz"])
+    assert c.u_mm == pytest.approx(d_px * math.hypot(0.8, 1.6))
+    assert not method(across["xy"])  # a length in xy is no height
+    # a larger height per pixel (a shallower laser) -> a larger component
+    steep = U.UncertaintyContext(h, spec, contribution=code, per_px={"green": 2.0, "red": 1.6})
+    assert method(U.height_budget(steep, green))[0].u_mm > method(U.height_budget(ctx, green))[0].u_mm
+    # the budget's note says where the figure comes from; a validation record replaces it
+    assert any("product's own figure" in n for n in U.height_budget(ctx, green).notes)
+    rec = replace(ctx, validation={"bias_mm": 0.01, "sd_mm": 0.02, "source": "a record"})
+    (c,) = method(U.height_budget(rec, green))
+    assert c.name == "method (validation)" and c.u_mm == pytest.approx(math.hypot(0.01, 0.02))
+    # without the lasers' height per pixel (an old context) the component is left out, said so
+    bare = U.UncertaintyContext(h, spec, contribution=code)
+    assert not method(U.height_budget(bare, green))
+    assert any("not included" in n for n in U.height_budget(bare, green).notes)

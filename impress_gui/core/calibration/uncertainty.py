@@ -17,9 +17,9 @@ counts and frames, the reprojection RMS of the picks - and the target model:
 3. each laser's stripe on the target is rebuilt from the recorded plane: in each recorded frame
    the line where the plane cuts each top face, seen as camera rays. A trial intersects those
    rays with the target faces of its own pose (and its own travel), adds stripe noise and fits
-   the plane again. How (``stripe_model``, :data:`STRIPE_MODELS`): "conservative", the
-   default, adds half of the plane's recorded residual variance as one offset per frame and
-   face (neighbouring stripe points are not independent) and half per point; "measured" does
+   the plane again. How (``stripe_model``, :data:`STRIPE_MODELS`): "conservative" adds half
+   of the plane's recorded residual variance as one offset per frame and face (neighbouring
+   stripe points are not independent) and half per point; "measured", the default, does
    what the calibration did and draws what it measured - the stripe on the ground beside the
    target rebuilt too and fitted with the faces', the recorded ``segment_sd_mm``,
    ``point_sd_mm`` and ``face_sd_mm`` (:func:`~impress_gui.core.calibration.planes.
@@ -28,8 +28,9 @@ counts and frames, the reprojection RMS of the picks - and the target model:
    calibrations of random rigs, their whole errors against the truth): "conservative" RMS
    error / SD 0.96 for heights, 1.04 for lengths; "measured" 1.34 and 1.12 - it draws the
    recalibrations' spread right but not the calibration's own bias with exact picks, which
-   the default's larger offsets happen to cover; the default stays "conservative" until a
-   component carries that bias;
+   "conservative"'s larger offsets happened to cover. The budgets carry that bias in their
+   own component (impress_gui.core.measure.uncertainty.METHOD_STRIPE_PX, the method's own
+   error), so "measured" is the default since 2 December 2026;
 4. a trial's parameters map any reconstructed cell to where that trial would have put it
    (:meth:`CalibrationEnsemble.map_points`: the same camera ray at the same time, through the
    trial's rotation, laser plane and reference plane). The spread of a reading over the trials
@@ -83,7 +84,7 @@ LINE_SAMPLES = 2000
 #: segment_sd_mm / point_sd_mm / face_sd_mm drawn, points moved within their face): the
 #: spread right, the calibration's own bias not (heights' coverage 87 % in bench_uncertainty)
 STRIPE_MODELS = ("conservative", "measured")
-DEFAULT_STRIPE_MODEL = "conservative"
+DEFAULT_STRIPE_MODEL = "measured"
 
 
 @dataclass(frozen=True)

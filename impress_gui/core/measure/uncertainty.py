@@ -38,7 +38,12 @@ Components (docs/uncertainty.md says the same for a quality manager):
   component: where a wall lies between two samples).
 - **method** (type B, normal): bias and precision of the method from an ``impress validate``
   report of the rig, when one is given (:class:`UncertaintyContext` ``validation``; the viewer
-  takes it from the record the examiner chose, impress_gui.validation.method).
+  takes it from the record the examiner chose, impress_gui.validation.method). Without one,
+  the product's own figure (:data:`METHOD_STRIPE_PX`): what the calibration's Monte Carlo and
+  the surface noise leave out - the calibration's own bias with exact picks, the stripe
+  detector's bias on the scene's surfaces - as a stripe position error in pixels, times the
+  height one pixel of stripe shift means for the laser that made the cells
+  (``UncertaintyContext.per_px``).
 """
 
 from __future__ import annotations
@@ -65,6 +70,13 @@ K = 2.0
 #: within U - the wider ring's disks fall on other relief and are left out; docs/uncertainty.md)
 RING_MAX_MM = 15.0
 SPEED_FLOOR_REL = 0.001  # the servo's own speed regulation, as a relative half-width
+#: The method's own error where no validation record of the rig is given (type B, normal), as
+#: a stripe position error in pixels: "absolute" for a height read at a point, "difference"
+#: for a difference between heights read apart (their common part - the calibration's bias,
+#: which moves every height alike - cancels). Established with the uncertainty benchmark on
+#: random rigs 0-23 and checked on rigs 24-47, which it never saw (benchmarks/
+#: bench_uncertainty.py; docs/uncertainty.md "The method's own component").
+METHOD_STRIPE_PX = {"absolute": 0.04, "difference": 0.03}
 LASER_NAMES = ("green", "red")
 
 
@@ -183,14 +195,19 @@ class UncertaintyContext:
     #: recorded ``stats.fusion_weights`` (:func:`fusion_weights_of`); None: 0.5 each, as
     #: results made before the weights were recorded were fused
     fusion_weights: Mapping | None = None
+    #: per laser, the height (mm) one pixel of stripe shift means (reconstruct.
+    #: height_per_pixel of the calibration): the method's own component's sensitivity where no
+    #: validation record is given; None: that component is left out
+    per_px: Mapping | None = None
 
     @classmethod
     def for_calibration(cls, height, spec, cal=None, target=None, contribution=None,
                         level_plane=None, validation=None, trials: int | None = None,
-                        per_laser=None, fusion_weights=None) -> UncertaintyContext:
+                        per_laser=None, fusion_weights=None, stripe_model: str | None = None
+                        ) -> UncertaintyContext:
         """A context with the calibration's Monte Carlo (computed once per calibration and
         cached; a target model that does not fit or a failing solve leave the component out,
-        with a note)."""
+        with a note). ``stripe_model``: the Monte Carlo's (None: its default)."""
         notes = []
         ens = None
         if cal is not None and target is not None:
@@ -198,19 +215,29 @@ class UncertaintyContext:
 
             try:
                 ens = CU.calibration_ensemble(
-                    cal, target, n=CU.DEFAULT_TRIALS if trials is None else int(trials))
+                    cal, target, n=CU.DEFAULT_TRIALS if trials is None else int(trials),
+                    stripe_model=stripe_model or CU.DEFAULT_STRIPE_MODEL)
             except Exception as exc:  # noqa: BLE001 - any failure leaves the component out
                 notes.append(f"calibration component not evaluated: {exc}")
         elif cal is None:
             notes.append("no scene calibration known: the calibration component is missing")
         else:
             notes.append("no target model known: the calibration component is missing")
+        per_px = None
+        if cal is not None:
+            from impress_gui.core.reconstruction.reconstruct import height_per_pixel
+
+            try:
+                per_px = {k: float(v) for k, v in
+                          height_per_pixel(cal, tuple(cal.intrinsics.image_size)).items()}
+            except Exception as exc:  # noqa: BLE001 - the component is then left out, said so
+                notes.append(f"the method's own component not evaluated: {exc}")
         return cls(height, spec, contribution, ens,
                    None if cal is None else float(cal.speed_mm_s),
                    None if cal is None else float(cal.implied_speed_mm_s),
                    validation=validation, level_plane=level_plane, notes=notes,
                    sampling_mm=None if cal is None else lateral_sampling(cal),
-                   per_laser=per_laser, fusion_weights=fusion_weights)
+                   per_laser=per_laser, fusion_weights=fusion_weights, per_px=per_px)
 
     # ----- helpers ---------------------------------------------------------------------------
     def lasers_at(self, x, y) -> list[tuple[str, float]]:
@@ -549,10 +576,50 @@ def _noise_component(sigma: float, n_eff: float, n: int, what: str) -> Component
                      f"SD {sigma:.4f} mm about a local fit, n {n}, effective n {n_eff:.1f}")
 
 
-def _method_component(ctx: UncertaintyContext, scale: float = 1.0) -> list:
+def _laser_shares(ctx: UncertaintyContext, terms) -> dict[str, float]:
+    """Per laser, its net share ``c_l = sum_k coef_k w_kl`` in a reading that combines the
+    heights of the points ``terms`` (``(x, y, coef)``: e.g. +1 at a ruler's end, -1 at its
+    start), ``w_kl`` the weight of laser ``l`` in the point's height."""
+    out = dict.fromkeys(LASER_NAMES, 0.0)
+    for x, y, coef in terms:
+        for la, w in ctx.lasers_at(x, y):
+            out[la] += float(coef) * w
+    return out
+
+
+def _method_component(ctx: UncertaintyContext, scale: float = 1.0, terms=None,
+                      kind: str = "absolute") -> list:
+    """The method's own component: the validation record's when one is given, else the
+    product's figure (:data:`METHOD_STRIPE_PX`) for the reading that combines the heights of
+    the points ``terms`` (``(x, y, coef)``). "absolute": a height at a point (``coef`` 1), the
+    stripe error times the height per pixel of its lasers. "difference": a difference of
+    heights; each laser's own bias moves every height it made alike and cancels between points
+    of the same laser: the error of ``sum_k coef_k h_k`` is ``sum_l c_l b_l`` with ``c_l``
+    each laser's net share (:func:`_laser_shares`) and ``b_l`` its bias (the stripe error
+    times its height per pixel), independent between the lasers."""
     v = ctx.validation
     if not v:
-        return []
+        sigma = METHOD_STRIPE_PX[kind]
+        if not ctx.per_px or not terms or sigma <= 0:
+            return []
+        c = _laser_shares(ctx, terms)
+        px = {la: float(ctx.per_px.get(la, math.nan)) for la in LASER_NAMES}
+        if kind == "absolute":
+            s = abs(sum(c[la] * px[la] for la in LASER_NAMES if c[la]))
+        else:
+            s = math.sqrt(sum((c[la] * px[la]) ** 2 for la in LASER_NAMES if c[la]))
+        if not math.isfinite(s):
+            return []
+        shares = ", ".join(f"{la} {c[la]:+.2f} x {px[la]:.3f}" for la in LASER_NAMES if c[la])
+        what = {"absolute": "a height", "difference": "a height difference"}[kind]
+        how = ("each laser's own bias cancels between points it made both of; "
+               if kind == "difference" else "")
+        return [Component("method (product)", f"the method's own error in {what}", "B", "normal",
+                          sigma, "px", s * scale, sigma * s * scale,
+                          f"stripe position error {sigma:g} px (the product's validation on "
+                          f"random rigs; no impress validate report of the rig given); {how}"
+                          f"lasers' shares x mm of height per pixel of stripe shift: "
+                          f"{shares or 'none'}")]
     bias, sd = float(v.get("bias_mm", 0.0) or 0.0), float(v.get("sd_mm", 0.0) or 0.0)
     u = math.hypot(bias, sd) * scale
     return [Component("method (validation)", "bias and precision of the method", "B", "normal",
@@ -563,7 +630,10 @@ def _method_component(ctx: UncertaintyContext, scale: float = 1.0) -> list:
 def _notes(ctx: UncertaintyContext) -> tuple[str, ...]:
     out = list(ctx.notes)
     if not ctx.validation:
-        out.append("method bias from an impress validate report: not included")
+        out.append("method bias from an impress validate report: not included" if not
+                   ctx.per_px or not any(METHOD_STRIPE_PX.values()) else
+                   "method: the product's own figure (no impress validate report of the rig "
+                   "given)")
     return tuple(out)
 
 
@@ -588,7 +658,7 @@ def height_budget(ctx: UncertaintyContext, readout, reading: str = "height") -> 
     slope = math.hypot(gx, gy) if math.isfinite(gx) else 0.0
     if readout.radius_mm < ctx.spec.pixel_mm / 2:
         comps.append(_grid_component(ctx, slope, 1.0, "position of the cell read"))
-    comps += _method_component(ctx)
+    comps += _method_component(ctx, 1.0, [(x, y, 1.0)], "absolute")
     return Budget(reading, h, tuple(comps), notes=_notes(ctx))
 
 
@@ -649,7 +719,8 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
                            "normal", u, "mm", 1.0, u,
                            "each mean's standard error, weighted by its share of the plane at "
                            "the point (" + ", ".join(f"{v:+.2f}" for v in w) + ")"))
-    comps += _method_component(ctx)
+    # depth = plane(P) - h(P), plane(P) = w . the supports' heights
+    comps += _method_component(ctx, 1.0, [*zip(xs, ys, [*w, -1.0])], "difference")
     return Budget("depth below a plane", depth, tuple(comps), notes=_notes(ctx))
 
 
@@ -714,7 +785,8 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
             c_grid = slope if key == "dz" else c_noise * slope
             comps.append(_grid_component(ctx, c_grid, 1.0, "heights read at the ends' cells"))
             comps += _speed_component(ctx, (uy * uy / val) if (key == "3d" and val > 0) else 0.0)
-            comps += _method_component(ctx, c_noise)
+            comps += _method_component(ctx, c_noise, [(a.x_mm, a.y_mm, -1.0),
+                                                      (b.x_mm, b.y_mm, 1.0)], "difference")
             out[key] = Budget("ruler dz" if key == "dz" else "ruler 3D", val, tuple(comps),
                               notes=_notes(ctx))
     return out
@@ -773,7 +845,9 @@ def step_budget(ctx: UncertaintyContext, profile, step, band_a, band_b) -> Budge
                            f"{ring:.1f} mm scatters {ra:.4f} ({ka}) and {rb:.4f} ({kb}) mm, "
                            f"together {u_ring:.4f} mm; the same step on {k} parallel profiles "
                            f"scatters {rep:.4f} mm; the largest taken"))
-    comps += _method_component(ctx)
+    comps += _method_component(
+        ctx, 1.0, [*((px_, py_, -1.0 / len(xa)) for px_, py_ in zip(xa, ya)),
+                   *((px_, py_, 1.0 / len(xb)) for px_, py_ in zip(xb, yb))], "difference")
     return Budget("step height B - A", step.difference_mm, tuple(comps), notes=_notes(ctx))
 
 
@@ -936,6 +1010,8 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                            1.0, u, "height noise beside each crossing (0.5-2 mm either side, "
                            "off the wall) over the wall's slope, at most the spacing of the "
                            "samples that bracket it (rectangular)"))
+    if level_bands is None:  # a fixed level: the method's height error moves the crossings
+        comps += _method_width(ctx, ux, uy, x0, y0, ds, gaps, slopes)
     # where each wall lies between two samples: one sample is a camera column across the
     # scan and a frame's travel along it, and never less than a cell of the grid the profile
     # is read from (no separate grid term: the crossings are interpolated, not cells)
@@ -962,6 +1038,30 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                            "anywhere between them: half-width max(f, 1 - f) samples per wall "
                            f"(f {fr[0]:.2f}, {fr[1]:.2f})"))
     return Budget("width at level", width.width_mm, tuple(comps), notes=_notes(ctx))
+
+
+def _method_width(ctx: UncertaintyContext, ux, uy, x0, y0, ds, gaps, slopes) -> list:
+    """A width at a level fixed from outside the profile: the method's own height error at
+    each crossing (:func:`_method_component`, "absolute") over the wall's slope there, at most
+    the spacing of the samples that bracket it; the two added (one bias moves both walls)."""
+    if ctx.validation or not ctx.per_px or METHOD_STRIPE_PX["absolute"] <= 0:
+        return []
+    shifts = []
+    for dd, gap, g in zip(ds, gaps, slopes):
+        if not (math.isfinite(gap) and math.isfinite(g)):
+            return []
+        c = _method_component(ctx, 1.0, [(x0 + dd * ux, y0 + dd * uy, 1.0)], "absolute")
+        if not c:
+            return []
+        dh = c[0].u_mm
+        shifts.append(min(dh / abs(g) if g != 0 else math.inf, gap / math.sqrt(3.0)))
+    u = float(sum(shifts))
+    return [Component("method (product)", "the method's own height error at the crossings",
+                      "B", "normal", u, "mm", 1.0, u,
+                      f"stripe position error {METHOD_STRIPE_PX['absolute']:g} px as a height "
+                      "error at each crossing over the wall's slope there, at most the spacing "
+                      "of the samples that bracket it; the two walls' shifts added "
+                      f"({shifts[0]:.4f} + {shifts[1]:.4f} mm)")]
 
 
 def _band_mask(profile, band: Sequence[float]) -> np.ndarray:
