@@ -98,6 +98,11 @@ def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calib
         # a marker: its height with U
         mk = v.add_marker(xc, yc + 5.0)
         assert mk["values"]["U_k2_mm"] > 0 and "(± " in v.table.table.item(1, 3).text()
+        # no validation record chosen: the method's own component is the product's figure,
+        # the stripe error times the height per pixel of the laser(s) there
+        comps = {c["name"]: c for c in mk["uncertainty"][""]["components"]}
+        assert "method (product)" in comps and comps["method (product)"]["u_mm"] > 0
+        assert "method (product)" in v.tools.step_text.toolTip() + v.tools.ruler_text.toolTip()
         # the CSV carries u_c, U and the budget
         path = tmp_path / "m.csv"
         with qtbot.waitSignal(v.tasks.done, timeout=60000,
@@ -150,6 +155,10 @@ def test_a_validation_record_enters_every_budget(qtbot, flat_recon, tmp_path):
             v.set_ruler((xc - 12.0, yc), (xc + 12.0, yc))
         before = v.ruler.budgets()["dz"]
         assert "method (validation)" not in v.tools.ruler_text.toolTip()
+        # no calibration in this project: no product figure either (its sensitivity is the
+        # calibration's), and the budget says the method is not included
+        assert not any(c.name.startswith("method") for c in before.components)
+        assert any("not included" in n for n in before.notes)
         # not a record: refused, with its code, nothing changes
         wrong = tmp_path / "picks.json"
         wrong.write_text(json.dumps({"format": "impress.picks", "version": 1}))
@@ -165,7 +174,10 @@ def test_a_validation_record_enters_every_budget(qtbot, flat_recon, tmp_path):
         after = v.ruler.budgets()["dz"]
         comp = next(c for c in after.components if c.name == "method (validation)")
         assert comp.u_mm == pytest.approx(expected_u * comp.sensitivity, rel=1e-6)
-        assert after.U_mm > before.U_mm
+        assert not any(c.name == "method (product)" for c in after.components)  # replaced
+        without = math.sqrt(sum(c.u_mm ** 2 for c in before.components
+                                if not c.name.startswith("method")))
+        assert after.u_c_mm == pytest.approx(math.hypot(without, comp.u_mm), rel=1e-6)
         assert "validation.json" in v.table.method_button.toolTip()
         # a marker made now carries it in its stored budget
         mk = v.add_marker(xc, yc + 5.0)

@@ -76,7 +76,7 @@ SPEED_FLOOR_REL = 0.001  # the servo's own speed regulation, as a relative half-
 #: which moves every height alike - cancels). Established with the uncertainty benchmark on
 #: random rigs 0-23 and checked on rigs 24-47, which it never saw (benchmarks/
 #: bench_uncertainty.py; docs/uncertainty.md "The method's own component").
-METHOD_STRIPE_PX = {"absolute": 0.04, "difference": 0.03}
+METHOD_STRIPE_PX = {"absolute": 0.035, "difference": 0.03}
 LASER_NAMES = ("green", "red")
 
 
@@ -223,15 +223,7 @@ class UncertaintyContext:
             notes.append("no scene calibration known: the calibration component is missing")
         else:
             notes.append("no target model known: the calibration component is missing")
-        per_px = None
-        if cal is not None:
-            from impress_gui.core.reconstruction.reconstruct import height_per_pixel
-
-            try:
-                per_px = {k: float(v) for k, v in
-                          height_per_pixel(cal, tuple(cal.intrinsics.image_size)).items()}
-            except Exception as exc:  # noqa: BLE001 - the component is then left out, said so
-                notes.append(f"the method's own component not evaluated: {exc}")
+        per_px = None if cal is None else method_sensitivity(cal, notes)
         return cls(height, spec, contribution, ens,
                    None if cal is None else float(cal.speed_mm_s),
                    None if cal is None else float(cal.implied_speed_mm_s),
@@ -292,6 +284,21 @@ class UncertaintyContext:
             return None
         rel = abs((self.implied_speed_mm_s or self.speed_mm_s) / self.speed_mm_s - 1.0)
         return max(rel, SPEED_FLOOR_REL)
+
+
+def method_sensitivity(cal, notes: list | None = None) -> dict[str, float] | None:
+    """Per laser, the height (mm) one pixel of stripe shift means with the calibration ``cal``
+    (reconstruct.height_per_pixel at its picture size): the sensitivity of the method's own
+    component (:data:`METHOD_STRIPE_PX`). None (and a note) when it cannot be found."""
+    from impress_gui.core.reconstruction.reconstruct import height_per_pixel
+
+    try:
+        return {k: float(v) for k, v in
+                height_per_pixel(cal, tuple(cal.intrinsics.image_size)).items()}
+    except Exception as exc:  # noqa: BLE001 - the component is then left out, said so
+        if notes is not None:
+            notes.append(f"the method's own component not evaluated: {exc}")
+        return None
 
 
 def fusion_weights_of(metadata: Mapping | None) -> dict[str, float] | None:

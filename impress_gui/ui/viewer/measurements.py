@@ -317,6 +317,7 @@ class UncertaintyProvider(QObject):
             ctx.laser = key
         if cal is not None:
             ctx.sampling_mm = U.lateral_sampling(cal)
+            ctx.per_px = U.method_sensitivity(cal, ctx.notes)
         return ctx
 
     def shutdown(self) -> None:
