@@ -76,6 +76,30 @@ def test_click_noise_degradation_is_bounded():
     assert errs[:, 0].max() < 0.1 and errs[:, 1].max() < 0.5
 
 
+def test_frames_too_close_together_are_named_as_the_cause():
+    """Picks in two frames only ~10 px of motion apart (3 frames at 1080p): half a pixel of
+    click noise makes the corners' depths centimetres off and the pose is refused; the error
+    says the frames are too close, not only that the target might be wrong. Far apart, the
+    same noise passes (test_click_noise_degradation_is_bounded)."""
+    from impress_gui.core.base import codes
+
+    rig, target, picks, _, dt = synthetic_picks(1.2, -1.8, noise_px=1.0, seed=1, t1=40, t2=43)
+    with pytest.raises(CalibrationError, match="does not match the picks") as e:
+        solve_pose(rig.intrinsics, target, picks, 13.138, dt)
+    assert e.value.code == codes.E_TARGET_MISMATCH
+    assert "move only 11 px between the two frames" in str(e.value)
+    assert "farther apart" in str(e.value)
+    # a wrong target with frames far apart: no such hint
+    rig, target, picks, _, dt = synthetic_picks(1.2, -1.8)
+    swapped = dict(picks.corners_t1)
+    swapped["A"], swapped["D"] = swapped["D"], swapped["A"]
+    bad = Picks(picks.video, picks.t1, picks.t2, swapped,
+                {**picks.corners_t2, "A": picks.corners_t2["D"], "D": picks.corners_t2["A"]})
+    with pytest.raises(CalibrationError) as e:
+        solve_pose(rig.intrinsics, target, bad, 13.138, dt)
+    assert "farther apart" not in str(e.value)
+
+
 def test_wrong_speed_is_detected_by_the_target_size():
     rig, target, picks, truth, dt = synthetic_picks(1.2, -1.8)
     sol = solve_pose(rig.intrinsics, target, picks, 13.138 * 1.05, dt)
