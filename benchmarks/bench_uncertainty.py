@@ -36,8 +36,16 @@ of a scan shares its calibration's error, so the calibrations, not the readings,
 sample: with 48 calibrations a kind's interval spans several points) and a verdict against
 the band: inside, over or under, and whether the interval lies within, beyond or across it.
 
+The budgets are the product's: no validation record, so the method's own component is the
+product's figure (impress_gui.core.measure.uncertainty.METHOD_STRIPE_PX), whose two values
+were found on seeds 0-23 and checked on seeds 24-47 (docs/uncertainty.md "The method's own
+component"); ``--stripe-model`` chooses the calibration Monte Carlo's stripe model. Each
+reading saved with ``--json`` carries its budget's parts and ``per_px``, the height per pixel
+of stripe shift of the lasers at its (first) point.
+
 Usage: .venv/bin/python benchmarks/bench_uncertainty.py [--seeds 0,1,2,3] [--draws 2]
        [--first-draw 0] [--noise-px 0.5] [--trials 30] [--per-kind 25] [--json out.json]
+       [--stripe-model measured]
        .venv/bin/python benchmarks/bench_uncertainty.py --from-json a.json b.json
 """
 
