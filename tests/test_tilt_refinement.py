@@ -39,7 +39,8 @@ def setup(flat_scan, flat_calibration):
     picks = CU.model_picks(cal, target)
     segs = {la: CU._segments(cal, target, la) for la in CU.LASERS}
     rng = np.random.default_rng(18)
-    clean = CU._observations(cal, target, segs, rng, {la: 0.02 for la in CU.LASERS})
+    clean = CU._observations(cal, target, segs, rng, {la: 0.02 for la in CU.LASERS},
+                             model="conservative")  # 0.02 mm per point, no face offsets
     dt = (cal.t2 - cal.t1) / cal.fps
     pose = solve_pose(cal.intrinsics, target, picks, cal.speed_mm_s, dt)
     return cal, target, picks, clean, _with_stray_light(clean, rng), pose, dt
