@@ -221,7 +221,7 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
                         "x": x, "y": y, "slope": float(math.hypot(gx, gy)),
                         "value": budget.value_mm,
                         # the mm per stripe pixel of the lasers that made the point
-                        "per_px": float(sum(w * rig.per_px[la] for la, w in ctx.lasers_at(x, y)))})
+                        "per_px": _finite(sum(w * rig.per_px[la] for la, w in ctx.lasers_at(x, y)))})
 
     tries = 0
     counts = dict.fromkeys([k for k in KINDS if k != "width (bands)"], 0)
@@ -344,6 +344,12 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
             add("width (bands)", *wb)
             n += 1
     return out
+
+
+def _finite(v) -> float | None:
+    """``v`` as a float for the JSON, None where it is not finite (JSON has no NaN)."""
+    v = float(v)
+    return v if math.isfinite(v) else None
 
 
 def _band_width(M, U, rig: Rig, ctx, prof, tprof, p0, p1):
@@ -501,7 +507,8 @@ def main() -> None:
             rng = np.random.default_rng(100 * seed + draw)
             got = readings(rig, rng, args.per_kind)
             for r in got:
-                r.update(seed=seed, draw=draw, per_px_lasers=rig.per_px)
+                r.update(seed=seed, draw=draw,
+                         per_px_lasers={k: _finite(v) for k, v in rig.per_px.items()})
             rows += got
             e = rig.ctx.ensemble
             print(f"  seed {seed} draw {draw}: {len(got)} readings; calibrate+reconstruct "

@@ -506,11 +506,35 @@ def test_the_methods_own_component_without_a_validation_record():
     (c,) = method(across["dz"])
     assert c.u_mm == pytest.approx(d_px * math.hypot(0.8, 1.6))
     assert not method(across["xy"])  # a length in xy is no height
+    (c3,) = method(across["3d"])  # the 3D length: dz's share, |dz| / d3
+    r = M.ruler(h, spec, (10.0, 20.0), (30.0, 20.0), 0.5)
+    assert c3.u_mm == pytest.approx(c.u_mm * abs(r.dz_mm) / r.d3_mm)
+    # a step from a green band to a red one: both lasers' biases; within green: none
+    prof = M.line_profile(h, spec, (14.0, 20.0), (26.0, 20.0), 1.0)
+    st = M.step_height(prof, (0.0, 3.0), (9.0, 12.0))
+    (c,) = method(U.step_budget(ctx, prof, st, (0.0, 3.0), (9.0, 12.0)))
+    assert c.u_mm == pytest.approx(d_px * math.hypot(0.8, 1.6))
+    prof = M.line_profile(h, spec, (2.0, 20.0), (14.0, 20.0), 1.0)
+    st = M.step_height(prof, (0.0, 3.0), (9.0, 12.0))
+    (c,) = method(U.step_budget(ctx, prof, st, (0.0, 3.0), (9.0, 12.0)))
+    assert c.u_mm == 0.0
+    # a depth of a red point below a plane through three green points: the plane's weights
+    # sum to 1, so green's share is +1 and red's -1
+    sup = [M.readout(h, spec, x, y, 0.5) for x, y in ((8.0, 10.0), (16.0, 14.0), (12.0, 30.0))]
+    (c,) = method(U.depth_budget(ctx, red, sup))
+    assert c.u_mm == pytest.approx(d_px * math.hypot(0.8, 1.6))
+    (c,) = method(U.depth_budget(ctx, M.readout(h, spec, 12.0, 18.0, 0.5), sup))
+    assert c.u_mm == pytest.approx(0.0, abs=1e-12)
     # a larger height per pixel (a shallower laser) -> a larger component
     steep = U.UncertaintyContext(h, spec, contribution=code, per_px={"green": 2.0, "red": 1.6})
     assert method(U.height_budget(steep, green))[0].u_mm > method(U.height_budget(ctx, green))[0].u_mm
-    # the budget's note says where the figure comes from; a validation record replaces it
+    # the budget's note says where the figure comes from (not on a length, which has none);
+    # a validation record replaces it
     assert any("product's own figure" in n for n in U.height_budget(ctx, green).notes)
+    assert not any("product's own figure" in n for n in across["xy"].notes)
+    # a laser whose height per pixel is unknown is taken as the larger known one
+    half = U.UncertaintyContext(h, spec, contribution=code, per_px={"green": math.nan, "red": 1.6})
+    assert method(U.height_budget(half, green))[0].u_mm == pytest.approx(a_px * 1.6)
     rec = replace(ctx, validation={"bias_mm": 0.01, "sd_mm": 0.02, "source": "a record"})
     (c,) = method(U.height_budget(rec, green))
     assert c.name == "method (validation)" and c.u_mm == pytest.approx(math.hypot(0.01, 0.02))

@@ -71,9 +71,11 @@ K = 2.0
 RING_MAX_MM = 15.0
 SPEED_FLOOR_REL = 0.001  # the servo's own speed regulation, as a relative half-width
 #: The method's own error where no validation record of the rig is given (type B, normal), as
-#: a stripe position error in pixels: "absolute" for a height read at a point, "difference"
-#: for a difference between heights read apart (their common part - the calibration's bias,
-#: which moves every height alike - cancels). Established with the uncertainty benchmark on
+#: a stripe position error in pixels: "absolute" for a height read at a point (a fused cell:
+#: the lasers' errors taken as fully correlated, their weighted heights per pixel added),
+#: "difference" for a difference between heights (each laser's own bias moves every height it
+#: made alike and cancels; the lasers' biases independent: a difference whose points are all
+#: one laser's, or fused alike, carries none). Established with the uncertainty benchmark on
 #: random rigs 0-23 and checked on rigs 24-47, which it never saw (benchmarks/
 #: bench_uncertainty.py; docs/uncertainty.md "The method's own component").
 METHOD_STRIPE_PX = {"absolute": 0.035, "difference": 0.03}
@@ -609,15 +611,19 @@ def _method_component(ctx: UncertaintyContext, scale: float = 1.0, terms=None,
         sigma = METHOD_STRIPE_PX[kind]
         if not ctx.per_px or not terms or sigma <= 0:
             return []
-        c = _laser_shares(ctx, terms)
+        c = {la: v for la, v in _laser_shares(ctx, terms).items() if abs(v) > 1e-9}
         px = {la: float(ctx.per_px.get(la, math.nan)) for la in LASER_NAMES}
-        if kind == "absolute":
-            s = abs(sum(c[la] * px[la] for la in LASER_NAMES if c[la]))
-        else:
-            s = math.sqrt(sum((c[la] * px[la]) ** 2 for la in LASER_NAMES if c[la]))
-        if not math.isfinite(s):
+        known = [v for v in px.values() if math.isfinite(v)]
+        if not known:
             return []
-        shares = ", ".join(f"{la} {c[la]:+.2f} x {px[la]:.3f}" for la in LASER_NAMES if c[la])
+        # a laser whose height per pixel is not known (its stripe mostly outside the picture)
+        # is taken as the larger known one
+        px = {la: v if math.isfinite(v) else max(known) for la, v in px.items()}
+        if kind == "absolute":
+            s = abs(sum(c[la] * px[la] for la in c))
+        else:
+            s = math.sqrt(sum((c[la] * px[la]) ** 2 for la in c))
+        shares = ", ".join(f"{la} {c[la]:+.2f} x {px[la]:.3f}" for la in c)
         what = {"absolute": "a height", "difference": "a height difference"}[kind]
         how = ("each laser's own bias cancels between points it made both of; "
                if kind == "difference" else "")
@@ -634,13 +640,13 @@ def _method_component(ctx: UncertaintyContext, scale: float = 1.0, terms=None,
                       f"bias {bias:+.3f} mm, SD {sd:.3f} mm from {v.get('source', 'a validation')}")]
 
 
-def _notes(ctx: UncertaintyContext) -> tuple[str, ...]:
+def _notes(ctx: UncertaintyContext, comps: Sequence = ()) -> tuple[str, ...]:
+    """The context's notes and what the budget ``comps`` says of the method."""
     out = list(ctx.notes)
     if not ctx.validation:
-        out.append("method bias from an impress validate report: not included" if not
-                   ctx.per_px or not any(METHOD_STRIPE_PX.values()) else
-                   "method: the product's own figure (no impress validate report of the rig "
-                   "given)")
+        out.append("method: the product's own figure (no impress validate report of the rig "
+                   "given)" if any(c.name == "method (product)" for c in comps) else
+                   "method bias from an impress validate report: not included")
     return tuple(out)
 
 
@@ -666,7 +672,7 @@ def height_budget(ctx: UncertaintyContext, readout, reading: str = "height") -> 
     if readout.radius_mm < ctx.spec.pixel_mm / 2:
         comps.append(_grid_component(ctx, slope, 1.0, "position of the cell read"))
     comps += _method_component(ctx, 1.0, [(x, y, 1.0)], "absolute")
-    return Budget(reading, h, tuple(comps), notes=_notes(ctx))
+    return Budget(reading, h, tuple(comps), notes=_notes(ctx, comps))
 
 
 def _y_travel(ctx: UncertaintyContext, y: float) -> float:
@@ -728,7 +734,7 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
                            "the point (" + ", ".join(f"{v:+.2f}" for v in w) + ")"))
     # depth = plane(P) - h(P), plane(P) = w . the supports' heights
     comps += _method_component(ctx, 1.0, [*zip(xs, ys, [*w, -1.0])], "difference")
-    return Budget("depth below a plane", depth, tuple(comps), notes=_notes(ctx))
+    return Budget("depth below a plane", depth, tuple(comps), notes=_notes(ctx, comps))
 
 
 def _trial_depths(xs, ys, hs, d) -> np.ndarray:
@@ -761,7 +767,7 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
     comps += _speed_component(ctx, (uy * uy / xy) if xy > 0 else 0.0)
     # no grid term: the ends are the coordinates marked (not snapped to cells), so the length
     # between them is not quantised; where the examiner puts them is not the reading's
-    out["xy"] = Budget("ruler xy", xy, tuple(comps), notes=_notes(ctx))
+    out["xy"] = Budget("ruler xy", xy, tuple(comps), notes=_notes(ctx, comps))
     # dz and 3D
     if np.isfinite(hs).all():
         noise = []
@@ -795,7 +801,7 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
             comps += _method_component(ctx, c_noise, [(a.x_mm, a.y_mm, -1.0),
                                                       (b.x_mm, b.y_mm, 1.0)], "difference")
             out[key] = Budget("ruler dz" if key == "dz" else "ruler 3D", val, tuple(comps),
-                              notes=_notes(ctx))
+                              notes=_notes(ctx, comps))
     return out
 
 
@@ -855,7 +861,7 @@ def step_budget(ctx: UncertaintyContext, profile, step, band_a, band_b) -> Budge
     comps += _method_component(
         ctx, 1.0, [*((px_, py_, -1.0 / len(xa)) for px_, py_ in zip(xa, ya)),
                    *((px_, py_, 1.0 / len(xb)) for px_, py_ in zip(xb, yb))], "difference")
-    return Budget("step height B - A", step.difference_mm, tuple(comps), notes=_notes(ctx))
+    return Budget("step height B - A", step.difference_mm, tuple(comps), notes=_notes(ctx, comps))
 
 
 def _band_repeatability(ctx: UncertaintyContext, profile, band, ring_mm: float
@@ -1044,31 +1050,31 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                            "between them at the level's fraction f of the step, the wall itself "
                            "anywhere between them: half-width max(f, 1 - f) samples per wall "
                            f"(f {fr[0]:.2f}, {fr[1]:.2f})"))
-    return Budget("width at level", width.width_mm, tuple(comps), notes=_notes(ctx))
+    return Budget("width at level", width.width_mm, tuple(comps), notes=_notes(ctx, comps))
 
 
 def _method_width(ctx: UncertaintyContext, ux, uy, x0, y0, ds, gaps, slopes) -> list:
-    """A width at a level fixed from outside the profile: the method's own height error at
-    each crossing (:func:`_method_component`, "absolute") over the wall's slope there, at most
-    the spacing of the samples that bracket it; the two added (one bias moves both walls)."""
-    if ctx.validation or not ctx.per_px or METHOD_STRIPE_PX["absolute"] <= 0:
-        return []
+    """A width at a level fixed from outside the profile: the method's height error at each
+    crossing (:func:`_method_component`, "absolute": the validation record's when one is
+    given, else the product's figure) over the wall's slope there, at most the spacing of the
+    samples that bracket it; the two added (one bias moves both walls)."""
     shifts = []
+    name = note = ""
     for dd, gap, g in zip(ds, gaps, slopes):
         if not (math.isfinite(gap) and math.isfinite(g)):
             return []
         c = _method_component(ctx, 1.0, [(x0 + dd * ux, y0 + dd * uy, 1.0)], "absolute")
         if not c:
             return []
-        dh = c[0].u_mm
+        dh, name, note = c[0].u_mm, c[0].name, c[0].note
+        if not math.isfinite(dh):
+            return []
         shifts.append(min(dh / abs(g) if g != 0 else math.inf, gap / math.sqrt(3.0)))
     u = float(sum(shifts))
-    return [Component("method (product)", "the method's own height error at the crossings",
-                      "B", "normal", u, "mm", 1.0, u,
-                      f"stripe position error {METHOD_STRIPE_PX['absolute']:g} px as a height "
-                      "error at each crossing over the wall's slope there, at most the spacing "
-                      "of the samples that bracket it; the two walls' shifts added "
-                      f"({shifts[0]:.4f} + {shifts[1]:.4f} mm)")]
+    return [Component(name, "the method's height error at the crossings", "B", "normal", u, "mm",
+                      1.0, u, "the height error at each crossing over the wall's slope there, at "
+                      "most the spacing of the samples that bracket it; the two walls' shifts "
+                      f"added ({shifts[0]:.4f} + {shifts[1]:.4f} mm); the height error: {note}")]
 
 
 def _band_mask(profile, band: Sequence[float]) -> np.ndarray:
