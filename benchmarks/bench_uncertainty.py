@@ -133,7 +133,6 @@ class Rig:
         from impress_gui.core.measure.uncertainty import UncertaintyContext
         from impress_gui.core.reconstruction.reconstruct import (
             ProcessParams,
-            height_per_pixel,
             reconstruct,
         )
         from impress_gui.sim.truth import truth_for_reconstruction
@@ -163,7 +162,7 @@ class Rig:
             self.h, rec.spec, cal, TargetModel.load(d / "target.json"), rec.contribution,
             trials=trials, per_laser=rec.per_laser_mm,
             fusion_weights=rec.stats.get("fusion_weights"), stripe_model=stripe_model)
-        self.per_px = height_per_pixel(cal, tuple(truth["image_size"]))
+        self.per_px = self.ctx.per_px or {"green": math.nan, "red": math.nan}
         self.t_mc = time.perf_counter() - t0
         self.nominal = CalParams.of_calibration(cal)
         true = true_params(d, cal)  # the true travel over the entered one: the speed's error
