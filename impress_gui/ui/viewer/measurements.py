@@ -310,8 +310,10 @@ class UncertaintyProvider(QObject):
             None if cal is None else float(cal.implied_speed_mm_s),
             None, recon.plane, None, notes)
         ctx.validation = budget_validation(self.session.method_validation)
+        # both lasers' maps: the cells the fusion kept one laser of, and the reconstruction's
+        # random error from their disagreement (U.agreement_noise, for every layer)
+        ctx.per_laser = self.per_laser(data)
         if contribution is not None:
-            ctx.per_laser = self.per_laser(data)
             ctx.fusion_weights = U.fusion_weights_of(data.metadata)
         if key in ("green", "red"):
             ctx.laser = key
