@@ -104,6 +104,9 @@ def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calib
         assert "method (product)" in comps and comps["method (product)"]["u_mm"] > 0
         assert "method (product)" in v.tools.step_text.toolTip()
         assert "method (product)" in v.tools.ruler_text.toolTip()  # dz and 3D list it
+        # the surface noise weighs the two lasers' disagreement at the marker's scale (the
+        # viewer gives the budget both lasers' maps)
+        assert "disagreement" in comps["surface noise"]["note"]
         # the CSV carries u_c, U and the budget
         path = tmp_path / "m.csv"
         with qtbot.waitSignal(v.tasks.done, timeout=60000,

@@ -542,3 +542,81 @@ def test_the_methods_own_component_without_a_validation_record():
     bare = U.UncertaintyContext(h, spec, contribution=code)
     assert not method(U.height_budget(bare, green))
     assert any("not included" in n for n in U.height_budget(bare, green).notes)
+
+
+def _streaky_lasers(s_px, per_px, seed=11, trend=False):
+    """A flat 40 x 40 mm map seen by both lasers whose errors come in streaks - a frame's
+    stripe offset over 6 rows x 50 columns (0.6 x 5 mm), as one stripe's error spreads in a
+    real map - of ``s_px`` pixels times each laser's height per pixel, independent between
+    the lasers; the fused map their mean. ``trend``: a calibration-like disagreement added
+    to green (linear across the map and with height)."""
+    spec = GridSpec(0.0, 0.0, 0.1, (400, 400))
+    rng = np.random.default_rng(seed)
+    ii, jj = np.mgrid[0:400, 0:400]
+    relief = (0.5 * np.sin(jj / 40.0) + 0.3 * np.cos(ii / 55.0)).astype(np.float32)
+    maps = {}
+    for n, (name, p) in enumerate(per_px.items()):
+        off = rng.normal(0.0, s_px * p, (400 // 6 + 1, 400 // 50 + 1))
+        jit = rng.integers(0, 6, 400)  # the streaks' ends not aligned between rows
+        e = off[ii // 6, (jj + 50 * n // 2 + jit[ii]) // 50 % off.shape[1]]
+        maps[name] = relief + e.astype(np.float32)
+    if trend:
+        maps["green"] = maps["green"] + 0.002 * jj * 0.1 + 0.05 * relief
+    fused = (0.5 * (maps["green"] + maps["red"])).astype(np.float32)
+    return spec, relief, maps, fused
+
+
+def test_surface_noise_from_the_lasers_disagreement():
+    """Errors correlated over a frame's stripe do not show as scatter inside a 1 mm disk: the
+    cells' standard error and the nearby means alone state a fraction of the true error of a
+    disk's mean. With both lasers' maps the surface noise is at least their disagreement at
+    the disk's scale (in stripe pixels, times the lasers' heights per pixel, as fused): close
+    to the true scatter of such means, twice as large with twice the stripe error, blind to
+    a disagreement the calibration explains (linear across the map and with height), and
+    absent without the per-laser maps."""
+    per_px = {"green": 0.8, "red": 1.6}
+    spec, relief, maps, fused = _streaky_lasers(0.3, per_px)
+    code = np.full(spec.shape, 3, np.uint8)
+    plain = U.UncertaintyContext(fused, spec, contribution=code, per_px=per_px)
+    ctx = replace(plain, per_laser=maps)
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(5.0, 35.0, (150, 2))
+    err = [M.readout(fused - relief, spec, x, y, 0.5).height_mm for x, y in pts]
+    true_sd = float(np.std(err))
+
+    def noise(c, x, y, radius=0.5):
+        b = U.height_budget(c, M.readout(c.height, spec, x, y, radius))
+        return next(c for c in b.components if c.name == "surface noise")
+
+    got = np.median([noise(ctx, x, y).u_mm for x, y in pts[:20]])
+    old = np.median([noise(plain, x, y).u_mm for x, y in pts[:20]])
+    assert 0.7 * true_sd < got < 1.35 * true_sd, (got, true_sd)
+    assert old < 0.6 * true_sd  # what the disk and its neighbours alone see
+    assert "disagreement" in noise(ctx, 20.0, 20.0).note
+    assert "disagreement" not in noise(plain, 20.0, 20.0).note
+    # twice the stripe error: twice the figure
+    _, _, maps2, fused2 = _streaky_lasers(0.6, per_px)
+    px1 = U.laser_agreement_px(maps["green"], maps["red"], fused, spec, 0.5, per_px)[0]
+    px2 = U.laser_agreement_px(maps2["green"], maps2["red"], fused2, spec, 0.5, per_px)[0]
+    assert px2 == pytest.approx(2 * px1, rel=0.15)
+    # a disagreement linear across the map and with height is the calibration's: left out
+    _, _, maps3, fused3 = _streaky_lasers(0.3, per_px, trend=True)
+    px3 = U.laser_agreement_px(maps3["green"], maps3["red"], fused3, spec, 0.5, per_px)[0]
+    assert px3 == pytest.approx(px1, rel=0.05)
+    # a wider disk averages more of it away
+    wide = U.laser_agreement_px(maps["green"], maps["red"], fused, spec, 2.0, per_px)[0]
+    assert wide < 0.8 * px1
+    # a cell one laser made carries that laser's height per pixel
+    one = replace(ctx, contribution=np.full(spec.shape, 2, np.uint8))
+    assert noise(one, 20.0, 20.0).u_mm >= px1 * 1.6 * 0.999
+    # a depth and a ruler's dz take it at each point
+    sup = [M.readout(fused, spec, x, y, 0.5) for x, y in ((10.0, 10.0), (30.0, 12.0), (20.0, 30.0))]
+    dep = U.depth_budget(ctx, M.readout(fused, spec, 20.0, 17.0, 0.5), sup)
+    dep0 = U.depth_budget(plain, M.readout(fused, spec, 20.0, 17.0, 0.5), sup)
+    u_dep = next(c.u_mm for c in dep.components if c.name == "surface noise")
+    assert u_dep > 1.5 * next(c.u_mm for c in dep0.components if c.name == "surface noise")
+    # without a laser's height per pixel, or with maps of another grid: not evaluated
+    assert U.laser_agreement_px(maps["green"], maps["red"], fused, spec, 0.5,
+                                {"green": 0.8}) is None
+    assert U.laser_agreement_px(maps["green"][:-1], maps["red"][:-1], fused, spec, 0.5,
+                                per_px) is None

@@ -11,6 +11,7 @@ by a worker thread during the loop (:mod:`impress_gui.core.reconstruction.finish
 from __future__ import annotations
 
 import importlib
+import math
 import queue
 import threading
 import time
@@ -605,6 +606,7 @@ def _process(run: _Run) -> Reconstruction:
                          f"{run.stop - 1}", code=codes.E_VIDEO_TRUNCATED)
     loop_s = time.perf_counter() - tally.t_loop
     warnings = _stripe_warnings(run, tally)
+    bright = _bright_ground(run, warnings)
     t_finish = time.perf_counter()
     report(run.progress, 0.93, "finishing the maps and the texture")
     finisher.finish()
@@ -614,6 +616,8 @@ def _process(run: _Run) -> Reconstruction:
     stats = _stats(run, tab, tally, finisher, loop_s, t_finish)
     stats["texture_end_cells_filled"] = end_cells
     stats["island_cells_dropped"] = islands
+    if bright is not None:
+        stats["ground_near_full_share"] = round(bright, 4)
     report(run.progress, 1.0, "done")
     if finisher.broken:
         stats["finished_after_loop"] = finisher.broken
@@ -748,6 +752,33 @@ def _texture_ends(run: _Run, tab: _Tables, finisher: RowFinisher, warnings: list
                                   ends[1], inplace=True,
                                   progress=lambda m: report(run.progress, 0.96, m))
     return int(filled.sum())
+
+
+#: W-BRIGHT-GROUND when more than this share of the picture (the background tables' frames) is
+#: within the detector's minimum peak (min_peak) of full scale. Random rigs 0-47 at 640x360
+#: (the renders of benchmarks/bench_robustness.py; docs/accuracy.md): rig 34 (white soil,
+#: bright ambient light: fused error 0.27 mm, 2.5 % wild points) 24 %, rig 13 (bright speckled
+#: soil) 14 %, every other rig 6 % or less
+BRIGHT_GROUND_SHARE = 0.10
+
+
+def _bright_ground(run: _Run, warnings: list[str]) -> float | None:
+    """The share of the picture (the background tables' frames, stripes included: a few per
+    cent) too bright for a stripe to rise above it by the detector's minimum peak,
+    with a warning (``W-BRIGHT-GROUND``) when it exceeds :data:`BRIGHT_GROUND_SHARE`. None
+    without background tables (the hue method)."""
+    if run.lut_job is None:
+        return None
+    share = run.lut_job.result().near_full_share(run.params.min_peak)
+    if not math.isfinite(share):
+        return None
+    if share > BRIGHT_GROUND_SHARE:
+        warnings.append(
+            f"W-BRIGHT-GROUND: {100 * share:.0f} % of the picture is within "
+            f"{run.params.min_peak:g} grey levels of full scale: a stripe there barely rises "
+            "above the ground, and the heights are noisy and may have wild points; lower the "
+            "camera's exposure (or the ambient light) so the ground is not near white")
+    return share
 
 
 def _stripe_warnings(run: _Run, tally: _Tally) -> list[str]:

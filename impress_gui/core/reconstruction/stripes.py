@@ -19,6 +19,7 @@ pixel grid (docs/accuracy.md; ``subpixel="half-max"`` keeps the first centre).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -130,6 +131,9 @@ class BackgroundLUT:
     def __init__(self) -> None:
         self.tables = {name: np.full((64, 64), -1, np.int16) for name in LASERS}
         self.samples = 0
+        # the luma (BT.601 weights, 0-255) of the frames learned from: how much of the ground
+        # is so bright that a stripe cannot rise above it (near_full_share)
+        self.luma_hist = np.zeros(256, np.int64)
 
     def learn(self, rgb: np.ndarray, exclude_rows: list[tuple[int, int]], step: int = 2) -> None:
         keep = np.ones(rgb.shape[0], bool)
@@ -142,7 +146,21 @@ class BackgroundLUT:
             o1, o2 = _OTHERS[name]
             t = self.tables[name]
             np.maximum.at(t, (q[:, o1], q[:, o2]), px[:, c].astype(np.int16))
+        # the whole picture's luma (the lasers' bands too: on some mountings they cover the
+        # picture, and the stripes themselves are a few per cent of it)
+        p32 = rgb[::step, ::step].reshape(-1, 3).astype(np.int32)
+        luma = (77 * p32[:, 0] + 150 * p32[:, 1] + 29 * p32[:, 2] + 128) >> 8
+        self.luma_hist += np.bincount(np.minimum(luma, 255), minlength=256)
         self.samples += len(px)
+
+    def near_full_share(self, margin: float) -> float:
+        """The share of the frames' pixels (the whole picture, sampled) whose luma lies
+        within ``margin`` grey levels of full scale (NaN before any)."""
+        n = int(self.luma_hist.sum())
+        if n == 0:
+            return float("nan")
+        first = max(0, min(256, int(math.ceil(255 - margin))))
+        return float(self.luma_hist[first:].sum()) / n
 
     def mask(self, name: str, rgb: np.ndarray, margin: int) -> np.ndarray:
         c = _CH[name]
