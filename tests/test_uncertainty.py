@@ -487,7 +487,9 @@ def test_the_methods_own_component_without_a_validation_record():
     code[:, spec.shape[1] // 2:] = 2
     per_px = {"green": 0.8, "red": 1.6}
     ctx = U.UncertaintyContext(h, spec, contribution=code, per_px=per_px)
-    a_px, d_px = U.METHOD_STRIPE_PX["absolute"], U.METHOD_STRIPE_PX["difference"]
+    # no per-laser maps here: a height's figure is the one that stands alone (the surface
+    # noise has no disagreement figure; test_surface_noise_from_the_lasers_disagreement)
+    a_px, d_px = U.METHOD_STRIPE_PX["absolute, alone"], U.METHOD_STRIPE_PX["difference"]
     assert a_px > 0 and d_px > 0
 
     def method(b):
@@ -595,20 +597,35 @@ def test_surface_noise_from_the_lasers_disagreement():
     assert "disagreement" in noise(ctx, 20.0, 20.0).note
     assert "disagreement" not in noise(plain, 20.0, 20.0).note
     # twice the stripe error: twice the figure
-    _, _, maps2, fused2 = _streaky_lasers(0.6, per_px)
-    px1 = U.laser_agreement_px(maps["green"], maps["red"], fused, spec, 0.5, per_px)[0]
-    px2 = U.laser_agreement_px(maps2["green"], maps2["red"], fused2, spec, 0.5, per_px)[0]
+    _, _, maps2, _ = _streaky_lasers(0.6, per_px)
+    px1 = U.laser_agreement_px(maps["green"], maps["red"], spec, 0.5, per_px)[0]
+    px2 = U.laser_agreement_px(maps2["green"], maps2["red"], spec, 0.5, per_px)[0]
     assert px2 == pytest.approx(2 * px1, rel=0.15)
     # a disagreement linear across the map and with height is the calibration's: left out
-    _, _, maps3, fused3 = _streaky_lasers(0.3, per_px, trend=True)
-    px3 = U.laser_agreement_px(maps3["green"], maps3["red"], fused3, spec, 0.5, per_px)[0]
+    _, _, maps3, _ = _streaky_lasers(0.3, per_px, trend=True)
+    px3 = U.laser_agreement_px(maps3["green"], maps3["red"], spec, 0.5, per_px)[0]
     assert px3 == pytest.approx(px1, rel=0.05)
     # a wider disk averages more of it away
-    wide = U.laser_agreement_px(maps["green"], maps["red"], fused, spec, 2.0, per_px)[0]
+    wide = U.laser_agreement_px(maps["green"], maps["red"], spec, 2.0, per_px)[0]
     assert wide < 0.8 * px1
-    # a cell one laser made carries that laser's height per pixel
+    # a cell one laser made carries that laser's height per pixel (red's: larger than the
+    # two lasers' mean)
     one = replace(ctx, contribution=np.full(spec.shape, 2, np.uint8))
-    assert noise(one, 20.0, 20.0).u_mm >= px1 * 1.6 * 0.999
+    assert noise(one, 20.0, 20.0).u_mm == pytest.approx(px1 * 1.6, rel=1e-9)
+    assert noise(one, 20.0, 20.0).u_mm > 1.3 * noise(ctx, 20.0, 20.0).u_mm
+    # the same maps with another calibration's heights per pixel: the same millimetres of
+    # disagreement in other pixels (nothing kept from the first calibration)
+    twice = {k: 2 * v for k, v in per_px.items()}
+    assert U.laser_agreement_px(maps["green"], maps["red"], spec, 0.5, twice)[0] == \
+        pytest.approx(px1 / 2, rel=1e-12)
+    # without the disagreement a height's method component is the figure that stood for the
+    # detector's local errors too
+    def method_px(c):
+        b = U.height_budget(c, M.readout(fused, spec, 20.0, 20.0, 0.5))
+        return next(c.u_x for c in b.components if c.name == "method (product)")
+
+    assert method_px(ctx) == U.METHOD_STRIPE_PX["absolute"]
+    assert method_px(plain) == U.METHOD_STRIPE_PX["absolute, alone"]
     # a depth and a ruler's dz take it at each point
     sup = [M.readout(fused, spec, x, y, 0.5) for x, y in ((10.0, 10.0), (30.0, 12.0), (20.0, 30.0))]
     dep = U.depth_budget(ctx, M.readout(fused, spec, 20.0, 17.0, 0.5), sup)
@@ -616,7 +633,5 @@ def test_surface_noise_from_the_lasers_disagreement():
     u_dep = next(c.u_mm for c in dep.components if c.name == "surface noise")
     assert u_dep > 1.5 * next(c.u_mm for c in dep0.components if c.name == "surface noise")
     # without a laser's height per pixel, or with maps of another grid: not evaluated
-    assert U.laser_agreement_px(maps["green"], maps["red"], fused, spec, 0.5,
-                                {"green": 0.8}) is None
-    assert U.laser_agreement_px(maps["green"][:-1], maps["red"][:-1], fused, spec, 0.5,
-                                per_px) is None
+    assert U.laser_agreement_px(maps["green"], maps["red"], spec, 0.5, {"green": 0.8}) is None
+    assert U.laser_agreement_px(maps["green"][:-1], maps["red"][:-1], spec, 0.5, per_px) is None

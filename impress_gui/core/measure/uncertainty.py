@@ -51,6 +51,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 import weakref
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -82,7 +83,9 @@ SPEED_FLOOR_REL = 0.001  # the servo's own speed regulation, as a relative half-
 #: per video, RMS 0.031 px. The absolute figure was 0.035 px while it also stood for the
 #: detector's local errors beyond the surface noise; since the surface noise takes those from
 #: the two lasers' disagreement at the reading's scale (agreement_noise), it is the bias alone.
-METHOD_STRIPE_PX = {"absolute": 0.03, "difference": 0.03}
+#: Where the disagreement is not available (a folder without the per-laser maps, too few
+#: tiles both lasers saw) a height keeps the former 0.035 px ("absolute, alone").
+METHOD_STRIPE_PX = {"absolute": 0.03, "difference": 0.03, "absolute, alone": 0.035}
 LASER_NAMES = ("green", "red")
 
 
@@ -566,35 +569,48 @@ AGREEMENT_MIN_COVER = 0.9
 AGREEMENT_MIN_TILES = 50
 #: at most this many tiles enter the robust SD (a regular subsample beyond it)
 AGREEMENT_MAX_TILES = 200_000
-#: per green map (by id, dropped when the map is freed): (red map, fused map, tile side) ->
-#: the figure, with weak references that confirm the red and fused maps are those it was
-#: computed from
+#: per green map (by id, dropped when the map is freed): (red map, tile side, ratio of the
+#: heights per pixel) -> the figure in mm, with a weak reference that confirms the red map is
+#: the one it was computed from
 _AGREEMENT_CACHE: dict[int, dict] = {}
+_AGREEMENT_LOCK = threading.Lock()
 
 
-def laser_agreement_px(green: np.ndarray, red: np.ndarray, fused: np.ndarray | None,
-                       spec: GridSpec, radius_mm: float, per_px: Mapping
-                       ) -> tuple[float, int] | None:
+def laser_agreement_px(green: np.ndarray, red: np.ndarray, spec: GridSpec, radius_mm: float,
+                       per_px: Mapping) -> tuple[float, int] | None:
     """The stripe's random error (pixels) at the scale of a mean over a disk of
     ``radius_mm``, from the two lasers' disagreement: the map is cut into square tiles of
     the disk's area, each tile's mean of ``green - red`` over the cells both lasers saw
     (tiles at least AGREEMENT_MIN_COVER covered), a least-squares fit of those means to
     ``a + b x + c y + e h`` removed (the calibration's errors, which the Monte Carlo carries,
-    make the lasers disagree linearly across the map and with height; ``h`` the fused
-    height), and the robust SD (1.4826 x the median absolute deviation) of what remains,
-    divided by ``sqrt(p_green^2 + p_red^2)`` (the lasers' heights per pixel of stripe shift:
-    the same stripe error in pixels moves the two lasers' heights in proportion to them).
+    make the lasers disagree linearly across the map and with height; ``h`` the lasers'
+    heights combined as ``(p_red^2 g + p_green^2 r) / (p_green^2 + p_red^2)``, whose noise is
+    uncorrelated with their difference when each laser's error is a stripe error times its
+    height per pixel), and the robust SD (1.4826 x the median absolute deviation) of what
+    remains, divided by ``sqrt(p_green^2 + p_red^2)`` (the lasers' heights per pixel of stripe
+    shift: the same stripe error in pixels moves the two lasers' heights in proportion).
 
     The two lasers see each point of the surface independently - other frames, other camera
     pixels, other light - so their disagreement at a scale is the reconstruction's own random
     error at that scale, correlations over a frame's stripe included, which no scatter inside
-    one small disk sees (random rig 34, white stripes on near-clipped white soil at 640x360:
-    robust SD of 1.1 mm tile means of the fused map's true error 0.238 mm, this figure's
-    prediction 0.223 mm; the disk's own standard error about 0.08 mm). ``(pixels, tiles)``;
-    None where either laser's map or height per pixel is missing or too few tiles overlap."""
+    one small disk sees (random rig 34, white stripes on near-white soil at 640x360: for 0.5 mm
+    disks, 0.89 mm tiles, the true errors of the fused map's tile means scatter 0.25 mm (robust
+    SD), this figure predicts 0.23 mm; the disk's own standard error said about 0.08 mm).
+    ``(pixels, tiles)``; None where either laser's map or height per pixel is missing, the maps
+    are not of the grid ``spec``, or too few tiles both lasers saw."""
     pg, pr = (float(per_px.get(k, math.nan)) for k in LASER_NAMES)
     if not (math.isfinite(pg) and math.isfinite(pr) and pg > 0 and pr > 0):
         return None
+    got = _agreement_mm(green, red, spec, radius_mm, pg / pr)
+    if got is None:
+        return None
+    return got[0] / math.hypot(pg, pr), got[1]
+
+
+def _agreement_mm(green, red, spec: GridSpec, radius_mm: float, ratio: float
+                  ) -> tuple[float, int] | None:
+    """:func:`laser_agreement_px` before the division (mm): cached per pair of maps, tile
+    side and ratio of the heights per pixel (which sets the height term)."""
     g = np.asarray(green)
     r = np.asarray(red)
     if g.shape != r.shape or g.shape != tuple(spec.shape):
@@ -603,52 +619,50 @@ def laser_agreement_px(green: np.ndarray, red: np.ndarray, fused: np.ndarray | N
     ny, nx = g.shape[0] // k, g.shape[1] // k
     if ny * nx < AGREEMENT_MIN_TILES:
         return None
-    key = (id(r), k, None if fused is None else id(fused))
-    cache = _AGREEMENT_CACHE.get(id(g))
-    if cache is None:
-        cache = _AGREEMENT_CACHE[id(g)] = {}
-        weakref.finalize(g, _AGREEMENT_CACHE.pop, id(g), None)
-    hit = cache.get(key)
-    if hit is not None and hit[0]() is r and (fused is None or hit[1]() is fused):
-        return hit[2]
+    key = (id(r), k, round(ratio, 9))
+    with _AGREEMENT_LOCK:
+        cache = _AGREEMENT_CACHE.get(id(g))
+        if cache is None:
+            cache = _AGREEMENT_CACHE[id(g)] = {}
+            weakref.finalize(g, _AGREEMENT_CACHE.pop, id(g), None)
+        hit = cache.get(key)
+    if hit is not None and hit[0]() is r:
+        return hit[1]
     # every st-th tile along each axis: a regular subsample of at most ~4 x AGREEMENT_MAX_TILES
     st = max(1, math.ceil(math.sqrt(ny * nx / (4 * AGREEMENT_MAX_TILES))))
 
     def tiles(a: np.ndarray) -> np.ndarray:
         return a[:ny * k, :nx * k].reshape(ny, k, nx, k)[::st, :, ::st, :]
 
-    d = tiles(g).astype(np.float32) - tiles(r)
-    ok = np.isfinite(d)
+    tg, tr = tiles(g), tiles(r)
+    ok = np.isfinite(tg) & np.isfinite(tr)
     cnt = ok.sum(axis=(1, 3))
-    tot = np.where(ok, d, 0.0).sum(axis=(1, 3), dtype=np.float64)
+    sg = np.where(ok, tg, 0.0).sum(axis=(1, 3), dtype=np.float64)
+    sr = np.where(ok, tr, 0.0).sum(axis=(1, 3), dtype=np.float64)
+    del ok
+    dsum = sg - sr
+    # the height term: the lasers combined so that its noise is independent of the difference
+    wg = 1.0 / (1.0 + ratio * ratio)  # p_red^2 / (p_green^2 + p_red^2)
+    hsum = wg * sg + (1.0 - wg) * sr
     good = cnt >= AGREEMENT_MIN_COVER * k * k
-    if fused is not None:
-        f = tiles(np.asarray(fused)).astype(np.float32)
-        fok = np.isfinite(f)
-        fc = fok.sum(axis=(1, 3))
-        fh = np.where(fok, f, 0.0).sum(axis=(1, 3), dtype=np.float64)
-        h = np.where(fc > 0, fh / np.maximum(fc, 1), math.nan)
-        good &= np.isfinite(h)
-    else:
-        h = np.zeros(cnt.shape)
     ii, jj = np.nonzero(good)
     n = int(ii.size)
-    refs = (weakref.ref(r), None if fused is None else weakref.ref(fused))
-    if n < AGREEMENT_MIN_TILES:
-        cache[key] = (*refs, None)
-        return None
-    if n > AGREEMENT_MAX_TILES:  # a regular subsample, deterministic
-        keep = np.linspace(0, n - 1, AGREEMENT_MAX_TILES).astype(np.int64)
-        ii, jj = ii[keep], jj[keep]
-    m = tot[ii, jj] / cnt[ii, jj]
-    xs = spec.x0_mm + (jj * st + 0.5) * k * spec.pixel_mm
-    ys = spec.y0_mm + (ii * st + 0.5) * k * spec.pixel_mm
-    a = np.column_stack([np.ones(m.size), xs - xs.mean(), ys - ys.mean(), h[ii, jj]])
-    coef, *_ = np.linalg.lstsq(a, m, rcond=None)
-    res = m - a @ coef
-    sd = 1.4826 * float(np.median(np.abs(res - np.median(res))))
-    out = (sd / math.hypot(pg, pr), int(m.size))
-    cache[key] = (*refs, out)
+    out: tuple[float, int] | None = None
+    if n >= AGREEMENT_MIN_TILES:
+        if n > AGREEMENT_MAX_TILES:  # a regular subsample, deterministic
+            keep = np.linspace(0, n - 1, AGREEMENT_MAX_TILES).astype(np.int64)
+            ii, jj = ii[keep], jj[keep]
+        c = cnt[ii, jj]
+        m = dsum[ii, jj] / c
+        h = hsum[ii, jj] / c
+        xs = spec.x0_mm + (jj * st + 0.5) * k * spec.pixel_mm
+        ys = spec.y0_mm + (ii * st + 0.5) * k * spec.pixel_mm
+        a = np.column_stack([np.ones(m.size), xs - xs.mean(), ys - ys.mean(), h - h.mean()])
+        coef, *_ = np.linalg.lstsq(a, m, rcond=None)
+        res = m - a @ coef
+        out = (1.4826 * float(np.median(np.abs(res - np.median(res)))), int(m.size))
+    with _AGREEMENT_LOCK:
+        cache[key] = (weakref.ref(r), out)
     return out
 
 
@@ -662,8 +676,7 @@ def agreement_noise(ctx: UncertaintyContext, x: float, y: float, radius_mm: floa
     pl = ctx.per_laser
     if pl is None or ctx.per_px is None or "green" not in pl or "red" not in pl:
         return None
-    got = laser_agreement_px(pl["green"], pl["red"], ctx.height if ctx.level_plane is None
-                             else None, ctx.spec, radius_mm, ctx.per_px)
+    got = laser_agreement_px(pl["green"], pl["red"], ctx.spec, radius_mm, ctx.per_px)
     if got is None:
         return None
     s_px, tiles = got
@@ -721,7 +734,7 @@ def _laser_shares(ctx: UncertaintyContext, terms) -> dict[str, float]:
 
 
 def _method_component(ctx: UncertaintyContext, scale: float = 1.0, terms=None,
-                      kind: str = "absolute") -> list:
+                      kind: str = "absolute", radius_mm: float = 0.5) -> list:
     """The method's own component: the validation record's when one is given, else the
     product's figure (:data:`METHOD_STRIPE_PX`) for the reading that combines the heights of
     the points ``terms`` (``(x, y, coef)``). "absolute": a height at a point (``coef`` 1), the
@@ -735,6 +748,14 @@ def _method_component(ctx: UncertaintyContext, scale: float = 1.0, terms=None,
         sigma = METHOD_STRIPE_PX[kind]
         if not ctx.per_px or not terms or sigma <= 0:
             return []
+        alone = ""
+        if kind == "absolute" and agreement_noise(ctx, terms[0][0], terms[0][1],
+                                                  radius_mm) is None:
+            # the surface noise has no disagreement figure to carry the detector's local
+            # errors: the figure that stood for them too
+            sigma = METHOD_STRIPE_PX["absolute, alone"]
+            alone = ("the lasers' disagreement not available to the surface noise, so the "
+                     "figure that includes the detector's local errors; ")
         c = {la: v for la, v in _laser_shares(ctx, terms).items() if abs(v) > 1e-9}
         px = {la: float(ctx.per_px.get(la, math.nan)) for la in LASER_NAMES}
         known = [v for v in px.values() if math.isfinite(v)]
@@ -754,7 +775,7 @@ def _method_component(ctx: UncertaintyContext, scale: float = 1.0, terms=None,
         return [Component("method (product)", f"the method's own error in {what}", "B", "normal",
                           sigma, "px", s * scale, sigma * s * scale,
                           f"stripe position error {sigma:g} px (the product's validation on "
-                          f"random rigs; no impress validate report of the rig given); {how}"
+                          f"random rigs; no impress validate report of the rig given); {alone}{how}"
                           f"lasers' shares x mm of height per pixel of stripe shift: "
                           f"{shares or 'none'}")]
     bias, sd = float(v.get("bias_mm", 0.0) or 0.0), float(v.get("sd_mm", 0.0) or 0.0)
@@ -795,7 +816,7 @@ def height_budget(ctx: UncertaintyContext, readout, reading: str = "height") -> 
     slope = math.hypot(gx, gy) if math.isfinite(gx) else 0.0
     if readout.radius_mm < ctx.spec.pixel_mm / 2:
         comps.append(_grid_component(ctx, slope, 1.0, "position of the cell read"))
-    comps += _method_component(ctx, 1.0, [(x, y, 1.0)], "absolute")
+    comps += _method_component(ctx, 1.0, [(x, y, 1.0)], "absolute", readout.radius_mm)
     return Budget(reading, h, tuple(comps), notes=_notes(ctx, comps))
 
 
