@@ -123,9 +123,12 @@ def test_the_monte_carlo_trials_are_levelled_like_the_calibration(turned_rig):
     assert angle < 0.01
     assert np.all(np.abs(ens.trials.ref[:, 1]) < 1e-9)
     assert abs(ens.base.ref[0, 1]) < 1e-9
-    # a map point moves by the calibration's noise, not by the frame's turn
+    # a map point moves by the calibration's noise, not by the frame's turn: at 0.02 px the
+    # trials' SD is about 0.3 mm (single trials measured up to 0.73 mm over seeds 3-9; a CI
+    # run gave 0.59 mm), the turn would move it by tens of millimetres
     dx, dy, dh = ens.deltas(np.array([10.0]), np.array([20.0]), np.array([15.0]), "green")
-    assert np.all(np.abs(dh) < 0.5) and np.all(np.abs(dx) < 0.5)
+    assert np.all(np.abs(dh) < 2.5) and np.all(np.abs(dx) < 2.5)
+    assert np.std(np.concatenate([dh.ravel(), dx.ravel()])) > 1e-3  # the trials do vary
 
 
 def test_the_turn_is_stored_and_old_files_load(turned_rig):
