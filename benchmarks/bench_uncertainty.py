@@ -382,6 +382,15 @@ def _band_width(M, U, rig: Rig, ctx, prof, tprof, p0, p1):
     if not (usable(inside) and beside):
         return None
     bands = (inside, beside[0])
+    # the band "inside" must lie on the feature and the one beside it off it (their true means
+    # on either side of the mid-height that found the feature): where a wall hidden by a gap
+    # wider than a crossing may span (level_crossings' max_gap) pairs the walls of two features,
+    # both bands can lie on the ground, and a level at the ground's own height has no crossing
+    # to measure (errors of 30 mm on random rig 42)
+    mid_h = float((np.nanmax(th) + np.nanmin(th)) / 2)
+    if (M.band_stats(tprof, inside).mean_mm - mid_h) * (
+            M.band_stats(tprof, beside[0]).mean_mm - mid_h) >= 0:
+        return None
     tlevel = float(np.mean([M.band_stats(tprof, b).mean_mm for b in bands]))
     level = float(np.mean([M.band_stats(prof, b).mean_mm for b in bands]))
     tcs = M.level_crossings(tprof, tlevel)
