@@ -449,6 +449,55 @@ def test_lateral_sampling_is_a_whole_sample_even_where_the_map_smears_the_wall()
     assert c.u_mm == pytest.approx(0.1 * 0.5 / math.sqrt(3) * math.sqrt(2), rel=0.05)
 
 
+def test_a_widths_crossings_carry_the_lasers_disagreement_on_the_walls():
+    """Where the two lasers put a wall in different places (a smeared or misplaced wall, the
+    reconstruction's own error at it), the crossing's surface noise is at least their
+    disagreement over sqrt(2) (RMS over the profile and two lines beside it); the fused map's
+    noise beside the wall does not show it. Lasers that agree add nothing; a wall one laser did
+    not cross (occluded) has no such figure; a level from bands is taken on each laser's own
+    profile, so a laser reading the whole ridge higher moves its level with it."""
+    spec = GridSpec(0.0, 0.0, 0.1, (200, 400))
+    xs = np.broadcast_to(spec.xs(), spec.shape)
+
+    def ridge(left, right, top=2.0):  # walls sloping over 0.4 mm
+        up = np.clip((xs - left) / 0.4, 0.0, 1.0) * np.clip((right - xs) / 0.4, 0.0, 1.0)
+        return (top * up).astype(np.float32)
+
+    fused = ridge(15.0, 25.0)
+    p = M.line_profile(fused, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
+    w = M.width_at_level(p, 1.0, 15.0)
+    assert w.width_mm == pytest.approx(9.6, abs=0.05)
+
+    def noise(per_laser, level_bands=None):
+        ctx = replace(U.UncertaintyContext(fused, spec), per_laser=per_laser)
+        b = U.width_budget(ctx, p, w, level_bands=level_bands)
+        return next(c for c in b.components if c.name == "surface noise")
+
+    alone = noise(None).u_mm
+    assert alone < 0.01  # a noise-free map: nothing beside the walls
+    same = noise({"green": fused, "red": fused})
+    assert same.u_mm == pytest.approx(alone, abs=1e-9)
+    # green puts each wall 0.6 mm left, red 0.6 mm right of the fused map's: 1.2 mm apart
+    apart = {"green": ridge(14.4, 24.4), "red": ridge(15.6, 25.6)}
+    got = noise(apart)
+    assert got.u_mm == pytest.approx(math.hypot(1.2, 1.2) / math.sqrt(2), rel=0.02)
+    assert "0.849, 0.849 mm per wall" in got.note
+    # twice as far apart: twice the figure
+    far = noise({"green": ridge(14.7, 24.7), "red": ridge(15.3, 25.3)}).u_mm
+    assert got.u_mm == pytest.approx(2 * far, rel=0.02)
+    # red did not see the right wall (occluded: no data over 3 mm there): that wall has none
+    occl = ridge(15.6, 25.6)
+    occl[:, 235:265] = np.nan
+    half = noise({"green": ridge(14.4, 24.4), "red": occl})
+    assert half.u_mm == pytest.approx(1.2 / math.sqrt(2), rel=0.02)
+    assert "0.849, - mm per wall" in half.note
+    # a level from bands on and beside the ridge: red reading it all 0.5 mm higher moves its
+    # level too, and its walls (vertical shifts of a level's crossing) stay where green's are
+    bands = (((18.0, 22.0), (6.0, 10.0)),) * 2
+    high = {"green": fused, "red": fused + np.float32(0.5) * (fused > 0)}
+    assert noise(high, bands).u_mm < 0.1
+
+
 def test_the_target_check_is_of_the_models_shape_not_of_the_pose(flat):
     """The Monte Carlo needs the target model the calibration was fitted with. The check
     fits the model's corners rigidly to the calibration's parallax corners: a calibration's own

@@ -1154,20 +1154,29 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                                        "profile did not cross the level there: not evaluated"))
     comps += _speed_component(ctx, width.width_mm * uy * uy)
     # each crossing: the height noise over the wall's slope moves it, but never beyond the two
-    # samples with data that bracket it (the crossing is found between them)
+    # samples with data that bracket it (the crossing is found between them); where both
+    # lasers crossed the level there, their disagreement, if larger (the reconstruction's own
+    # error at the wall: a smeared or misplaced wall moves one laser's crossing from the
+    # other's, which noise beside the wall does not show)
     us = []
-    for dd, gap, g in zip(ds, gaps, slopes):
+    dis = _crossing_disagreement(ctx, profile, ds, levels if level_bands is None else None,
+                                 level_bands)
+    for dd, gap, g, dl in zip(ds, gaps, slopes, dis):
         if not math.isfinite(gap):
             us.append(math.nan)
             continue
         sg = _height_noise_beside(profile, dd)
         shift = sg / abs(g) if g != 0 else math.inf
-        us.append(min(shift, gap / math.sqrt(3.0)))
+        us.append(max(min(shift, gap / math.sqrt(3.0)), dl if math.isfinite(dl) else 0.0))
     u = math.hypot(*us)
+    said = ", ".join(f"{v:.3f}" if math.isfinite(v) else "-" for v in dis)
     comps.append(Component("surface noise", "positions of the crossings", "A", "normal", u, "mm",
                            1.0, u, "height noise beside each crossing (0.5-2 mm either side, "
                            "off the wall) over the wall's slope, at most the spacing of the "
-                           "samples that bracket it (rectangular)"))
+                           "samples that bracket it (rectangular); or, if larger, the two "
+                           "lasers' disagreement on where the wall crosses the level (RMS "
+                           "over three parallel lines 0.5 mm apart, over the square root of 2: "
+                           f"{said} mm per wall; '-' where one laser did not cross there)"))
     if level_bands is None:  # a fixed level: the method's height error moves the crossings
         comps += _method_width(ctx, ux, uy, x0, y0, ds, gaps, slopes)
     # where each wall lies between two samples: one sample is a camera column across the
@@ -1196,6 +1205,57 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                            "anywhere between them: half-width max(f, 1 - f) samples per wall "
                            f"(f {fr[0]:.2f}, {fr[1]:.2f})"))
     return Budget("width at level", width.width_mm, tuple(comps), notes=_notes(ctx, comps))
+
+
+#: the per-laser crossings are looked for this far from the fused map's (mm)
+DISAGREEMENT_REACH_MM = 2.0
+
+
+def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
+                           levels: Sequence[float] | None, level_bands) -> list[float]:
+    """Per crossing at distance ``ds[k]``: each laser's own map read along the profile and two
+    lines beside it (0.5 mm either side, parallel), each crossing the level (``levels``: fixed
+    heights; else ``level_bands``: each laser's level from the same bands on its own profile)
+    nearest the fused crossing, within :data:`DISAGREEMENT_REACH_MM`; the RMS of the green
+    minus red crossings over the lines where both found one, over sqrt(2) (the standard
+    deviation of one laser's crossing, were their errors independent and alike). NaN where
+    no line has both, or without both lasers' maps."""
+    from impress_gui.core.measure.readings import level_crossings, line_profile
+
+    out = [math.nan, math.nan]
+    pl = ctx.per_laser
+    if pl is None or "green" not in pl or "red" not in pl or not np.isfinite(ds).all():
+        return out
+    (x0, y0), (x1, y1) = profile.start, profile.end
+    L = profile.length_mm
+    d = np.asarray(profile.distance_mm, float)
+    if L <= 0 or d.size < 2:
+        return out
+    step = float(d[1] - d[0])
+    nx, ny = -(y1 - y0) / L, (x1 - x0) / L
+    diffs: list[list[float]] = [[], []]
+    for off in (-0.5, 0.0, 0.5):
+        a, b = (x0 + off * nx, y0 + off * ny), (x1 + off * nx, y1 + off * ny)
+        found = {}
+        for name in LASER_NAMES:
+            p = line_profile(pl[name], ctx.spec, a, b, profile.width_mm, step)
+            lv = ([_bands_level(p, bands) for bands in level_bands] if levels is None
+                  else list(levels))
+            cs = []
+            for k in range(2):
+                c = level_crossings(p, lv[k]) if math.isfinite(lv[k]) else np.zeros(0)
+                near = c[np.abs(c - ds[k]) <= DISAGREEMENT_REACH_MM] if c.size else c
+                cs.append(float(near[np.argmin(np.abs(near - ds[k]))]) if near.size
+                          else math.nan)
+            found[name] = cs
+        for k in range(2):
+            g, r = found["green"][k], found["red"][k]
+            if math.isfinite(g) and math.isfinite(r):
+                diffs[k].append(g - r)
+    for k in range(2):
+        if diffs[k]:
+            out[k] = float(np.sqrt(np.mean(np.square(diffs[k]))) / math.sqrt(2.0))
+    return out
 
 
 def _method_width(ctx: UncertaintyContext, ux, uy, x0, y0, ds, gaps, slopes) -> list:
