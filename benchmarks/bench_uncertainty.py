@@ -23,7 +23,10 @@ Each reading's true value comes from the simulator's truth:
   profile (the truth's mid-height: a calibration's absolute height error moves its crossings);
   "width (bands)" is measured as ``impress validate`` measures one, at half the step between a
   band on the feature and one beside it on the same profile (the level moves with the surface;
-  its true value: the same bands on the true profile).
+  its true value: the same bands on the true profile; only where the band inside truly lies on
+  the feature and the one beside it off it - since 3 December 2026: before, two bands on the
+  ground either side of a wall hidden in a gap gave a level at the ground's own height and
+  errors of 30 mm, a measurand that does not exist).
 
 Coverage = the share of readings whose true error lies within their expanded uncertainty
 U (k = 2); the target is 93-97 % per reading kind. Readings on or near a height edge (a jump of
