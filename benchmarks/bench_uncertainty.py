@@ -362,7 +362,8 @@ def _band_width(M, U, rig: Rig, ctx, prof, tprof, p0, p1):
     true profile has no feature (between its first two crossings of its mid-height) with bands
     on and beside it that hold no height edge and have data on both profiles."""
     th = tprof.height_mm
-    tc = M.level_crossings(tprof, float((np.nanmax(th) + np.nanmin(th)) / 2))[:2]
+    mid_h = float((np.nanmax(th) + np.nanmin(th)) / 2)
+    tc = M.level_crossings(tprof, mid_h)[:2]
     if len(tc) != 2 or tc[1] - tc[0] <= 2.0:
         return None
     mid = float((tc[0] + tc[1]) / 2)
@@ -390,7 +391,6 @@ def _band_width(M, U, rig: Rig, ctx, prof, tprof, p0, p1):
     # wider than a crossing may span (level_crossings' max_gap) pairs the walls of two features,
     # both bands can lie on the ground, and a level at the ground's own height has no crossing
     # to measure (errors of 30 mm on random rig 42)
-    mid_h = float((np.nanmax(th) + np.nanmin(th)) / 2)
     if (M.band_stats(tprof, inside).mean_mm - mid_h) * (
             M.band_stats(tprof, beside[0]).mean_mm - mid_h) >= 0:
         return None

@@ -1159,8 +1159,7 @@ def width_budget(ctx: UncertaintyContext, profile, width,
     # error at the wall: a smeared or misplaced wall moves one laser's crossing from the
     # other's, which noise beside the wall does not show)
     us = []
-    dis = _crossing_disagreement(ctx, profile, ds, levels if level_bands is None else None,
-                                 level_bands)
+    dis = _crossing_disagreement(ctx, profile, ds, levels, level_bands)
     for dd, gap, g, dl in zip(ds, gaps, slopes, dis):
         if not math.isfinite(gap):
             us.append(math.nan)
@@ -1212,10 +1211,11 @@ DISAGREEMENT_REACH_MM = 2.0
 
 
 def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
-                           levels: Sequence[float] | None, level_bands) -> list[float]:
+                           levels: Sequence[float], level_bands) -> list[float]:
     """Per crossing at distance ``ds[k]``: each laser's own map read along the profile and two
-    lines beside it (0.5 mm either side, parallel), each crossing the level (``levels``: fixed
-    heights; else ``level_bands``: each laser's level from the same bands on its own profile)
+    lines beside it (0.5 mm either side, parallel), each crossing the level (``levels``, fixed
+    heights, when ``level_bands`` is None; else each laser's level from the same bands on its
+    own profile)
     nearest the fused crossing, within :data:`DISAGREEMENT_REACH_MM`; the RMS of the green
     minus red crossings over the lines where both found one, over sqrt(2) (the standard
     deviation of one laser's crossing, were their errors independent and alike). NaN where
@@ -1239,8 +1239,8 @@ def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
         found = {}
         for name in LASER_NAMES:
             p = line_profile(pl[name], ctx.spec, a, b, profile.width_mm, step)
-            lv = ([_bands_level(p, bands) for bands in level_bands] if levels is None
-                  else list(levels))
+            lv = (list(levels) if level_bands is None
+                  else [_bands_level(p, bands) for bands in level_bands])
             cs = []
             for k in range(2):
                 c = level_crossings(p, lv[k]) if math.isfinite(lv[k]) else np.zeros(0)
