@@ -216,7 +216,11 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
     radius = 0.5
 
     def add(kind, budget, err, x, y):
-        if math.isfinite(err) and math.isfinite(budget.U_mm):
+        if math.isfinite(err) and budget.incomplete:  # no U stated: counted, not covered
+            out.append({"kind": kind, "err": float(err), "U": None, "u_c": None,
+                        "incomplete": budget.incomplete, "x": x, "y": y,
+                        "value": budget.value_mm})
+        elif math.isfinite(err) and math.isfinite(budget.U_mm):
             _, _, _, gx, gy = U.patch_noise(rig.truth, spec, x, y, 1.0)
             out.append({"kind": kind, "err": float(err), "U": budget.U_mm, "u_c": budget.u_c_mm,
                         "parts": {c.name: c.u_mm for c in budget.components},
@@ -454,6 +458,13 @@ def table(rows: list[dict]) -> str:
              f"{'median U':>9} {'median |e|':>10} {'rms e/u_c':>9}  largest components "
              "(median u_i, mm)"]
     verdicts = []
+    stated = [r for r in rows if r.get("U") is not None]
+    if len(stated) < len(rows):  # readings made with an unstable calibration: no U stated
+        cals = {(r.get("seed"), r.get("draw")) for r in rows if r.get("U") is None}
+        lines.insert(0, f"(readings with no U stated, the calibration unstable: "
+                        f"{len(rows) - len(stated)} of {len(rows)}, from {len(cals)} "
+                        "calibration(s); left out of the coverage below)")
+    rows = stated
     for kind in KINDS:
         rr = [r for r in rows if r["kind"] == kind]
         if not rr:

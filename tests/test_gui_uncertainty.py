@@ -189,3 +189,50 @@ def test_a_validation_record_enters_every_budget(qtbot, flat_recon, tmp_path):
     finally:
         v.shutdown()
         v.messenger.close_all()
+
+
+def test_an_unstable_calibration_is_called_poor_and_readings_carry_no_u(
+        qtbot, flat_scan, flat_calibration, flat_recon, monkeypatch):
+    """A calibration whose Monte Carlo fails in most trials: the status line calls it POOR
+    before anyone measures, and the readings are shown without a U (their budgets say why),
+    not with a U that lacks the calibration's component."""
+    from impress_gui.core.calibration import uncertainty as CU
+
+    def refuse(*_a, **_k):
+        raise CU.UnstableCalibration("the calibration's Monte Carlo failed in most trials "
+                                     "(7 of 8 re-solved calibrations refused)")
+
+    monkeypatch.setattr(CU, "calibration_ensemble", refuse)
+    project = Project(case_id="U-2")
+    project.set_calibration(SceneCalibration.load(flat_calibration))
+    project.set_target(TargetModel.load(flat_scan / "target.json"))
+    v = ViewerTab(Messenger(None), FakeDialogs())
+    qtbot.addWidget(v)
+    v.resize(1400, 900)
+    v.show()
+    qtbot.waitExposed(v)
+    try:
+        statuses = []
+        v.status.connect(statuses.append)
+        v.set_project(project)
+        with qtbot.waitSignal(v.loaded, timeout=60000):
+            v.open_reconstruction(flat_recon)
+        spec = v.data.spec
+        xc = spec.x0_mm + spec.shape[1] * spec.pixel_mm / 2
+        yc = spec.y0_mm + spec.shape[0] * spec.pixel_mm / 2
+        with qtbot.waitSignal(v.profile_changed, timeout=20000):
+            v.set_ruler((xc - 12.0, yc), (xc + 12.0, yc))
+        qtbot.waitUntil(lambda: "POOR" in v.measurements.uncertainty.summary_text,
+                        timeout=60000)
+        assert "7 of 8" in v.measurements.uncertainty.summary_text
+        qtbot.waitUntil(lambda: any("POOR" in s for s in statuses), timeout=10000)
+        qtbot.waitUntil(lambda: "no uncertainty stated" in v.tools.ruler_text.toolTip(),
+                        timeout=20000)
+        text = v.tools.ruler_text.text()
+        assert "xy " in text and "(±" not in text
+        mk = v.add_marker(xc, yc + 5.0)
+        assert "(± " not in v.table.table.item(0, 3).text()
+        assert "unstable" in mk["uncertainty"][""]["incomplete"]
+    finally:
+        v.shutdown()
+        v.messenger.close_all()

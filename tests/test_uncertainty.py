@@ -290,6 +290,54 @@ def test_a_wrong_target_model_leaves_the_calibration_component_out(flat):
     assert any("does not match" in n for n in b.notes)
 
 
+def test_an_unstable_calibration_gives_readings_no_uncertainty(flat, monkeypatch):
+    """When the calibration's Monte Carlo fails in most trials (the solver refuses most
+    re-solved calibrations under the click noise), the calibration component cannot be
+    evaluated and is not small: every budget says so, has the calibration line without a
+    figure and states no U (rather than a U without its largest component); the JSON and the
+    CSV carry it; a budget of a stable calibration is unchanged."""
+    cal, target = flat
+    spec, h = _noisy_plane()
+    stable = U.UncertaintyContext.for_calibration(h, spec, cal, target, trials=TRIALS)
+    rd = M.readout(h, spec, 20, 20, 0.5)
+    assert math.isfinite(U.height_budget(stable, rd).U_mm) and not stable.unstable
+
+    def refuse(*_a, **_k):
+        raise CU.UnstableCalibration("the calibration's Monte Carlo failed in most trials "
+                                     "(17 of 20 re-solved calibrations refused)")
+
+    monkeypatch.setattr(CU, "calibration_ensemble", refuse)
+    ctx = U.UncertaintyContext.for_calibration(h, spec, cal, target, trials=TRIALS)
+    assert ctx.ensemble is None and "17 of 20" in ctx.unstable
+    r = M.ruler(h, spec, (5.0, 5.0), (30.0, 25.0), 0.5)
+    p = M.line_profile(h, spec, (5.0, 20.0), (35.0, 20.0), 1.0)
+    sup = [M.readout(h, spec, x, y, 0.5) for x, y in ((10, 10), (30, 12), (20, 32))]
+    budgets = {"height": U.height_budget(ctx, rd), "depth": U.depth_budget(ctx, rd, sup),
+               "step": U.step_budget(ctx, p, M.step_height(p, (2, 6), (20, 24)), (2, 6),
+                                     (20, 24)),
+               "width": U.width_budget(ctx, p, M.Width(10.0, 14.0, 4.0, 0.2))}
+    budgets |= U.ruler_budgets(ctx, r)
+    for key, b in budgets.items():
+        assert math.isnan(b.U_mm) and math.isnan(b.u_c_mm), key
+        cal_line = next(c for c in b.components if c.name == "calibration")
+        assert math.isnan(cal_line.u_mm)
+        assert "unstable" in b.incomplete and "mark the corners again" in b.incomplete
+        assert b.short() == "± - (k=2)"
+        assert "no uncertainty stated" in b.text().splitlines()[0]
+        # the other components are still there, with their figures
+        assert any(math.isfinite(c.u_mm) and c.u_mm > 0 for c in b.components)
+    back = U.budget_from_json(json.loads(json.dumps(budgets["height"].to_json())))
+    assert back.incomplete == budgets["height"].incomplete and math.isnan(back.U_mm)
+    assert "incomplete" not in U.height_budget(stable, rd).to_json()
+    m = M.new_measurement("ruler", [(5, 5), (30, 25)], U.with_uncertainty(
+        M.ruler_values(r), {k: budgets[k] for k in ("xy", "3d", "dz")}), label="r",
+        uncertainty=U.budgets_json({k: budgets[k] for k in ("xy", "3d", "dz")}))
+    rows = list(csv.DictReader(io.StringIO("\n".join(
+        line for line in M.measurements_csv([m]).splitlines() if not line.startswith("#")))))
+    assert rows[0]["U_k2_xy_mm"] == ""
+    assert "unstable" in json.loads(rows[0]["uncertainty_budget"])["xy"]["incomplete"]
+
+
 def test_readings_budgets_and_the_csv_carry_the_uncertainty(flat):
     cal, target = flat
     spec, h = _noisy_plane()
@@ -497,6 +545,51 @@ def test_a_widths_crossings_carry_the_lasers_disagreement_on_the_walls():
     high = {"green": fused, "red": fused + np.float32(0.5) * (fused > 0)}
     assert noise(high, bands).u_mm < 0.1
 
+
+def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():
+    """A width at a fixed level: a wall whose crossing the two lasers' maps do not both show
+    (the other laser occluded there) has no disagreement to reveal its error, so it carries
+    the method's one-laser wall error (ONE_LASER_WALL_MM per wall, independent walls); walls
+    both lasers crossed do not. One laser's map alone, or the lasers' maps not given, count
+    both walls. A width between bands (the level from the same laser's bands) does not."""
+    spec = GridSpec(0.0, 0.0, 0.1, (200, 400))
+    xs = np.broadcast_to(spec.xs(), spec.shape)
+
+    def ridge(left, right, top=2.0):
+        up = np.clip((xs - left) / 0.4, 0.0, 1.0) * np.clip((right - xs) / 0.4, 0.0, 1.0)
+        return (top * up).astype(np.float32)
+
+    fused = ridge(15.0, 25.0)
+    p = M.line_profile(fused, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
+    w = M.width_at_level(p, 1.0, 15.0)
+
+    def walls(level_bands=None, **kw):
+        ctx = replace(U.UncertaintyContext(fused, spec), **kw)
+        b = U.width_budget(ctx, p, w, level_bands=level_bands)
+        got = [c for c in b.components if c.name == "method, walls one laser saw"]
+        return got[0] if got else None
+
+    assert walls(per_laser={"green": fused, "red": fused}) is None  # both crossed both walls
+    occl = fused.copy()
+    occl[:, 235:265] = np.nan  # red did not see the right wall
+    one = walls(per_laser={"green": fused, "red": occl})
+    assert one.u_mm == pytest.approx(U.ONE_LASER_WALL_MM)
+    assert one.note.startswith("right wall:")
+    assert one.evaluation == "B"
+    both = walls(per_laser={"green": fused, "red": np.full_like(fused, np.nan)})
+    assert both.u_mm == pytest.approx(U.ONE_LASER_WALL_MM * math.sqrt(2))
+    alone = walls(laser="green", per_laser={"green": fused, "red": fused})
+    assert alone.u_mm == pytest.approx(U.ONE_LASER_WALL_MM * math.sqrt(2))
+    assert "green laser's alone" in alone.note
+    unknown = walls()
+    assert unknown.u_mm == pytest.approx(U.ONE_LASER_WALL_MM * math.sqrt(2))
+    assert "not known" in unknown.note
+    # the component enters the combined uncertainty
+    ctx = replace(U.UncertaintyContext(fused, spec), per_laser={"green": fused, "red": occl})
+    b = U.width_budget(ctx, p, w)
+    assert b.u_c_mm >= U.ONE_LASER_WALL_MM
+    bands = (((18.0, 22.0), (6.0, 10.0)),) * 2
+    assert walls(bands, per_laser={"green": fused, "red": occl}) is None
 
 def test_the_target_check_is_of_the_models_shape_not_of_the_pose(flat):
     """The Monte Carlo needs the target model the calibration was fitted with. The check

@@ -63,6 +63,14 @@ from impress_gui.core.calibration.planes import StripeObservations, points_on_gr
 from impress_gui.core.calibration.solve import SPEED_WARN_FRACTION, level_across, solve_pose
 from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
 
+
+class UnstableCalibration(CalibrationError):
+    """The calibration's Monte Carlo failed in most trials: re-solved with the clicks moved by
+    their noise, the calibration is mostly refused by the solver (a short baseline, picks that
+    barely fit the target). Its uncertainty cannot be evaluated, so no reading made with it
+    can be given an expanded uncertainty."""
+
+
 #: the smallest click noise assumed (px): a stated default, used when the residuals say less
 DEFAULT_CLICK_SIGMA_PX = 0.3
 #: trials of the Monte Carlo (the SD of a reading is then known to about 7 % of itself)
@@ -506,7 +514,9 @@ def calibration_ensemble(cal, target: TargetModel, click_sigma_px: float | None 
 
     base, trials = params(results[:1]), params(results[1:])
     if trials.size < max(2, n // 2):
-        raise CalibrationError("the calibration's Monte Carlo failed in most trials")
+        raise UnstableCalibration(
+            f"the calibration's Monte Carlo failed in most trials ({n - trials.size} of {n} "
+            "re-solved calibrations refused by the solver under the click noise)")
     arr = np.array([[r[3], r[4], r[5]] for r in results[1:]])
     summary = {"trials": trials.size, "refused": n - trials.size,
                "roll_sd_deg": _angle_sd_deg(arr[:, 0], results[0][3]),

@@ -124,9 +124,14 @@ class Budget:
     components: tuple[Component, ...]
     k: float = K
     notes: tuple[str, ...] = ()
+    #: why no uncertainty is stated ("" : it is): a component that cannot be evaluated and
+    #: cannot be left out (the calibration's, when its Monte Carlo fails in most trials)
+    incomplete: str = ""
 
     @property
     def u_c_mm(self) -> float:
+        if self.incomplete:
+            return math.nan
         us = [c.u_mm for c in self.components if math.isfinite(c.u_mm)]
         return float(math.sqrt(sum(u * u for u in us))) if us else math.nan
 
@@ -141,12 +146,14 @@ class Budget:
     def to_json(self) -> dict:
         return {"reading": self.reading, "value_mm": _r(self.value_mm), "u_c_mm": _r(self.u_c_mm),
                 "U_mm": _r(self.U_mm), "k": self.k,
-                "components": [c.to_json() for c in self.components], "notes": list(self.notes)}
+                "components": [c.to_json() for c in self.components], "notes": list(self.notes),
+                **({"incomplete": self.incomplete} if self.incomplete else {})}
 
     def text(self) -> str:
         """A plain-text table of the budget (for a tooltip or a details view)."""
-        lines = [f"{self.reading}: {self.value_mm:.3f} mm; u_c {self.u_c_mm:.4f} mm; "
-                 f"U = {self.k:g} u_c = {self.U_mm:.3f} mm",
+        lines = [f"{self.reading}: {self.value_mm:.3f} mm; "
+                 + (f"no uncertainty stated: {self.incomplete}" if self.incomplete else
+                    f"u_c {self.u_c_mm:.4f} mm; U = {self.k:g} u_c = {self.U_mm:.3f} mm"),
                  "component | input u(x) | c | u_i (mm) | type, distribution"]
         for c in self.components:
             lines.append(f"{c.name} | {_g(c.u_x)} {c.unit} | {_g(c.sensitivity)} | "
@@ -166,7 +173,8 @@ def budget_from_json(doc: Mapping) -> Budget:
                             _f(c.get("c")), _f(c.get("u_mm")), c.get("note", ""))
                   for c in doc.get("components", []))
     return Budget(doc.get("reading", ""), _f(doc.get("value_mm")), comps,
-                  float(doc.get("k", K)), tuple(doc.get("notes", [])))
+                  float(doc.get("k", K)), tuple(doc.get("notes", [])),
+                  str(doc.get("incomplete", "")))
 
 
 def _f(v) -> float:
@@ -208,6 +216,9 @@ class UncertaintyContext:
     #: height_per_pixel of the calibration): the method's own component's sensitivity where no
     #: validation record is given; None: that component is left out
     per_px: Mapping | None = None
+    #: why the calibration's Monte Carlo failed in most trials ("" : it did not): budgets then
+    #: state no uncertainty (:attr:`Budget.incomplete`)
+    unstable: str = ""
 
     @classmethod
     def for_calibration(cls, height, spec, cal=None, target=None, contribution=None,
@@ -219,6 +230,7 @@ class UncertaintyContext:
         with a note). ``stripe_model``: the Monte Carlo's (None: its default)."""
         notes = []
         ens = None
+        unstable = ""
         if cal is not None and target is not None:
             from impress_gui.core.calibration import uncertainty as CU
 
@@ -226,6 +238,8 @@ class UncertaintyContext:
                 ens = CU.calibration_ensemble(
                     cal, target, n=CU.DEFAULT_TRIALS if trials is None else int(trials),
                     stripe_model=stripe_model or CU.DEFAULT_STRIPE_MODEL)
+            except CU.UnstableCalibration as exc:  # no U can be stated with this calibration
+                unstable = str(exc)
             except Exception as exc:  # noqa: BLE001 - any failure leaves the component out
                 notes.append(f"calibration component not evaluated: {exc}")
         elif cal is None:
@@ -238,7 +252,8 @@ class UncertaintyContext:
                    None if cal is None else float(cal.implied_speed_mm_s),
                    validation=validation, level_plane=level_plane, notes=notes,
                    sampling_mm=None if cal is None else lateral_sampling(cal),
-                   per_laser=per_laser, fusion_weights=fusion_weights, per_px=per_px)
+                   per_laser=per_laser, fusion_weights=fusion_weights, per_px=per_px,
+                   unstable=unstable)
 
     # ----- helpers ---------------------------------------------------------------------------
     def lasers_at(self, x, y) -> list[tuple[str, float]]:
@@ -785,6 +800,19 @@ def _method_component(ctx: UncertaintyContext, scale: float = 1.0, terms=None,
                       f"bias {bias:+.3f} mm, SD {sd:.3f} mm from {v.get('source', 'a validation')}")]
 
 
+def _budget(ctx: UncertaintyContext, reading: str, value: float, comps: Sequence) -> Budget:
+    """A reading's budget with the context's notes; with a calibration whose Monte Carlo
+    failed (``ctx.unstable``) the calibration's line is there without a figure and no
+    uncertainty is stated (a U without its calibration component would be understated)."""
+    comps = list(comps)
+    if ctx.unstable and not any(c.name == "calibration" for c in comps):
+        comps.insert(0, Component("calibration", "the calibration's Monte Carlo", "A",
+                                  "Monte Carlo", math.nan, "mm", 1.0, math.nan, ctx.unstable))
+    return Budget(reading, value, tuple(comps), notes=_notes(ctx, comps),
+                  incomplete=ctx.unstable and f"the calibration is unstable ({ctx.unstable}): "
+                  "its uncertainty cannot be evaluated - mark the corners again")
+
+
 def _notes(ctx: UncertaintyContext, comps: Sequence = ()) -> tuple[str, ...]:
     """The context's notes and what the budget ``comps`` says of the method."""
     out = list(ctx.notes)
@@ -817,7 +845,7 @@ def height_budget(ctx: UncertaintyContext, readout, reading: str = "height") -> 
     if readout.radius_mm < ctx.spec.pixel_mm / 2:
         comps.append(_grid_component(ctx, slope, 1.0, "position of the cell read"))
     comps += _method_component(ctx, 1.0, [(x, y, 1.0)], "absolute", readout.radius_mm)
-    return Budget(reading, h, tuple(comps), notes=_notes(ctx, comps))
+    return _budget(ctx, reading, h, comps)
 
 
 def _y_travel(ctx: UncertaintyContext, y: float) -> float:
@@ -879,7 +907,7 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
                            "the point (" + ", ".join(f"{v:+.2f}" for v in w) + ")"))
     # depth = plane(P) - h(P), plane(P) = w . the supports' heights
     comps += _method_component(ctx, 1.0, [*zip(xs, ys, [*w, -1.0])], "difference")
-    return Budget("depth below a plane", depth, tuple(comps), notes=_notes(ctx, comps))
+    return _budget(ctx, "depth below a plane", depth, comps)
 
 
 def _trial_depths(xs, ys, hs, d) -> np.ndarray:
@@ -912,7 +940,7 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
     comps += _speed_component(ctx, (uy * uy / xy) if xy > 0 else 0.0)
     # no grid term: the ends are the coordinates marked (not snapped to cells), so the length
     # between them is not quantised; where the examiner puts them is not the reading's
-    out["xy"] = Budget("ruler xy", xy, tuple(comps), notes=_notes(ctx, comps))
+    out["xy"] = _budget(ctx, "ruler xy", xy, comps)
     # dz and 3D
     if np.isfinite(hs).all():
         noise = []
@@ -945,8 +973,7 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
             comps += _speed_component(ctx, (uy * uy / val) if (key == "3d" and val > 0) else 0.0)
             comps += _method_component(ctx, c_noise, [(a.x_mm, a.y_mm, -1.0),
                                                       (b.x_mm, b.y_mm, 1.0)], "difference")
-            out[key] = Budget("ruler dz" if key == "dz" else "ruler 3D", val, tuple(comps),
-                              notes=_notes(ctx, comps))
+            out[key] = _budget(ctx, "ruler dz" if key == "dz" else "ruler 3D", val, comps)
     return out
 
 
@@ -1006,7 +1033,7 @@ def step_budget(ctx: UncertaintyContext, profile, step, band_a, band_b) -> Budge
     comps += _method_component(
         ctx, 1.0, [*((px_, py_, -1.0 / len(xa)) for px_, py_ in zip(xa, ya)),
                    *((px_, py_, 1.0 / len(xb)) for px_, py_ in zip(xb, yb))], "difference")
-    return Budget("step height B - A", step.difference_mm, tuple(comps), notes=_notes(ctx, comps))
+    return _budget(ctx, "step height B - A", step.difference_mm, comps)
 
 
 def _band_repeatability(ctx: UncertaintyContext, profile, band, ring_mm: float
@@ -1178,6 +1205,7 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                            f"{said} mm per wall; '-' where one laser did not cross there)"))
     if level_bands is None:  # a fixed level: the method's height error moves the crossings
         comps += _method_width(ctx, ux, uy, x0, y0, ds, gaps, slopes)
+        comps += _one_laser_walls(ctx, dis, gaps)
     # where each wall lies between two samples: one sample is a camera column across the
     # scan and a frame's travel along it, and never less than a cell of the grid the profile
     # is read from (no separate grid term: the crossings are interpolated, not cells)
@@ -1203,7 +1231,7 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                            "between them at the level's fraction f of the step, the wall itself "
                            "anywhere between them: half-width max(f, 1 - f) samples per wall "
                            f"(f {fr[0]:.2f}, {fr[1]:.2f})"))
-    return Budget("width at level", width.width_mm, tuple(comps), notes=_notes(ctx, comps))
+    return _budget(ctx, "width at level", width.width_mm, comps)
 
 
 #: the per-laser crossings are looked for this far from the fused map's (mm)
@@ -1256,6 +1284,42 @@ def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
         if diffs[k]:
             out[k] = float(np.sqrt(np.mean(np.square(diffs[k]))) / math.sqrt(2.0))
     return out
+
+
+#: the standard uncertainty (mm) of where one laser alone places a wall's crossing of a
+#: fixed level: on the training rigs of the coverage benchmark (random rigs 0-23, draw 0,
+#: 640x360), the RMS over sqrt(2) of the green minus red crossings of the 224 lines (widths at
+#: the truth's mid-height, the profile and 0.5 mm either side) where both lasers crossed the
+#: level: 0.36 mm. A wall only one laser saw (the other occluded or shadowed there) has no
+#: second laser to show its error; validation, not the scan, gives it.
+ONE_LASER_WALL_MM = 0.36
+
+
+def _one_laser_walls(ctx: UncertaintyContext, dis: Sequence[float], gaps) -> list:
+    """A width at a fixed level: the method's wall-placement error (:data:`ONE_LASER_WALL_MM`)
+    for each wall the two lasers' maps do not both cross near the fused crossing (``dis``
+    NaN): one laser's map alone (``ctx.laser``), the other laser occluded there, or the
+    per-laser maps not given (then not known, taken as one laser's)."""
+    if ctx.laser in LASER_NAMES:
+        walls = [k for k in range(2) if math.isfinite(gaps[k])]
+        why = f"the heights are the {ctx.laser} laser's alone"
+    elif ctx.per_laser is None or not {"green", "red"} <= set(ctx.per_laser):
+        walls = [k for k in range(2) if math.isfinite(gaps[k])]
+        why = "the lasers' own maps not given: not known whether both saw the walls"
+    else:
+        walls = [k for k in range(2) if math.isfinite(gaps[k]) and not math.isfinite(dis[k])]
+        why = "the other laser's map does not cross the level within " \
+              f"{DISAGREEMENT_REACH_MM:g} mm of it"
+    if not walls:
+        return []
+    u = ONE_LASER_WALL_MM * math.sqrt(len(walls))
+    which = " and ".join(("left", "right")[k] for k in walls)
+    return [Component("method, walls one laser saw", "positions of the crossings", "B", "normal",
+                      u, "mm", 1.0, u,
+                      f"{which} wall{'s' if len(walls) > 1 else ''}: {why}; "
+                      f"{ONE_LASER_WALL_MM:g} mm per wall, one laser's crossing error at a fixed "
+                      "level measured on the training rigs (the lasers' disagreement where both "
+                      "crossed, RMS over sqrt(2)); the walls' errors taken as independent")]
 
 
 def _method_width(ctx: UncertaintyContext, ux, uy, x0, y0, ds, gaps, slopes) -> list:

@@ -233,7 +233,10 @@ class UncertaintyProvider(QObject):
         self._ensembles[key] = ens
         if self._running == key:
             self._running = None
-        if isinstance(ens, str):
+        if isinstance(ens, tuple):  # ("unstable", why): no reading can be given a U
+            self.summary_text = (f"Calibration uncertainty: POOR - {ens[1]}; readings carry no "
+                                 "uncertainty - mark the corners again more precisely")
+        elif isinstance(ens, str):
             self.summary_text = f"Calibration uncertainty not evaluated: {ens}"
         else:
             sm = ens.summary
@@ -262,6 +265,8 @@ class UncertaintyProvider(QObject):
                 return key, CU.calibration_ensemble(cal, target, cancel=cancel, **kw)
             except Cancelled:
                 raise
+            except CU.UnstableCalibration as exc:
+                return key, ("unstable", str(exc))
             except Exception as exc:  # noqa: BLE001 - the component is left out, with why
                 return key, f"{type(exc).__name__}: {exc}"
 
@@ -287,6 +292,7 @@ class UncertaintyProvider(QObject):
         cal, _target, ck = self._calibration()
         notes = []
         ens = None
+        unstable = ""
         if cal is None:
             notes.append("no scene calibration in the project: the calibration component "
                           "is missing")
@@ -298,6 +304,8 @@ class UncertaintyProvider(QObject):
                              "component is missing from this budget")
             elif isinstance(got, str):
                 notes.append(f"calibration component not evaluated: {got}")
+            elif isinstance(got, tuple):
+                unstable = got[1]
             else:
                 ens = got
         if recon.plane is not None:
@@ -310,6 +318,7 @@ class UncertaintyProvider(QObject):
             None if cal is None else float(cal.implied_speed_mm_s),
             None, recon.plane, None, notes)
         ctx.validation = budget_validation(self.session.method_validation)
+        ctx.unstable = unstable
         # both lasers' maps: the cells the fusion kept one laser of, and the reconstruction's
         # random error from their disagreement (U.agreement_noise, for every layer)
         ctx.per_laser = self.per_laser(data)
