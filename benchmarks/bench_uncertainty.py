@@ -536,7 +536,9 @@ def main() -> None:
             print(f"  seed {seed} draw {draw}: {len(got)} readings; calibrate+reconstruct "
                   f"{rig.t_rec:.0f} s, Monte Carlo {rig.t_mc:.0f} s; click sigma "
                   f"{e.click_sigma_px if e else float('nan'):.2f} px; "
-                  f"{'; '.join(rig.ctx.notes) or 'calibration component in'}", flush=True)
+                  + (f"UNSTABLE calibration, no U stated: {rig.ctx.unstable}"
+                     if rig.ctx.unstable else
+                     f"{'; '.join(rig.ctx.notes) or 'calibration component in'}"), flush=True)
             if args.json:
                 args.json.write_text(json.dumps(rows, indent=0))
     print(table(rows))

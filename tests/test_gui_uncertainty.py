@@ -229,9 +229,17 @@ def test_an_unstable_calibration_is_called_poor_and_readings_carry_no_u(
         qtbot.waitUntil(lambda: "no uncertainty stated" in v.tools.ruler_text.toolTip(),
                         timeout=20000)
         text = v.tools.ruler_text.text()
-        assert "xy " in text and "(±" not in text
+        assert "xy " in text and "(± -)" in text and "[no U: the calibration is unstable" \
+            in text and "± U" not in text and "nan" not in text
+        assert "nan" not in v.tools.ruler_text.toolTip()
+        # the exported profile figure's lines say so too, not "(± U, k = 2)"
+        lines, _ = v.actions.profile_lines()
+        ruler_line = next(x for x in lines if x.startswith("Ruler xy"))
+        assert "no U stated" in ruler_line and "± U" not in ruler_line
         mk = v.add_marker(xc, yc + 5.0)
-        assert "(± " not in v.table.table.item(0, 3).text()
+        cell = v.table.table.item(0, 3).text()
+        assert "(± -)" in cell and "[no U: the calibration is unstable" in cell
+        assert "[U: k=2]" not in cell and "nan" not in cell
         assert "unstable" in mk["uncertainty"][""]["incomplete"]
     finally:
         v.shutdown()

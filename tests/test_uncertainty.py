@@ -575,19 +575,29 @@ def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():
     one = walls(per_laser={"green": fused, "red": occl})
     assert one.u_mm == pytest.approx(U.ONE_LASER_WALL_MM)
     assert one.note.startswith("right wall:")
+    assert "occluded" in one.note
     assert one.evaluation == "B"
+    # two walls: their errors move the crossings together (measured correlation), so the
+    # width's share is less than two independent walls' (and than one wall's here)
+    two = U.ONE_LASER_WALL_MM * math.sqrt(2 * (1 - U.ONE_LASER_WALLS_CORR))
     both = walls(per_laser={"green": fused, "red": np.full_like(fused, np.nan)})
-    assert both.u_mm == pytest.approx(U.ONE_LASER_WALL_MM * math.sqrt(2))
-    alone = walls(laser="green", per_laser={"green": fused, "red": fused})
-    assert alone.u_mm == pytest.approx(U.ONE_LASER_WALL_MM * math.sqrt(2))
+    assert both.u_mm == pytest.approx(two)
+    assert "correlated" in both.note and both.note.startswith("left and right walls:")
+    # one laser's map shown, the other laser's map there: where they both cross, the
+    # disagreement (the surface noise's floor) already states that laser's error
+    assert walls(laser="green", per_laser={"green": fused, "red": fused}) is None
+    alone = walls(laser="green", per_laser={"green": fused, "red": occl})
+    assert alone.u_mm == pytest.approx(U.ONE_LASER_WALL_MM)
     assert "green laser's alone" in alone.note
     unknown = walls()
-    assert unknown.u_mm == pytest.approx(U.ONE_LASER_WALL_MM * math.sqrt(2))
+    assert unknown.u_mm == pytest.approx(two)
     assert "not known" in unknown.note
-    # the component enters the combined uncertainty
+    # the component enters the combined uncertainty: the budget without it is smaller
     ctx = replace(U.UncertaintyContext(fused, spec), per_laser={"green": fused, "red": occl})
     b = U.width_budget(ctx, p, w)
-    assert b.u_c_mm >= U.ONE_LASER_WALL_MM
+    rest = math.sqrt(sum(c.u_mm ** 2 for c in b.components
+                         if c.name != "method, walls one laser saw"))
+    assert b.u_c_mm == pytest.approx(math.hypot(rest, U.ONE_LASER_WALL_MM))
     bands = (((18.0, 22.0), (6.0, 10.0)),) * 2
     assert walls(bands, per_laser={"green": fused, "red": occl}) is None
 

@@ -84,6 +84,34 @@ def test_the_table_states_the_coverage():
     assert f"all {n_in}/2" in line and "edge distance" in line and "step" in line
 
 
+def test_readings_of_an_unstable_calibration_are_counted_apart_not_as_missed():
+    """A context whose calibration is unstable (its Monte Carlo failed in most trials) gives
+    budgets with no U: the readings say why, are neither covered nor missed, are counted as
+    no_U per kind, and the table says so instead of a coverage it cannot give."""
+    import dataclasses
+
+    def unstable(h, sspec, plane):
+        return dataclasses.replace(_context(h, sspec, plane),
+                                   unstable="the Monte Carlo failed in 9 of 10 trials")
+
+    res = V.measure_all(_slot_surface(0.02, 3), SPEC, _readings(), unstable)
+    assert all(math.isnan(r.U_mm) and r.covered is None and "unstable" in r.no_u for r in res)
+    doc = res[0].to_json()
+    assert doc["U_k2_mm"] is None and doc["covered"] is None and "9 of 10" in doc["no_U"]
+    cov = V.coverage(res)
+    assert cov["all"] == {"n": 0, "covered": 0, "share": None, "no_U": 2}
+    assert cov["step"]["no_U"] == 1 and cov["edge_distance"]["no_U"] == 1
+    text = format_table({"uncertainty_coverage": cov})
+    assert not any(x.startswith("Stated uncertainty") for x in text.splitlines())
+    assert "No uncertainty stated for 2 reading(s): the calibration is unstable" in text
+    # mixed with a stable run: the coverage of the stable readings, the others apart
+    both = res + V.measure_all(_slot_surface(0.02, 3), SPEC, _readings(), _context)
+    cov = V.coverage(both)
+    assert cov["all"]["n"] == 2 and cov["all"]["no_U"] == 2
+    assert "no_U" not in V.coverage(both[2:])["all"]
+    assert "no_U" not in both[2].to_json()
+
+
 def test_validation_contexts_carry_the_per_laser_maps_cropped_like_the_heights(tmp_path):
     """Where the lasers disagreed (code 4) a validation reading's budget moves the cell as the
     laser the fusion kept, as the viewer's does: the per-laser maps (here read from the result

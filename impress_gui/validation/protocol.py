@@ -160,6 +160,8 @@ class Result:
     #: no budget was computed (issue 22)
     U_mm: float = math.nan  # noqa: N815 - the GUM's symbol
     u_c_mm: float = math.nan
+    #: why the budget states no uncertainty ("": it states one, or none was computed)
+    no_u: str = ""
 
     @property
     def covered(self) -> bool | None:
@@ -183,6 +185,7 @@ class Result:
             "u_c_mm": _num(self.u_c_mm),
             "U_k2_mm": _num(self.U_mm),
             "covered": self.covered,
+            **({"no_U": self.no_u} if self.no_u else {}),
             "note": self.note,
             "start_mm": list(r.start_mm),
             "end_mm": list(r.end_mm),
@@ -333,10 +336,11 @@ def measure_reading(
     if not math.isfinite(value):
         return Result(r, math.nan, math.nan, "failed: no data at the measuring position")
     big_u = u_c = math.nan
+    no_u = ""
     if context is not None:
         budget = budget_of(context(h, sspec, plane))
-        big_u, u_c = float(budget.U_mm), float(budget.u_c_mm)
-    return Result(r, float(value), float(value - r.nominal_mm), note, big_u, u_c)
+        big_u, u_c, no_u = float(budget.U_mm), float(budget.u_c_mm), budget.incomplete
+    return Result(r, float(value), float(value - r.nominal_mm), note, big_u, u_c, no_u)
 
 
 def measure_all(
@@ -354,13 +358,17 @@ def coverage(results: Sequence[Result]) -> dict[str, dict[str, Any]]:
     U (k = 2), and the share whose error lies within it (the target is about 95 %)."""
     out: dict[str, dict[str, Any]] = {}
     for kind in [*KINDS, "all"]:
-        flags = [r.covered for r in results if kind == "all" or r.reading.kind == kind]
-        known = [f for f in flags if f is not None]
-        if not known:
+        rs = [r for r in results if kind == "all" or r.reading.kind == kind]
+        known = [f for f in (r.covered for r in rs) if f is not None]
+        # readings measured whose budget states no U (an unstable calibration): counted apart
+        no_u = sum(1 for r in rs if r.no_u and math.isfinite(r.error_mm))
+        if not known and not no_u:
             continue
         n_in = int(sum(known))
         out[kind] = {"n": len(known), "covered": n_in,
-                     "share": round(n_in / len(known), 4)}
+                     "share": round(n_in / len(known), 4) if known else None}
+        if no_u:
+            out[kind]["no_U"] = no_u
     return out
 
 

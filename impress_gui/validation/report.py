@@ -75,12 +75,19 @@ def format_table(record: dict) -> str:
     if cov:
         parts = [
             f"{k.replace('_', ' ')} {c['covered']}/{c['n']} ({100 * c['share']:.1f} %)"
-            for k, c in cov.items()
+            for k, c in cov.items() if c.get("share") is not None
         ]
-        lines.append(
-            "Stated uncertainty (k = 2) covers the true error: " + ", ".join(parts)
-            + " (about 95 % expected)"
-        )
+        if parts:
+            lines.append(
+                "Stated uncertainty (k = 2) covers the true error: " + ", ".join(parts)
+                + " (about 95 % expected)"
+            )
+        no_u = (cov.get("all") or {}).get("no_U")
+        if no_u:
+            lines.append(
+                f"No uncertainty stated for {no_u} reading(s): the calibration is unstable "
+                "(its Monte Carlo failed in most trials); they are not counted above"
+            )
     if "flat" in record:
         f = record["flat"]
         lines.append(

@@ -484,6 +484,8 @@ def calibration_ensemble(cal, target: TargetModel, click_sigma_px: float | None 
     key = calibration_key(cal, target, sigma, n, seed, stripe_model)
     with _CACHE_LOCK:
         hit = _CACHE.get(key)
+    if isinstance(hit, UnstableCalibration):  # a failed Monte Carlo is not run again
+        raise UnstableCalibration(str(hit))
     if hit is not None:
         return hit
     check_target(cal, target)
@@ -514,9 +516,12 @@ def calibration_ensemble(cal, target: TargetModel, click_sigma_px: float | None 
 
     base, trials = params(results[:1]), params(results[1:])
     if trials.size < max(2, n // 2):
-        raise UnstableCalibration(
+        failed = UnstableCalibration(
             f"the calibration's Monte Carlo failed in most trials ({n - trials.size} of {n} "
             "re-solved calibrations refused by the solver under the click noise)")
+        with _CACHE_LOCK:
+            _CACHE[key] = failed
+        raise failed
     arr = np.array([[r[3], r[4], r[5]] for r in results[1:]])
     summary = {"trials": trials.size, "refused": n - trials.size,
                "roll_sd_deg": _angle_sd_deg(arr[:, 0], results[0][3]),

@@ -157,7 +157,7 @@ class Budget:
                  "component | input u(x) | c | u_i (mm) | type, distribution"]
         for c in self.components:
             lines.append(f"{c.name} | {_g(c.u_x)} {c.unit} | {_g(c.sensitivity)} | "
-                         f"{c.u_mm:.4f} | {c.evaluation}, {c.distribution}"
+                         f"{_g4(c.u_mm)} | {c.evaluation}, {c.distribution}"
                          + (f" - {c.note}" if c.note else ""))
         lines += list(self.notes)
         return "\n".join(lines)
@@ -167,6 +167,10 @@ def _g(v: float) -> str:
     return "-" if not math.isfinite(v) else f"{v:.4g}"
 
 
+def _g4(v: float) -> str:
+    return "-" if not math.isfinite(v) else f"{v:.4f}"
+
+
 def budget_from_json(doc: Mapping) -> Budget:
     comps = tuple(Component(c.get("name", ""), c.get("quantity", ""), c.get("type", ""),
                             c.get("distribution", ""), _f(c.get("u_x")), c.get("unit", ""),
@@ -174,7 +178,7 @@ def budget_from_json(doc: Mapping) -> Budget:
                   for c in doc.get("components", []))
     return Budget(doc.get("reading", ""), _f(doc.get("value_mm")), comps,
                   float(doc.get("k", K)), tuple(doc.get("notes", [])),
-                  str(doc.get("incomplete", "")))
+                  str(doc.get("incomplete") or ""))
 
 
 def _f(v) -> float:
@@ -1293,33 +1297,43 @@ def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
 #: level: 0.36 mm. A wall only one laser saw (the other occluded or shadowed there) has no
 #: second laser to show its error; validation, not the scan, gives it.
 ONE_LASER_WALL_MM = 0.36
+#: the correlation of one laser's errors at a width's two walls (same sign: the crossings
+#: move the same way, the width less): the green minus red differences at the left and the
+#: right wall on the 84 of those lines where both walls had both lasers: +0.66
+ONE_LASER_WALLS_CORR = 0.66
 
 
 def _one_laser_walls(ctx: UncertaintyContext, dis: Sequence[float], gaps) -> list:
-    """A width at a fixed level: the method's wall-placement error (:data:`ONE_LASER_WALL_MM`)
-    for each wall the two lasers' maps do not both cross near the fused crossing (``dis``
-    NaN): one laser's map alone (``ctx.laser``), the other laser occluded there, or the
-    per-laser maps not given (then not known, taken as one laser's)."""
-    if ctx.laser in LASER_NAMES:
-        walls = [k for k in range(2) if math.isfinite(gaps[k])]
-        why = f"the heights are the {ctx.laser} laser's alone"
-    elif ctx.per_laser is None or not {"green", "red"} <= set(ctx.per_laser):
-        walls = [k for k in range(2) if math.isfinite(gaps[k])]
-        why = "the lasers' own maps not given: not known whether both saw the walls"
-    else:
-        walls = [k for k in range(2) if math.isfinite(gaps[k]) and not math.isfinite(dis[k])]
-        why = "the other laser's map does not cross the level within " \
-              f"{DISAGREEMENT_REACH_MM:g} mm of it"
+    """A width at a fixed level: the method's wall-placement error for each wall without the
+    two lasers' disagreement there (``dis`` NaN: the lasers' maps not both crossing the level
+    within :data:`DISAGREEMENT_REACH_MM` of the fused crossing - the other laser occluded, one
+    laser's map shown, the per-laser maps not given): :data:`ONE_LASER_WALL_MM` for one wall;
+    for two, the width's share of two walls whose errors correlate by
+    :data:`ONE_LASER_WALLS_CORR` (sqrt(2 (1 - rho)) times it)."""
+    walls = [k for k in range(2) if math.isfinite(gaps[k]) and not math.isfinite(dis[k])]
     if not walls:
         return []
-    u = ONE_LASER_WALL_MM * math.sqrt(len(walls))
+    if ctx.laser in LASER_NAMES:
+        why = f"the heights are the {ctx.laser} laser's alone"
+    elif ctx.per_laser is None or not {"green", "red"} <= set(ctx.per_laser):
+        why = "the lasers' own maps not given: not known whether both saw the walls"
+    else:
+        why = ("the two lasers' maps do not both cross the level within "
+               f"{DISAGREEMENT_REACH_MM:g} mm of it (one laser occluded there)")
+    if len(walls) == 1:
+        u = ONE_LASER_WALL_MM
+        how = f"{ONE_LASER_WALL_MM:g} mm"
+    else:
+        u = ONE_LASER_WALL_MM * math.sqrt(2.0 * (1.0 - ONE_LASER_WALLS_CORR))
+        how = (f"two walls of {ONE_LASER_WALL_MM:g} mm each, their errors correlated by "
+               f"+{ONE_LASER_WALLS_CORR:g} (the crossings move together): "
+               f"{ONE_LASER_WALL_MM:g} x sqrt(2 (1 - {ONE_LASER_WALLS_CORR:g}))")
     which = " and ".join(("left", "right")[k] for k in walls)
     return [Component("method, walls one laser saw", "positions of the crossings", "B", "normal",
                       u, "mm", 1.0, u,
-                      f"{which} wall{'s' if len(walls) > 1 else ''}: {why}; "
-                      f"{ONE_LASER_WALL_MM:g} mm per wall, one laser's crossing error at a fixed "
-                      "level measured on the training rigs (the lasers' disagreement where both "
-                      "crossed, RMS over sqrt(2)); the walls' errors taken as independent")]
+                      f"{which} wall{'s' if len(walls) > 1 else ''}: {why}; {how}: one "
+                      "laser's crossing error at a fixed level, measured on the training rigs "
+                      "(the lasers' disagreement where both crossed, RMS over sqrt(2))")]
 
 
 def _method_width(ctx: UncertaintyContext, ux, uy, x0, y0, ds, gaps, slopes) -> list:

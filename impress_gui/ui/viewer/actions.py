@@ -365,16 +365,22 @@ class ViewerExports(QObject):
 
         def pm(key: str) -> str:
             b = budgets.get(key)
+            if b is not None and b.incomplete:
+                return " ± -"
             return "" if b is None or not np.isfinite(b.U_mm) else f" ± {b.U_mm:.3f}"
 
+        # no U stated (an unstable calibration): said in place of "(± U, k = 2)"
+        why = next((b.incomplete for b in budgets.values() if b.incomplete), "")
+        how = f"(no U stated: {why})" if why else "(± U, k = 2)"
         r = ruler.result()
         if r is not None and budgets:
             dz = "no data" if np.isnan(r.dz_mm) else f"{r.dz_mm:+.3f}{pm('dz')} mm"
-            lines.append(f"Ruler xy {r.xy_mm:.3f}{pm('xy')} mm, dz {dz} (± U, k = 2)")
+            lines.append(f"Ruler xy {r.xy_mm:.3f}{pm('xy')} mm, dz {dz} {how}")
         bands = dict(ruler.plot.placed_bands()) if ruler.plot.bands_placed() else {}
         s = ruler.step
         if bands and s is not None:
-            unc = (f"{pm('step')} mm (U, k = 2)" if "step" in budgets else " mm")
+            unc = ((f"{pm('step')} mm " + ("(U, k = 2)" if not why else how))
+                   if "step" in budgets else " mm")
             lines.append(
                 f"Band A {s.a.mean_mm:.3f} mm (SD {s.a.sd_mm:.3f}, n {s.a.n}), band B "
                 f"{s.b.mean_mm:.3f} mm (SD {s.b.sd_mm:.3f}, n {s.b.n}); step B - A "

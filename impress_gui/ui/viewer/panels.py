@@ -4,6 +4,8 @@ inputs and show results; :class:`~impress_gui.ui.viewer.tab.ViewerTab` does the 
 
 from __future__ import annotations
 
+import math
+
 from PySide6.QtCore import QSize, Qt, Signal
 from PySide6.QtWidgets import (
     QAbstractItemView,
@@ -390,9 +392,20 @@ def _mm(v) -> str:
 
 
 def _u(v: dict, key: str) -> str:
-    """`` (± U)`` of a value whose expanded uncertainty is recorded as ``key``."""
+    """`` (± U)`` of a value whose expanded uncertainty is recorded as ``key``; `` (± -)``
+    where it was recorded without a figure (no U stated)."""
+    if key not in v:
+        return ""
     u = v.get(key)
-    return "" if u is None else f" (± {u:.3f})"
+    return " (± -)" if u is None or not math.isfinite(u) else f" (± {u:.3f})"
+
+
+def _no_u(m: dict) -> str:
+    """`` [no U: why]`` when a budget of the measurement states no uncertainty (e.g. the
+    calibration is unstable), else ""."""
+    why = next((b.get("incomplete") for b in (m.get("uncertainty") or {}).values()
+                if isinstance(b, dict) and b.get("incomplete")), "")
+    return f" [no U: {why}]" if why else ""
 
 
 def summary(m: dict) -> str:
@@ -408,12 +421,14 @@ def summary(m: dict) -> str:
             text += f"; step {_mm(v.get('step_mm'))}" + ("" if sd is None else f" (SD {sd:.3f})")
             text += "" if v.get("U_k2_step_mm") is None else \
                 f" (U {v['U_k2_step_mm']:.3f} mm)"
+        if _no_u(m):
+            return text + _no_u(m)
         if any(k.startswith("U_k2") for k in v):
             text += " [U: k=2]"
         return text
     if kind in ("point", "annotation"):
         return f"height {_mm(v.get('height_mm'))}{_u(v, 'U_k2_mm')}" + (
-            " [U: k=2]" if v.get("U_k2_mm") is not None else "")
+            _no_u(m) or (" [U: k=2]" if v.get("U_k2_mm") is not None else ""))
     if kind == "plane":
         return f"tilt {v.get('tilt_deg', 0):.3f}°, RMS {_mm(v.get('rms_mm'))}"
     return ""

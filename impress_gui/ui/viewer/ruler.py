@@ -117,12 +117,16 @@ class RulerProfile(QObject):
         b = self.ruler_budgets(r)
 
         def pm(key: str) -> str:
+            if key in b and b[key].incomplete:
+                return " (± -)"
             return f" (± {b[key].U_mm:.3f})" if key in b and math.isfinite(b[key].U_mm) else ""
 
         dz = "no data" if math.isnan(r.dz_mm) else f"{r.dz_mm:+.3f} mm{pm('dz')}"
         d3 = "-" if math.isnan(r.d3_mm) else f"{r.d3_mm:.3f} mm{pm('3d')}"
         text = f"xy {r.xy_mm:.3f} mm{pm('xy')} | 3D {d3} | dz {dz}"
-        self.tools.ruler_text.setText(f"Ruler: {text}" + (" [± U, k=2]" if b else ""))
+        why = next((x.incomplete for x in b.values() if x.incomplete), "")
+        self.tools.ruler_text.setText(f"Ruler: {text}" + (
+            f" [no U: {why}]" if why else " [± U, k=2]" if b else ""))
         self.tools.ruler_text.setToolTip("\n\n".join(x.text() for x in b.values()))
         self.map.decorate_ruler(
             text,
@@ -183,9 +187,11 @@ class RulerProfile(QObject):
                             else U.step_budget(ctx, self.profile, s, bands["A"], bands["B"]))
         self.plot.show_step(s, self.step_budget)
         self.tools.step_text.setStyleSheet("font-weight: bold")
-        unc = ("" if self.step_budget is None else
-               f"\nStep uncertainty U (k=2): {_pm_mm(self.step_budget.U_mm)} "
-               f"(u_c {self.step_budget.u_c_mm:.3f} mm)")
+        sb = self.step_budget
+        unc = ("" if sb is None else
+               f"\nStep uncertainty: none stated - {sb.incomplete}" if sb.incomplete else
+               f"\nStep uncertainty U (k=2): {_pm_mm(sb.U_mm)}"
+               + (f" (u_c {sb.u_c_mm:.3f} mm)" if math.isfinite(sb.u_c_mm) else ""))
         # the bands' SD is the spread of the surface in them, not an uncertainty: never "±"
         self.tools.step_text.setText(
             f"A {s.a.mean_mm:.3f} mm (SD {s.a.sd_mm:.3f}, n {s.a.n}), B {s.b.mean_mm:.3f} mm "
