@@ -391,13 +391,13 @@ def _mm(v) -> str:
     return "-" if v is None else f"{v:.3f} mm"
 
 
-def _u(v: dict, key: str) -> str:
+def _u(v: dict, key: str, no_u: bool = False) -> str:
     """`` (± U)`` of a value whose expanded uncertainty is recorded as ``key``; `` (± -)``
-    where it was recorded without a figure (no U stated)."""
-    if key not in v:
-        return ""
+    where it is recorded without a figure because no U is stated (``no_u``)."""
     u = v.get(key)
-    return " (± -)" if u is None or not math.isfinite(u) else f" (± {u:.3f})"
+    if u is None or not math.isfinite(u):
+        return " (± -)" if no_u and key in v else ""
+    return f" (± {u:.3f})"
 
 
 def _no_u(m: dict) -> str:
@@ -413,9 +413,11 @@ def summary(m: dict) -> str:
     in brackets when it was measured with one."""
     v = m.get("values", {})
     kind = m.get("kind")
+    no_u = bool(_no_u(m))
     if kind == "ruler":
-        text = (f"xy {_mm(v.get('xy_mm'))}{_u(v, 'U_k2_xy_mm')}, 3D {_mm(v.get('d3_mm'))}"
-                f"{_u(v, 'U_k2_3d_mm')}, dz {_mm(v.get('dz_mm'))}{_u(v, 'U_k2_dz_mm')}")
+        text = (f"xy {_mm(v.get('xy_mm'))}{_u(v, 'U_k2_xy_mm', no_u)}, 3D "
+                f"{_mm(v.get('d3_mm'))}{_u(v, 'U_k2_3d_mm', no_u)}, dz "
+                f"{_mm(v.get('dz_mm'))}{_u(v, 'U_k2_dz_mm', no_u)}")
         if "step_mm" in v:
             sd = v.get("step_sd_mm")
             text += f"; step {_mm(v.get('step_mm'))}" + ("" if sd is None else f" (SD {sd:.3f})")
@@ -427,7 +429,7 @@ def summary(m: dict) -> str:
             text += " [U: k=2]"
         return text
     if kind in ("point", "annotation"):
-        return f"height {_mm(v.get('height_mm'))}{_u(v, 'U_k2_mm')}" + (
+        return f"height {_mm(v.get('height_mm'))}{_u(v, 'U_k2_mm', no_u)}" + (
             _no_u(m) or (" [U: k=2]" if v.get("U_k2_mm") is not None else ""))
     if kind == "plane":
         return f"tilt {v.get('tilt_deg', 0):.3f}°, RMS {_mm(v.get('rms_mm'))}"
