@@ -577,12 +577,18 @@ def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():
     assert one.note.startswith("right wall:")
     assert "occluded" in one.note
     assert one.evaluation == "B"
-    # two walls: their errors move the crossings together (measured correlation), so the
-    # width's share is less than two independent walls' (and than one wall's here)
-    two = U.ONE_LASER_WALL_MM * math.sqrt(2 * (1 - U.ONE_LASER_WALLS_CORR))
+    # two such walls: independent, whether one laser saw both or each laser one
+    two = U.ONE_LASER_WALL_MM * math.sqrt(2)
     both = walls(per_laser={"green": fused, "red": np.full_like(fused, np.nan)})
     assert both.u_mm == pytest.approx(two)
-    assert "correlated" in both.note and both.note.startswith("left and right walls:")
+    assert both.note.startswith("left and right walls:")
+    assert "crossed by: left green, right green" in both.note
+    g_left, r_right = fused.copy(), fused.copy()
+    g_left[:, 235:265] = np.nan
+    r_right[:, 135:165] = np.nan
+    split = walls(per_laser={"green": g_left, "red": r_right})
+    assert split.u_mm == pytest.approx(two)
+    assert "crossed by: left green, right red" in split.note
     # one laser's map shown, the other laser's map there: where they both cross, the
     # disagreement (the surface noise's floor) already states that laser's error
     assert walls(laser="green", per_laser={"green": fused, "red": fused}) is None

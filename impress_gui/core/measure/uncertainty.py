@@ -1190,7 +1190,8 @@ def width_budget(ctx: UncertaintyContext, profile, width,
     # error at the wall: a smeared or misplaced wall moves one laser's crossing from the
     # other's, which noise beside the wall does not show)
     us = []
-    dis = _crossing_disagreement(ctx, profile, ds, levels, level_bands)
+    seen: list[set] = [set(), set()]
+    dis = _crossing_disagreement(ctx, profile, ds, levels, level_bands, seen)
     for dd, gap, g, dl in zip(ds, gaps, slopes, dis):
         if not math.isfinite(gap):
             us.append(math.nan)
@@ -1209,7 +1210,7 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                            f"{said} mm per wall; '-' where one laser did not cross there)"))
     if level_bands is None:  # a fixed level: the method's height error moves the crossings
         comps += _method_width(ctx, ux, uy, x0, y0, ds, gaps, slopes)
-        comps += _one_laser_walls(ctx, dis, gaps)
+        comps += _one_laser_walls(ctx, dis, gaps, seen)
     # where each wall lies between two samples: one sample is a camera column across the
     # scan and a frame's travel along it, and never less than a cell of the grid the profile
     # is read from (no separate grid term: the crossings are interpolated, not cells)
@@ -1243,7 +1244,8 @@ DISAGREEMENT_REACH_MM = 2.0
 
 
 def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
-                           levels: Sequence[float], level_bands) -> list[float]:
+                           levels: Sequence[float], level_bands,
+                           seen: list[set] | None = None) -> list[float]:
     """Per crossing at distance ``ds[k]``: each laser's own map read along the profile and two
     lines beside it (0.5 mm either side, parallel), each crossing the level (``levels``, fixed
     heights, when ``level_bands`` is None; else each laser's level from the same bands on its
@@ -1251,7 +1253,8 @@ def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
     nearest the fused crossing, within :data:`DISAGREEMENT_REACH_MM`; the RMS of the green
     minus red crossings over the lines where both found one, over sqrt(2) (the standard
     deviation of one laser's crossing, were their errors independent and alike). NaN where
-    no line has both, or without both lasers' maps."""
+    no line has both, or without both lasers' maps. ``seen`` (two sets, filled in): the
+    lasers whose maps crossed each wall's level on any of the lines."""
     from impress_gui.core.measure.readings import level_crossings, line_profile
 
     out = [math.nan, math.nan]
@@ -1266,6 +1269,8 @@ def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
     step = float(d[1] - d[0])
     nx, ny = -(y1 - y0) / L, (x1 - x0) / L
     diffs: list[list[float]] = [[], []]
+    if seen is None:
+        seen = [set(), set()]
     for off in (-0.5, 0.0, 0.5):
         a, b = (x0 + off * nx, y0 + off * ny), (x1 + off * nx, y1 + off * ny)
         found = {}
@@ -1284,6 +1289,7 @@ def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
             g, r = found["green"][k], found["red"][k]
             if math.isfinite(g) and math.isfinite(r):
                 diffs[k].append(g - r)
+            seen[k].update(n for n in LASER_NAMES if math.isfinite(found[n][k]))
     for k in range(2):
         if diffs[k]:
             out[k] = float(np.sqrt(np.mean(np.square(diffs[k]))) / math.sqrt(2.0))
@@ -1297,19 +1303,14 @@ def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
 #: level: 0.36 mm. A wall only one laser saw (the other occluded or shadowed there) has no
 #: second laser to show its error; validation, not the scan, gives it.
 ONE_LASER_WALL_MM = 0.36
-#: the correlation of one laser's errors at a width's two walls (same sign: the crossings
-#: move the same way, the width less): the green minus red differences at the left and the
-#: right wall on the 84 of those lines where both walls had both lasers: +0.66
-ONE_LASER_WALLS_CORR = 0.66
-
-
-def _one_laser_walls(ctx: UncertaintyContext, dis: Sequence[float], gaps) -> list:
-    """A width at a fixed level: the method's wall-placement error for each wall without the
-    two lasers' disagreement there (``dis`` NaN: the lasers' maps not both crossing the level
-    within :data:`DISAGREEMENT_REACH_MM` of the fused crossing - the other laser occluded, one
-    laser's map shown, the per-laser maps not given): :data:`ONE_LASER_WALL_MM` for one wall;
-    for two, the width's share of two walls whose errors correlate by
-    :data:`ONE_LASER_WALLS_CORR` (sqrt(2 (1 - rho)) times it)."""
+def _one_laser_walls(ctx: UncertaintyContext, dis: Sequence[float], gaps,
+                     seen: Sequence[set] = (set(), set())) -> list:
+    """A width at a fixed level: the method's wall-placement error, :data:`ONE_LASER_WALL_MM`,
+    for each wall without the two lasers' disagreement there (``dis`` NaN: the lasers' maps
+    not both crossing the level within :data:`DISAGREEMENT_REACH_MM` of the fused crossing -
+    the other laser occluded, one laser's map shown, the per-laser maps not given); two such
+    walls taken as independent. ``seen``: the lasers whose maps crossed each wall (named in
+    the note)."""
     walls = [k for k in range(2) if math.isfinite(gaps[k]) and not math.isfinite(dis[k])]
     if not walls:
         return []
@@ -1318,22 +1319,19 @@ def _one_laser_walls(ctx: UncertaintyContext, dis: Sequence[float], gaps) -> lis
     elif ctx.per_laser is None or not {"green", "red"} <= set(ctx.per_laser):
         why = "the lasers' own maps not given: not known whether both saw the walls"
     else:
+        by = ", ".join(f"{('left', 'right')[k]} " + (" and ".join(sorted(seen[k])) or "neither")
+                       for k in walls)
         why = ("the two lasers' maps do not both cross the level within "
-               f"{DISAGREEMENT_REACH_MM:g} mm of it (one laser occluded there)")
-    if len(walls) == 1:
-        u = ONE_LASER_WALL_MM
-        how = f"{ONE_LASER_WALL_MM:g} mm"
-    else:
-        u = ONE_LASER_WALL_MM * math.sqrt(2.0 * (1.0 - ONE_LASER_WALLS_CORR))
-        how = (f"two walls of {ONE_LASER_WALL_MM:g} mm each, their errors correlated by "
-               f"+{ONE_LASER_WALLS_CORR:g} (the crossings move together): "
-               f"{ONE_LASER_WALL_MM:g} x sqrt(2 (1 - {ONE_LASER_WALLS_CORR:g}))")
+               f"{DISAGREEMENT_REACH_MM:g} mm of it (one laser occluded there; crossed by: "
+               f"{by})")
+    u = ONE_LASER_WALL_MM * math.sqrt(len(walls))
     which = " and ".join(("left", "right")[k] for k in walls)
     return [Component("method, walls one laser saw", "positions of the crossings", "B", "normal",
                       u, "mm", 1.0, u,
-                      f"{which} wall{'s' if len(walls) > 1 else ''}: {why}; {how}: one "
-                      "laser's crossing error at a fixed level, measured on the training rigs "
-                      "(the lasers' disagreement where both crossed, RMS over sqrt(2))")]
+                      f"{which} wall{'s' if len(walls) > 1 else ''}: {why}; "
+                      f"{ONE_LASER_WALL_MM:g} mm per wall (the walls independent): one laser's "
+                      "crossing error at a fixed level, measured on the training rigs (the "
+                      "lasers' disagreement where both crossed, RMS over sqrt(2))")]
 
 
 def _method_width(ctx: UncertaintyContext, ux, uy, x0, y0, ds, gaps, slopes) -> list:
