@@ -60,3 +60,17 @@ def test_the_verdict_says_whether_the_sample_can_tell():
     assert bench.verdict(95.0, 94.0, 96.0) == "inside (the interval lies inside the band)"
     text = bench.table(_rows(48, 2))
     assert "95.8%" in text and "ruler xy" in text and "interval" in text
+
+
+def test_readings_without_a_stated_u_are_counted_apart():
+    """Readings made with an unstable calibration have no U: the table says how many, from how
+    many calibrations, and leaves them out of the coverage (not counted as covered)."""
+    rows = _rows(10, 0)  # all inside
+    rows += [{"kind": "ruler xy", "err": 5.0, "U": None, "u_c": None, "seed": 99, "draw": 1,
+              "incomplete": "the calibration is unstable"} for _ in range(7)]
+    text = bench.table(rows)
+    assert "readings with no U stated, the calibration unstable: 7 of 257, from 1 " \
+        "calibration(s)" in text
+    line = next(x for x in text.splitlines() if x.startswith("ruler xy"))
+    assert " 250 " in line and "100.0%" in line
+    assert "no U stated" not in bench.table(_rows(10, 0))
