@@ -546,6 +546,36 @@ def test_a_widths_crossings_carry_the_lasers_disagreement_on_the_walls():
     assert noise(high, bands).u_mm < 0.1
 
 
+def test_a_wall_hidden_in_a_gap_lies_anywhere_in_it():
+    """A wall whose foot is missing from the map (occluded, shadowed) is crossed at the higher
+    side's last sample; the true wall lies anywhere in the gap: the component "wall in a gap"
+    is gap / sqrt(3) per such wall, and that wall carries no lateral-sampling term (the gap
+    holds it). A map without gaps has no such component."""
+    spec = GridSpec(0.0, 0.0, 0.1, (200, 400))
+    xs = np.broadcast_to(spec.xs(), spec.shape)
+    up = np.clip((xs - 15.0) / 0.4, 0.0, 1.0) * np.clip((25.0 - xs) / 0.4, 0.0, 1.0)
+    ridge = (2.0 * up).astype(np.float32)
+
+    def budget(h):
+        p = M.line_profile(h, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
+        w = M.width_at_level(p, 1.0, 15.0)  # around the ridge's middle (x 20 mm)
+        b = U.width_budget(U.UncertaintyContext(h, spec, sampling_mm=(0.4, 0.4)), p, w)
+        return w, {c.name: c for c in b.components}
+
+    _, whole = budget(ridge)
+    assert "wall in a gap" not in whole
+    hidden = ridge.copy()
+    hidden[:, 245:257] = np.nan  # the right wall and its foot: x 24.5-25.6 mm missing
+    w, comps = budget(hidden)
+    assert w.right_mm == pytest.approx(19.4, abs=0.01)  # x 24.4: the higher side's sample
+    gap = comps["wall in a gap"]
+    assert gap.u_mm == pytest.approx(1.3 / math.sqrt(3), rel=0.01)  # x 24.4 to 25.7 mm
+    assert "1.30 mm apart" in gap.note and "adjacent" in gap.note
+    # only the left wall keeps a lateral-sampling term: half of the whole map's two walls
+    assert comps["lateral sampling"].u_mm == pytest.approx(
+        whole["lateral sampling"].u_mm / math.sqrt(2), rel=0.05)
+
+
 def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():
     """A width at a fixed level: a wall whose crossing the two lasers' maps do not both show
     (the other laser occluded there) has no disagreement to reveal its error, so it carries

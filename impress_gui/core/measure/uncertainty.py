@@ -1228,7 +1228,26 @@ def width_budget(ctx: UncertaintyContext, profile, width,
     # smeared over several samples (a column lost at a slot's edge, occlusion filled) looks on
     # the map like a wall sloping over them, and is placed no better (a systematic widening,
     # such as impress validate's quick-mode slots, is a method bias this term does not carry)
-    u_w = [s_mm * max(f, 1.0 - f) / math.sqrt(3.0) for f in fr]
+    # a wall hidden in a gap of the map (an occluded foot, a shadow: the samples with data
+    # that bracket the crossing more than a profile step apart) lies anywhere between them;
+    # the crossing is put at the higher side's last sample (level_crossings), so the true one
+    # is uniform over the gap measured from there: RMS gap / sqrt(3) about it. Such a wall's
+    # sampling is within that (no lateral-sampling term for it)
+    step = float(d_all[1] - d_all[0]) if d_all.size > 1 else cell
+    in_gap = [math.isfinite(g) and g > 1.5 * step for g in gaps]
+    if any(in_gap):
+        ug = [g / math.sqrt(3.0) if hid else 0.0 for g, hid in zip(gaps, in_gap)]
+        u_gap = math.hypot(*ug)
+        comps.append(Component(
+            "wall in a gap", "where a wall hidden in missing data lies", "B", "rectangular",
+            u_gap, "mm", 1.0, u_gap,
+            "the samples with data either side of the crossing are "
+            + ", ".join(f"{g:.2f} mm apart" if hid else "adjacent"
+                        for g, hid in zip(gaps, in_gap))
+            + " (left, right wall): the wall lies anywhere between them, its crossing put at "
+            "the higher side's sample (RMS over the gap: gap / sqrt(3))"))
+    u_w = [0.0 if hid else s_mm * max(f, 1.0 - f) / math.sqrt(3.0)
+           for f, hid in zip(fr, in_gap)]
     u1 = math.hypot(*u_w)
     comps.append(Component("lateral sampling", "where each wall lies between two samples",
                            "B", "rectangular", u1, "mm", 1.0, u1,
