@@ -26,7 +26,10 @@ Each reading's true value comes from the simulator's truth:
   its true value: the same bands on the true profile; only where the band inside truly lies on
   the feature and the one beside it off it - since 3 December 2026: before, two bands on the
   ground either side of a wall hidden in a gap gave a level at the ground's own height and
-  errors of 30 mm, a measurand that does not exist).
+  errors of 30 mm, a measurand that does not exist). A width's true crossings are taken on
+  the truth with the map's gaps filled within GAP_TRUTH_MM of data (since 3 December 2026,
+  later; physical_truth): a wall hidden in a gap of the map lies somewhere in the gap, and the
+  truth read only at the map's cells put its crossing exactly at the map's.
 
 Coverage = the share of readings whose true error lies within their expanded uncertainty
 U (k = 2); the target is 93-97 % per reading kind. Readings on or near a height edge (a jump of
