@@ -91,9 +91,8 @@ def physical_truth(scan_dir: Path, cal, rec, nominal=None, true=None) -> np.ndar
     ``true``: the calibration's and the true CalParams (made from ``cal`` when not given).
 
     Cells without data within :data:`GAP_TRUTH_MM` of data (since 3 December 2026, later)
-    get the true surface too: the height h at which a point of that cell, taken to where it
-    truly is (both lasers' mappings, averaged), finds the true surface at h (a fixed point,
-    from the nearest cell with data, 4 steps). Before, the truth had the map's gaps, so a
+    get the true surface too, read where the nearest cell with data truly is, moved by the
+    map's local step to the gap cell (an affine fit of the cells' true positions). Before, the truth had the map's gaps, so a
     wall hidden in a gap had its true crossing at the gap's edge, exactly where the map's is
     (level_crossings puts it at the higher side's last sample): widths' errors there were 0
     by construction (most band widths' walls on random rigs 0-23)."""
@@ -113,14 +112,18 @@ def physical_truth(scan_dir: Path, cal, rec, nominal=None, true=None) -> np.ndar
     ref = true.ref[0]
 
     def surface(x, y, h, name):
-        """The true surface height where laser ``name``'s points (x, y, h) truly are."""
+        """Where laser ``name``'s points (x, y, h) truly are (rail frame x, y) and the true
+        surface height there."""
         tx, ty, th = (v[0] for v in map_points(nominal, true, x, y, h, name))
         z = ref[0] + ref[1] * tx + ref[2] * ty - th
         p = np.column_stack([tx, ty, z]) @ turn.T
-        ci = np.rint((p[:, 1] + s1 - hm["y0_mm"]) / hm["pixel_mm"]).astype(int)
-        cj = np.rint((p[:, 0] - hm["x0_mm"]) / hm["pixel_mm"]).astype(int)
+        return p[:, 0], p[:, 1], read(p[:, 0], p[:, 1])
+
+    def read(px, py):
+        ci = np.rint((py + s1 - hm["y0_mm"]) / hm["pixel_mm"]).astype(int)
+        cj = np.rint((px - hm["x0_mm"]) / hm["pixel_mm"]).astype(int)
         inside = (ci >= 0) & (ci < tmap.shape[0]) & (cj >= 0) & (cj < tmap.shape[1])
-        v = np.full(len(x), np.nan)
+        v = np.full(len(px), np.nan)
         v[inside] = tmap[ci[inside], cj[inside]]
         return v
 
@@ -136,25 +139,35 @@ def physical_truth(scan_dir: Path, cal, rec, nominal=None, true=None) -> np.ndar
         g, r = (np.asarray(rec.per_laser_mm[n])[ii[four], jj[four]] for n in ("green", "red"))
         wg[four] = np.where(np.abs(g - h[four]) <= np.abs(r - h[four]), 1.0, 0.0)
     out_v = np.zeros(len(x))
+    pos = np.zeros((len(x), 2))  # where each cell's point truly is (rail frame, weighted)
     for name, w in (("green", wg), ("red", 1.0 - wg)):
         for a in range(0, len(x), 500_000):
             sl = slice(a, a + 500_000)
             sel = np.flatnonzero(w[sl] > 0) + a
             if not sel.size:
                 continue
-            out_v[sel] += w[sel] * surface(x[sel], y[sel], h[sel], name)
+            px, py, v = surface(x[sel], y[sel], h[sel], name)
+            out_v[sel] += w[sel] * v
+            pos[sel, 0] += w[sel] * px
+            pos[sel, 1] += w[sel] * py
     out = np.full(rec.spec.shape, np.nan, np.float32)
     out[ii, jj] = out_v
-    # the gaps near data: a fixed point of "the true surface where this cell's point truly is"
+    # the gaps near data: the nearest cell with data's true position, moved by the map's
+    # local step to the gap cell (the map's frame against the true one: an affine fit over
+    # the cells with data), the true surface read there. (Not a point of the gap cell's own
+    # ray: no laser point exists there, and one at a wrong height maps to another frame.)
     dist, (ni, nj) = ndimage.distance_transform_edt(~measured, return_indices=True)
     gi, gj = np.nonzero(~measured & (dist * rec.spec.pixel_mm <= GAP_TRUTH_MM))
-    if gi.size:
+    if gi.size and len(x) >= 3:
+        k = np.linspace(0, len(x) - 1, min(len(x), 200_000)).astype(int)
+        design = np.column_stack([x[k], y[k], np.ones(len(k))])
+        coef, *_ = np.linalg.lstsq(design, pos[k], rcond=None)  # (3, 2): [x, y, 1] -> p
+        index = np.full(rec.spec.shape, -1, np.int64)
+        index[ii, jj] = np.arange(len(x))
+        m = index[ni[gi, gj], nj[gi, gj]]
         gx, gy = rec.spec.xs()[gj], rec.spec.ys()[gi]
-        gh = rec.height_mm[ni[gi, gj], nj[gi, gj]].astype(float)
-        for _ in range(4):
-            nxt = 0.5 * (surface(gx, gy, gh, "green") + surface(gx, gy, gh, "red"))
-            gh = np.where(np.isfinite(nxt), nxt, gh)
-        out[gi, gj] = np.where(np.isfinite(nxt), nxt, np.nan)
+        step = np.column_stack([gx - x[m], gy - y[m]]) @ coef[:2]
+        out[gi, gj] = read(pos[m, 0] + step[:, 0], pos[m, 1] + step[:, 1])
     return out
 
 
@@ -438,12 +451,15 @@ def _band_width(M, U, rig: Rig, ctx, prof, tprof, p0, p1):
         return None
     tlevel = float(np.mean([M.band_stats(tprof, b).mean_mm for b in bands]))
     level = float(np.mean([M.band_stats(prof, b).mean_mm for b in bands]))
-    tcs = M.level_crossings(M.line_profile(rig.truth_filled, rig.spec, p0, p1, 1.0), tlevel)
+    tcs = M.level_crossings(tprof, tlevel)
     left, right = tcs[tcs <= mid], tcs[tcs > mid]
     w = M.width_at_level(prof, level, mid)
     if not (left.size and right.size and math.isfinite(w.width_mm)):
         return None
-    ends = np.array([left.max(), right.min()])
+    # the true surface's crossings nearest those (gaps of the map included)
+    ends = _true_crossings(rig, p0, p1, tlevel, np.array([left.max(), right.min()]))
+    if ends is None:
+        return None
     (x0, y0), (x1, y1) = p0, p1
     ux, uy = (x1 - x0) / length, (y1 - y0) / length
     pts = rig.to_true(x0 + ends * ux, y0 + ends * uy, [tlevel, tlevel])
