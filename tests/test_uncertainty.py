@@ -581,7 +581,7 @@ def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():
     (the other laser occluded there) has no disagreement to reveal its error, so it carries
     the method's one-laser wall error (ONE_LASER_WALL_MM per wall, independent walls); walls
     both lasers crossed do not. One laser's map alone, or the lasers' maps not given, count
-    both walls. A width between bands (the level from the same laser's bands) does not."""
+    both walls. A width between bands carries it the same way."""
     spec = GridSpec(0.0, 0.0, 0.1, (200, 400))
     xs = np.broadcast_to(spec.xs(), spec.shape)
 
@@ -634,8 +634,12 @@ def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():
     rest = math.sqrt(sum(c.u_mm ** 2 for c in b.components
                          if c.name != "method, walls one laser saw"))
     assert b.u_c_mm == pytest.approx(math.hypot(rest, U.ONE_LASER_WALL_MM))
+    # a width between bands too: a wall one laser saw is placed no better with the level
+    # taken from that laser's own bands (widening at an occluded wall is not a height bias)
     bands = (((18.0, 22.0), (6.0, 10.0)),) * 2
-    assert walls(bands, per_laser={"green": fused, "red": occl}) is None
+    assert walls(bands, per_laser={"green": fused, "red": occl}).u_mm == pytest.approx(
+        U.ONE_LASER_WALL_MM)
+    assert walls(bands, per_laser={"green": fused, "red": fused}) is None
 
 def test_the_target_check_is_of_the_models_shape_not_of_the_pose(flat):
     """The Monte Carlo needs the target model the calibration was fitted with. The check

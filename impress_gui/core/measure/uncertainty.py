@@ -1210,7 +1210,7 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                            f"{said} mm per wall; '-' where one laser did not cross there)"))
     if level_bands is None:  # a fixed level: the method's height error moves the crossings
         comps += _method_width(ctx, ux, uy, x0, y0, ds, gaps, slopes)
-        comps += _one_laser_walls(ctx, dis, gaps, seen)
+    comps += _one_laser_walls(ctx, dis, gaps, seen)
     # where each wall lies between two samples: one sample is a camera column across the
     # scan and a frame's travel along it, and never less than a cell of the grid the profile
     # is read from (no separate grid term: the crossings are interpolated, not cells)
@@ -1324,7 +1324,8 @@ def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
 ONE_LASER_WALL_MM = 0.36
 def _one_laser_walls(ctx: UncertaintyContext, dis: Sequence[float], gaps,
                      seen: Sequence[set] = (set(), set())) -> list:
-    """A width at a fixed level: the method's wall-placement error, :data:`ONE_LASER_WALL_MM`,
+    """A width (at a fixed level or between bands): the method's wall-placement error,
+    :data:`ONE_LASER_WALL_MM`,
     for each wall without the two lasers' disagreement there (``dis`` NaN: the lasers' maps
     not both crossing the level within :data:`DISAGREEMENT_REACH_MM` of the fused crossing -
     the other laser occluded, one laser's map shown, the per-laser maps not given); two such
