@@ -74,7 +74,9 @@ class _StubContext(U.UncertaintyContext):
 
 def _ctx(trials: _Trials) -> _StubContext:
     ens = SimpleNamespace(n_trials=S, click_sigma_px=0.5, sigma_source="stub", summary={})
-    ctx = _StubContext(HEIGHT, SPEC, ensemble=ens)
+    # both lasers' maps the same: every wall seen by both (no one-laser wall component: the
+    # calibration's share is what these tests look at)
+    ctx = _StubContext(HEIGHT, SPEC, ensemble=ens, per_laser={"green": HEIGHT, "red": HEIGHT})
     ctx.trials = trials
     return ctx
 
@@ -158,7 +160,8 @@ def test_the_edge_distance_reading_gives_each_edge_its_own_bands():
 
     def context(h, spec, plane):
         c = _StubContext(h, spec, ensemble=SimpleNamespace(
-            n_trials=S, click_sigma_px=0.5, sigma_source="stub", summary={}))
+            n_trials=S, click_sigma_px=0.5, sigma_source="stub", summary={}),
+            per_laser={"green": h, "red": h})  # both lasers saw every wall
         c.trials = trials
         contexts.append(c)
         return c
