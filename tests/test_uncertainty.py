@@ -574,6 +574,23 @@ def test_a_wall_hidden_in_a_gap_lies_anywhere_in_it():
     # only the left wall keeps a lateral-sampling term: half of the whole map's two walls
     assert comps["lateral sampling"].u_mm == pytest.approx(
         whole["lateral sampling"].u_mm / math.sqrt(2), rel=0.05)
+    # the left wall's foot missing: its crossing is put on the gap's far sample (the higher
+    # side comes after the gap along the profile), and it is that gap that holds the wall,
+    # not the ridge's top beside the crossing (found on random rig 57: such walls had no
+    # gap component, and their true crossings lay 0.7 mm inside the gap)
+    hidden_left = ridge.copy()
+    hidden_left[:, 143:155] = np.nan  # x 14.3-15.4 mm missing
+    w, comps = budget(hidden_left)
+    assert w.left_mm == pytest.approx(10.5, abs=0.01)  # x 15.5: the higher side's sample
+    gap = comps["wall in a gap"]
+    assert gap.u_mm == pytest.approx(1.3 / math.sqrt(3), rel=0.01)  # x 14.2 to 15.5 mm
+    assert gap.note.index("1.30 mm apart") < gap.note.index("adjacent")  # the left wall's
+    both = ridge.copy()
+    both[:, 143:155] = np.nan
+    both[:, 245:257] = np.nan
+    _, comps = budget(both)
+    assert comps["wall in a gap"].u_mm == pytest.approx(1.3 * math.sqrt(2 / 3), rel=0.01)
+    assert comps["lateral sampling"].u_mm == 0.0
 
 
 def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():

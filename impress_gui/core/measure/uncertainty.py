@@ -1095,6 +1095,33 @@ def _step_repeatability(ctx: UncertaintyContext, profile, band_a, band_b) -> tup
     return _consistent_scatter(a, np.array(steps)[order], 5)
 
 
+def _bracketing_samples(d_all: np.ndarray, h_all: np.ndarray, at_mm: float,
+                        level: float) -> tuple[int, int] | None:
+    """The two consecutive samples with data between which the profile crosses ``level`` at
+    ``at_mm`` (as :func:`~impress_gui.core.measure.readings.level_crossings` found it: across
+    a gap the crossing is put on the higher side's sample, which may be the later one, so
+    the pair is the one whose heights straddle the level, not merely the samples on either
+    side of ``at_mm``); without a level, or where no such pair contains ``at_mm``, the samples
+    with data either side of it. None at the profile's ends."""
+    ok = np.flatnonzero(np.isfinite(h_all))
+    if ok.size < 2:
+        return None
+    if math.isfinite(level):
+        i0, i1 = ok[:-1], ok[1:]
+        s0, s1 = h_all[i0] - level, h_all[i1] - level
+        hit = ((s0 < 0) != (s1 < 0)) & (d_all[i0] <= at_mm + 1e-9) & (d_all[i1] >= at_mm - 1e-9)
+        if hit.any():
+            k = np.flatnonzero(hit)
+            # the nearest pair's middle to the crossing (a crossing on a sample can touch two)
+            best = k[np.argmin(np.abs(0.5 * (d_all[i0[k]] + d_all[i1[k]]) - at_mm)
+                               - 1e-6 * (d_all[i1[k]] - d_all[i0[k]]))]
+            return int(i0[best]), int(i1[best])
+    before, after = ok[d_all[ok] <= at_mm], ok[d_all[ok] > at_mm]
+    if not before.size or not after.size:
+        return None
+    return int(before[-1]), int(after[0])
+
+
 def _level_fraction(d_all: np.ndarray, h_all: np.ndarray, at_mm: float, level: float,
                     reach_mm: float = 2.0) -> float:
     """Where ``level`` lies between the low and the high side of the wall crossed at
@@ -1141,26 +1168,25 @@ def width_budget(ctx: UncertaintyContext, profile, width,
     (x0, y0), (x1, y1) = profile.start, profile.end
     ux, uy = (x1 - x0) / L, (y1 - y0) / L
     ds = np.array([width.left_mm, width.right_mm])
-    # each crossing lies between the two samples with data that bracket it: their spacing and
-    # the wall's signed slope there (height per mm along the profile)
     d_all = np.asarray(profile.distance_mm, float)
     h_all = np.asarray(profile.height_mm, float)
-    ok = np.flatnonzero(np.isfinite(h_all))
-    gaps, slopes = [], []
-    for dd in ds:
-        before, after = ok[d_all[ok] <= dd], ok[d_all[ok] > dd]
-        if not before.size or not after.size:
-            gaps.append(math.nan)
-            slopes.append(math.nan)
-            continue
-        i0, i1 = before[-1], after[0]
-        gap = float(d_all[i1] - d_all[i0])
-        gaps.append(gap)
-        slopes.append(float(h_all[i1] - h_all[i0]) / max(gap, 1e-9))
     if level_bands is not None:
         levels = [_bands_level(profile, bands) for bands in level_bands]
     else:
         levels = [float(width.level_mm)] * 2
+    # each crossing lies between the two samples with data that bracket it: their spacing and
+    # the wall's signed slope there (height per mm along the profile)
+    gaps, slopes = [], []
+    for dd, lv in zip(ds, levels):
+        pair = _bracketing_samples(d_all, h_all, dd, lv)
+        if pair is None:
+            gaps.append(math.nan)
+            slopes.append(math.nan)
+            continue
+        i0, i1 = pair
+        gap = float(d_all[i1] - d_all[i0])
+        gaps.append(gap)
+        slopes.append(float(h_all[i1] - h_all[i0]) / max(gap, 1e-9))
     if ctx.ensemble is not None and np.isfinite(ds).all() and np.isfinite(levels).all():
         trial = _trial_crossings(ctx, profile, ds, levels, level_bands)
         if trial is not None:
@@ -1322,6 +1348,8 @@ def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
 #: level: 0.36 mm. A wall only one laser saw (the other occluded or shadowed there) has no
 #: second laser to show its error; validation, not the scan, gives it.
 ONE_LASER_WALL_MM = 0.36
+
+
 def _one_laser_walls(ctx: UncertaintyContext, dis: Sequence[float], gaps,
                      seen: Sequence[set] = (set(), set())) -> list:
     """A width (at a fixed level or between bands): the method's wall-placement error,
