@@ -30,16 +30,31 @@ pytestmark = [pytest.mark.qt_log_ignore("propagateSizeHints"),
               pytest.mark.usefixtures("no_stray_python_threads")]
 
 
-def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calibration,
-                                                    flat_recon, tmp_path):
-    project = Project(case_id="U-1")
+def _viewer(qtbot, flat_scan, flat_calibration, case_id, dialogs=None):
+    """A shown viewer tab with the flat scan's calibration and target in its project."""
+    project = Project(case_id=case_id)
     project.set_calibration(SceneCalibration.load(flat_calibration))
     project.set_target(TargetModel.load(flat_scan / "target.json"))
-    v = ViewerTab(Messenger(None), FakeDialogs())
+    v = ViewerTab(Messenger(None), dialogs or FakeDialogs())
     qtbot.addWidget(v)
     v.resize(1400, 900)
     v.show()
     qtbot.waitExposed(v)
+    return v, project
+
+
+def _ruler_across_the_middle(qtbot, v, half_mm=12.0):
+    spec = v.data.spec
+    xc = spec.x0_mm + spec.shape[1] * spec.pixel_mm / 2
+    yc = spec.y0_mm + spec.shape[0] * spec.pixel_mm / 2
+    with qtbot.waitSignal(v.profile_changed, timeout=20000):
+        v.set_ruler((xc - half_mm, yc), (xc + half_mm, yc))
+    return xc, yc
+
+
+def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calibration,
+                                                    flat_recon, tmp_path):
+    v, project = _viewer(qtbot, flat_scan, flat_calibration, "U-1")
     try:
         v.measurements.uncertainty.trials = 8  # a quick Monte Carlo for the test
         v.set_project(project)
@@ -152,11 +167,7 @@ def test_a_validation_record_enters_every_budget(qtbot, flat_recon, tmp_path):
         v.set_project(Project(case_id="U-6"))
         with qtbot.waitSignal(v.loaded, timeout=60000):
             v.open_reconstruction(flat_recon)
-        spec = v.data.spec
-        xc = spec.x0_mm + spec.shape[1] * spec.pixel_mm / 2
-        yc = spec.y0_mm + spec.shape[0] * spec.pixel_mm / 2
-        with qtbot.waitSignal(v.profile_changed, timeout=20000):
-            v.set_ruler((xc - 12.0, yc), (xc + 12.0, yc))
+        xc, yc = _ruler_across_the_middle(qtbot, v)
         before = v.ruler.budgets()["dz"]
         assert "method (validation)" not in v.tools.ruler_text.toolTip()
         # no calibration in this project: no product figure either (its sensitivity is the
@@ -203,25 +214,14 @@ def test_an_unstable_calibration_is_called_poor_and_readings_carry_no_u(
                                      "(7 of 8 re-solved calibrations refused)")
 
     monkeypatch.setattr(CU, "calibration_ensemble", refuse)
-    project = Project(case_id="U-2")
-    project.set_calibration(SceneCalibration.load(flat_calibration))
-    project.set_target(TargetModel.load(flat_scan / "target.json"))
-    v = ViewerTab(Messenger(None), FakeDialogs())
-    qtbot.addWidget(v)
-    v.resize(1400, 900)
-    v.show()
-    qtbot.waitExposed(v)
+    v, project = _viewer(qtbot, flat_scan, flat_calibration, "U-2")
     try:
         statuses = []
         v.status.connect(statuses.append)
         v.set_project(project)
         with qtbot.waitSignal(v.loaded, timeout=60000):
             v.open_reconstruction(flat_recon)
-        spec = v.data.spec
-        xc = spec.x0_mm + spec.shape[1] * spec.pixel_mm / 2
-        yc = spec.y0_mm + spec.shape[0] * spec.pixel_mm / 2
-        with qtbot.waitSignal(v.profile_changed, timeout=20000):
-            v.set_ruler((xc - 12.0, yc), (xc + 12.0, yc))
+        xc, yc = _ruler_across_the_middle(qtbot, v)
         qtbot.waitUntil(lambda: "POOR" in v.measurements.uncertainty.summary_text,
                         timeout=60000)
         assert "7 of 8" in v.measurements.uncertainty.summary_text
