@@ -549,8 +549,8 @@ def test_a_widths_crossings_carry_the_lasers_disagreement_on_the_walls():
 def test_a_wall_hidden_in_a_gap_lies_anywhere_in_it():
     """A wall whose foot is missing from the map (occluded, shadowed) is crossed at the higher
     side's last sample; the true wall lies anywhere in the gap: the component "wall in a gap"
-    is gap / sqrt(3) per such wall, and that wall carries no lateral-sampling term (the gap
-    holds it). A map without gaps has no such component."""
+    is gap / sqrt(3) per such wall, and that wall carries no lateral-sampling term and no one-laser wall error
+    (the gap holds them). A map without gaps has no such component."""
     spec = GridSpec(0.0, 0.0, 0.1, (200, 400))
     xs = np.broadcast_to(spec.xs(), spec.shape)
     up = np.clip((xs - 15.0) / 0.4, 0.0, 1.0) * np.clip((25.0 - xs) / 0.4, 0.0, 1.0)
@@ -591,6 +591,21 @@ def test_a_wall_hidden_in_a_gap_lies_anywhere_in_it():
     _, comps = budget(both)
     assert comps["wall in a gap"].u_mm == pytest.approx(1.3 * math.sqrt(2 / 3), rel=0.01)
     assert comps["lateral sampling"].u_mm == 0.0
+    # one laser's map only near the right wall: a wall seen (the left) carries the one-laser
+    # wall error, the wall in the gap does not (its placement error is the gap's)
+    red = hidden.copy()
+    red[:, 230:] = np.nan
+    p = M.line_profile(hidden, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
+    w = M.width_at_level(p, 1.0, 15.0)
+    ctx = replace(U.UncertaintyContext(hidden, spec, sampling_mm=(0.4, 0.4)),
+                  per_laser={"green": hidden, "red": red})
+    comps = {c.name: c for c in U.width_budget(ctx, p, w).components}
+    assert "wall in a gap" in comps
+    assert "method, walls one laser saw" not in comps
+    ctx = replace(ctx, per_laser=None)  # not known who saw the left wall: it carries one
+    comps = {c.name: c for c in U.width_budget(ctx, p, w).components}
+    assert comps["method, walls one laser saw"].u_mm == pytest.approx(U.ONE_LASER_WALL_MM)
+    assert comps["method, walls one laser saw"].note.startswith("left wall:")
 
 
 def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():
