@@ -1240,7 +1240,7 @@ def width_budget(ctx: UncertaintyContext, profile, width,
     # that bracket the crossing more than a profile step apart) lies anywhere between them;
     # the crossing is put at the higher side's last sample (level_crossings), so the true one
     # is uniform over the gap measured from there: RMS gap / sqrt(3) about it (on the random
-    # rigs 0-22 of the coverage benchmark, 476 hidden walls: RMS 0.49 of the gap). That is
+    # rigs 0-22 of the coverage benchmark, 609 hidden walls: RMS 0.49 of the gap). That is
     # the whole of its placement error: no one-laser wall error and no lateral-sampling term
     # for it (the gap holds them)
     step = float(d_all[1] - d_all[0]) if d_all.size > 1 else ctx.spec.pixel_mm
