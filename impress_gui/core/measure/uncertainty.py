@@ -1098,24 +1098,25 @@ def _step_repeatability(ctx: UncertaintyContext, profile, band_a, band_b) -> tup
 def _bracketing_samples(d_all: np.ndarray, h_all: np.ndarray, at_mm: float,
                         level: float) -> tuple[int, int] | None:
     """The two consecutive samples with data between which the profile crosses ``level`` at
-    ``at_mm`` (as :func:`~impress_gui.core.measure.readings.level_crossings` found it: across
-    a gap the crossing is put on the higher side's sample, which may be the later one, so
-    the pair is the one whose heights straddle the level, not merely the samples on either
-    side of ``at_mm``); without a level, or where no such pair contains ``at_mm``, the samples
-    with data either side of it. None at the profile's ends."""
+    ``at_mm``: of the pairs whose heights straddle the level, the one whose crossing, found
+    as :func:`~impress_gui.core.measure.readings.level_crossings` finds it (linear between
+    neighbours, the higher side's sample across a gap, which may be the later one), is
+    nearest ``at_mm`` - not merely the samples either side of ``at_mm``. Without a level or
+    such a pair, the samples with data either side of it. None at the profile's ends."""
     ok = np.flatnonzero(np.isfinite(h_all))
     if ok.size < 2:
         return None
     if math.isfinite(level):
         i0, i1 = ok[:-1], ok[1:]
         s0, s1 = h_all[i0] - level, h_all[i1] - level
-        hit = ((s0 < 0) != (s1 < 0)) & (d_all[i0] <= at_mm + 1e-9) & (d_all[i1] >= at_mm - 1e-9)
-        if hit.any():
-            k = np.flatnonzero(hit)
-            # the nearest pair's middle to the crossing (a crossing on a sample can touch two)
-            best = k[np.argmin(np.abs(0.5 * (d_all[i0[k]] + d_all[i1[k]]) - at_mm)
-                               - 1e-6 * (d_all[i1[k]] - d_all[i0[k]]))]
-            return int(i0[best]), int(i1[best])
+        k = np.flatnonzero((s0 < 0) != (s1 < 0))
+        if k.size:
+            a, b = i0[k], i1[k]
+            t = s0[k] / (s0[k] - s1[k])
+            pos = np.where(b - a == 1, d_all[a] + t * (d_all[b] - d_all[a]),
+                           np.where(s0[k] > s1[k], d_all[a], d_all[b]))
+            j = int(np.argmin(np.abs(pos - at_mm)))
+            return int(a[j]), int(b[j])
     before, after = ok[d_all[ok] <= at_mm], ok[d_all[ok] > at_mm]
     if not before.size or not after.size:
         return None
