@@ -19,6 +19,7 @@ from PySide6.QtTest import QTest
 
 from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.calibration.target import TargetModel
+from impress_gui.core.measure import uncertainty as U
 from impress_gui.core.project.project import Project
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.messages import Messenger
@@ -76,7 +77,8 @@ def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calib
         budgets = v.ruler.budgets()
         r = v.ruler_result()
         assert f"xy {r.xy_mm:.3f} mm (± {budgets['xy'].U_mm:.3f})" in text
-        assert f"(± {budgets['dz'].U_mm:.3f})" in text and "k=2" in text
+        ks = U.k_text([budgets[k] for k in ("xy", "3d", "dz") if k in budgets])
+        assert f"(± {budgets['dz'].U_mm:.3f})" in text and f"[± U, {ks}]" in text
         u_xy = float(re.search(r"xy [\d.]+ mm \(± ([\d.]+)\)", text).group(1))
         assert 0 < u_xy < 2.0
         tip = v.tools.ruler_text.toolTip()
@@ -86,15 +88,17 @@ def test_readings_show_their_uncertainty_and_budget(qtbot, flat_scan, flat_calib
         with qtbot.waitSignal(v.profile_changed, timeout=20000):
             v.set_bands((2.0, 6.0), (16.0, 20.0))
         st = v.tools.step_text.text()
-        m = re.search(r"Step uncertainty U \(k=2\): ± ([\d.]+) mm", st)
-        assert m and float(m.group(1)) == pytest.approx(v.ruler.step_budget.U_mm, abs=1e-3)
+        m = re.search(r"Step uncertainty U \(k=([\d.]+)\): ± ([\d.]+) mm", st)
+        assert m and float(m.group(2)) == pytest.approx(v.ruler.step_budget.U_mm, abs=1e-3)
+        assert float(m.group(1)) == v.ruler.step_budget.k
         assert "calibration" in v.tools.step_text.toolTip()
-        assert "k=2" in v.profile_plot.plotItem.titleLabel.text
+        assert f"k={v.ruler.step_budget.k:g}" in v.profile_plot.plotItem.titleLabel.text
         # the exported profile figure (and the report's) states U, not the bands' SD, as the
         # step's and the ruler's uncertainty
         lines, _ = v.actions.profile_lines()
         step_line = next(x for x in lines if x.startswith("Band A"))
-        assert f"± {v.ruler.step_budget.U_mm:.3f} mm (U, k = 2)" in step_line
+        assert (f"± {v.ruler.step_budget.U_mm:.3f} mm (U, k = {v.ruler.step_budget.k:g})"
+                in step_line)
         ruler_line = next(x for x in lines if x.startswith("Ruler xy"))
         assert f"{budgets['xy'].U_mm:.3f} mm" in ruler_line
         # the measurement list: value with ± U, the budget in the tooltip and one click away
@@ -239,7 +243,7 @@ def test_an_unstable_calibration_is_called_poor_and_readings_carry_no_u(
         mk = v.add_marker(xc, yc + 5.0)
         cell = v.table.table.item(0, 3).text()
         assert "(± -)" in cell and "[no U: the calibration is unstable" in cell
-        assert "[U: k=2]" not in cell and "nan" not in cell
+        assert "[U: k=" not in cell and "nan" not in cell
         assert "unstable" in mk["uncertainty"][""]["incomplete"]
     finally:
         v.shutdown()

@@ -604,7 +604,8 @@ def test_a_wall_hidden_in_a_gap_lies_anywhere_in_it():
     assert "method, walls one laser saw" not in comps
     ctx = replace(ctx, per_laser=None)  # not known who saw the left wall: it carries one
     comps = {c.name: c for c in U.width_budget(ctx, p, w).components}
-    assert comps["method, walls one laser saw"].u_mm == pytest.approx(U.ONE_LASER_WALL_MM)
+    assert comps["method, walls one laser saw"].u_mm == pytest.approx(
+        U.ONE_LASER_WALL_MM["fixed"])
     assert comps["method, walls one laser saw"].note.startswith("left wall:")
 
 
@@ -635,12 +636,12 @@ def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():
     occl = fused.copy()
     occl[:, 235:265] = np.nan  # red did not see the right wall
     one = walls(per_laser={"green": fused, "red": occl})
-    assert one.u_mm == pytest.approx(U.ONE_LASER_WALL_MM)
+    assert one.u_mm == pytest.approx(U.ONE_LASER_WALL_MM["fixed"])
     assert one.note.startswith("right wall:")
     assert "occluded" in one.note
     assert one.evaluation == "B"
     # two such walls: independent, whether one laser saw both or each laser one
-    two = U.ONE_LASER_WALL_MM * math.sqrt(2)
+    two = U.ONE_LASER_WALL_MM["fixed"] * math.sqrt(2)
     both = walls(per_laser={"green": fused, "red": np.full_like(fused, np.nan)})
     assert both.u_mm == pytest.approx(two)
     assert both.note.startswith("left and right walls:")
@@ -655,7 +656,7 @@ def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():
     # disagreement (the surface noise's floor) already states that laser's error
     assert walls(laser="green", per_laser={"green": fused, "red": fused}) is None
     alone = walls(laser="green", per_laser={"green": fused, "red": occl})
-    assert alone.u_mm == pytest.approx(U.ONE_LASER_WALL_MM)
+    assert alone.u_mm == pytest.approx(U.ONE_LASER_WALL_MM["fixed"])
     assert "green laser's alone" in alone.note
     unknown = walls()
     assert unknown.u_mm == pytest.approx(two)
@@ -665,12 +666,14 @@ def test_a_wall_only_one_laser_saw_carries_the_methods_wall_error():
     b = U.width_budget(ctx, p, w)
     rest = math.sqrt(sum(c.u_mm ** 2 for c in b.components
                          if c.name != "method, walls one laser saw"))
-    assert b.u_c_mm == pytest.approx(math.hypot(rest, U.ONE_LASER_WALL_MM))
-    # a width between bands too: a wall one laser saw is placed no better with the level
-    # taken from that laser's own bands (widening at an occluded wall is not a height bias)
+    assert b.u_c_mm == pytest.approx(math.hypot(rest, U.ONE_LASER_WALL_MM["fixed"]))
+    # a width between bands too, with the figure measured for a level from bands (the
+    # laser's height bias shared by the bands and the crossing: smaller than at a fixed level)
     bands = (((18.0, 22.0), (6.0, 10.0)),) * 2
-    assert walls(bands, per_laser={"green": fused, "red": occl}).u_mm == pytest.approx(
-        U.ONE_LASER_WALL_MM)
+    got = walls(bands, per_laser={"green": fused, "red": occl})
+    assert got.u_mm == pytest.approx(U.ONE_LASER_WALL_MM["bands"])
+    assert U.ONE_LASER_WALL_MM["bands"] < U.ONE_LASER_WALL_MM["fixed"]
+    assert "level from bands" in got.note
     assert walls(bands, per_laser={"green": fused, "red": fused}) is None
 
 def test_the_target_check_is_of_the_models_shape_not_of_the_pose(flat):
@@ -859,3 +862,59 @@ def test_surface_noise_from_the_lasers_disagreement():
     # without a laser's height per pixel, or with maps of another grid: not evaluated
     assert U.laser_agreement_px(maps["green"], maps["red"], spec, 0.5, {"green": 0.8}) is None
     assert U.laser_agreement_px(maps["green"][:-1], maps["red"][:-1], spec, 0.5, per_px) is None
+
+
+# ----- the coverage factor (EA-4/02, GUM G.2.3; JCGM 101's propagation of distributions) ---------
+def _rect(u: float, *half_widths: float) -> U.Component:
+    return U.Component("r", "q", "B", "rectangular", u, "mm", 1.0, u, "", tuple(half_widths))
+
+
+def _norm(u: float) -> U.Component:
+    return U.Component("n", "q", "A", "normal", u, "mm", 1.0, u)
+
+
+def _k_sampled(components, n: int = 2_000_000) -> float:
+    """The k of the central 95.45 % interval of the components' sum, by sampling (independent
+    of the convolution coverage_factor does)."""
+    rng = np.random.default_rng(5)
+    total = np.zeros(n)
+    for c in components:
+        if c.distribution == "rectangular":
+            for a in c.rectangles_mm():
+                total += rng.uniform(-a, a, n)
+        else:
+            total += rng.normal(0.0, c.u_mm, n)
+    uc = math.sqrt(sum(c.u_mm ** 2 for c in components))
+    return float(np.quantile(np.abs(total), U.COVERAGE_P)) / uc
+
+
+@pytest.mark.parametrize("comps", [
+    [_norm(1.0)],
+    [_rect(1.0)],
+    [_rect(1.0), _rect(1.0)],
+    [_rect(math.sqrt(2.0 / 3.0), 1.0, 1.0)],  # the same two rectangles as one component
+    [_rect(1.0), _norm(1.0)],
+    [_rect(1.0), _norm(0.3)],
+    [_rect(1.0), _rect(0.4), _norm(0.2)],
+])
+def test_the_coverage_factor_is_that_of_the_components_sum(comps):
+    k = U.coverage_factor(comps)
+    # rounded up to 0.01, at most 2: within 0.012 above the sampled one (its own error ~0.003)
+    assert min(_k_sampled(comps), 2.0) - 0.004 <= k <= min(_k_sampled(comps) + 0.012, 2.0)
+
+
+def test_k_is_2_for_normal_sums_and_165_for_a_rectangle_alone():
+    assert U.coverage_factor([_norm(0.3), _norm(0.1)]) == 2.0
+    assert U.coverage_factor([_rect(1.0)]) == pytest.approx(0.9545 * math.sqrt(3.0), abs=0.01)
+    # a narrow rectangle beside a normal changes nothing; a wide one lowers k towards 1.65
+    assert U.coverage_factor([_norm(1.0), _rect(0.005)]) == 2.0
+    ks = [U.coverage_factor([_norm(1.0), _rect(r)]) for r in (0.3, 1.0, 3.0, 10.0)]
+    assert ks == sorted(ks, reverse=True) and ks[0] > 1.98 and ks[-1] < 1.70
+    # the budget states it: U = k u_c, the factor in its text and JSON, kept by a round trip
+    b = U.Budget("w", 1.0, (_norm(0.1), _rect(0.5, 0.6, 0.6)), k=U.coverage_factor(
+        [_norm(0.1), _rect(0.5, 0.6, 0.6)]))
+    assert b.k < 2.0 and b.U_mm == pytest.approx(b.k * b.u_c_mm)
+    assert f"(k={b.k:g})" in b.short() and f"U = {b.k:g} u_c" in b.text()
+    again = U.budget_from_json(json.loads(json.dumps(b.to_json())))
+    assert again.k == b.k and again.components[1].rectangles_mm() == (0.6, 0.6)
+    assert U.k_text([b, 2.0]) == f"k={b.k:g}-2" and U.k_text([2.0, 2.0]) == "k=2"

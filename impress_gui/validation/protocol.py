@@ -156,12 +156,14 @@ class Result:
     measured_mm: float
     error_mm: float  # measured - nominal (NaN when the measurement failed)
     note: str = ""
-    #: the reading's stated uncertainty (k = 2 expanded and combined standard), NaN when
-    #: no budget was computed (issue 22)
+    #: the reading's stated uncertainty (expanded at about 95 %, and combined standard), NaN
+    #: when no budget was computed (issue 22)
     U_mm: float = math.nan  # noqa: N815 - the GUM's symbol
     u_c_mm: float = math.nan
     #: why the budget states no uncertainty ("": it states one, or none was computed)
     no_u: str = ""
+    #: the coverage factor of ``U_mm`` (2, or less where a rectangular component shapes it)
+    k: float = math.nan
 
     @property
     def covered(self) -> bool | None:
@@ -184,6 +186,7 @@ class Result:
             "error_mm": _num(self.error_mm),
             "u_c_mm": _num(self.u_c_mm),
             "U_k2_mm": _num(self.U_mm),
+            "k": _num(self.k),
             "covered": self.covered,
             **({"no_U": self.no_u} if self.no_u else {}),
             "note": self.note,
@@ -266,7 +269,7 @@ def measure_reading(
     """Make one reading on a heightmap (float32 mm, NaN = no data) with its grid. ``cache``
     keeps levelled regions between readings that share one. With ``context``, the reading's
     uncertainty budget (:mod:`impress_gui.core.measure.uncertainty`) is computed as the viewer
-    computes it, and the result carries its U (k = 2)."""
+    computes it, and the result carries its U (about 95 %) and k."""
     plane: M.Plane | None = None
     try:
         if r.level is not None:
@@ -335,12 +338,13 @@ def measure_reading(
         return Result(r, math.nan, math.nan, f"failed: {exc}")
     if not math.isfinite(value):
         return Result(r, math.nan, math.nan, "failed: no data at the measuring position")
-    big_u = u_c = math.nan
+    big_u = u_c = k = math.nan
     no_u = ""
     if context is not None:
         budget = budget_of(context(h, sspec, plane))
         big_u, u_c, no_u = float(budget.U_mm), float(budget.u_c_mm), budget.incomplete
-    return Result(r, float(value), float(value - r.nominal_mm), note, big_u, u_c, no_u)
+        k = float(budget.k)
+    return Result(r, float(value), float(value - r.nominal_mm), note, big_u, u_c, no_u, k)
 
 
 def measure_all(
@@ -355,7 +359,7 @@ def measure_all(
 
 def coverage(results: Sequence[Result]) -> dict[str, dict[str, Any]]:
     """Per reading kind (and ``"all"``): how many readings have both a true error and a stated
-    U (k = 2), and the share whose error lies within it (the target is about 95 %)."""
+    U (about 95 %), and the share whose error lies within it (the target is about 95 %)."""
     out: dict[str, dict[str, Any]] = {}
     for kind in [*KINDS, "all"]:
         rs = [r for r in results if kind == "all" or r.reading.kind == kind]

@@ -79,7 +79,7 @@ def format_table(record: dict) -> str:
         ]
         if parts:
             lines.append(
-                "Stated uncertainty (k = 2) covers the true error: " + ", ".join(parts)
+                "Stated uncertainty (U, about 95 %) covers the true error: " + ", ".join(parts)
                 + " (about 95 % expected)"
             )
         no_u = (cov.get("all") or {}).get("no_U")

@@ -390,7 +390,7 @@ def _header(kind: str) -> dict[str, Any]:
 def _finish(record: dict[str, Any], results: list[V.Result], groups: list[str]) -> dict[str, Any]:
     summary = V.summarise(results, groups)
     record["readings"] = [r.to_json() for r in results]
-    # issue 22: do the stated uncertainties (k = 2) cover the true errors?
+    # issue 22: do the stated uncertainties (U, about 95 %) cover the true errors?
     record["uncertainty_coverage"] = V.coverage(results)
     record["summary"] = {g: {ax: s.to_json() for ax, s in v.items()} for g, v in summary.items()}
     ov = summary["Overall"]

@@ -5,7 +5,12 @@ uncertainty ``u(x_i)``, its sensitivity coefficient ``c_i`` and its contribution
 ``u_i = |c_i| u(x_i)`` in mm - combines them by root-sum-square into the combined standard
 uncertainty ``u_c`` (the components are taken as uncorrelated; correlations *within* the
 calibration component are kept, see below) and states the expanded uncertainty
-``U = k u_c`` with ``k = 2`` (about 95 % for a normal distribution).
+``U = k u_c`` at a coverage probability of about 95 % (95.45 %, the coverage of ``k = 2`` for a
+normal distribution): ``k = 2`` where the normal components dominate; where a rectangular one
+does (a wall hidden in a gap of the map, the rail speed), ``k`` is taken from the distribution of
+the sum of the components, down to 1.65 for a rectangular one alone (EA-4/02 M: 2022, 5.6 and
+Annex E; GUM G.2.3): ``k = 2`` there would state an interval wider than the component's whole
+range (:func:`coverage_factor`).
 
 Components (docs/uncertainty.md says the same for a quality manager):
 
@@ -67,6 +72,8 @@ if TYPE_CHECKING:
     from impress_gui.core.calibration.uncertainty import CalibrationEnsemble
 
 K = 2.0
+#: the coverage probability of the expanded uncertainty: what k = 2 gives a normal distribution
+COVERAGE_P = 0.9545
 #: the largest ring (mm) over which the scatter of nearby means is taken for a difference
 #: (60 mm was measured on the random-rig benchmark, 2026-11-29: a ruler's dz 94.0 -> 91.5 %
 #: within U - the wider ring's disks fall on other relief and are left out; docs/uncertainty.md)
@@ -103,11 +110,24 @@ class Component:
     sensitivity: float
     u_mm: float
     note: str = ""
+    #: a rectangular component that sums independent rectangular ones (two walls each in a
+    #: gap): their half-widths in mm (``u_mm`` is their root-sum-square over sqrt 3); empty:
+    #: one rectangle of half-width ``sqrt(3) u_mm``
+    half_widths_mm: tuple[float, ...] = ()
+
+    def rectangles_mm(self) -> tuple[float, ...]:
+        """The half-widths (mm) of the rectangular distributions this component sums; () for
+        a normal (or Monte Carlo) one."""
+        if self.distribution != "rectangular" or not math.isfinite(self.u_mm):
+            return ()
+        return self.half_widths_mm or (math.sqrt(3.0) * abs(self.u_mm),)
 
     def to_json(self) -> dict:
         return {"name": self.name, "quantity": self.quantity, "type": self.evaluation,
                 "distribution": self.distribution, "u_x": _r(self.u_x), "unit": self.unit,
-                "c": _r(self.sensitivity), "u_mm": _r(self.u_mm), "note": self.note}
+                "c": _r(self.sensitivity), "u_mm": _r(self.u_mm), "note": self.note,
+                **({"half_widths_mm": [_r(a) for a in self.half_widths_mm]}
+                   if self.half_widths_mm else {})}
 
 
 def _r(v, nd: int = 6):
@@ -140,8 +160,9 @@ class Budget:
         return self.k * self.u_c_mm
 
     def short(self) -> str:
-        """``± 0.123 mm (k=2)``."""
-        return "± - (k=2)" if not math.isfinite(self.U_mm) else f"± {self.U_mm:.3f} mm (k={self.k:g})"
+        """``± 0.123 mm (k=2)`` (``k=1.93`` where a rectangular component shapes the sum)."""
+        return (f"± - (k={self.k:g})" if not math.isfinite(self.U_mm)
+                else f"± {self.U_mm:.3f} mm (k={self.k:g})")
 
     def to_json(self) -> dict:
         return {"reading": self.reading, "value_mm": _r(self.value_mm), "u_c_mm": _r(self.u_c_mm),
@@ -171,10 +192,47 @@ def _g4(v: float) -> str:
     return "-" if not math.isfinite(v) else f"{v:.4f}"
 
 
+def coverage_factor(components: Sequence[Component], p: float = COVERAGE_P) -> float:
+    """The coverage factor ``k`` of an expanded uncertainty at coverage probability ``p``
+    (default :data:`COVERAGE_P`, that of k = 2 for a normal distribution) for the sum of
+    ``components``: the normal ones (normal, Monte Carlo) pooled into one normal, each
+    rectangular one a uniform distribution (:meth:`Component.rectangles_mm`), the density of
+    their sum computed by convolution on a grid of 1/2000 of its range (JCGM 101's propagation
+    of distributions, done exactly instead of by sampling: the same budget always gives the
+    same k) and k the half-width of the central interval holding ``p`` over ``u_c``, rounded up
+    to 0.01 and at most 2 (2 for a normal sum; 1.66 for one rectangle alone)."""
+    us = [c.u_mm for c in components if math.isfinite(c.u_mm)]
+    uc = math.sqrt(sum(u * u for u in us)) if us else 0.0
+    if not uc > 0:
+        return K
+    rect = [a for c in components for a in c.rectangles_mm() if a > 0]
+    var_n = max(uc * uc - sum(a * a / 3.0 for a in rect), 0.0)
+    rect = [a for a in rect if a > 0.01 * uc]  # a rectangle this narrow adds no shape
+    if not rect:
+        return K
+    sn = math.sqrt(var_n)
+    h = (sum(rect) + 6.0 * sn) / 2000.0
+    dens = np.ones(1)
+    for a in rect:
+        m = max(int(round(a / h)), 1)
+        dens = np.convolve(dens, np.full(2 * m + 1, 1.0 / (2 * m + 1)))
+    if sn > 0.5 * h:
+        m = int(math.ceil(6.0 * sn / h))
+        g = np.exp(-0.5 * (np.arange(-m, m + 1) * h / sn) ** 2)
+        dens = np.convolve(dens, g / g.sum())
+    c = dens.size // 2
+    # the mass within +-t for t = 0, h, 2h, ... (each grid point stands for a cell of width h)
+    mass = dens[c] + 2.0 * np.cumsum(dens[c + 1:])
+    i = int(np.searchsorted(mass, p))
+    t = (i + 0.5) * h  # where the cell holding the p-quantile ends, halfway on average
+    return min(K, math.ceil(100.0 * t / uc - 1e-9) / 100.0)
+
+
 def budget_from_json(doc: Mapping) -> Budget:
     comps = tuple(Component(c.get("name", ""), c.get("quantity", ""), c.get("type", ""),
                             c.get("distribution", ""), _f(c.get("u_x")), c.get("unit", ""),
-                            _f(c.get("c")), _f(c.get("u_mm")), c.get("note", ""))
+                            _f(c.get("c")), _f(c.get("u_mm")), c.get("note", ""),
+                            tuple(_f(a) for a in c.get("half_widths_mm") or ()))
                   for c in doc.get("components", []))
     return Budget(doc.get("reading", ""), _f(doc.get("value_mm")), comps,
                   float(doc.get("k", K)), tuple(doc.get("notes", [])),
@@ -812,7 +870,9 @@ def _budget(ctx: UncertaintyContext, reading: str, value: float, comps: Sequence
     if ctx.unstable and not any(c.name == "calibration" for c in comps):
         comps.insert(0, Component("calibration", "the calibration's Monte Carlo", "A",
                                   "Monte Carlo", math.nan, "mm", 1.0, math.nan, ctx.unstable))
-    return Budget(reading, value, tuple(comps), notes=_notes(ctx, comps),
+    # no k from a budget that states no U (its calibration's line has no figure)
+    return Budget(reading, value, tuple(comps), k=K if ctx.unstable else coverage_factor(comps),
+                  notes=_notes(ctx, comps),
                   incomplete=ctx.unstable and f"the calibration is unstable ({ctx.unstable}): "
                   "its uncertainty cannot be evaluated - mark the corners again")
 
@@ -1247,7 +1307,7 @@ def width_budget(ctx: UncertaintyContext, profile, width,
     step = float(d_all[1] - d_all[0]) if d_all.size > 1 else ctx.spec.pixel_mm
     in_gap = [math.isfinite(g) and g > 1.5 * step for g in gaps]
     comps += _one_laser_walls(ctx, dis, [math.nan if hid else g for g, hid in zip(gaps, in_gap)],
-                              seen)
+                              seen, "fixed" if level_bands is None else "bands")
     # where each wall lies between two samples: one sample is a camera column across the
     # scan and a frame's travel along it, and never less than a cell of the grid the profile
     # is read from (no separate grid term: the crossings are interpolated, not cells)
@@ -1276,7 +1336,8 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                         for g, hid in zip(gaps, in_gap))
             + " (left, right wall): the wall lies anywhere between them, its crossing put at "
             "the higher side's sample (RMS over the gap: gap / sqrt(3)); no one-laser wall "
-            "error or lateral sampling for such a wall"))
+            "error or lateral sampling for such a wall",
+            tuple(math.sqrt(3.0) * v for v in ug if v > 0)))
     u_w = [0.0 if hid else s_mm * max(f, 1.0 - f) / math.sqrt(3.0)
            for f, hid in zip(fr, in_gap)]
     u1 = math.hypot(*u_w)
@@ -1285,7 +1346,8 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                            f"{what}; a steep wall between two samples is crossed by the line "
                            "between them at the level's fraction f of the step, the wall itself "
                            "anywhere between them: half-width max(f, 1 - f) samples per wall "
-                           f"(f {fr[0]:.2f}, {fr[1]:.2f})"))
+                           f"(f {fr[0]:.2f}, {fr[1]:.2f})",
+                           tuple(math.sqrt(3.0) * v for v in u_w if v > 0)))
     return _budget(ctx, "width at level", width.width_mm, comps)
 
 
@@ -1346,19 +1408,23 @@ def _crossing_disagreement(ctx: UncertaintyContext, profile, ds: np.ndarray,
     return out
 
 
-#: the standard uncertainty (mm) of where one laser alone places a wall's crossing of a
-#: fixed level: on the training rigs of the coverage benchmark (random rigs 0-23, draw 0,
-#: 640x360), the RMS over sqrt(2) of the green minus red crossings of the 224 lines (widths at
-#: the truth's mid-height, the profile and 0.5 mm either side) where both lasers crossed the
-#: level: 0.36 mm. A wall only one laser saw (the other occluded or shadowed there) has no
-#: second laser to show its error; validation, not the scan, gives it.
-ONE_LASER_WALL_MM = 0.36
+#: the standard uncertainty (mm) of where one laser alone places a wall's crossing, by where
+#: the level comes from: "fixed" (typed in, or the truth's), "bands" (the mean of bands on the
+#: same profile, whose height bias the crossing shares). A wall only one laser saw (the other
+#: occluded or shadowed there) has no second laser to show its error; validation, not the
+#: scan, gives it: on the training rigs of the coverage benchmark (random rigs 0-22, draw 0,
+#: 640x360, 0.5 px clicks), the RMS of the true crossing errors of such walls (not in a gap):
+#: 0.44 mm at a fixed level (42 walls on 12 rigs; median 0.07, 95 % within 0.94 mm), 0.11 mm
+#: at a level from bands (89 walls on 10 rigs; 95 % within 0.26 mm). (The first figure, 0.36
+#: mm for both, was the RMS over sqrt 2 of the two lasers' disagreement where both crossed a
+#: fixed level: a different population.)
+ONE_LASER_WALL_MM = {"fixed": 0.44, "bands": 0.11}
 
 
 def _one_laser_walls(ctx: UncertaintyContext, dis: Sequence[float], gaps,
-                     seen: Sequence[set] = (set(), set())) -> list:
-    """A width (at a fixed level or between bands): the method's wall-placement error,
-    :data:`ONE_LASER_WALL_MM`,
+                     seen: Sequence[set] = (set(), set()), level: str = "fixed") -> list:
+    """A width (at a fixed level or between bands: ``level`` "fixed" or "bands"): the
+    method's wall-placement error, :data:`ONE_LASER_WALL_MM` ``[level]``,
     for each wall without the two lasers' disagreement there (``dis`` NaN: the lasers' maps
     not both crossing the level within :data:`DISAGREEMENT_REACH_MM` of the fused crossing -
     the other laser occluded, one laser's map shown, the per-laser maps not given); two such
@@ -1377,14 +1443,16 @@ def _one_laser_walls(ctx: UncertaintyContext, dis: Sequence[float], gaps,
         why = ("the two lasers' maps do not both cross the level within "
                f"{DISAGREEMENT_REACH_MM:g} mm of it (one laser occluded there; crossed by: "
                f"{by})")
-    u = ONE_LASER_WALL_MM * math.sqrt(len(walls))
+    per_wall = ONE_LASER_WALL_MM[level]
+    u = per_wall * math.sqrt(len(walls))
     which = " and ".join(("left", "right")[k] for k in walls)
     return [Component("method, walls one laser saw", "positions of the crossings", "B", "normal",
                       u, "mm", 1.0, u,
                       f"{which} wall{'s' if len(walls) > 1 else ''}: {why}; "
-                      f"{ONE_LASER_WALL_MM:g} mm per wall (the walls independent): one laser's "
-                      "crossing error at a fixed level, measured on the training rigs (the "
-                      "lasers' disagreement where both crossed, RMS over sqrt(2))")]
+                      f"{per_wall:g} mm per wall (the walls independent): one laser's "
+                      "crossing error " + ("at a fixed level" if level == "fixed" else
+                                           "at a level from bands on the same profile")
+                      + ", measured on the training rigs (RMS of such walls' true errors)")]
 
 
 def _method_width(ctx: UncertaintyContext, ux, uy, x0, y0, ds, gaps, slopes) -> list:
@@ -1492,14 +1560,27 @@ def _at(profile, along: np.ndarray, axis: int) -> np.ndarray:
     return p0 + np.asarray(along, float) * (p1 - p0) / L
 
 
+def k_text(budgets, spaced: bool = False) -> str:
+    """The coverage factors of ``budgets`` (Budgets or numbers) for a label: ``k=2``, ``k=1.93``
+    or, when they differ, ``k=1.93-2`` (``k = 2`` with ``spaced``)."""
+    ks = sorted({float(b.k if isinstance(b, Budget) else b) for b in budgets})
+    eq = " = " if spaced else "="
+    if not ks:
+        return f"k{eq}{K:g}"
+    return f"k{eq}{ks[0]:g}" if len(ks) == 1 else f"k{eq}{ks[0]:g}-{ks[-1]:g}"
+
+
 def with_uncertainty(values: dict, budgets: Mapping[str, Budget]) -> dict:
-    """``values`` with ``U_k2_<name>_mm`` and ``u_c_<name>_mm`` for each budget (name ``""``:
-    ``u_c_mm``, ``U_k2_mm``)."""
+    """``values`` with ``U_k2_<name>_mm``, ``u_c_<name>_mm`` and ``k_<name>`` for each budget
+    (name ``""``: ``u_c_mm``, ``U_k2_mm``, ``k``). ``U_k2`` is the expanded uncertainty at the
+    coverage probability of k = 2 for a normal distribution (about 95 %; the name from the
+    first version, when k was always 2); ``k`` is its coverage factor (:func:`coverage_factor`)."""
     out = dict(values)
     for name, b in budgets.items():
         sfx = f"_{name}" if name else ""
         out[f"u_c{sfx}_mm"] = b.u_c_mm
         out[f"U_k2{sfx}_mm"] = b.U_mm
+        out[f"k{sfx}"] = b.k
     return out
 
 

@@ -27,6 +27,7 @@ from impress_gui.core.formats.figures import (
 )
 from impress_gui.core.formats.writers import ply_bytes, x3p_bytes
 from impress_gui.core.measure import readings as M
+from impress_gui.core.measure import uncertainty as U
 from impress_gui.core.reconstruction.grid import GridSpec
 from impress_gui.session.session import Session
 from impress_gui.ui.messages import Dialogs, Messenger
@@ -343,7 +344,7 @@ class ViewerExports(QObject):
 
     def profile_lines(self) -> tuple[list[str], dict]:
         """The profile figure's text lines (case, reconstruction, ruler; the ruler's readings and
-        the bands' step with their expanded uncertainty U, k = 2, when a budget exists) and the
+        the bands' step with their expanded uncertainty U and its k, when a budget exists) and the
         placed bands; ([], {}) without a profile."""
         pr, ruler = self.ruler.profile, self.ruler
         if pr is None:
@@ -371,7 +372,8 @@ class ViewerExports(QObject):
 
         # no U stated (an unstable calibration): said in place of "(± U, k = 2)"
         why = next((b.incomplete for b in budgets.values() if b.incomplete), "")
-        how = f"(no U stated: {why})" if why else "(± U, k = 2)"
+        ruler_ks = [b for key, b in budgets.items() if key != "step"]
+        how = f"(no U stated: {why})" if why else f"(± U, {U.k_text(ruler_ks, spaced=True)})"
         r = ruler.result()
         if r is not None and budgets:
             dz = "no data" if np.isnan(r.dz_mm) else f"{r.dz_mm:+.3f}{pm('dz')} mm"
@@ -379,7 +381,8 @@ class ViewerExports(QObject):
         bands = dict(ruler.plot.placed_bands()) if ruler.plot.bands_placed() else {}
         s = ruler.step
         if bands and s is not None:
-            unc = ((f"{pm('step')} mm " + ("(U, k = 2)" if not why else how))
+            unc = ((f"{pm('step')} mm "
+                    + (f"(U, {U.k_text([budgets['step']], spaced=True)})" if not why else how))
                    if "step" in budgets else " mm")
             lines.append(
                 f"Band A {s.a.mean_mm:.3f} mm (SD {s.a.sd_mm:.3f}, n {s.a.n}), band B "

@@ -29,7 +29,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from impress_gui.core.measure.uncertainty import budgets_text
+from impress_gui.core.measure.uncertainty import budgets_text, k_text
 from impress_gui.ui.viewer.map import legend_html
 
 LAYERS = (
@@ -408,6 +408,15 @@ def _no_u(m: dict) -> str:
     return f" [no U: {why}]" if why else ""
 
 
+def _k_of(v: dict) -> str:
+    """``k=2`` / ``k=1.93-2``: the coverage factors recorded beside a measurement's U values
+    (``k``, ``k_<name>``; a record from before they were recorded: k = 2)."""
+    ks = [float(x) for key, x in v.items()
+          if (key == "k" or (key.startswith("k_") and f"U_k2_{key[2:]}_mm" in v))
+          and isinstance(x, (int, float)) and math.isfinite(x)]
+    return k_text(ks or [2.0])
+
+
 def summary(m: dict) -> str:
     """One line of a measurement's main values, each with its expanded uncertainty (k = 2)
     in brackets when it was measured with one."""
@@ -426,11 +435,11 @@ def summary(m: dict) -> str:
         if _no_u(m):
             return text + _no_u(m)
         if any(k.startswith("U_k2") for k in v):
-            text += " [U: k=2]"
+            text += f" [U: {_k_of(v)}]"
         return text
     if kind in ("point", "annotation"):
         return f"height {_mm(v.get('height_mm'))}{_u(v, 'U_k2_mm', no_u)}" + (
-            _no_u(m) or (" [U: k=2]" if v.get("U_k2_mm") is not None else ""))
+            _no_u(m) or (f" [U: {_k_of(v)}]" if v.get("U_k2_mm") is not None else ""))
     if kind == "plane":
         return f"tilt {v.get('tilt_deg', 0):.3f}°, RMS {_mm(v.get('rms_mm'))}"
     return ""

@@ -126,7 +126,7 @@ class RulerProfile(QObject):
         text = f"xy {r.xy_mm:.3f} mm{pm('xy')} | 3D {d3} | dz {dz}"
         why = next((x.incomplete for x in b.values() if x.incomplete), "")
         self.tools.ruler_text.setText(f"Ruler: {text}" + (
-            f" [no U: {why}]" if why else " [± U, k=2]" if b else ""))
+            f" [no U: {why}]" if why else f" [± U, {U.k_text(b.values())}]" if b else ""))
         self.tools.ruler_text.setToolTip("\n\n".join(x.text() for x in b.values()))
         self.map.decorate_ruler(
             text,
@@ -190,7 +190,7 @@ class RulerProfile(QObject):
         sb = self.step_budget
         unc = ("" if sb is None else
                f"\nStep uncertainty: none stated - {sb.incomplete}" if sb.incomplete else
-               f"\nStep uncertainty U (k=2): {_pm_mm(sb.U_mm)}"
+               f"\nStep uncertainty U ({U.k_text([sb])}): {_pm_mm(sb.U_mm)}"
                + (f" (u_c {sb.u_c_mm:.3f} mm)" if math.isfinite(sb.u_c_mm) else ""))
         # the bands' SD is the spread of the surface in them, not an uncertainty: never "±"
         self.tools.step_text.setText(

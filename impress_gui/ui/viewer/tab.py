@@ -475,8 +475,8 @@ class ViewerTab(QWidget):
         else:
             budget = self.readout_budget(r)
             u = "" if budget is None else (
-                f" ± {budget.U_mm:.3f} mm (U, k=2)" if np.isfinite(budget.U_mm)
-                else " ± - (U, k=2)")
+                f" ± {budget.U_mm:.3f} mm (U, {U.k_text([budget])})"
+                if np.isfinite(budget.U_mm) else f" ± - (U, {U.k_text([budget])})")
             spread = f"spread SD {r.sd_mm:.3f} mm, " if r.n_valid > 1 else ""
             text = (f"{where}: height {r.height_mm:.3f} mm{u} ({spread}{r.n_valid} of "
                     f"{r.n_cells} cells)")
