@@ -374,6 +374,12 @@ def test_readings_budgets_and_the_csv_carry_the_uncertainty(flat):
     for key in ("u_c_xy_mm", "U_k2_xy_mm", "U_k2_3d_mm", "U_k2_dz_mm", "U_k2_step_mm"):
         assert float(rows[0][key]) > 0
     assert float(rows[0]["U_k2_xy_mm"]) == pytest.approx(b["xy"].U_mm, abs=1e-4)
+    # each U's coverage factor beside it: U = k u_c
+    for name in ("xy", "3d", "dz", "step"):
+        k = float(rows[0][f"k_{name}"])
+        assert k == b[name].k and 1.65 <= k <= 2.0
+        assert float(rows[0][f"U_k2_{name}_mm"]) == pytest.approx(
+            k * float(rows[0][f"u_c_{name}_mm"]), abs=3e-4)  # the CSV keeps 4 decimals
     doc = json.loads(rows[0]["uncertainty_budget"])
     assert {c["name"] for c in doc["step"]["components"]} >= {"calibration", "surface noise"}
     assert rows[1]["uncertainty_budget"] == "" and rows[1]["U_k2_xy_mm"] == ""

@@ -34,7 +34,8 @@ def new_measurement(
     ``{"id", "kind", "label", "note", "points_mm", "params", "values", "created_utc"}``
     (non-finite values are stored as None), and ``"uncertainty"`` when given: the budgets of
     its readings by name (:func:`impress_gui.core.measure.uncertainty.budgets_json`), whose
-    ``u_c_*_mm`` and ``U_k2_*_mm`` are also among the values."""
+    ``u_c_*_mm``, ``U_k2_*_mm`` and ``k_*`` (``k``: the coverage factor) are also among the
+    values."""
     if kind not in MEASUREMENT_KINDS:
         raise InputError(f"unknown measurement kind {kind!r}")
     extra = {} if not uncertainty else {"uncertainty": _jsonable(dict(uncertainty))}
@@ -137,7 +138,7 @@ def read_profile_csv(text: str) -> tuple[np.ndarray, np.ndarray]:
 def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None = None) -> str:
     """Leading ``# key: value`` lines of ``provenance`` (software version, the open
     reconstruction's hashes), then one row per measurement: number, id, kind, label, note,
-    points, every value (with the uncertainties ``u_c_*_mm`` and ``U_k2_*_mm`` when measured
+    points, every value (with the uncertainties ``u_c_*_mm``, ``U_k2_*_mm`` and ``k_*`` when measured
     with them), the budgets as JSON in a column ``uncertainty_budget`` (only when a measurement
     has one), and the layer and heightmap SHA-256 it was measured on."""
     value_keys: list[str] = []
