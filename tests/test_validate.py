@@ -12,7 +12,7 @@ targets, 2.6 mm of travel per frame):
   edge (see docs/validation.md), which widens slots by ~0.2-0.5 mm;
 - flatness (0.3 % trimmed range of the residuals) <= 0.6 mm, RMS <= 0.1 mm, plane height
   within 0.15 mm of the truth.
-The stated uncertainties (issue 22): every reading's U (k = 2) and the share of each kind's
+The stated uncertainties (issue 22): every reading's U (about 95 %) and the share of each kind's
 readings whose true error lies within it, in the record, the table and the report.
 The rendered scans are kept in pytest's cache folder between sessions (keyed by the
 simulator's code and the scan's settings); a cold run renders them first (about a minute).
@@ -82,7 +82,7 @@ def test_quick_mode_meets_the_z_bar_and_its_xy_tolerance(run):
     assert fr[-1] == pytest.approx(1.0) and all(b >= a - 1e-9 for a, b in zip(fr, fr[1:]))
 
 
-#: the least share of a kind's readings whose true error must lie within their U (k = 2) in the
+#: the least share of a kind's readings whose true error must lie within their U (about 95 %) in the
 #: quick run. Measured 25 November 2026 with the per-laser maps: edge distance 12/12, step 12/12
 #: (the steps closest to their U: errors of 0.104 and 0.051 mm against 0.119 and 0.056 mm); with
 #: the first (uncapped) window sub-pixel estimate as the default, step 10/12 (0.088 against
@@ -94,7 +94,7 @@ COVERAGE_FLOOR = 0.75
 
 
 def test_the_record_and_table_state_the_uncertainty_coverage(run):
-    """issue 22: every reading carries its U (k = 2) and whether it covers the true error; the
+    """issue 22: every reading carries its U (about 95 %) and k and whether it covers the true error; the
     record counts them per kind, the table, the report and the saved record say so."""
     rec = run["record"]
     readings, cov = rec["readings"], rec["uncertainty_coverage"]

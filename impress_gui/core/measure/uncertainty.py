@@ -8,7 +8,7 @@ calibration component are kept, see below) and states the expanded uncertainty
 ``U = k u_c`` at a coverage probability of about 95 % (95.45 %, the coverage of ``k = 2`` for a
 normal distribution): ``k = 2`` where the normal components dominate; where a rectangular one
 does (a wall hidden in a gap of the map, the rail speed), ``k`` is taken from the distribution of
-the sum of the components, down to 1.65 for a rectangular one alone (EA-4/02 M: 2022, 5.6 and
+the sum of the components, down to 1.66 for a rectangular one alone (EA-4/02 M: 2022, 5.6 and
 Annex E; GUM G.2.3): ``k = 2`` there would state an interval wider than the component's whole
 range (:func:`coverage_factor`).
 

@@ -370,7 +370,7 @@ class ViewerExports(QObject):
                 return " ± -"
             return "" if b is None or not np.isfinite(b.U_mm) else f" ± {b.U_mm:.3f}"
 
-        # no U stated (an unstable calibration): said in place of "(± U, k = 2)"
+        # no U stated (an unstable calibration): said in place of "(± U, k = ...)"
         why = next((b.incomplete for b in budgets.values() if b.incomplete), "")
         ruler_ks = [b for key, b in budgets.items() if key != "step"]
         how = f"(no U stated: {why})" if why else f"(± U, {U.k_text(ruler_ks, spaced=True)})"

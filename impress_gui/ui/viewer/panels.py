@@ -418,8 +418,9 @@ def _k_of(v: dict) -> str:
 
 
 def summary(m: dict) -> str:
-    """One line of a measurement's main values, each with its expanded uncertainty (k = 2)
-    in brackets when it was measured with one."""
+    """One line of a measurement's main values, each with its expanded uncertainty (about
+    95 %, its coverage factor said once: ``[U: k=2]``) in brackets when it was measured with
+    one."""
     v = m.get("values", {})
     kind = m.get("kind")
     no_u = bool(_no_u(m))

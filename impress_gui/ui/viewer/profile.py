@@ -152,7 +152,7 @@ class ProfilePlot(pg.PlotWidget):
 
     def show_step(self, step: StepHeight | None, budget=None) -> None:
         """The bands' means (and their SD) on the plot; with the step's uncertainty ``budget``
-        the plot's title states the step ± U (k = 2) and its tooltip the budget."""
+        the plot's title states the step ± U (with its k) and its tooltip the budget."""
         if step is None or budget is None or not math.isfinite(step.difference_mm):
             self.setTitle(None)
             self.setToolTip("")

@@ -1,7 +1,7 @@
 """The viewer's ruler and its depth profile: a draggable ruler on the map, its readings, the
 profile along it (averaging width) computed in the background on the full-resolution heights,
 and the step height between two reference bands the user places on the profile. Each reading
-is shown with its expanded uncertainty (k = 2); its budget is the label's tooltip."""
+is shown with its expanded uncertainty (about 95 %, with its k); its budget is the label's tooltip."""
 
 from __future__ import annotations
 
@@ -110,7 +110,7 @@ class RulerProfile(QObject):
 
     def show_reading(self) -> None:
         """The ruler's length, 3D length and height difference beside it and in the panel,
-        each with its expanded uncertainty U (k = 2); the budgets in the tooltip."""
+        each with its expanded uncertainty U (about 95 %, with its k); the budgets in the tooltip."""
         r = self.result()
         if r is None:
             return

@@ -460,7 +460,7 @@ class ViewerTab(QWidget):
         return None if ctx is None else U.height_budget(ctx, r)
 
     def show_readout(self, x_mm: float, y_mm: float) -> None:
-        """The height under the cursor with its expanded uncertainty U (k = 2), and the spread
+        """The height under the cursor with its expanded uncertainty U (with its k), and the spread
         (SD) of the cells averaged, labelled as such; the budget in the tooltip."""
         if self.data is None:
             return
