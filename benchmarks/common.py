@@ -29,8 +29,16 @@ def source_key(*parts: str) -> str:
     return h.hexdigest()[:10]
 
 
-SIM_KEY = source_key("impress_gui/sim", "impress_gui/core/calibration/target.py",
-                     "impress_gui/core/calibration/geometry.py", "resources")
+#: what the simulator's renders depend on: its package, every module of ours it imports
+#: (tests/test_bench_keys.py checks the list against a fresh interpreter's imports; until 3
+#: December 2026 the image writer, the pick files and core.base were left out, so a change
+#: there kept serving renders an earlier state made) and the resources
+SIM_SOURCES = ("impress_gui/sim", "impress_gui/__init__.py", "impress_gui/core/__init__.py",
+               "impress_gui/core/base", "impress_gui/core/calibration/__init__.py",
+               "impress_gui/core/calibration/target.py", "impress_gui/core/calibration/geometry.py",
+               "impress_gui/core/calibration/picks.py", "impress_gui/core/formats/__init__.py",
+               "impress_gui/core/formats/images.py", "resources")
+SIM_KEY = source_key(*SIM_SOURCES)
 CAL_KEY = source_key("impress_gui/core/calibration/scene.py", "impress_gui/core/calibration/solve.py",
                      "impress_gui/core/calibration/planes.py", "impress_gui/core/reconstruction/stripes.py",
                      "impress_gui/core/reconstruction/kernels.py", "impress_gui/core/calibration/geometry.py")
