@@ -25,11 +25,11 @@ def test_sim_key_covers_every_module_the_simulator_imports():
             "    f = getattr(m, '__file__', None)\n"
             "    if m.__name__.startswith('impress_gui') and f: print(f)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True, cwd=ROOT).stdout.split()
+                         check=True, cwd=ROOT).stdout.splitlines()
     files = sorted({Path(f).resolve().relative_to(ROOT).as_posix() for f in out})
     assert any(f.startswith("impress_gui/sim/") for f in files)
     missing = [f for f in files if not _covered(f, common.SIM_SOURCES)]
     assert not missing, f"SIM_SOURCES leaves out modules the simulator imports: {missing}"
-    # and the key does change with them (a part that names nothing would hash nothing)
+    # every part names something (a part that names nothing would hash nothing)
     for part in common.SIM_SOURCES:
         assert (ROOT / part).exists(), part
