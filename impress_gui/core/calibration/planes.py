@@ -283,22 +283,37 @@ def _frame_start(points: np.ndarray, groups: np.ndarray, floor_mm: float):
     plane0, _, _ = fit_plane(points)
     best_med = float(np.median(np.abs(plane0.distance(points))))
     limit, best = best_med / FRAME_START_GAIN, None
+    sels = []
     for g in np.unique(groups[groups >= 0]):
-        p = points[groups == g]
-        if len(p) < 10:
+        sel = groups == g
+        n = int(sel.sum())
+        # judged by the points it was not fitted to: as many as its own at least
+        if n >= 10 and len(points) - n >= n:
+            sels.append(sel)
+    if not sels:
+        return None
+    # every frame's own plane at once (the tilt refinement asks for this thousands of times):
+    # the smallest principal axis of the frame's points' scatter
+    sel = np.array(sels)
+    cnt = sel.sum(1)
+    centre = (sel @ points) / cnt[:, None]
+    scatter = np.empty((len(sels), 3, 3))
+    for i, m in enumerate(sels):
+        d = points[m] - centre[i]
+        scatter[i] = d.T @ d
+    w, v = np.linalg.eigh(scatter)  # ascending eigenvalues: the normal is the first axis
+    normal = v[:, :, 0]
+    spread = np.sqrt(np.maximum(w[:, 1], 0.0))  # the second singular value of the points
+    dist = np.abs(points @ normal.T - np.einsum("ij,ij->i", centre, normal))  # (N, frames)
+    for i in range(len(sels)):
+        if spread[i] / math.sqrt(cnt[i]) < FRAME_START_SPREAD_MM:
             continue
-        rest = points[groups != g]  # judged by the points it was not fitted to
-        if len(rest) < len(p):
-            continue
-        pl, _, sv = fit_plane(p)
-        if sv[1] / math.sqrt(len(p)) < FRAME_START_SPREAD_MM:
-            continue
-        med = float(np.median(np.abs(pl.distance(rest))))
+        med = float(np.median(dist[~sel[i], i]))
         if med < limit:
-            limit, best = med, pl
+            limit, best = med, i
     if best is None:
         return None
-    return np.abs(best.distance(points)) < max(4 * 1.4826 * limit, floor_mm)
+    return dist[:, best] < max(4 * 1.4826 * limit, floor_mm)
 
 
 def robust_plane(points: np.ndarray, rounds: int = 4, floor_mm: float = 0.02,
@@ -422,9 +437,20 @@ class StripeObservations:
         """The stripe points on the target's faces, their heights and frames (only frames where
         the stripe crosses two faces with at least 10 points each)."""
         pts, hts, used = [], [], []
-        for k, dt_k, rays in self.rays[name]:
-            p, hh, _ = points_on_faces(rays @ rot.T, pose_rt, self.target,
-                                       self.speed_mm_s * dt_k)
+        frames = self.rays[name]
+        if not frames:
+            return pts, hts, used
+        # all frames' rays in one intersection (each ray with its own travel): the tilt
+        # refinement and the Monte Carlo ask for these points thousands of times
+        sizes = [len(rays) for _, _, rays in frames]
+        rays = np.concatenate([rays for _, _, rays in frames]) @ rot.T
+        travel = np.concatenate([np.broadcast_to(self.speed_mm_s * np.asarray(dt_k, float), (n,))
+                                 for (_, dt_k, _), n in zip(frames, sizes)])
+        p_all, h_all, ok = points_on_faces(rays, pose_rt, self.target, travel)
+        counts = np.bincount(np.repeat(np.arange(len(frames)), sizes)[ok],
+                             minlength=len(frames))
+        cuts = np.cumsum(counts)[:-1]
+        for (k, _, _), p, hh in zip(frames, np.split(p_all, cuts), np.split(h_all, cuts)):
             levels = np.unique(hh)
             if len(levels) >= 2 and min(np.sum(hh == v) for v in levels) >= 10:
                 pts.append(p)

@@ -107,6 +107,10 @@ def _rot_to_vec(r: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(r).as_rotvec()
 
 
+#: the relative step of the bundle's forward-difference Jacobian (scipy's "2-point" default)
+_REL_STEP = float(np.finfo(float).eps) ** 0.5
+
+
 def project_points(intr: Intrinsics, rot: np.ndarray, pts_rail: np.ndarray,
                    travel: float) -> np.ndarray:
     """Distorted pixels of rail-frame points seen from a camera that travelled ``travel``
@@ -135,19 +139,36 @@ def refine_bundle(intr, target, picks, init, d0, fixed_travel: bool = False,
 
     rows = row_offsets(intr, picks, dt_s)
 
+    def resid_many(ps: np.ndarray) -> np.ndarray:
+        """The residuals of several parameter vectors ``(K, n)`` at once: ``(K, 24)``."""
+        parts = [unpack(p) for p in ps]
+        rot = np.stack([q[0] for q in parts])
+        pts = np.stack([obj @ q[1].T + q[2] for q in parts])  # (K, 6, 3) rail frame
+        d = np.array([float(q[3]) for q in parts])[:, None]
+        travels = (np.zeros_like(d), d) if rows is None else (d * rows[0], d * (1.0 + rows[1]))
+        out = []
+        for travel, uv in zip(travels, (uv1, uv2)):
+            shifted = pts.copy()
+            shifted[..., 1] -= travel  # the camera's travel along the rail (Y)
+            out.append((intr.project(np.matmul(shifted, rot)) - uv).reshape(len(ps), -1))
+        return np.concatenate(out, axis=1)
+
     def resid(p):
-        rot, r_o, t_o, d = unpack(p)
-        pts = obj @ r_o.T + t_o
-        if rows is None:
-            return np.concatenate([(project_points(intr, rot, pts, 0.0) - uv1).ravel(),
-                                   (project_points(intr, rot, pts, d) - uv2).ravel()])
-        return np.concatenate([(project_points(intr, rot, pts, d * rows[0]) - uv1).ravel(),
-                               (project_points(intr, rot, pts, d * (1.0 + rows[1]))
-                                - uv2).ravel()])
+        return resid_many(p[None])[0]
+
+    def jac(p):
+        # scipy's forward differences ("2-point": the same steps), all columns in one batch
+        # of projections: the tilt refinement and the calibration's Monte Carlo solve this
+        # bundle thousands of times
+        h = _REL_STEP * np.where(p >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(p))
+        h = (p + h) - p
+        f = resid_many(np.vstack([p, p + np.diag(h)]))
+        return (f[1:] - f[0]).T / h
 
     p0 = np.concatenate(([] if fixed_rotation else [[roll, tilt]]) + [_rot_to_vec(r_o), t_o]
                         + ([] if fixed_travel else [[d0]]))
-    sol = least_squares(resid, p0, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=4000)
+    sol = least_squares(resid, p0, jac=jac, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14,
+                        max_nfev=4000)
     rot, r_o, t_o, d = unpack(sol.x)
     rms = float(np.sqrt(np.mean(sol.fun**2)))
     if fixed_rotation:
