@@ -30,9 +30,10 @@ import pytest
 from conftest import truth_on_grid
 
 from impress_gui import __version__
-from impress_gui.core.base.errors import Cancelled, FormatError
+from impress_gui.core.base.errors import Cancelled, FormatError, InputError
 from impress_gui.core.base.fileio import sha256_file, write_json
 from impress_gui.core.base.progress import CancelToken
+from impress_gui.core.calibration import uncertainty as CU
 from impress_gui.core.reconstruction.grid import GridSpec
 from impress_gui.validation import protocol as V
 from impress_gui.validation import vdi as VDI
@@ -42,8 +43,11 @@ from impress_gui.validation.spec import load_spec
 
 #: one rendering process: with two, each builds the scene again (8.5 s for AB, 3 s for the
 #: plane) and the test suite's other worker already has the second core (the frames are the
-#: same, and a scan made either way is reused)
-QUICK = dict(speed_mm_s=78.828, placements=("AB",), extras=("flat",), workers=1)
+#: same, and a scan made either way is reused). 20 Monte Carlo trials behind the readings'
+#: uncertainties, not the product's 60: the run's slowest part (tests/test_uncertainty.py
+#: checks the Monte Carlo itself); the record states the number
+QUICK = dict(speed_mm_s=78.828, placements=("AB",), extras=("flat",), workers=1,
+             uncertainty_trials=20)
 
 
 @pytest.fixture(scope="module")
@@ -97,6 +101,8 @@ def test_the_record_and_table_state_the_uncertainty_coverage(run):
     """issue 22: every reading carries its U (about 95 %) and k and whether it covers the true error; the
     record counts them per kind, the table, the report and the saved record say so."""
     rec = run["record"]
+    assert rec["config"]["uncertainty_trials"] == 20
+    assert RunConfig().uncertainty_trials == CU.DEFAULT_TRIALS  # the product's own default
     readings, cov = rec["readings"], rec["uncertainty_coverage"]
     kinds = sorted({r["kind"] for r in readings})
     assert kinds == ["edge_distance", "step"]
@@ -461,3 +467,17 @@ def test_an_interrupted_validation_leaves_no_folder_behind(tmp_path):
     with pytest.raises(Cancelled):
         run_simulated(RunConfig.quick(), tmp_path / "w", cancel=token)
     assert (tmp_path / "w").is_dir()
+
+
+def test_the_uncertainty_trials_are_checked_before_anything_runs(tmp_path, capsys):
+    """``--uncertainty-trials`` outside 4..1000 is refused with the option's code, before a
+    scan is rendered; nothing is written."""
+    from impress_gui.cli import main
+
+    with pytest.raises(InputError, match="uncertainty trials 2"):
+        RunConfig.quick(uncertainty_trials=2).validate()
+    out = tmp_path / "v"
+    code = main(["validate", "--quick", "--uncertainty-trials", "3", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code != 0 and "uncertainty trials 3" in err and "Traceback" not in err
+    assert not out.exists()

@@ -68,6 +68,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="noise added to the simulated corner clicks (pixels, default 0)",
     )
+    p.add_argument(
+        "--uncertainty-trials",
+        type=int,
+        default=60,
+        help="trials of the calibration's Monte Carlo behind each reading's uncertainty "
+        "(default 60; 4 to 1000)",
+    )
     p.add_argument("--workers", type=int, default=2,
                    help=f"render processes (default 2; 1 to {MAX_WORKERS})")
     p.add_argument("--fresh", action="store_true", help="render every scan again")
@@ -108,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
             "reuse_scans": not args.fresh,
             "click_noise_px": args.click_noise_px,
             "keep_reconstructions": args.keep_reconstructions,
+            "uncertainty_trials": args.uncertainty_trials,
         }
         if args.resolution:
             kw["width"], kw["height"] = args.resolution

@@ -88,6 +88,10 @@ class RunConfig:
     #: the rail raised for "B lifted by 40 mm": at the default 300 mm the two laser planes cross
     #: 67 mm above the ground and the stair on the lifted plate reaches 77 mm
     lifted_standoff_mm: float = 380.0
+    #: the calibration Monte Carlo's trials behind each reading's stated uncertainty (the
+    #: product's default, 60, states a reading's SD to about 7 % of itself; fewer: faster, the
+    #: stated U itself less certain)
+    uncertainty_trials: int = 60
 
     @classmethod
     def quick(cls, **kw: Any) -> RunConfig:
@@ -122,6 +126,9 @@ class RunConfig:
             )
         if not self.placements and not self.extras:
             raise InputError("nothing to validate", code=codes.E_VAL_OPTION)
+        if not 4 <= self.uncertainty_trials <= 1000:
+            raise InputError(f"uncertainty trials {self.uncertainty_trials}: give 4 to 1000",
+                             code=codes.E_VAL_OPTION)
         for sc in self.sim_configs().values():
             sc.validate()
 
@@ -305,14 +312,14 @@ def _flat_region(
 
 
 def uncertainty_contexts(
-    rec: ReconData, calibration: Path | None, target: Path | None
+    rec: ReconData, calibration: Path | None, target: Path | None, trials: int | None = None
 ) -> V.ContextFactory:
     """The uncertainty context of each validation reading, as the viewer would make it for the
     same cells: the reconstruction's calibration (its Monte Carlo computed once, cached), the
     target it was fitted with, the lasers' contribution codes and the per-laser height maps
     (where the lasers disagreed, the kept laser's calibration moves the cell; taken from
     ``rec`` or its folder, None when absent) cropped like the heights, and the weights the
-    fusion gave agreeing lasers."""
+    fusion gave agreeing lasers. ``trials``: the Monte Carlo's (None: its default)."""
     from impress_gui.core.calibration.scene import SceneCalibration
     from impress_gui.core.calibration.target import TargetModel
     from impress_gui.core.measure.uncertainty import (
@@ -335,7 +342,8 @@ def uncertainty_contexts(
         c = None if contribution is None else contribution[window]
         lasers = None if per_laser is None else {n: m[window] for n, m in per_laser.items()}
         return UncertaintyContext.for_calibration(h, sspec, cal, model, c, level_plane=plane,
-                                                  per_laser=lasers, fusion_weights=weights)
+                                                  trials=trials, per_laser=lasers,
+                                                  fusion_weights=weights)
 
     return make
 
@@ -551,7 +559,8 @@ def run_simulated(
             layers=("fused", "contribution", "green", "red"),
         )
         context = uncertainty_contexts(
-            rec, out / "runs" / item / "calibration.json", scan / "target.json"
+            rec, out / "runs" / item / "calibration.json", scan / "target.json",
+            cfg.uncertainty_trials,
         )
         measured = _measure_item(item, rec, truth, title, context)
         del rec
