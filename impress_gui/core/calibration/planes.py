@@ -436,7 +436,9 @@ class StripeObservations:
     def points(self, name: str, rot: np.ndarray, pose_rt):
         """The stripe points on the target's faces, their heights and frames (only frames where
         the stripe crosses two faces with at least 10 points each)."""
-        pts, hts, used = [], [], []
+        pts: list[np.ndarray] = []
+        hts: list[np.ndarray] = []
+        used: list[int] = []
         frames = self.rays[name]
         if not frames:
             return pts, hts, used
