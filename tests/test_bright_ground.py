@@ -50,13 +50,15 @@ def _reconstruct(seed, out):
 
 
 @pytest.mark.slow
-def test_white_ground_is_warned_of_and_ordinary_ground_is_not(tmp_path):
+def test_white_ground_is_warned_of_and_ordinary_ground_is_not(tmp_path, flat_recon):
     truth, rec = _reconstruct(34, tmp_path / "white")
     assert truth["random_rig"]["soil_brightness"] > 0.8
     share = rec.stats["ground_near_full_share"]
     assert share > BRIGHT_GROUND_SHARE
     (w,) = [w for w in rec.warnings if w.startswith("W-BRIGHT-GROUND")]
     assert f"{100 * share:.0f} %" in w and "exposure" in w
-    truth, rec = _reconstruct(0, tmp_path / "dark")
-    assert rec.stats["ground_near_full_share"] < 0.5 * BRIGHT_GROUND_SHARE
-    assert not [w for w in rec.warnings if w.startswith("W-BRIGHT-GROUND")]
+    # ordinary ground: the flat preset's scan the suite reconstructs once for several files
+    # (as `impress process` wrote it: the share and the warnings in its metadata)
+    meta = json.loads((flat_recon / "metadata.json").read_text())
+    assert meta["stats"]["ground_near_full_share"] < 0.5 * BRIGHT_GROUND_SHARE
+    assert not [w for w in meta["warnings"] if w.startswith("W-BRIGHT-GROUND")]
