@@ -425,7 +425,7 @@ def _trial(cal, target, picks: Picks, segs, rng, sigma_px: float, dt: float, ref
         picks = Picks("", picks.t1, picks.t2, noisy["corners_t1"], noisy["corners_t2"])
     rms = {la: float(cal.planes[la].rms_mm) for la in LASERS} if sigma_px > 0 else None
     obs = _observations(cal, target, segs, rng, rms, ground, model)
-    pose = solve_pose(cal.intrinsics, target, picks, cal.speed_mm_s, dt)
+    pose = solve_pose(cal.intrinsics, target, picks, cal.speed_mm_s, dt, mismatch_gate=False)
     if refine:
         fits = obs.fit_planes(pose.rotation, (pose.target_rotation, pose.target_translation_mm))
         pose = refine_tilt(obs, fits, cal.intrinsics, target, picks, pose, cal.speed_mm_s, dt,
