@@ -71,9 +71,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--uncertainty-trials",
         type=int,
-        default=60,
+        default=None,
         help="trials of the calibration's Monte Carlo behind each reading's uncertainty "
-        "(default 60; 4 to 1000)",
+        "(4 to 1000; default: the product's, 60)",
     )
     p.add_argument("--workers", type=int, default=2,
                    help=f"render processes (default 2; 1 to {MAX_WORKERS})")
@@ -115,8 +115,9 @@ def run(args: argparse.Namespace) -> int:
             "reuse_scans": not args.fresh,
             "click_noise_px": args.click_noise_px,
             "keep_reconstructions": args.keep_reconstructions,
-            "uncertainty_trials": args.uncertainty_trials,
         }
+        if args.uncertainty_trials is not None:
+            kw["uncertainty_trials"] = args.uncertainty_trials
         if args.resolution:
             kw["width"], kw["height"] = args.resolution
         if args.speed:

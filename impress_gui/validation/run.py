@@ -90,7 +90,8 @@ class RunConfig:
     lifted_standoff_mm: float = 380.0
     #: the calibration Monte Carlo's trials behind each reading's stated uncertainty (the
     #: product's default, 60, states a reading's SD to about 7 % of itself; fewer: faster, the
-    #: stated U itself less certain)
+    #: stated U itself less certain); the same as core.calibration.uncertainty.DEFAULT_TRIALS
+    #: (not imported here: this module loads without the calibration's; a test checks it)
     uncertainty_trials: int = 60
 
     @classmethod
