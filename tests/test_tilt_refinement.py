@@ -11,6 +11,7 @@ from impress_gui.core.calibration.geometry import ideal_rotation
 from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.calibration.solve import solve_pose
 from impress_gui.core.calibration.target import TargetModel
+from impress_gui.sim import simulate as SIM
 
 #: the picks' tilt is started this far off (deg): 0.5 px of click noise does this on random rigs
 START_OFF_DEG = 3.0
@@ -99,6 +100,12 @@ def test_stripes_gathered_again_after_a_large_tilt_change_progress_runs_forward(
     assert abs(cal.tilt_deg - truth["tilt_deg"]) < 0.5
 
 
+#: the calibration frames (t1, t2) the simulator chose for rigs 21 and 28 before 2026-12-04
+#: (green's first and red's last frame on the target also where red leads: the closest pair,
+#: not the farthest): the cases below were found, and are kept, with these picks (rig 28's red
+#: frames around 71 include frame 84, where the red detector takes green's light)
+FORMER_FRAMES = {21: (91, 106), 28: (97, 71)}
+
 #: random rig 21 at 640x360 with 0.5 px clicks (the benchmarks' draw 2, noise seed 21003): the
 #: red stripe's points on the target include gross outliers (plain plane RMS 2.1-2.7 mm)
 RIG, DRAW_SEED, CLICK_PX = 21, 21003, 0.5
@@ -109,7 +116,9 @@ def rig21(tmp_path_factory):
     from impress_gui.sim.simulate import SimConfig, simulate
 
     out = tmp_path_factory.mktemp("rig21") / "scan"
-    simulate(SimConfig.random(RIG, 640, 360), out, workers=1)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(SIM, "calibration_frames", lambda *a: FORMER_FRAMES[RIG])
+        simulate(SimConfig.random(RIG, 640, 360), out, workers=1)
     return out
 
 
@@ -175,7 +184,9 @@ def rig28(tmp_path_factory):
     from impress_gui.sim.simulate import SimConfig, simulate
 
     out = tmp_path_factory.mktemp("rig28") / "scan"
-    simulate(SimConfig.random(28, 640, 360), out, workers=1)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(SIM, "calibration_frames", lambda *a: FORMER_FRAMES[28])
+        simulate(SimConfig.random(28, 640, 360), out, workers=1)
     return out
 
 

@@ -312,7 +312,16 @@ def _calibration_frames(rig: Rig, motion: Motion, target: TargetModel, pose, w: 
     if not ok_green or not ok_red:
         raise InputError("the calibration target never shows both stripes with all corners in "
                          "view; use a longer scan or a smaller tilt", code=codes.E_SIM_OPTION)
-    return ok_green[0], ok_red[-1]
+    # the two frames as far apart as the stripes allow, as a careful user (and "Find t1 and
+    # t2") chooses them: the green laser's first frame and the red's last where green leads,
+    # the green's last and the red's first where red leads (a rig built the other way round;
+    # t2 then comes first). Until 2026-12-04 the first pair was taken on every rig: where red
+    # leads it is the closest pair (random rig 88: frames 114 and 115), and the corners that
+    # barely moved between them were refused (E-PICKS) or fixed the motion direction poorly
+    lead_green, lead_red = (ok_green[0], ok_red[-1]), (ok_green[-1], ok_red[0])
+    if abs(lead_red[1] - lead_red[0]) > abs(lead_green[1] - lead_green[0]):
+        return lead_red
+    return lead_green
 
 
 # ----- rendering workers ---------------------------------------------------------------
