@@ -149,6 +149,47 @@ def _simulate_cli(out, seed: int, *extra: str) -> int:
                  "--grid-mm", "0.25", *extra])
 
 
+@pytest.mark.parametrize("seed", [88, 1, 13])
+def test_the_calibration_frames_are_as_far_apart_as_the_stripes_allow(seed):
+    """The simulator's picks are where a careful user (or "Find t1 and t2") puts them: t1
+    shows the green stripe on both target tops, t2 the red one, and neither can move further
+    from the other and still do so. Rigs 88 and 13 have the red laser leading (t2 first):
+    the former choice, green's first and red's last frame, was the closest pair there (88:
+    frames 114 and 115) and the calibration refused the corners as barely moving; rig 1 has
+    green leading."""
+    from impress_gui.core.calibration.picks import Picks
+    from impress_gui.core.calibration.scene import check_picks
+    from impress_gui.sim import simulate as S
+
+    cfg = SimConfig.random(seed, 640, 360)
+    rig, motion, target = make_rig(cfg), S.make_motion(cfg), make_target(cfg)
+    pose = target_pose(cfg)
+    t1, t2 = S.calibration_frames(cfg, rig, motion, target)
+    times = motion.times_s()
+    corners = S.target_world_corners(target, pose, rig.standoff_mm)
+
+    def shows(laser: str, k: int) -> bool:
+        if not 0 <= k < len(times) or not motion.constant_speed(times[k]):
+            return False
+        s = float(motion.travel_mm(times[k]))
+        uv = S.project_rail(rig, corners, s)
+        m = 0.03 * cfg.width
+        inside = bool(np.all((uv > m) & (uv < np.array([cfg.width, cfg.height]) - m)))
+        return inside and S._stripe_on_faces(rig, laser, target, pose, s)
+
+    assert shows("green", t1) and shows("red", t2)
+    away = 1 if t2 > t1 else -1  # the direction from t1 to t2
+    assert not shows("green", t1 - away) and not shows("red", t2 + away)
+    # ... and then the corners move enough for the calibration to take them
+    uv = {k: S.project_rail(rig, corners, float(motion.travel_mm(times[k]))) for k in (t1, t2)}
+    picks = Picks("scan.mp4", t1, t2, dict(zip(CORNER_NAMES, map(tuple, uv[t1]))),
+                  dict(zip(CORNER_NAMES, map(tuple, uv[t2]))))
+    check_picks(picks, rig.intrinsics, motion.frame_count)
+    assert np.median(np.linalg.norm(uv[t2] - uv[t1], axis=1)) > 20.0
+    if seed in (88, 13):
+        assert t2 < t1
+
+
 def test_cli_same_seed_same_truth_and_video(tmp_path):
     """The smallest size: 227 frames of 128x72, twice; the truth records every drawn value,
     the target file beside the scan is the drawn target, the picks are its projections."""

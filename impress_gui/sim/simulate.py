@@ -286,8 +286,10 @@ def _stripe_on_faces(rig: Rig, laser_name: str, target: TargetModel, pose, trave
 
 
 def calibration_frames(cfg: SimConfig, rig: Rig, motion: Motion, target: TargetModel) -> tuple[int, int]:
-    """t1: first frame with the green stripe on both target tops, t2: the last with the red
-    one, both at constant speed with all six corners well inside the image."""
+    """``(t1, t2)``: a frame with the green stripe on both target tops and one with the red
+    stripe there, both at constant speed with all six corners well inside the image, as far
+    apart as that allows (green's first and red's last where green leads; green's last and
+    red's first where red leads, t2 before t1)."""
     return _calibration_frames(rig, motion, target, target_pose(cfg), cfg.width, cfg.height)
 
 
