@@ -301,7 +301,9 @@ def check_picks(picks: Picks, intrinsics: Intrinsics, frame_count: int) -> None:
     shift = np.linalg.norm(picks.array("t2") - picks.array("t1"), axis=1)
     if np.median(shift) < 5.0:
         raise CalibrationError("the corners barely move between t1 and t2; choose frames "
-                               "further apart", code=codes.E_PICKS)
+                               "further apart (where the red stripe crosses the target first, "
+                               "t2 is red's first frame on it and t1 green's last)",
+                               code=codes.E_PICKS)
 
 
 #: the most frames a laser plane is fitted from (``plane_frames``; 15 by default)
