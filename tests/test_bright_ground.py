@@ -39,7 +39,7 @@ def _reconstruct(seed, out):
     from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
     from impress_gui.sim.simulate import SimConfig, simulate
 
-    simulate(SimConfig.random(seed, 320, 180), out)
+    simulate(SimConfig.random(seed, 320, 180, grid_mm=0.5), out)  # the picture, not the heights
     truth = json.loads((out / "truth.json").read_text())
     with open_video(out / "scan.mp4") as v:
         cal = calibrate_scene(v, Intrinsics.load(out / "intrinsics.json"),
