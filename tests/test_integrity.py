@@ -31,7 +31,7 @@ import pytest
 from impress_gui import __version__
 from impress_gui.core.base.errors import IntegrityError
 from impress_gui.core.base.fileio import sha256_file
-from impress_gui.core.base.outdir import recover_interrupted
+from impress_gui.core.base.outdir import MARK_FILE, mark_bytes, recover_interrupted
 from impress_gui.core.formats.readers import read_ply, read_x3p
 from impress_gui.core.project.project import PROJECT_FILE, Project
 from impress_gui.core.reconstruction.pipeline import process_files
@@ -295,7 +295,34 @@ def test_a_live_writers_folder_is_not_removed(tmp_path):
     out = tmp_path / "recon"
     live = tmp_path / f".recon.partial-{os.getppid()}"
     live.mkdir()
+    (live / MARK_FILE).write_bytes(mark_bytes("reconstruction"))
     dead = tmp_path / ".recon.partial-999999999"
     dead.mkdir()
+    (dead / MARK_FILE).write_bytes(mark_bytes("reconstruction"))
     recover_interrupted(out)
     assert live.exists() and not dead.exists()
+
+
+def test_folders_named_like_work_folders_but_not_ours_are_kept(tmp_path, flat_scan,
+                                                              flat_calibration):
+    """A folder beside the output whose name looks like a work folder or a set-aside result
+    (``.NAME.partial-PID``, ``.NAME.old-PID``, PID not running) but which carries no mark of
+    the product is someone's data: a run writing NAME leaves it, and its files, as they are
+    (the audit of 4 December 2026 found them deleted); a link of that name likewise."""
+    out = tmp_path / "recon"
+    notes = tmp_path / ".recon.partial-999999991"
+    old = tmp_path / ".recon.old-999999992"
+    for d, text in ((notes, "notes"), (old, "b")):
+        d.mkdir()
+        (d / "notes.txt").write_text(text)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "keep.txt").write_text("k")
+    (tmp_path / ".recon.partial-999999993").symlink_to(elsewhere, target_is_directory=True)
+    assert recover_interrupted(out) == []
+    process_files(flat_scan / "scan.mp4", flat_calibration, out,
+                  ProcessParams(frame_start=40, frame_stop=60, texture=False))
+    assert (notes / "notes.txt").read_text() == "notes"
+    assert (old / "notes.txt").read_text() == "b"
+    assert (elsewhere / "keep.txt").read_text() == "k"
+    assert (out / "heightmap.tif").is_file()

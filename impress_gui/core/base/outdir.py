@@ -239,8 +239,7 @@ class OutputFolder:
             self.final.parent.mkdir(parents=True, exist_ok=True)
             recover_interrupted(self.final, marker=MARK_FILE)
             self.tmp = self.final.parent / f".{self.final.name}.partial-{os.getpid()}"
-            if self.tmp.exists():
-                shutil.rmtree(self.tmp)
+            _clear_work_folder(self.tmp)
             # a writability probe now (the work folder is made and removed): a read-only or
             # full place fails before any work, and a run killed before writing leaves nothing
             self.tmp.mkdir()
@@ -252,8 +251,7 @@ class OutputFolder:
         """Make the hidden work folder (with the mark) if not yet made; return it."""
         if not self._begun:
             with writing(self.final.parent, "create the folder"):
-                if self.tmp.exists():
-                    shutil.rmtree(self.tmp)
+                _clear_work_folder(self.tmp)
                 self.tmp.mkdir()
                 (self.tmp / MARK_FILE).write_bytes(mark_bytes(self.kind))
             self._begun = True
@@ -295,6 +293,18 @@ class OutputFolder:
         return self.final
 
 
+def _clear_work_folder(tmp: Path) -> None:
+    """Remove this process's own earlier work folder ``tmp``; refuse (OutputError) when
+    something the product did not make has its name (it is never deleted)."""
+    if not (tmp.exists() or tmp.is_symlink()):
+        return
+    if tmp.is_symlink() or not tmp.is_dir() or read_mark(tmp) is None:
+        raise OutputError(f"{tmp} is in the way of the output's work folder and was not made "
+                          "by impress: nothing is replaced; move it or name another output",
+                          code=codes.E_OUTPUT_NOT_EMPTY)
+    shutil.rmtree(tmp)
+
+
 def _pid_alive(pid: int) -> bool:
     if pid == os.getpid():
         return False  # our own leftovers are stale by definition
@@ -312,7 +322,10 @@ def recover_interrupted(out_dir: Path, marker: str = "metadata.json") -> list[st
     ``.NAME.partial-PID`` folders, and its ``.NAME.old-PID`` folders - after putting the newest
     back in place if the kill came between the two renames of the swap (``out_dir`` missing;
     a folder counts as complete when it holds ``marker``).
-    Folders of a process still alive are left alone. Returns what was done."""
+    Only folders that carry the product's mark (:data:`MARK_FILE`: every work folder and every
+    folder the swap sets aside has it; an empty one holds nothing to lose) are touched: a
+    folder of that name the product did not make, or a link, is left alone. Folders of a process still alive are left alone. Returns
+    what was done."""
     out_dir = Path(out_dir)
     done: list[str] = []
     if not out_dir.parent.is_dir():
@@ -321,7 +334,9 @@ def recover_interrupted(out_dir: Path, marker: str = "metadata.json") -> list[st
     for p in out_dir.parent.iterdir():
         for kind in ("partial", "old"):
             prefix = f".{out_dir.name}.{kind}-"
-            if p.name.startswith(prefix) and p.name[len(prefix):].isdigit() and p.is_dir():
+            if (p.name.startswith(prefix) and p.name[len(prefix):].isdigit()
+                    and not p.is_symlink() and p.is_dir()
+                    and (read_mark(p) is not None or not any(p.iterdir()))):
                 if not _pid_alive(int(p.name[len(prefix):])):
                     stale.append((kind, p))
     olds = sorted((p for k, p in stale if k == "old"), key=lambda p: p.stat().st_mtime)
