@@ -212,6 +212,27 @@ def test_the_command_prints_the_table(run, tmp_path, capsys):
     assert (tmp_path / "validation_report.html").is_file()
 
 
+def test_the_output_never_goes_into_a_reconstruction_the_spec_names(run, tmp_path, capsys):
+    """The reconstructions a spec names are inputs: ``--out`` inside one (or one itself) is
+    refused before anything is written, and the evidence folder is left as it was (the audit
+    of 4 December 2026 found ``validate --spec S --out REC/val`` writing into REC)."""
+    import json
+
+    from impress_gui.cli import main
+
+    spec = json.loads((run["out"] / "validation-spec.json").read_text())
+    rec_dir = Path(spec["scans"][0]["reconstruction"])
+    if not rec_dir.is_absolute():
+        rec_dir = (run["out"] / rec_dir).resolve()
+    before = sorted(p.name for p in rec_dir.iterdir())
+    for out in (rec_dir / "val", rec_dir):
+        code = main(["validate", "--spec", str(run["out"] / "validation-spec.json"), "--out",
+                     str(out), "--no-figures"])
+        err = capsys.readouterr().err
+        assert code == 2 and "E-OUTPUT-HOLDS-INPUT" in err, err
+    assert sorted(p.name for p in rec_dir.iterdir()) == before
+
+
 def test_a_run_keeps_only_what_its_record_and_report_need(run):
     """A quick run wrote about 2 GB (issue 21, item 13): each reconstruction now keeps the
     fused heightmap it was measured on and the records naming every file with its SHA-256;

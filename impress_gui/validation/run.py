@@ -608,7 +608,8 @@ def run_real(
 
     cancel = cancel or CancelToken()
     name, scans = S.load_spec(spec_path)
-    out = prepare_output(out_dir, inputs=(spec_path,))
+    # the reconstructions the spec names are inputs too: the output never goes into one
+    out = prepare_output(out_dir, inputs=(spec_path, *(s.reconstruction for s in scans)))
     record = _header("real") | {
         "name": name,
         "scans": [],
