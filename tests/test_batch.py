@@ -99,6 +99,29 @@ def test_a_failing_scan_is_reported_and_the_others_finish(flat_scan, flat_calibr
     assert "E-FILE-MISSING" in text and "processed" in text
 
 
+def test_the_summary_is_safe_to_open_in_a_spreadsheet(flat_scan, flat_calibration, tmp_path):
+    """A scan name or a path that a spreadsheet would run as a formula (``=``, ``+``, ``-``,
+    ``@``) is written to summary.csv as text (a leading apostrophe), and exactly as given in
+    summary.json (the audit of 4 December 2026 found ``=HYPERLINK(...)`` written as is)."""
+    evil = '=HYPERLINK("http:" & "evil","x")'
+    doc = {"format": "impress.batch", "version": 1, "scans": [
+        {"name": evil, "video": str(flat_scan / "scan.mp4"),
+         "calibration": str(flat_calibration),
+         "parameters": {"frame_start": 40, "frame_stop": 46, "texture": False}},
+        {"name": "b", "video": "=1+1.mp4", "calibration": str(flat_calibration)}]}
+    manifest = tmp_path / "m.json"
+    manifest.write_text(json.dumps(doc))
+    assert cli.main(["batch", str(manifest), "-o", str(tmp_path / "out"), "--jobs", "1"]) == 1
+    with open(tmp_path / "out" / "summary.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["name"] for r in rows] == ["'" + evil, "b"]
+    assert rows[1]["video"].endswith("=1+1.mp4") and rows[1]["code"] == "E-FILE-MISSING"
+    assert not any(v.startswith(("=", "+", "-", "@")) for r in rows for v in r.values())
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [s["name"] for s in summary["scans"]] == [evil, "b"]
+    assert summary["scans"][1]["video"].endswith("/=1+1.mp4")
+
+
 @pytest.mark.parametrize("scans, code", [
     ([], "E-BATCH"),
     ([{"name": "../x", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),

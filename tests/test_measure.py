@@ -16,6 +16,8 @@ block's top), on the widest slot (6.35 mm wide, 6.35 mm deep), at three places a
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 
 import numpy as np
@@ -174,6 +176,12 @@ def test_csv_round_trip_and_measurements_table():
     assert len(rows) == 3
     with pytest.raises(InputError):
         M.new_measurement("volume", [], {})
+    # text a spreadsheet would run as a formula is written as text; numbers stay numbers
+    m3 = M.new_measurement("annotation", [(-1.5, 2)], {"height_mm": -0.25},
+                           label='=HYPERLINK("http://x","y")', note="@SUM(A1)")
+    (row,) = list(csv.DictReader(io.StringIO(M.measurements_csv([m3]))))
+    assert row["label"] == '\'=HYPERLINK("http://x","y")' and row["note"] == "'@SUM(A1)"
+    assert float(row["x1_mm"]) == -1.5 and float(row["height_mm"]) == -0.25
 
 
 def test_damaged_reconstruction_folders(tmp_path):

@@ -337,13 +337,15 @@ SUMMARY_COLUMNS = ("name", "status", "code", "frames", "cells_fused", "warnings"
 
 def write_summary(rows: Iterable[dict[str, Any]], out: Path) -> None:
     from impress_gui.core.base.fileio import atomic_write_bytes
+    from impress_gui.core.formats.provenance import csv_text
 
     rows = list(rows)
     buf = io.StringIO()
     w = csv.DictWriter(buf, SUMMARY_COLUMNS, extrasaction="ignore", lineterminator="\n")
     w.writeheader()
-    for r in rows:
-        w.writerow({k: r.get(k, "") for k in SUMMARY_COLUMNS})
+    for r in rows:  # text cells made safe for spreadsheets (summary.json keeps them exact)
+        w.writerow({k: csv_text(v) if isinstance(v := r.get(k, ""), str) else v
+                    for k in SUMMARY_COLUMNS})
     atomic_write_bytes(out / "summary.csv", buf.getvalue().encode("utf-8"))
     doc = {"format": "impress.batch-summary", "version": 1,
            "scans": [{k: r.get(k) for k in SUMMARY_COLUMNS} for r in rows]}

@@ -194,6 +194,20 @@ def parse_comment_lines(lines: Sequence[str]) -> dict[str, str]:
     return out
 
 
+#: what a spreadsheet takes for the start of a formula in a cell (OWASP "CSV injection")
+_FORMULA_START = ("=", "+", "-", "@", "\t", "\r", "\n")
+
+
+def csv_text(value) -> str:
+    """A text cell (a name, a label, a note, a path, a message) safe to open in a spreadsheet:
+    text that a spreadsheet would run as a formula (starting with ``= + - @``, a tab or a line
+    break) gets a leading apostrophe, which spreadsheets show as text and do not evaluate.
+    Numbers are written by their own formatting, never through this (a negative number
+    stays a number). None becomes an empty cell."""
+    text = "" if value is None else str(value)
+    return "'" + text if text.startswith(_FORMULA_START) else text
+
+
 def csv_header(prov: Mapping | None) -> str:
     return "" if prov is None else "".join(f"# {line}\n" for line in comment_lines(prov))
 

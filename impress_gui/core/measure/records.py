@@ -14,7 +14,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from impress_gui.core.base.errors import InputError
-from impress_gui.core.formats.provenance import csv_header
+from impress_gui.core.formats.provenance import csv_header, csv_text
 from impress_gui.core.measure.readings import Profile, RulerResult, StepHeight
 
 # ----- measurement records and CSV ------------------------------------------------------------
@@ -158,7 +158,7 @@ def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None
     w.writerow(head + value_keys + (["uncertainty_budget"] if with_budget else [])
                + ["layer", "heightmap_sha256"])
     for k, m in enumerate(measurements, 1):
-        row = [k, m.get("id", ""), m.get("kind", ""), m.get("label", ""), m.get("note", "")]
+        row = [k, *(csv_text(m.get(key, "")) for key in ("id", "kind", "label", "note"))]
         pts = list(m.get("points_mm", []))
         for i in range(n_pts):
             row += [_fmt(float(pts[i][0])), _fmt(float(pts[i][1]))] if i < len(pts) else ["", ""]
