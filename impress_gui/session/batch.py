@@ -71,8 +71,10 @@ def _path_field(s: dict, key: str, where: str) -> str:
 def _safe_name(name: str, where: str) -> str:
     if (not name or name.startswith(".") or "/" in name or "\\" in name or name in SUMMARY_FILES
             or len(name) > 120 or name != name.strip() or _control(name)):
-        raise FormatError(f"{where}: the scan name {name!r} cannot be a folder name (no '/', no "
-                          "leading dot, at most 120 characters)", code=codes.E_BATCH)
+        raise FormatError(f"{where}: the scan name {name!r} cannot be a folder name (it must "
+                          "be 1-120 characters without '/', '\\' or control characters, not "
+                          "start with a dot or begin or end with a space, and not be "
+                          f"{' or '.join(SUMMARY_FILES)})", code=codes.E_BATCH)
     return name
 
 
