@@ -8,12 +8,18 @@ never loads Qt, open3d or the video stack. Each command module provides
 
 from __future__ import annotations
 
-import argparse
-import importlib
 import sys
 
-from impress_gui import __version__
-from impress_gui.core.base import codes
+try:  # Ctrl-C this early (the console script importing this module) is an interruption too
+    import argparse
+    import importlib
+    import signal
+
+    from impress_gui import __version__
+    from impress_gui.core.base import codes
+except KeyboardInterrupt:
+    sys.stderr.write("impress: interrupted\n")
+    raise SystemExit(130) from None
 
 #: name -> (module implementing it, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -111,7 +117,61 @@ def _looks_like_command(word: str) -> bool:
         and "." not in word
 
 
+#: set when Ctrl-C (SIGINT) arrives while the command starts (see :func:`_watch_interrupts`)
+_interrupted = False
+
+
+def _on_sigint(signum, frame) -> None:
+    global _interrupted
+    _interrupted = True
+    signal.default_int_handler(signum, frame)  # KeyboardInterrupt, as Python's own
+
+
+def _watch_interrupts() -> None:
+    """Note a Ctrl-C that arrives while modules are still being imported: an import it
+    interrupts can surface as an ImportError (numpy's, say) rather than a KeyboardInterrupt,
+    which must be reported as an interruption, not as an internal error. Only where Python's
+    own handler is in place (a command may install its own later)."""
+    import threading
+
+    global _interrupted
+    _interrupted = False
+    if threading.current_thread() is threading.main_thread() \
+            and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _on_sigint)
+
+
+def _quiet_libraries() -> None:
+    """No library's own warning lines on the console (numpy's RuntimeWarnings with source
+    lines, tifffile's log messages): what a user needs to know comes as the command's coded
+    errors and warnings. ``IMPRESS_DEBUG=1`` keeps them."""
+    import logging
+    import os
+    import warnings
+
+    if os.environ.get("IMPRESS_DEBUG"):
+        return
+    warnings.simplefilter("ignore")
+    root = logging.getLogger()
+    if not root.handlers:  # Python's last-resort handler would print WARNING lines to stderr
+        root.addHandler(logging.NullHandler())
+
+
 def main(argv: list[str] | None = None) -> int:
+    """The console command: every outcome is an exit status and, on failure, one coded line;
+    a Ctrl-C at any moment (even while the command's modules load) exits with 130."""
+    try:
+        _watch_interrupts()
+        _quiet_libraries()
+        return _main(argv)
+    except KeyboardInterrupt:
+        print("impress: interrupted", file=sys.stderr)
+        return 130
+    except Exception:  # noqa: BLE001 - while the command's modules load: no traceback either
+        return _unexpected("impress")
+
+
+def _main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in COMMANDS:
         command = argv[0]
@@ -130,7 +190,6 @@ def main(argv: list[str] | None = None) -> int:
 def run_command(command: str, args: argparse.Namespace) -> int:
     """Run one subcommand; every failure is one coded line on stderr, never a traceback
     (``IMPRESS_DEBUG=1`` prints the traceback of an unexpected error as well)."""
-    import os
 
     from impress_gui.core.base.errors import ImpressError
 
@@ -154,11 +213,22 @@ def run_command(command: str, args: argparse.Namespace) -> int:
               f"{reason(exc)}", file=sys.stderr)
         return 2
     except Exception:  # noqa: BLE001 - the last line of defence: no traceback for users
-        if os.environ.get("IMPRESS_DEBUG"):
-            import traceback
+        return _unexpected(f"impress {command}")
 
-            traceback.print_exc()
-        print(f"impress {command}: error [{INTERNAL}]: an internal error stopped the command; "
-              "no output was completed. Please report it with the command "
-              "line; IMPRESS_DEBUG=1 shows the details.", file=sys.stderr)
-        return 3
+
+def _unexpected(who: str) -> int:
+    """An exception nobody foresaw (in an ``except`` block): one coded line, exit 3; or, if
+    Ctrl-C broke off an import meanwhile, the interruption it is (exit 130)."""
+    import os
+
+    if _interrupted:
+        print(f"{who}: interrupted", file=sys.stderr)
+        return 130
+    if os.environ.get("IMPRESS_DEBUG"):
+        import traceback
+
+        traceback.print_exc()
+    print(f"{who}: error [{INTERNAL}]: an internal error stopped the command; "
+          "no output was completed. Please report it with the command "
+          "line; IMPRESS_DEBUG=1 shows the details.", file=sys.stderr)
+    return 3
