@@ -291,6 +291,13 @@ CASES: list[Case] = [
     Case("calibration: wrong format", _proc(cal="{ev}/picks.json"), "E-WRONG-FORMAT"),
     Case("calibration: version 99", _proc(cal="{box}/cv.json"), "E-VERSION",
          _json_edit("calibration.json", "cv.json", _cal_set("version", 99))),
+    # the audit of 4 December 2026: a calibration made from picks with t1 and t2 swapped put
+    # the red plane through the camera's centre; processing ran with the red laser silently
+    # lost (calibrate now refuses such a plane, and a calibration file holding one is refused)
+    Case("calibration: red plane through the camera", _proc(cal="{box}/crp.json"), "E-VALUE",
+         _json_edit("calibration.json", "crp.json", lambda d: d["laser_planes"]["red"].update(
+             normal=[-0.03464613435775545, -0.9917588055364139, 0.12334551882841141],
+             offset_mm=-0.007575268009347271))),
     Case("calibration: speed 1e-300", _proc(cal="{box}/cs.json"), "E-VALUE",
          _json_edit("calibration.json", "cs.json", _cal_set("speed_mm_s", 1e-300))),
     Case("calibration: speed 1e9", _proc(cal="{box}/cs9.json"), "E-VALUE",

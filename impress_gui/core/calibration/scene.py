@@ -188,6 +188,14 @@ class SceneCalibration:
             for name in ("green", "red"):
                 if name not in planes:
                     raise FormatError(f"{where}the {name} laser plane is missing")
+                d = abs(float(planes[name].plane.distance(np.zeros(3))))
+                if not d >= PLANE_MIN_DISTANCE_MM:  # calibrate refuses such a plane
+                    raise FormatError(
+                        f"{where}the {name} laser's plane passes {d:.1f} mm from the camera's "
+                        f"centre (at least {PLANE_MIN_DISTANCE_MM:g} mm for a laser beside the "
+                        "camera): its stripe cannot be triangulated; calibrate again (t1 with "
+                        "the green stripe on the target, t2 with the red one)",
+                        code=codes.E_VALUE)
             pose = require(doc, "target_pose", dict, where)
             cp = require(doc, "corners_parallax_mm", dict, where)
             cr = require(doc, "corner_residuals_mm", dict, where)
@@ -395,6 +403,7 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
                                  with_ground=True)
         planes = {name: fit for name, (fit, _) in planes0.items()}
         warnings += plane_residual_warnings(planes)
+        check_plane_distances(planes)
         warnings += plane_span_warnings(planes)
         warnings += [f"the {name} stripe blooms (a saturated, nearly white core) on the "
                      "target: found there by the colour it adds to the surface against the "
@@ -435,6 +444,28 @@ def plane_residual_warnings(planes: dict[str, LaserPlaneFit]) -> list[str]:
                        f"plane (usually below 0.05 mm): heights may be off by as much; check "
                        "the target file and the picks, or choose other frames t1/t2")
     return out
+
+
+#: a laser's plane this near the camera's centre (mm) sees its stripe almost edge-on: no
+#: triangulation (a real laser sits beside the camera; the thesis rig 130 mm, the
+#: simulator's random rigs 60-250 mm). Found so on picks whose t1 and t2 were swapped
+PLANE_MIN_DISTANCE_MM = 10.0
+
+
+def check_plane_distances(planes: dict[str, LaserPlaneFit]) -> None:
+    """CalibrationError (``E-CALIB``) when a laser's plane passes within
+    :data:`PLANE_MIN_DISTANCE_MM` of the camera's centre."""
+    for name, fit in planes.items():
+        d = abs(float(fit.plane.distance(np.zeros(3))))
+        if not np.isfinite(d) or d < PLANE_MIN_DISTANCE_MM:
+            other = "red" if name == "green" else "green"
+            raise CalibrationError(
+                f"the {name} laser's plane was found {d:.1f} mm from the camera's centre (a "
+                f"laser beside the camera is tens of millimetres away at least): its heights "
+                f"could not be triangulated. Check that t1 shows the green stripe on both top "
+                f"faces of the target and t2 the red one (t1 and t2 swapped give this), and "
+                f"that the {name} stripe is not taken for the {other} one",
+                code=codes.E_CALIB)
 
 
 def plane_span_warnings(planes: dict[str, LaserPlaneFit]) -> list[str]:

@@ -614,6 +614,7 @@ def _process(run: _Run) -> Reconstruction:
     islands = _drop_islands(run, finisher)
     end_cells = _texture_ends(run, tab, finisher, warnings)
     stats = _stats(run, tab, tally, finisher, loop_s, t_finish)
+    warnings += _lost_laser_warnings(tally, stats)
     stats["texture_end_cells_filled"] = end_cells
     stats["island_cells_dropped"] = islands
     if bright is not None:
@@ -779,6 +780,30 @@ def _bright_ground(run: _Run, warnings: list[str]) -> float | None:
             "above the ground, and the heights are noisy and may have wild points; lower the "
             "camera's exposure (or the ambient light) so the ground is not near white")
     return share
+
+
+#: a laser whose stripe was found but whose map holds fewer cells than this share of the
+#: other's is reported (the two lasers sweep the same ground: on the simulator's random rigs
+#: their maps differ by at most a factor of about 2)
+LOST_LASER_SHARE = 0.02
+
+
+def _lost_laser_warnings(tally: _Tally, stats: dict) -> list[str]:
+    """A warning for a laser whose stripe was found in the frames but that gave (almost) no
+    heights: its plane in the calibration does not meet the stripe (a calibration made with
+    t1 and t2 swapped, or the two stripes' colours taken for each other)."""
+    out = []
+    for name in LASERS:
+        other = next(m for m in LASERS if m != name)
+        cells, theirs = stats[f"cells_{name}"], stats[f"cells_{other}"]
+        if tally.found_frames[name] and cells < LOST_LASER_SHARE * theirs:
+            out.append(
+                f"W-LASER-NO-HEIGHTS: the {name} stripe was found in "
+                f"{tally.found_frames[name]} frames but gave heights in only {cells} cells "
+                f"({theirs} from the {other} laser): the map is the {other} laser's alone. "
+                f"Check the calibration's {name} plane (t1 must show the green stripe on the "
+                "target, t2 the red one)")
+    return out
 
 
 def _stripe_warnings(run: _Run, tally: _Tally) -> list[str]:
