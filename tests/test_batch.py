@@ -128,6 +128,9 @@ def test_the_summary_is_safe_to_open_in_a_spreadsheet(flat_scan, flat_calibratio
     ([{"name": "a", "video": "v.mp4"}], "E-BATCH"),
     ([{"name": "a", "video": "v.mp4", "calibration": "c.json"},
       {"name": "a", "video": "w.mp4", "calibration": "c.json"}], "E-BATCH"),
+    # one folder on a case-insensitive disk
+    ([{"name": "X1", "video": "v.mp4", "calibration": "c.json"},
+      {"name": "x1", "video": "w.mp4", "calibration": "c.json"}], "E-BATCH"),
     ([{"name": "a", "video": "v.mp4", "calibration": "c.json",
        "parameters": {"rm": "-rf"}}], "E-BATCH"),
     # a hostile-input audit: a NUL in a name or a path was an internal error (and left an

@@ -100,9 +100,12 @@ def load_manifest(path: str | os.PathLike) -> list[BatchItem]:
         except KeyError as exc:
             raise FormatError(f"{where}: the field {exc.args[0]!r} is missing",
                               code=codes.E_BATCH) from None
-        if name in seen:
-            raise FormatError(f"{where}: the name {name!r} is used twice", code=codes.E_BATCH)
-        seen.add(name)
+        # names that differ only in case are one folder on a case-insensitive disk (Windows,
+        # macOS, an exFAT archive drive): the second scan would write into the first's
+        if name.casefold() in seen:
+            raise FormatError(f"{where}: the name {name!r} is used twice (names are compared "
+                              "ignoring case: they are folder names)", code=codes.E_BATCH)
+        seen.add(name.casefold())
         params = s.get("parameters") or {}
         if not isinstance(params, dict) or set(params) - set(PARAM_KEYS):
             raise FormatError(f"{where}: parameters may only set {', '.join(PARAM_KEYS)}",
