@@ -291,6 +291,10 @@ CASES: list[Case] = [
     Case("calibration: wrong format", _proc(cal="{ev}/picks.json"), "E-WRONG-FORMAT"),
     Case("calibration: version 99", _proc(cal="{box}/cv.json"), "E-VERSION",
          _json_edit("calibration.json", "cv.json", _cal_set("version", 99))),
+    # the audit of 4 December 2026: a range past the video's end was cut to it silently
+    Case("frames: a range past the video's end",
+         ["process", "{ev}/scan.mp4", "--calibration", "{ev}/calibration.json", "-o",
+          "{box}/out", "--frames", "180:99999999999", "--no-texture"], "W-FRAME-RANGE"),
     # the audit of 4 December 2026: a calibration made from picks with t1 and t2 swapped put
     # the red plane through the camera's centre; processing ran with the red laser silently
     # lost (calibrate now refuses such a plane, and a calibration file holding one is refused)

@@ -606,6 +606,11 @@ def _process(run: _Run) -> Reconstruction:
                          f"{run.stop - 1}", code=codes.E_VIDEO_TRUNCATED)
     loop_s = time.perf_counter() - tally.t_loop
     warnings = _stripe_warnings(run, tally)
+    asked = run.params.frame_stop
+    if asked is not None and asked > run.stop:  # the range asked runs past the video's end
+        warnings.append(f"W-FRAME-RANGE: frames up to {asked - 1} were asked for; the video "
+                        f"ends at frame {run.stop - 1}, so frames {run.start}..{run.stop - 1} "
+                        "were processed")
     bright = _bright_ground(run, warnings)
     t_finish = time.perf_counter()
     report(run.progress, 0.93, "finishing the maps and the texture")
