@@ -271,11 +271,14 @@ def test_a_cap_reached_before_the_tolerance_is_said(cast_recon, tmp_path, capsys
     from impress_gui.cli import main
 
     out = tmp_path / "capped.stl"
-    assert main(["cast", str(cast_recon), "-o", str(out), "--max-triangles", "3000"]) == 0
+    assert main(["cast", str(cast_recon), "-o", str(out), "--max-triangles", "500"]) == 0
     text = capsys.readouterr().out
     doc = json.loads(out.with_name(out.name + ".json").read_text())
     dec = doc["mesh"]["decimation"]
-    assert doc["mesh"]["triangles"] <= 3000 and not dec["tolerance_met"]
+    # the cap is used, not reserved for walls along the whole region's boundary (which left
+    # the surface 132 of a cap of 3000 here, and 2 of 20000 on a long strip: the audit of 4
+    # December 2026); 3000 triangles meet the tolerance (938 needed)
+    assert 0.95 * 500 <= doc["mesh"]["triangles"] <= 500 and not dec["tolerance_met"]
     assert dec["max_vertical_error_mm"] > TOL_MM
     assert doc["warnings"][0].startswith("W-CAST-TOLERANCE")
     assert "WARNING W-CAST-TOLERANCE" in text and "raise the cap" in text

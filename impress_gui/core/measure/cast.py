@@ -491,11 +491,15 @@ def _adaptive_solid(filled: np.ndarray, rs: slice, cs: slice, spec: GridSpec,
     z32 = filled.astype(np.float32)
     cap = params.max_triangles
     tol = float(params.tolerance_mm)
-    # walls and base: three triangles per boundary edge; at most 2 (rows + cols - 2) edges
+    # walls and base: three triangles per boundary edge; at most 2 (rows + cols - 2) edges.
+    # Where the whole grid does not fit, the surface first gets the cap less the walls of its
+    # four corners, then (if its boundary took more) the cap less its own boundary's walls.
+    # (Reserving the walls of the whole grid's boundary first left a long strip's surface
+    # nothing: 2 triangles under a cap of 20000 for a 381 x 7650-cell region, 4 December 2026)
     edges_max = 2 * (rows + cols - 2)
     surface_cap = cap - 3 * edges_max
     runs = 0
-    limit: int | None = None if surface_cap >= 2 * (rows - 1) * (cols - 1) else max(2, surface_cap)
+    limit: int | None = None if surface_cap >= 2 * (rows - 1) * (cols - 1) else max(2, cap - 12)
     while True:
         runs += 1
         r, c, tris, err = adaptive_surface_apart(z32, tol, limit, progress, cancel)
