@@ -8,7 +8,8 @@ holding a copy of the evidence, and asserts:
 - nothing outside the output the case names was created, changed or removed (every file of
   the sandbox is hashed before and after), so the evidence is never lost;
 - no traceback on the console, no Python type or errno text in the message;
-- the case takes under 10 s (``pytest-timeout`` turns a hang into a failure).
+- nothing hangs: ``pytest-timeout`` fails a case that runs 30 s (the cases take well under a
+  second; no bound on their time is asserted, which would fail only on a busy machine).
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ import hashlib
 import json
 import os
 import shutil
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -475,15 +475,12 @@ def test_hostile_input(case: Case, evidence, tmp_path, capsys, monkeypatch):
                      and not named.exists()) else None
     monkeypatch.chdir(tmp_path)
     before = _snapshot(box, skip)
-    t0 = time.monotonic()
     try:
         code = cli.main(argv)
     except SystemExit as exc:  # argparse
         code = exc.code
-    took = time.monotonic() - t0
     out, err = capsys.readouterr()
     text = out + err
-    assert took < 10.0, f"{case.name}: {took:.1f} s"
     for leak in LEAKS:
         assert leak not in text, f"{case.name}: {leak!r} in {text!r}"
     after = _snapshot(box, skip)

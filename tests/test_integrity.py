@@ -23,7 +23,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -275,15 +274,13 @@ def test_killed_while_writing_leaves_nothing_that_looks_complete(
         assert done[0].startswith("restored") and _snapshot(out) == before
         assert _leftovers(out.parent, out.name) == []
         return
-    # the next run cleans the stale folder and completes
-    t0 = time.monotonic()
+    # the next run cleans the stale folder and completes (a hang: pytest-timeout)
     meta = process_files(
         flat_scan / "scan.mp4",
         flat_calibration,
         out,
         ProcessParams(frame_start=40, frame_stop=100, texture=False),
     )
-    assert time.monotonic() - t0 < 60
     assert _leftovers(out.parent, out.name) == []
     assert (
         meta["files"]["heightmap.tif"] == hashlib.sha256(before["heightmap.tif"]).hexdigest()

@@ -12,7 +12,6 @@ import struct
 import subprocess
 import sys
 import tarfile
-import time
 import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
@@ -230,7 +229,6 @@ def test_sdist_and_wheel_from_the_tracked_files(tmp_path):
     _tracked_copy(src)
     out = tmp_path / "out"
     out.mkdir()
-    t0 = time.perf_counter()
     res = subprocess.run(
         [sys.executable, "-c", BUILD, str(out)],
         cwd=src,
@@ -239,7 +237,6 @@ def test_sdist_and_wheel_from_the_tracked_files(tmp_path):
         timeout=120,
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
-    assert time.perf_counter() - t0 < 60
     sdist_name, wheel_name = res.stdout.strip().splitlines()[-2:]
     with tarfile.open(out / sdist_name) as tf:
         names = {n.split("/", 1)[1] for n in tf.getnames() if "/" in n}
