@@ -233,6 +233,36 @@ def test_the_output_never_goes_into_a_reconstruction_the_spec_names(run, tmp_pat
     assert sorted(p.name for p in rec_dir.iterdir()) == before
 
 
+def test_a_heightmap_changed_after_processing_is_not_measured(run, tmp_path, capsys):
+    """A reconstruction whose heightmap.tif no longer matches the SHA-256 its metadata.json
+    records is refused (as cast and compare refuse it), not measured and recorded under the
+    original's hash (the audit of 4 December 2026: heights doubled, the step read twice as
+    high, the old hash in validation.json, exit 0)."""
+    import shutil
+
+    import tifffile
+
+    from impress_gui.cli import main
+
+    spec = json.loads((run["out"] / "validation-spec.json").read_text())
+    for s in spec["scans"]:
+        src = Path(s["reconstruction"])
+        if not src.is_absolute():
+            src = (run["out"] / src).resolve()
+        dst = tmp_path / "recs" / s["name"]
+        shutil.copytree(src, dst)
+        s["reconstruction"] = str(dst)
+    first = tmp_path / "recs" / spec["scans"][0]["name"] / "heightmap.tif"
+    height = tifffile.imread(first)
+    tifffile.imwrite(first, height * 2, compression="zlib")
+    (tmp_path / "spec.json").write_text(json.dumps(spec))
+    code = main(["validate", "--spec", str(tmp_path / "spec.json"), "--out",
+                 str(tmp_path / "val"), "--no-figures"])
+    err = capsys.readouterr().err
+    assert code == 2 and "E-VALIDATE-HASH" in err and "changed after processing" in err, err
+    assert not (tmp_path / "val" / "validation.json").exists()
+
+
 def test_a_run_keeps_only_what_its_record_and_report_need(run):
     """A quick run wrote about 2 GB (issue 21, item 13): each reconstruction now keeps the
     fused heightmap it was measured on and the records naming every file with its SHA-256;
