@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 from pathlib import Path
 
@@ -54,6 +55,11 @@ def test_local_pool_gives_the_same_folders_and_a_summary(flat_scan, flat_calibra
         rows = list(csv.DictReader(fh))
     assert [r["name"] for r in rows] == list(RANGES)
     assert all(r["status"] == "processed" and int(r["cells_fused"]) > 1000 for r in rows)
+    # the summaries name each scan's folder within the batch folder (they do not depend on
+    # where it is), and the JSON records the manifest's hash
+    assert [r["folder"] for r in rows] == list(RANGES)
+    doc = json.loads((tmp_path / "batch" / "summary.json").read_text())
+    assert doc["manifest"]["sha256"] == hashlib.sha256(manifest.read_bytes()).hexdigest()
     # run again: every scan is recognised as done, nothing is processed anew
     before = {n: (tmp_path / "batch" / n / "run.json").read_bytes() for n in RANGES}
     rows = run_batch(load_manifest(manifest), tmp_path / "batch", jobs=1)

@@ -256,10 +256,10 @@ def run_batch(items: list[BatchItem], out_dir: str | os.PathLike, jobs: int | No
         # what finished is kept and summarised; the rest is marked, and a run again with
         # the same manifest resumes there
         write_summary([rows.get(i.name) or _finished_unreported(i, out) or _not_run(i)
-                       for i in items], out)
+                       for i in items], out, manifest)
         raise
     ordered = [rows[name] for name in names]
-    write_summary(ordered, out)
+    write_summary(ordered, out, manifest)
     return ordered
 
 
@@ -340,11 +340,24 @@ SUMMARY_COLUMNS = ("name", "status", "code", "frames", "cells_fused", "warnings"
                    "message")
 
 
-def write_summary(rows: Iterable[dict[str, Any]], out: Path) -> None:
-    from impress_gui.core.base.fileio import atomic_write_bytes
+def write_summary(rows: Iterable[dict[str, Any]], out: Path,
+                  manifest: str | os.PathLike | None = None) -> None:
+    """``summary.csv`` and ``summary.json`` in the batch folder ``out``: each scan's folder
+    named relative to it (the summaries do not depend on where the batch folder is), and in
+    the JSON the manifest's path and SHA-256. Only ``seconds`` differs between two runs."""
+    from impress_gui.core.base.fileio import atomic_write_bytes, sha256_file
     from impress_gui.core.formats.provenance import csv_text
 
-    rows = list(rows)
+    def relative(row: dict[str, Any]) -> dict[str, Any]:
+        folder = row.get("folder")
+        if folder:
+            try:
+                row = row | {"folder": Path(folder).relative_to(out).as_posix()}
+            except ValueError:
+                pass
+        return row
+
+    rows = [relative(r) for r in rows]
     buf = io.StringIO()
     w = csv.DictWriter(buf, SUMMARY_COLUMNS, extrasaction="ignore", lineterminator="\n")
     w.writeheader()
@@ -354,4 +367,6 @@ def write_summary(rows: Iterable[dict[str, Any]], out: Path) -> None:
     atomic_write_bytes(out / "summary.csv", buf.getvalue().encode("utf-8"))
     doc = {"format": "impress.batch-summary", "version": 1,
            "scans": [{k: r.get(k) for k in SUMMARY_COLUMNS} for r in rows]}
+    if manifest is not None:
+        doc["manifest"] = {"path": str(manifest), "sha256": sha256_file(manifest)}
     atomic_write_bytes(out / "summary.json", dumps_json(doc).encode("utf-8"))
