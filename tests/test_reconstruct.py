@@ -136,6 +136,19 @@ def test_outputs_are_complete_deterministic_and_readable(flat_scan, flat_calibra
     # the X3P is in the right-handed export frame: y = -rail Y, so its rows run last first
     z = np.frombuffer(data, "<f8").reshape(hm.shape)
     assert np.allclose(z[::-1] * 1e3, hm, equal_nan=True, atol=1e-4)
+    # every view carries its provenance too (read by Pillow): the video's and the
+    # calibration's SHA-256, the grid; the point cloud its sampling (the audit of 4 December
+    # 2026 found the PNG views bare)
+    from PIL import Image
+
+    video_sha = meta["inputs"]["video"]["sha256"]
+    for name in ("heightmap_8bit.png", "heightmap_color.png", "contribution.png"):
+        with Image.open(tmp_path / "a" / name) as im:
+            assert video_sha in im.text["Description"], name
+            assert meta["inputs"]["calibration"]["sha256"] in im.text["Description"]
+            assert im.text["Software"].startswith("IMPREsS workstation")
+    head = (tmp_path / "a" / "pointcloud.ply").read_bytes().split(b"end_header")[0]
+    assert b"every 2 cell(s) of the 0.1 mm grid" in head and video_sha.encode() in head
 
 
 def test_cancel_leaves_the_previous_result(flat_scan, flat_calibration, tmp_path):

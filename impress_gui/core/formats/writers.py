@@ -151,6 +151,7 @@ def ply_bytes(spec, height: np.ndarray, texture: np.ndarray | None, step: int = 
     else:
         pts["red"] = pts["green"] = pts["blue"] = 200
     lines = [f"IMPREsS workstation {__version__}; units mm", f"frame: {EXPORT_FRAME}",
+             f"sampling: every {step} cell(s) of the {spec.pixel_mm:g} mm grid each way",
              *(_one_line(c) for c in comments)]
     # plyfile refuses non-ASCII and newlines in comments: escape them as before
     ply = plyfile.PlyData([plyfile.PlyElement.describe(pts, "vertex")], byte_order="<",
@@ -380,6 +381,13 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
                 f"x0 {rec.spec.x0_mm} mm, y0 {rec.spec.y0_mm} mm (rail frame, row 0 first); "
                 + "; ".join(source) + "; parameters: metadata.json")
 
+    def png_text(png: bytes, what: str) -> bytes:
+        """The PNG view with its provenance as text chunks (the pixels untouched)."""
+        from impress_gui.core.formats.provenance import png_with_text
+
+        return png_with_text(png, {"Software": f"IMPREsS workstation {__version__}",
+                                   "Description": desc(what)})
+
     h32 = np.asarray(rec.height_mm, np.float32)  # no copy of float32 maps
     # each file is made, written and hashed by a task of its own: the encoders (deflate, PNG)
     # release the GIL, so the files are made side by side
@@ -398,9 +406,12 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
         LAYER_FILES["contribution"]: lambda: tiff(np.asarray(rec.contribution, np.uint8),
                                                   "contribution codes (metadata.json)",
                                                   predictor=False),
-        CONTRIBUTION_PNG: lambda: bgr_png_bytes(contribution_bgr(rec.contribution)),
-        GREY8_PNG: lambda: png_bytes(grey8(rec.height_mm)),
-        COLOUR_PNG: lambda: bgr_png_bytes(pseudo_colour_bgr(rec.height_mm)),
+        CONTRIBUTION_PNG: lambda: png_text(bgr_png_bytes(contribution_bgr(rec.contribution)),
+                                           "contribution codes as colours (metadata.json)"),
+        GREY8_PNG: lambda: png_text(png_bytes(grey8(rec.height_mm)),
+                                    "height, 8-bit grey levels (scale: metadata.json)"),
+        COLOUR_PNG: lambda: png_text(bgr_png_bytes(pseudo_colour_bgr(rec.height_mm)),
+                                     "height in pseudo-colour (scale: metadata.json)"),
         PLY_FILE: lambda: ply_bytes(rec.spec, rec.height_mm, rec.texture_rgb, ply_step, source),
     }
     shares = _Shares()
@@ -413,7 +424,8 @@ def write_reconstruction(rec, out_dir, metadata: dict, run_info: dict,
             calibrated=dates["calibrated"], done=lambda f: shares.set(X3P_FILE, f))),
     }
     if rec.texture_rgb is not None:
-        makers[TEXTURE_FILE] = lambda: png_bytes(rec.texture_rgb)
+        makers[TEXTURE_FILE] = lambda: png_text(png_bytes(rec.texture_rgb),
+                                                "colour texture on the height grid")
     from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
     from impress_gui.core.base.outdir import MARK_FILE, mark_bytes
