@@ -301,6 +301,18 @@ def test_command_writes_files_independent_readers_read(recons, tmp_path, capsys)
     html = (out1 / "report.html").read_text()
     assert _sha(recons["a"] / "heightmap.tif") in html and "residual RMS" in html
     assert "Signed distance along A&#39;s surface normal" in html
+    # the maps and figures name the compared inputs' SHA-256 themselves (read by tifffile
+    # and Pillow; the audit of 4 December 2026 found only "grid in compare.json")
+    from PIL import Image
+
+    for name in ("difference.tif", "a.tif", "b_on_a.tif"):
+        with tifffile.TiffFile(out1 / name) as tf:
+            text = tf.pages[0].description
+        assert _sha(recons["a"] / "heightmap.tif") in text, name
+        assert _sha(recons["c"] / "heightmap.tif") in text and "compare.json" in text, name
+    for name in ("difference.png", "histogram.png"):
+        with Image.open(out1 / name) as im:
+            assert _sha(recons["c"] / "heightmap.tif") in im.text["Description"], name
 
 
 def test_command_vertical_metric(recons, tmp_path, capsys):

@@ -400,11 +400,22 @@ def report_html(doc: dict, files: dict, images: Sequence[tuple[str, bytes]]) -> 
         images=[(c, base64.b64encode(p).decode("ascii")) for c, p in images])
 
 
-def _tif(arr: np.ndarray, pixel_mm: float, what: str) -> bytes:
+def _tif(arr: np.ndarray, pixel_mm: float, what: str, inputs: str = "") -> bytes:
     from impress_gui.core.formats.images import tiff_bytes
 
-    return tiff_bytes(arr, pixel_mm=pixel_mm, description=f"IMPREsS comparison: {what}",
+    return tiff_bytes(arr, pixel_mm=pixel_mm,
+                      description=f"IMPREsS comparison: {what}{inputs}",
                       software=f"IMPREsS workstation {__version__}")
+
+
+def _inputs_line(surfaces: Sequence[Surface]) -> str:
+    """The compared inputs' files and SHA-256, for the figures' and maps' own descriptions
+    (every parameter is in compare.json)."""
+    parts = []
+    for label, s in zip("ABCDEFGHIJKLMNOPQRSTUVWXYZ", surfaces):
+        files = (s.source or {}).get("files") or {}
+        parts.append(f"{label} " + ", ".join(f"{n} sha256 {h}" for n, h in sorted(files.items())))
+    return "; inputs: " + "; ".join(parts) + "; parameters: compare.json"
 
 
 def _json_bytes(doc: dict) -> bytes:
@@ -465,22 +476,33 @@ def write_comparison(inputs: Sequence[str | Path], output: str | Path,
     p_mm = cmp.a.pixel_mm
     what = METRIC_SHORT[params.metric]
     colour_mm = colour_range(cmp.stats, params.threshold_mm)
+    src = _inputs_line(surfaces)
+
+    def png(data: bytes, what_png: str) -> bytes:
+        from impress_gui.core.formats.provenance import png_with_text
+
+        return png_with_text(data, {"Software": f"IMPREsS workstation {__version__}",
+                                    "Description": f"IMPREsS comparison: {what_png}{src}"})
+
     payload: dict[str, bytes] = {
         "difference.tif": _tif(cmp.diff, p_mm, f"A - B (mm), {what}, NaN outside the "
-                               "overlap; grid in compare.json"),
-        "a.tif": _tif(cmp.a.height_mm.astype(np.float32), p_mm, "A (mm), its compared window"),
-        "b_on_a.tif": _tif(cmp.b_on_a, p_mm, "B moved onto A and resampled on A's grid (mm)"),
-        "difference.png": difference_png(cmp, colour_mm,
-                                         f"A - B {what}, mm (+-{colour_mm:g}); green: "
-                                         f"|A - B| > {params.threshold_mm:g} mm",
-                                         SCALE_LABEL[params.metric]),
-        "histogram.png": histogram_png(cmp.stats, params.threshold_mm,
-                                       f"A - B {what}"),
+                               "overlap; grid in compare.json", src),
+        "a.tif": _tif(cmp.a.height_mm.astype(np.float32), p_mm, "A (mm), its compared window",
+                      src),
+        "b_on_a.tif": _tif(cmp.b_on_a, p_mm, "B moved onto A and resampled on A's grid (mm)",
+                           src),
+        "difference.png": png(difference_png(cmp, colour_mm,
+                                             f"A - B {what}, mm (+-{colour_mm:g}); green: "
+                                             f"|A - B| > {params.threshold_mm:g} mm",
+                                             SCALE_LABEL[params.metric]),
+                              f"A - B {what} (mm)"),
+        "histogram.png": png(histogram_png(cmp.stats, params.threshold_mm,
+                                           f"A - B {what}"), f"histogram of A - B {what}"),
     }
     if mean is not None:
-        payload["mean.tif"] = _tif(mean.mean_mm, p_mm, "mean track (mm)")
-        payload["std.tif"] = _tif(mean.std_mm, p_mm, "standard deviation per cell (mm)")
-        payload["count.tif"] = _tif(mean.count, p_mm, "maps with data per cell")
+        payload["mean.tif"] = _tif(mean.mean_mm, p_mm, "mean track (mm)", src)
+        payload["std.tif"] = _tif(mean.std_mm, p_mm, "standard deviation per cell (mm)", src)
+        payload["count.tif"] = _tif(mean.count, p_mm, "maps with data per cell", src)
     files = {name: hashlib.sha256(data).hexdigest() for name, data in payload.items()}
     doc = record_document(cmp, b, params, colour_mm, mean, more)
     doc["files"] = dict(sorted(files.items()))
