@@ -2,6 +2,7 @@
 
 import hashlib
 import json
+import os
 import shutil
 import zipfile
 
@@ -253,3 +254,24 @@ def test_band_rays_kernel_equals_numpy_rays(flat_calibration):
         uv = np.column_stack([np.repeat(cols, bh + 1), rows.ravel()]).astype(float)
         want = (cal.intrinsics.rays(uv) @ cal.rotation.T).reshape(len(cols), bh + 1, 3)
         np.testing.assert_allclose(rays[cols], want, rtol=0, atol=1e-12, err_msg=name)
+
+
+def test_the_video_files_time_does_not_change_the_outputs(flat_scan, flat_calibration,
+                                                         tmp_path):
+    """The same video bytes give the same files whatever the file's modification time (a
+    copy of the evidence): the X3P's dates come from the inputs' contents, and a video that
+    states no recording date (the simulator's) gets the date that stands for unknown, said so
+    in metadata.json (the audit of 4 December 2026: the X3P took the file's time)."""
+    video = tmp_path / "scan.mp4"
+    shutil.copyfile(flat_scan / "scan.mp4", video)
+    outs = []
+    for k, when in enumerate((1577836800, 1767225600)):  # 2020-01-01, 2026-01-01
+        os.utime(video, (when, when))
+        process_files(video, flat_calibration, tmp_path / f"out{k}",
+                      ProcessParams(frame_start=40, frame_stop=50, texture=False))
+        outs.append({p.name: p.read_bytes() for p in (tmp_path / f"out{k}").iterdir()
+                     if p.name != "run.json"})
+    assert outs[0] == outs[1]
+    meta = json.loads(outs[0]["metadata.json"])
+    assert meta["dates"]["measured"] == "1970-01-01T00:00:00Z"
+    assert "not stated" in meta["dates"]["source"]

@@ -271,35 +271,38 @@ def _write_file(path: Path, write) -> None:
         write(fh)
 
 
-def _iso(ts: float) -> str:
-    return datetime.fromtimestamp(ts, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+#: the X3P's date where the inputs state none (a date is required there): the start of the
+#: Unix epoch, which no scan has, and ``metadata.json`` says so (``dates.source``)
+UNKNOWN_DATE = "1970-01-01T00:00:00Z"
 
 
 def input_dates(video, calibration_path) -> dict[str, str]:
-    """The X3P's dates, taken from the inputs so that identical inputs give identical files:
-    ``measured`` = the recording date the video's container states, else the video file's
-    modification time; ``calibrated`` = the same when the calibration was made on this video
-    (the rig calibrates itself from each scan), else the calibration file's modification
-    time."""
+    """The X3P's dates, taken from the inputs' contents so that identical inputs give
+    identical files (a copy of the evidence too, whatever its file times): ``measured`` = the
+    recording date the video's container states, else :data:`UNKNOWN_DATE`; ``calibrated`` =
+    the same when the calibration was made on this video (the rig calibrates itself from each
+    scan), else :data:`UNKNOWN_DATE`; ``source`` says which. (Until 4 December 2026 the files'
+    modification times stood in: a copied video gave another X3P.)"""
     measured = None
     if getattr(video, "recorded_utc", None):
         measured = str(video.recorded_utc)[:19].replace(" ", "T") + "Z"
-    if measured is None:
-        try:
-            measured = _iso(os.stat(video.path).st_mtime)
-        except OSError:
-            measured = "1970-01-01T00:00:00Z"
-    calibrated = measured
+    said = ("the recording date the video's container states" if measured else
+            f"not stated by the video's container: {UNKNOWN_DATE} stands for unknown")
+    measured = measured or UNKNOWN_DATE
+    calibrated, cal_said = measured, "the calibration was made on this video: its date"
     try:
         import json
 
         doc = json.loads(Path(calibration_path).read_bytes())
         made_on = ((doc.get("inputs") or {}).get("video") or {}).get("sha256")
         if made_on != video.sha256():
-            calibrated = _iso(os.stat(calibration_path).st_mtime)
+            calibrated = UNKNOWN_DATE
+            cal_said = (f"the calibration was made on another video: {UNKNOWN_DATE} stands "
+                        "for unknown")
     except (OSError, ValueError, AttributeError):
         pass
-    return {"measured": measured, "calibrated": calibrated}
+    return {"measured": measured, "calibrated": calibrated,
+            "source": f"measured: {said}; calibrated: {cal_said}"}
 
 
 CONTRIB_RGB = np.array([[0, 0, 0], [40, 200, 40], [220, 40, 40], [230, 230, 230], [240, 160, 0]],

@@ -38,8 +38,7 @@ class CalibrationInput:
     """A scene calibration in memory and the record of its source written into the
     reconstruction's metadata (:func:`~impress_gui.core.formats.provenance.input_record`:
     the file it was read from or kept in, and the SHA-256 of that file's bytes, which are
-    exactly the calibration used). The file's date dates the X3P's calibration when the
-    calibration was made on another video (:func:`~impress_gui.core.formats.writers.input_dates`)."""
+    exactly the calibration used)."""
 
     calibration: SceneCalibration
     record: dict[str, str]
