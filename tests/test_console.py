@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -15,10 +16,16 @@ ROOT = Path(__file__).resolve().parents[1]
 LEAKS = ("Traceback", "Warning", ".py:", "tifffile", "E-INTERNAL")
 
 
+def _default_sigint() -> None:
+    # a shell starts background jobs (a test run in the background, CI) with Ctrl-C ignored,
+    # and the child would inherit that: give it Ctrl-C as a terminal gives it
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _run(args, timeout=120, **kw):
     env = {k: v for k, v in os.environ.items() if k != "IMPRESS_DEBUG"}
     return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True,
-                          timeout=timeout, env=env, **kw)
+                          timeout=timeout, env=env, preexec_fn=_default_sigint, **kw)
 
 
 def test_a_degenerate_calibration_gives_its_code_and_no_library_warnings(flat_scan,
