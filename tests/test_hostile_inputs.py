@@ -297,8 +297,8 @@ CASES: list[Case] = [
           "{box}/out", "--frames", "180:99999999999", "--no-texture"], "W-FRAME-RANGE"),
     # the audit of 4 December 2026: a calibration made from picks with t1 and t2 swapped put
     # the red plane through the camera's centre; processing ran with the red laser silently
-    # lost (calibrate now refuses such a plane, and a calibration file holding one is refused)
-    Case("calibration: red plane through the camera", _proc(cal="{box}/crp.json"), "E-VALUE",
+    # lost (calibrate now refuses such a plane, and processing with one is refused)
+    Case("calibration: red plane through the camera", _proc(cal="{box}/crp.json"), "E-CALIB",
          _json_edit("calibration.json", "crp.json", lambda d: d["laser_planes"]["red"].update(
              normal=[-0.03464613435775545, -0.9917588055364139, 0.12334551882841141],
              offset_mm=-0.007575268009347271))),

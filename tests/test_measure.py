@@ -182,6 +182,11 @@ def test_csv_round_trip_and_measurements_table():
     (row,) = list(csv.DictReader(io.StringIO(M.measurements_csv([m3]))))
     assert row["label"] == '\'=HYPERLINK("http://x","y")' and row["note"] == "'@SUM(A1)"
     assert float(row["x1_mm"]) == -1.5 and float(row["height_mm"]) == -0.25
+    # a text value or layer read from a project file is text too
+    m4 = M.new_measurement("annotation", [(0, 0)], {"height_mm": -0.5, "=cmd": "=1+1"},
+                           params={"layer": "@x"})
+    (row,) = list(csv.DictReader(io.StringIO(M.measurements_csv([m4]))))
+    assert row["'=cmd"] == "'=1+1" and row["layer"] == "'@x" and row["height_mm"] == "-0.5000"
 
 
 def test_damaged_reconstruction_folders(tmp_path):

@@ -2,8 +2,9 @@
 t2 the one with the red): found by the audit of 4 December 2026 on a short flat scan, where
 the calibration put the red laser's plane through the camera's centre without a warning and
 processing then lost the red laser silently. Now the calibration refuses such a plane (and
-says to check t1 and t2), a calibration file holding one is refused, and a reconstruction in
-which one laser's stripe is found but gives no heights says so."""
+says to check t1 and t2), processing with a calibration holding one is refused (the file, and
+a project holding it, still open), and a reconstruction in which one laser's stripe is found
+but gives no heights says so."""
 
 from __future__ import annotations
 
@@ -76,3 +77,25 @@ def test_a_laser_found_but_without_heights_is_reported():
     # a stripe never found is E-NO-STRIPE's, not this warning's
     assert _lost_laser_warnings(_Tally({"green": 45, "red": 0}, {"green": 9000, "red": 0}),
                                 stats) == []
+
+
+def test_a_calibration_with_such_a_plane_opens_but_is_not_processed(flat_scan,
+                                                                    flat_calibration,
+                                                                    tmp_path):
+    """Made before such planes were refused (or edited): the file reads (a case holding it
+    still opens), processing refuses it before any work, and no output is made."""
+    from impress_gui.core.calibration.scene import SceneCalibration
+    from impress_gui.core.reconstruction.pipeline import process_files
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams
+
+    doc = json.loads(flat_calibration.read_text())
+    doc["laser_planes"]["red"].update(normal=[-0.0346, -0.9918, 0.1233], offset_mm=-0.0076)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    cal = SceneCalibration.load(bad)
+    assert abs(cal.planes["red"].plane.distance(np.zeros(3))) < 0.01
+    with pytest.raises(CalibrationError) as e:
+        process_files(flat_scan / "scan.mp4", bad, tmp_path / "out",
+                      ProcessParams(frame_start=40, frame_stop=50, texture=False))
+    assert e.value.code == "E-CALIB" and "red" in str(e.value)
+    assert not (tmp_path / "out").exists()

@@ -214,12 +214,16 @@ def run_batch(items: list[BatchItem], out_dir: str | os.PathLike, jobs: int | No
               manifest: str | os.PathLike | None = None) -> list[dict[str, Any]]:
     """Process ``items`` into ``out_dir``; return the summary rows (manifest order) after
     writing ``summary.csv`` and ``summary.json``."""
+    from impress_gui.core.base.fileio import sha256_file
     from impress_gui.core.base.outdir import MARK_FILE, check_output_dir, mark_bytes, writing
 
     names = [i.name for i in items]
     inputs = [p for i in items for p in (i.video, i.calibration)]
+    manifest_record = None
     if manifest is not None:
         inputs.append(Path(manifest))
+        # the manifest as the batch starts (not as it may be when the batch ends)
+        manifest_record = {"path": str(manifest), "sha256": sha256_file(manifest)}
     # the batch folder: new, empty or an earlier batch's (its scans' folders and summaries)
     allowed = {*names, *SUMMARY_FILES}
     out = check_output_dir(out_dir, "batch", inputs, allowed=None)
@@ -256,10 +260,10 @@ def run_batch(items: list[BatchItem], out_dir: str | os.PathLike, jobs: int | No
         # what finished is kept and summarised; the rest is marked, and a run again with
         # the same manifest resumes there
         write_summary([rows.get(i.name) or _finished_unreported(i, out) or _not_run(i)
-                       for i in items], out, manifest)
+                       for i in items], out, manifest_record)
         raise
     ordered = [rows[name] for name in names]
-    write_summary(ordered, out, manifest)
+    write_summary(ordered, out, manifest_record)
     return ordered
 
 
@@ -341,11 +345,12 @@ SUMMARY_COLUMNS = ("name", "status", "code", "frames", "cells_fused", "warnings"
 
 
 def write_summary(rows: Iterable[dict[str, Any]], out: Path,
-                  manifest: str | os.PathLike | None = None) -> None:
+                  manifest: dict[str, str] | None = None) -> None:
     """``summary.csv`` and ``summary.json`` in the batch folder ``out``: each scan's folder
     named relative to it (the summaries do not depend on where the batch folder is), and in
-    the JSON the manifest's path and SHA-256. Only ``seconds`` differs between two runs."""
-    from impress_gui.core.base.fileio import atomic_write_bytes, sha256_file
+    the JSON ``manifest`` (its path and SHA-256 as the batch started). Only ``seconds``
+    differs between two runs."""
+    from impress_gui.core.base.fileio import atomic_write_bytes
     from impress_gui.core.formats.provenance import csv_text
 
     def relative(row: dict[str, Any]) -> dict[str, Any]:
@@ -368,5 +373,5 @@ def write_summary(rows: Iterable[dict[str, Any]], out: Path,
     doc = {"format": "impress.batch-summary", "version": 1,
            "scans": [{k: r.get(k) for k in SUMMARY_COLUMNS} for r in rows]}
     if manifest is not None:
-        doc["manifest"] = {"path": str(manifest), "sha256": sha256_file(manifest)}
+        doc["manifest"] = dict(manifest)
     atomic_write_bytes(out / "summary.json", dumps_json(doc).encode("utf-8"))

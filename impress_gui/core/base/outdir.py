@@ -293,6 +293,17 @@ class OutputFolder:
         return self.final
 
 
+def _ours_or_empty(folder: Path) -> bool:
+    """``folder`` carries the product's mark or is empty (one that cannot be read is
+    neither: left alone)."""
+    if read_mark(folder) is not None:
+        return True
+    try:
+        return not any(folder.iterdir())
+    except OSError:
+        return False
+
+
 def _clear_work_folder(tmp: Path) -> None:
     """Remove this process's own earlier work folder ``tmp``; refuse (OutputError) when
     something the product did not make has its name (it is never deleted)."""
@@ -335,8 +346,7 @@ def recover_interrupted(out_dir: Path, marker: str = "metadata.json") -> list[st
         for kind in ("partial", "old"):
             prefix = f".{out_dir.name}.{kind}-"
             if (p.name.startswith(prefix) and p.name[len(prefix):].isdigit()
-                    and not p.is_symlink() and p.is_dir()
-                    and (read_mark(p) is not None or not any(p.iterdir()))):
+                    and not p.is_symlink() and p.is_dir() and _ours_or_empty(p)):
                 if not _pid_alive(int(p.name[len(prefix):])):
                     stale.append((kind, p))
     olds = sorted((p for k, p in stale if k == "old"), key=lambda p: p.stat().st_mtime)

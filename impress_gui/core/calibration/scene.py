@@ -188,14 +188,6 @@ class SceneCalibration:
             for name in ("green", "red"):
                 if name not in planes:
                     raise FormatError(f"{where}the {name} laser plane is missing")
-                d = abs(float(planes[name].plane.distance(np.zeros(3))))
-                if not d >= PLANE_MIN_DISTANCE_MM:  # calibrate refuses such a plane
-                    raise FormatError(
-                        f"{where}the {name} laser's plane passes {d:.1f} mm from the camera's "
-                        f"centre (at least {PLANE_MIN_DISTANCE_MM:g} mm for a laser beside the "
-                        "camera): its stripe cannot be triangulated; calibrate again (t1 with "
-                        "the green stripe on the target, t2 with the red one)",
-                        code=codes.E_VALUE)
             pose = require(doc, "target_pose", dict, where)
             cp = require(doc, "corners_parallax_mm", dict, where)
             cr = require(doc, "corner_residuals_mm", dict, where)
@@ -370,6 +362,7 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
             intrinsics, pose.rotation, target,
             (pose.target_rotation, pose.target_translation_mm), picks,
             lambda k: v_pose * float(times[k] - times[picks.t1]))
+        check_plane_distances(planes)
         warnings.append("laser planes by the three-point method (three picked stripe points "
                         "per laser): coarser than the stripe fit, with no residual check, and "
                         "the tilt is not refined by the stripes")
@@ -448,7 +441,9 @@ def plane_residual_warnings(planes: dict[str, LaserPlaneFit]) -> list[str]:
 
 #: a laser's plane this near the camera's centre (mm) sees its stripe almost edge-on: no
 #: triangulation (a real laser sits beside the camera; the thesis rig 130 mm, the
-#: simulator's random rigs 60-250 mm). Found so on picks whose t1 and t2 were swapped
+#: simulator's random rigs 60-250 mm). Found so on picks whose t1 and t2 were swapped.
+#: Checked when a calibration is made and when one is used to process, not when a file or
+#: a project is read (a project saved with such a calibration still opens)
 PLANE_MIN_DISTANCE_MM = 10.0
 
 

@@ -509,8 +509,10 @@ def _adaptive_solid(filled: np.ndarray, rs: slice, cs: slice, spec: GridSpec,
         if total <= cap or runs >= 6:
             break
         # greedy insertion stopped earlier is a prefix of the same insertions: the boundary
-        # can only lose vertices, so this cap holds after at most a few rounds
-        limit = max(2, cap - 3 * edges)
+        # can only lose vertices, so this cap holds after at most a few rounds (one less:
+        # the insertion stops at the first count at or above its limit, which an insertion
+        # of 2 or 3 triangles can pass by one)
+        limit = max(2, cap - 3 * edges - 1)
     if total > cap:
         raise ImpressError("the adaptive surface does not fit the triangle cap: please report "
                            "this", code=codes.E_INTERNAL)

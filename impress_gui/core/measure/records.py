@@ -87,11 +87,14 @@ def step_values(s: StepHeight) -> dict:
 
 
 def _fmt(v) -> str:
+    """A value cell: a number formatted, anything else as text safe for spreadsheets."""
     if v is None:
         return ""
     if isinstance(v, float):
         return "" if not math.isfinite(v) else f"{v:.4f}"
-    return str(v)
+    if isinstance(v, int) and not isinstance(v, bool):
+        return str(v)
+    return csv_text(v)
 
 
 def profile_csv(
@@ -155,8 +158,8 @@ def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None
     buf.write(csv_header(provenance))
     w = csv.writer(buf, lineterminator="\n")
     with_budget = any(m.get("uncertainty") for m in measurements)
-    w.writerow(head + value_keys + (["uncertainty_budget"] if with_budget else [])
-               + ["layer", "heightmap_sha256"])
+    w.writerow(head + [csv_text(k) for k in value_keys]
+               + (["uncertainty_budget"] if with_budget else []) + ["layer", "heightmap_sha256"])
     for k, m in enumerate(measurements, 1):
         row = [k, *(csv_text(m.get(key, "")) for key in ("id", "kind", "label", "note"))]
         pts = list(m.get("points_mm", []))
@@ -168,6 +171,6 @@ def measurements_csv(measurements: Sequence[Mapping], provenance: Mapping | None
         if with_budget:
             b = m.get("uncertainty")
             row.append(json.dumps(b, separators=(",", ":"), sort_keys=True) if b else "")
-        row += [params.get("layer") or "", params.get("heightmap_sha256") or ""]
+        row += [csv_text(params.get("layer") or ""), csv_text(params.get("heightmap_sha256") or "")]
         w.writerow(row)
     return buf.getvalue()

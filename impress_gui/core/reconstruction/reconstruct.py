@@ -29,7 +29,7 @@ from impress_gui.core.base.errors import (
     VideoError,
 )
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
-from impress_gui.core.calibration.scene import SceneCalibration
+from impress_gui.core.calibration.scene import SceneCalibration, check_plane_distances
 from impress_gui.core.formats.video import VideoSource
 from impress_gui.core.reconstruction.compiled import kernels as _kernels
 from impress_gui.core.reconstruction.finish import RowFinisher, TextureInputs, stripe_footprint
@@ -407,6 +407,9 @@ def _preview_map(acc: dict) -> np.ndarray:
 def _reconstruct(video, cal, params, progress, cancel, spool, preview=None,
                  preview_every_s: float = 1.5) -> Reconstruction:
     params.validate()
+    # a calibration whose plane passes through the camera (made before such planes were
+    # refused, or edited) cannot triangulate that laser: refused before any work
+    check_plane_distances(cal.planes)
     cancel = cancel or CancelToken()
     t_start = time.perf_counter()
     w, h = video.size
