@@ -604,8 +604,7 @@ def run_real(
 ) -> dict[str, Any]:
     """The protocol on reconstructions of physical artefacts: known dimensions and measuring
     positions from a spec file (:data:`validate.SPEC_FORMAT`)."""
-    from impress_gui.core.base.errors import FormatError
-    from impress_gui.core.measure.readings import load_reconstruction
+    from impress_gui.core.measure.readings import load_reconstruction, verified_heightmap_sha256
 
     cancel = cancel or CancelToken()
     name, scans = S.load_spec(spec_path)
@@ -622,14 +621,8 @@ def run_real(
         cancel.check()
         report(progress, i / len(scans), f"{s.name}: measuring")
         rec = load_reconstruction(s.reconstruction, layers=("fused",))
-        # the map measured must be the one its metadata records (as cast and compare check):
-        # a heightmap changed after processing is refused, never measured under the old hash
-        tif = Path(s.reconstruction) / HEIGHTMAP_FILE
-        recorded = (rec.metadata.get("files") or {}).get(HEIGHTMAP_FILE)
-        if recorded is not None and recorded != sha256_file(tif):
-            raise FormatError(f"{tif} is not the heightmap its metadata.json records (its "
-                              "SHA-256 differs): it changed after processing; process the "
-                              "scan again", code=codes.E_VALIDATE_HASH)
+        # the map measured must be the one its metadata records (as cast and compare check)
+        verified_heightmap_sha256(s.reconstruction, rec.metadata, codes.E_VALIDATE_HASH)
         res = V.measure_all(rec.height_mm, rec.spec, s.readings)
         results.extend(res)
         groups.append(s.name)

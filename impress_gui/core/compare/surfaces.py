@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from impress_gui.core.base import codes
-from impress_gui.core.base.errors import FormatError, InputError
+from impress_gui.core.base.errors import InputError
 
 DEFAULT_PLY_PIXEL_MM = 0.2
 MAX_PLY_CELLS = 100_000_000
@@ -141,15 +141,11 @@ def load_surface(path: str | Path, ply_pixel_mm: float = DEFAULT_PLY_PIXEL_MM) -
 
 def _from_reconstruction(folder: Path) -> Surface:
     from impress_gui.core.formats.recon_files import HEIGHTMAP_FILE, METADATA_FILE
-    from impress_gui.core.measure.readings import load_reconstruction
+    from impress_gui.core.measure.readings import load_reconstruction, verified_heightmap_sha256
 
     data = load_reconstruction(folder, layers=("fused",))
-    tif_sha = _sha(folder / HEIGHTMAP_FILE)
-    recorded = (data.metadata.get("files") or {}).get(HEIGHTMAP_FILE)
-    if recorded is not None and recorded != tif_sha:
-        raise FormatError(f"{folder / HEIGHTMAP_FILE} is not the heightmap metadata.json "
-                          "records (its SHA-256 differs): it changed after processing",
-                          code=codes.E_COMPARE_HASH)
+    tif_sha = verified_heightmap_sha256(folder, data.metadata, codes.E_COMPARE_HASH,
+                                        "never compare a changed map")
     spec = data.spec
     inputs = data.metadata.get("inputs") or {}
     source = {"kind": "reconstruction", "path": str(folder),

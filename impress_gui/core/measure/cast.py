@@ -70,7 +70,7 @@ import numpy as np
 
 from impress_gui import __version__
 from impress_gui.core.base import codes
-from impress_gui.core.base.errors import FormatError, ImpressError, InputError
+from impress_gui.core.base.errors import ImpressError, InputError
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report, sub_progress
 from impress_gui.core.reconstruction.grid import GridSpec
 
@@ -1010,12 +1010,11 @@ def write_cast(recon: str | Path, output: str | Path, params: CastParams,
     viewer's case and its signature) is recorded as ``export``. An existing file at
     ``output`` is replaced only when it is an earlier cast (its sidecar a cast document) or
     ``replace`` (a save dialog that has asked); otherwise E-OUTPUT-EXISTS, before any work."""
-    from impress_gui.core.base.fileio import atomic_write_bytes, dumps_json, sha256_file
+    from impress_gui.core.base.fileio import atomic_write_bytes, dumps_json
     from impress_gui.core.base.outdir import OutputError, check_output_file
     from impress_gui.core.base.progress import sub_progress
     from impress_gui.core.formats.provenance import reconstruction_source
-    from impress_gui.core.formats.recon_files import HEIGHTMAP_FILE
-    from impress_gui.core.measure.readings import load_reconstruction
+    from impress_gui.core.measure.readings import load_reconstruction, verified_heightmap_sha256
 
     folder = Path(recon)
     if not folder.exists():
@@ -1039,12 +1038,7 @@ def write_cast(recon: str | Path, output: str | Path, params: CastParams,
     report(progress, 0.0, f"reading {folder}")
     data = load_reconstruction(folder, layers=("fused",))
     source = reconstruction_source(data.metadata, data.folder)
-    tif_sha = sha256_file(folder / HEIGHTMAP_FILE)
-    recorded = (data.metadata.get("files") or {}).get(HEIGHTMAP_FILE)
-    if recorded is not None and recorded != tif_sha:
-        raise FormatError(f"{folder / HEIGHTMAP_FILE} is not the heightmap metadata.json "
-                          "records (its SHA-256 differs): it changed after processing; process "
-                          "the scan again", code=codes.E_CAST_HASH)
+    tif_sha = verified_heightmap_sha256(folder, data.metadata, codes.E_CAST_HASH)
     mesh = make_cast(data.height_mm, data.spec, params, sub_progress(progress, 0.1, 0.6),
                      cancel)
     report(progress, 0.6, "checking the mesh (open3d)")

@@ -33,6 +33,7 @@ import numpy as np
 from impress_gui.core.base import codes
 from impress_gui.core.base.errors import FormatError, InputError
 from impress_gui.core.formats.recon_files import (
+    HEIGHTMAP_FILE,
     LAYER_FILES,
     METADATA_FILE,
     RECON_FORMAT,
@@ -66,6 +67,22 @@ class ReconData:
     @property
     def height_mm(self) -> np.ndarray:
         return self.layers["fused"]
+
+
+def verified_heightmap_sha256(folder: str | Path, metadata: Mapping, code: str,
+                              advice: str = "process the scan again") -> str:
+    """The SHA-256 of ``folder``'s heightmap.tif, checked against the one its metadata.json
+    records (``metadata``: as read with it); FormatError ``code`` when they differ (the map
+    changed after processing: never measured, cast or compared under the old hash)."""
+    from impress_gui.core.base.fileio import sha256_file
+
+    tif = Path(folder) / HEIGHTMAP_FILE
+    actual = sha256_file(tif)
+    recorded = (metadata.get("files") or {}).get(HEIGHTMAP_FILE)
+    if recorded is not None and recorded != actual:
+        raise FormatError(f"{tif} is not the heightmap metadata.json records (its SHA-256 "
+                          f"differs): it changed after processing; {advice}", code=code)
+    return actual
 
 
 def load_reconstruction(
