@@ -142,19 +142,11 @@ def _watch_interrupts() -> None:
 
 
 def _quiet_libraries() -> None:
-    """No library's own warning lines on the console (numpy's RuntimeWarnings with source
-    lines, tifffile's log messages): what a user needs to know comes as the command's coded
-    errors and warnings. ``IMPRESS_DEBUG=1`` keeps them."""
-    import logging
-    import os
-    import warnings
+    """No library's own warning lines on the console, in this process and the processes it
+    starts (:mod:`impress_gui.core.base.quiet`); ``IMPRESS_DEBUG=1`` keeps them."""
+    from impress_gui.core.base.quiet import quiet_libraries
 
-    if os.environ.get("IMPRESS_DEBUG"):
-        return
-    warnings.simplefilter("ignore")
-    root = logging.getLogger()
-    if not root.handlers:  # Python's last-resort handler would print WARNING lines to stderr
-        root.addHandler(logging.NullHandler())
+    quiet_libraries()
 
 
 def main(argv: list[str] | None = None) -> int:

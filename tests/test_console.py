@@ -46,6 +46,30 @@ def test_a_degenerate_calibration_gives_its_code_and_no_library_warnings(flat_sc
     assert not (tmp_path / "out").exists()
 
 
+def test_the_batch_workers_show_no_library_warnings_either(flat_scan, flat_calibration,
+                                                           tmp_path):
+    """A batch's scans run in worker processes, fresh interpreters that do not inherit the
+    console's filter: the same degenerate calibration in two scans on two workers gives each
+    scan's refusal in the summary and no library line on the console."""
+    doc = json.loads(Path(flat_calibration).read_text())
+    doc["laser_planes"]["green"]["normal"] = [0, 0, 1]
+    cal = tmp_path / "flat-green.json"
+    cal.write_text(json.dumps(doc))
+    scans = [{"name": f"s{i}", "video": str(flat_scan / "scan.mp4"), "calibration": str(cal),
+              "parameters": {"frame_start": 40, "frame_stop": 60, "texture": False}}
+             for i in range(2)]
+    manifest = tmp_path / "m.json"
+    manifest.write_text(json.dumps({"format": "impress.batch", "version": 1, "scans": scans}))
+    r = _run(["-m", "impress_gui", "batch", str(manifest), "-o", str(tmp_path / "b"),
+              "--jobs", "2"], timeout=300)
+    assert r.returncode == 1, r.stderr
+    rows = json.loads((tmp_path / "b" / "summary.json").read_text())["scans"]
+    assert [row["status"] for row in rows] == ["failed", "failed"], rows
+    assert all(row["code"].startswith("E-") for row in rows), rows
+    for leak in LEAKS:
+        assert leak not in r.stderr + r.stdout, r.stderr
+
+
 _INTERRUPT = r"""
 import os, signal, sys
 import impress_gui.cli as cli

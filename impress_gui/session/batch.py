@@ -299,7 +299,10 @@ def _run_local(items: list[BatchItem], out: str, jobs: int, done) -> None:
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     # "spawn": a clean interpreter per worker (no inherited threads or Qt state)
-    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"))
+    from impress_gui.core.base.quiet import child_initializer
+
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"),
+                               initializer=child_initializer())
     try:
         futures = [pool.submit(process_one, item, out) for item in items]
         for fut in as_completed(futures):

@@ -359,8 +359,13 @@ def _make_renderer(cfg: SimConfig, scene=None):
     return Renderer(scene, rig, motion, opts), scene
 
 
-def _worker_init(cfg_json: str, scene) -> None:
+def _worker_init(cfg_json: str, scene, quiet: bool = False) -> None:
     import signal
+
+    if quiet:  # started by the console command: no library warning lines
+        from impress_gui.core.base.quiet import quiet_libraries
+
+        quiet_libraries()
 
     # Ctrl-C is the parent's to handle (it stops handing out frames); a worker interrupted
     # while it builds its renderer printed a traceback
@@ -385,11 +390,14 @@ def render_frames(cfg: SimConfig, frames, workers: int = 1, scene=None):
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
+    from impress_gui.core.base.quiet import child_initializer
+
     cfg_json = json.dumps(dataclasses.asdict(cfg))
     if scene is None:
         scene = _make_renderer(cfg)[1]
     with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"),
-                             initializer=_worker_init, initargs=(cfg_json, scene)) as pool:
+                             initializer=_worker_init,
+                             initargs=(cfg_json, scene, child_initializer() is not None)) as pool:
         pending = []
         it = iter(frames)
         for k in it:

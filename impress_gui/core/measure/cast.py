@@ -386,7 +386,11 @@ def adaptive_surface_apart(z: np.ndarray, tolerance_mm: float, max_triangles: in
 
     ctx = mp.get_context("spawn")
     receiver, sender = ctx.Pipe(duplex=False)
-    child = ctx.Process(target=_tin_child, args=(sender, z, tolerance_mm, max_triangles),
+    from impress_gui.core.base.quiet import child_initializer, run_quietly
+
+    child = ctx.Process(target=run_quietly,
+                        args=(child_initializer() is not None, _tin_child, sender, z,
+                              tolerance_mm, max_triangles),
                         daemon=True, name="impress-cast-surface")
     child.start()
     sender.close()
