@@ -97,6 +97,30 @@ def test_window_has_tabs_motor_dock_menus_and_status(window):
     assert window.windowTitle().startswith("IMPREsS - Untitled")
 
 
+def test_long_paths_and_messages_do_not_widen_the_window(qtbot, window):
+    """A project in a deep folder (the status bar) and a long progress message (a tab's task
+    line) are shortened on screen, whole in the label's text and tooltip; the window's
+    minimum width stays what its panels need and fits a 1366-pixel laptop screen (a plain
+    label widened the window to 1387 pixels while the sample's reconstruction loaded, and
+    more with a longer path), motor panel included."""
+    before = window.minimumSizeHint().width()
+    assert before <= 1300, before
+    deep = "/media/analyst/EVIDENCE-2026-0412/" + "/".join(["subfolder"] * 40)
+    window.project_label.setText(f"case A | evidence B | {deep}")
+    window.viewer_tab.tasks.label.setText(f"loading the reconstruction {deep}/reconstruction")
+    window.viewer_tab.tasks.show()
+    qtbot.wait(50)
+    assert window.minimumSizeHint().width() <= before
+    assert window.project_label.text().endswith(deep)
+    assert window.project_label.toolTip().endswith(deep)
+    assert window.viewer_tab.tasks.label.text().endswith("/reconstruction")
+    # the whole of the motor panel scrolls below STOP on a short window
+    panel = window.motor_dock.widget()
+    assert window.motor_dock.minimumSizeHint().height() < 400
+    assert panel.scroll_area.isAncestorOf(panel.log_view)
+    assert not panel.scroll_area.isAncestorOf(panel.stop_button)
+
+
 def test_save_and_reopen_restores_the_same_state(qtbot, make_window, scan, tmp_path):
     first = make_window()
     cal = calibrated_project(qtbot, first, scan)
@@ -293,7 +317,7 @@ def test_plain_impress_opens_the_window(monkeypatch):
             {
                 "screenshot": None,
                 "quit_after_s": None,
-                "size": (1920, 1080),
+                "size": None,  # as last closed, else fitted to the screen
                 "settings_path": None,
                 "with_motor": True,
                 "tab": None,

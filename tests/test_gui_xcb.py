@@ -69,3 +69,27 @@ def test_without_a_display_the_window_refuses_with_a_coded_error(tmp_path):
         assert "error [E-DISPLAY]" in res.stderr and "could not connect to display" in res.stderr
         assert "QT_QPA_PLATFORM=offscreen" in res.stderr and "Traceback" not in res.stderr
         assert list(home.rglob("*")) == []
+
+
+def _open(x_display, tmp_path, *extra):
+    shot = tmp_path / "window.png"
+    shot.unlink(missing_ok=True)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("QT_")}
+    env |= {"QT_QPA_PLATFORM": "xcb", "DISPLAY": x_display, "HOME": str(tmp_path)}
+    res = subprocess.run([sys.executable, "-m", "impress_gui", "gui", "--check",
+                          "--settings", str(tmp_path / "settings.ini"), "--screenshot",
+                          str(shot), *extra], env=env, capture_output=True, text=True,
+                         timeout=180, cwd=tmp_path)
+    assert res.returncode == 0, f"exit {res.returncode}\n{res.stdout}\n{res.stderr}"
+    return read_png(shot).shape[:2]
+
+
+def test_the_window_fits_a_small_screen_and_reopens_as_it_was_left(x_display, tmp_path):
+    """On a screen smaller than the default 1920x1080 (here 1280x800, a laptop's size) the
+    window, motor panel included, opens within the screen (it was 1920x1080, and the motor
+    panel alone asked for 743 rows); closed at another size, it reopens at that size."""
+    h, w = _open(x_display, tmp_path)
+    assert w <= SIZE[0] and h <= SIZE[1], (w, h)
+    assert w >= 0.9 * SIZE[0] and h >= 0.9 * SIZE[1], (w, h)  # and uses it
+    assert _open(x_display, tmp_path, "--size", "1240x720") == (720, 1240)
+    assert _open(x_display, tmp_path) == (720, 1240)

@@ -48,9 +48,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--size",
         type=_size,
-        default=(1920, 1080),
+        default=None,
         metavar="WxH",
-        help="window size (default 1920x1080)",
+        help="window size (default: as the window was last closed; the first time "
+        "1920x1080, or the whole free area of a smaller screen)",
     )
     p.add_argument(
         "--settings",

@@ -318,11 +318,43 @@ def save_png(pixmap, path: str | Path) -> bool:
     return True
 
 
+#: the window's size on a screen that holds it, when none was saved
+DEFAULT_SIZE = (1920, 1080)
+
+
+def place_window(window, settings: QSettings, size: tuple[int, int] | None) -> bool:
+    """Size ``window`` before it is shown: ``size`` when given (screenshots, tests); else
+    where the user left it last time (``window/geometry`` and the docks' ``window/state``,
+    saved when the window closes; Qt keeps a restored window on a screen that is there);
+    else :data:`DEFAULT_SIZE`, cut to the screen's free area (a laptop's 1366x768 less its
+    panels). True: show it maximized (the default size did not fit)."""
+    if size is not None:
+        window.resize(*size)
+        return False
+    geometry = settings.value("window/geometry")
+    if geometry is not None and window.restoreGeometry(geometry):
+        state = settings.value("window/state")
+        if state is not None:
+            window.restoreState(state)
+        return False
+    screen = window.screen() or QGuiApplication.primaryScreen()
+    free = screen.availableGeometry() if screen is not None else None
+    if QGuiApplication.platformName() in ("offscreen", "minimal"):
+        free = None  # no one's screen: a picture of the window at the default size
+    w, h = DEFAULT_SIZE
+    if free is None or (w <= free.width() and h <= free.height()):
+        window.resize(w, h)
+        return False
+    window.resize(min(w, free.width()), min(h, free.height()))
+    window.move(free.topLeft())
+    return True
+
+
 def run_gui(
     path: str | Path | None = None,
     screenshot: str | Path | None = None,
     quit_after_s: float | None = None,
-    size: tuple[int, int] = (1920, 1080),
+    size: tuple[int, int] | None = None,
     settings_path: str | Path | None = None,
     with_motor: bool = True,
     tab: str | None = None,
@@ -368,8 +400,10 @@ def _scratch_settings():
 def _run_window(app, path, screenshot, quit_after_s, size, settings, with_motor, tab, check,
                 check_timeout_s) -> int:
     window = build_main_window(settings, with_motor=with_motor)
-    window.resize(*size)
-    window.show()
+    if place_window(window, settings, size):
+        window.showMaximized()
+    else:
+        window.show()
     checker = OpenCheck(window) if check else None
     previous_hook = sys.excepthook
 

@@ -37,6 +37,7 @@ from impress_gui.session.session import Session
 from impress_gui.ui.calibration.tab import CalibrationTab
 from impress_gui.ui.case_dialog import CaseDialog
 from impress_gui.ui.compare.panel import ComparePanel
+from impress_gui.ui.labels import ElidedLabel
 from impress_gui.ui.messages import Dialogs, Messenger
 from impress_gui.ui.motor.panel import MotorPanel
 from impress_gui.ui.processing.tab import ProcessingTab
@@ -124,7 +125,7 @@ class MainWindow(QMainWindow):
             motor_panel.error.connect(
                 lambda code, msg: self._log("motor error", {"code": code, "message": msg})
             )
-        self.project_label = QLabel()
+        self.project_label = ElidedLabel()
         self.statusBar().addPermanentWidget(self.project_label)
         self._build_menus()
         self.set_project(Project())
@@ -523,6 +524,9 @@ class MainWindow(QMainWindow):
         if self._closing_done:
             return
         self._closing_done = True
+        # where the user left the window and its docks, for the next start (app.place_window)
+        self.settings.setValue("window/geometry", self.saveGeometry())
+        self.settings.setValue("window/state", self.saveState())
         for tab in self._tabs:
             tab.shutdown()
         if self.motor_panel is not None:

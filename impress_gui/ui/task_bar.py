@@ -8,9 +8,10 @@ from collections.abc import Callable
 from typing import Any
 
 from PySide6.QtCore import Signal
-from PySide6.QtWidgets import QHBoxLayout, QLabel, QProgressBar, QPushButton, QWidget
+from PySide6.QtWidgets import QHBoxLayout, QProgressBar, QPushButton, QWidget
 
 from impress_gui.core.base.errors import ImpressError
+from impress_gui.ui.labels import ElidedLabel
 from impress_gui.ui.messages import Messenger
 from impress_gui.ui.worker import Task, Worker
 
@@ -33,7 +34,7 @@ class TaskBar(QWidget):
         self._pending: tuple[str, Callable[[Any], None], str] | None = None
         row = QHBoxLayout(self)
         row.setContentsMargins(0, 0, 0, 0)
-        self.label = QLabel("")
+        self.label = ElidedLabel("")  # a long message shortened, not the window widened
         self.bar = QProgressBar()
         self.bar.setRange(0, 1000)
         self.cancel_button = QPushButton("Cancel")

@@ -563,6 +563,7 @@ class CalibrationTab(QWidget):
         which = self.editor.which_for_frame(self.current_frame) if has_video else None
         self.frames.show_frames({f: s.frame(f) for f in FRAMES}, has_video, busy)
         self.nav.role_label.setText(ROLE[which] if which else "")
+        self.nav.role_label.setToolTip(ROLE[which] if which else "")  # cut on a narrow window
         corners = s.corners(which) if which else {}
         self.view.set_corners(
             corners,

@@ -43,11 +43,12 @@ class FrameNavigator(QWidget):
         )
         self.fit_button.clicked.connect(self.fit_requested)
         self.slider = QSlider(Qt.Orientation.Horizontal)
+        self.slider.setMinimumWidth(80)  # on a narrow window the labels give way, not it
         self.spin = QSpinBox()
         self.spin.setPrefix("frame ")
         self.time_label = QLabel("")
         self.role_label = QLabel("")
-        self.role_label.setMinimumWidth(150)
+        self.role_label.setMinimumWidth(60)
         self.role_label.setStyleSheet("font-weight: bold")
         for w in (self.fit_button, self.slider, self.spin, self.time_label, self.role_label):
             row.addWidget(w, 1 if w is self.slider else 0)

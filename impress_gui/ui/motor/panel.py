@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-from PySide6.QtCore import QCoreApplication, QThread, Signal
+from PySide6.QtCore import QCoreApplication, Qt, QThread, Signal
 from PySide6.QtGui import QCloseEvent, QFont, QFontDatabase
 from PySide6.QtWidgets import (
     QCheckBox,
@@ -27,6 +27,7 @@ from PySide6.QtWidgets import (
     QLabel,
     QPlainTextEdit,
     QPushButton,
+    QScrollArea,
     QSizePolicy,
     QVBoxLayout,
     QWidget,
@@ -173,6 +174,17 @@ class MotorPanel(QWidget):
         self.stop_button.setStyleSheet("QPushButton { background: #c62828; color: white; }")
         self.stop_button.setToolTip("Stop the carriage now (always available)")
         root.addWidget(self.stop_button)
+        # the rest scrolls where the window is short (a laptop's 768 rows): the connection
+        # and STOP stay in view whatever the window's height
+        rest = QWidget()
+        body = QVBoxLayout(rest)
+        body.setContentsMargins(0, 0, 0, 0)
+        self.scroll_area = QScrollArea()
+        self.scroll_area.setWidget(rest)
+        self.scroll_area.setWidgetResizable(True)
+        self.scroll_area.setFrameShape(QScrollArea.Shape.NoFrame)
+        self.scroll_area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        root.addWidget(self.scroll_area, 1)
 
         status = QGroupBox("Motor")
         form = QFormLayout(status)
@@ -193,7 +205,7 @@ class MotorPanel(QWidget):
         form.addRow("Alarm", self.alarm_label)
         form.addRow("Last error", self.error_label)
         form.addRow("Motor", self.version_label)
-        root.addWidget(status)
+        body.addWidget(status)
 
         self.scan_box = box = ScanSettingsBox(
             self._units,
@@ -210,7 +222,7 @@ class MotorPanel(QWidget):
         self.speed_note, self.range_label = box.speed_note, box.range_label
         self.start_spin, self.end_spin, self.jog_spin = box.start_spin, box.end_spin, box.jog_spin
         self.short_button, self.long_button = box.short_button, box.long_button
-        root.addWidget(box)
+        body.addWidget(box)
 
         grid = QGridLayout()
         self.home_button = QPushButton("Home")
@@ -232,14 +244,18 @@ class MotorPanel(QWidget):
         grid.addWidget(self.jog_minus_button, 2, 0)
         grid.addWidget(self.jog_plus_button, 2, 1)
         grid.addWidget(self.program_button, 3, 0, 1, 2)
-        root.addLayout(grid)
+        body.addLayout(grid)
 
         self.log_polls_check = QCheckBox("Log status polls")
         self.log_view = QPlainTextEdit(readOnly=True)
         self.log_view.setMaximumBlockCount(s.log_lines)
         self.log_view.setFont(QFontDatabase.systemFont(QFontDatabase.SystemFont.FixedFont))
-        root.addWidget(self.log_polls_check)
-        root.addWidget(self.log_view, 1)
+        self.log_view.setMinimumHeight(90)
+        body.addWidget(self.log_polls_check)
+        body.addWidget(self.log_view, 1)
+        # never narrower than what it holds (it scrolls up and down only)
+        self.scroll_area.setMinimumWidth(rest.minimumSizeHint().width()
+                                         + self.scroll_area.verticalScrollBar().sizeHint().width())
 
         self.refresh_button.clicked.connect(self.refresh_ports)
         self.connect_button.clicked.connect(self._toggle_connection)
