@@ -91,5 +91,5 @@ def test_the_window_fits_a_small_screen_and_reopens_as_it_was_left(x_display, tm
     h, w = _open(x_display, tmp_path)
     assert w <= SIZE[0] and h <= SIZE[1], (w, h)
     assert w >= 0.9 * SIZE[0] and h >= 0.9 * SIZE[1], (w, h)  # and uses it
-    assert _open(x_display, tmp_path, "--size", "1240x720") == (720, 1240)
-    assert _open(x_display, tmp_path) == (720, 1240)
+    assert _open(x_display, tmp_path, "--size", "1270x720") == (720, 1270)
+    assert _open(x_display, tmp_path) == (720, 1270)

@@ -20,7 +20,6 @@ from PySide6.QtGui import QAction, QCloseEvent, QKeySequence
 from PySide6.QtWidgets import (
     QDialog,
     QDockWidget,
-    QLabel,
     QMainWindow,
     QMessageBox,
     QTabWidget,
@@ -36,8 +35,8 @@ from impress_gui.core.reconstruction.compiled import prepare_in_background
 from impress_gui.session.session import Session
 from impress_gui.ui.calibration.tab import CalibrationTab
 from impress_gui.ui.case_dialog import CaseDialog
+from impress_gui.ui.common_widgets import ElidedLabel
 from impress_gui.ui.compare.panel import ComparePanel
-from impress_gui.ui.labels import ElidedLabel
 from impress_gui.ui.messages import Dialogs, Messenger
 from impress_gui.ui.motor.panel import MotorPanel
 from impress_gui.ui.processing.tab import ProcessingTab

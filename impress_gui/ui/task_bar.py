@@ -11,7 +11,7 @@ from PySide6.QtCore import Signal
 from PySide6.QtWidgets import QHBoxLayout, QProgressBar, QPushButton, QWidget
 
 from impress_gui.core.base.errors import ImpressError
-from impress_gui.ui.labels import ElidedLabel
+from impress_gui.ui.common_widgets import ElidedLabel
 from impress_gui.ui.messages import Messenger
 from impress_gui.ui.worker import Task, Worker
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-from PySide6.QtCore import QCoreApplication, Qt, QThread, Signal
+from PySide6.QtCore import QCoreApplication, QThread, Signal
 from PySide6.QtGui import QCloseEvent, QFont, QFontDatabase
 from PySide6.QtWidgets import (
     QCheckBox,
@@ -37,6 +37,7 @@ from impress_gui.hardware.motor_limits import check_speed_mm_s
 from impress_gui.hardware.motor_link import MotorConfig, list_serial_ports
 from impress_gui.hardware.motor_status import MotorRangeError, MotorSnapshot
 from impress_gui.hardware.rail import SCAN_LENGTHS_MM
+from impress_gui.ui.common_widgets import SidePanelScroll
 from impress_gui.ui.motor.scan_box import ScanSettingsBox
 from impress_gui.ui.motor.worker import DriverFactory, MotorWorker, Step, default_driver_factory
 
@@ -179,11 +180,8 @@ class MotorPanel(QWidget):
         rest = QWidget()
         body = QVBoxLayout(rest)
         body.setContentsMargins(0, 0, 0, 0)
-        self.scroll_area = QScrollArea()
-        self.scroll_area.setWidget(rest)
-        self.scroll_area.setWidgetResizable(True)
+        self.scroll_area = SidePanelScroll(rest, min_width=0)
         self.scroll_area.setFrameShape(QScrollArea.Shape.NoFrame)
-        self.scroll_area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         root.addWidget(self.scroll_area, 1)
 
         status = QGroupBox("Motor")
@@ -253,9 +251,6 @@ class MotorPanel(QWidget):
         self.log_view.setMinimumHeight(90)
         body.addWidget(self.log_polls_check)
         body.addWidget(self.log_view, 1)
-        # never narrower than what it holds (it scrolls up and down only)
-        self.scroll_area.setMinimumWidth(rest.minimumSizeHint().width()
-                                         + self.scroll_area.verticalScrollBar().sizeHint().width())
 
         self.refresh_button.clicked.connect(self.refresh_ports)
         self.connect_button.clicked.connect(self._toggle_connection)

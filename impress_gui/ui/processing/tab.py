@@ -31,7 +31,6 @@ from PySide6.QtWidgets import (
     QHBoxLayout,
     QLabel,
     QPushButton,
-    QScrollArea,
     QSplitter,
     QVBoxLayout,
     QWidget,
@@ -46,6 +45,7 @@ from impress_gui.core.reconstruction.stripes import LASERS, BackgroundLUT, Strip
 from impress_gui.session.processing_jobs import learn_lut, new_output_folder, reconstruct_into
 from impress_gui.session.session import Evidence, Session
 from impress_gui.ui.calibration.widgets import FrameNavigator
+from impress_gui.ui.common_widgets import SidePanelScroll
 from impress_gui.ui.frame_view import STRIPE_COLOURS, FrameView
 from impress_gui.ui.messages import Dialogs, Messenger
 from impress_gui.ui.processing.panels import LutView, ParamsPanel, RunPanel
@@ -194,11 +194,8 @@ class ProcessingTab(QWidget):
         self.run_panel.cancel_button.clicked.connect(self.cancel)
         sv.addWidget(self.run_panel)
         sv.addStretch(1)
-        scroll = QScrollArea()
-        scroll.setWidget(side)
-        scroll.setWidgetResizable(True)
-        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
-        scroll.setMinimumWidth(440)
+        # never narrower than the panels (at 1366 pixels their right edges were cut off)
+        scroll = SidePanelScroll(side, min_width=440)
         split.addWidget(scroll)
         split.setStretchFactor(0, 3)
         split.setStretchFactor(1, 1)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from PySide6.QtCore import QSize, Qt, Signal
+from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QButtonGroup,
@@ -19,7 +19,6 @@ from PySide6.QtWidgets import (
     QLabel,
     QPlainTextEdit,
     QPushButton,
-    QScrollArea,
     QSizePolicy,
     QSlider,
     QTableWidget,
@@ -30,6 +29,7 @@ from PySide6.QtWidgets import (
 )
 
 from impress_gui.core.measure.uncertainty import budgets_text, k_text
+from impress_gui.ui.common_widgets import SidePanelScroll  # noqa: F401 - its former home
 from impress_gui.ui.viewer.map import legend_html
 
 LAYERS = (
@@ -256,37 +256,6 @@ class WrapLabel(QLabel):
     def resizeEvent(self, event) -> None:  # noqa: N802 - Qt's name
         super().resizeEvent(event)
         self._fit()
-
-
-class SidePanelScroll(QScrollArea):
-    """The viewer's side panels in a scroll area that scrolls only vertically and is never
-    narrower than its panels need: its (minimum) width is the panels' minimum width plus the
-    vertical scroll bar and the frame (and at least ``min_width``), so nothing is cut off at
-    the right (the panels were 440 px wide in a 414 px viewport at 1920x1080: the step's
-    uncertainty line, the spin boxes' arrows and the group boxes' right edges were
-    clipped)."""
-
-    def __init__(self, panel: QWidget, min_width: int = 430,
-                 parent: QWidget | None = None) -> None:
-        super().__init__(parent)
-        self.min_width = min_width
-        self.setWidget(panel)
-        self.setWidgetResizable(True)
-        self.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
-
-    def _chrome(self) -> int:
-        """What the scroll area takes of its width besides the panel."""
-        return self.verticalScrollBar().sizeHint().width() + 2 * self.frameWidth()
-
-    def minimumSizeHint(self) -> QSize:
-        hint = super().minimumSizeHint()
-        w = self.widget()
-        need = 0 if w is None else w.minimumSizeHint().width() + self._chrome()
-        return QSize(max(hint.width(), self.min_width, need), hint.height())
-
-    def sizeHint(self) -> QSize:
-        hint = super().sizeHint()
-        return QSize(max(hint.width(), self.minimumSizeHint().width()), hint.height())
 
 
 class MeasurementTable(QGroupBox):
