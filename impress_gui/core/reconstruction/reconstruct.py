@@ -281,6 +281,24 @@ def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
     return out
 
 
+def ground_rows(cal: SceneCalibration, size: tuple[int, int]) -> dict[str, np.ndarray]:
+    """Per laser, the row in every column where its stripe falls on a surface at height 0
+    (the calibration's ground; as :func:`column_bands` computes its bands' ends)."""
+    w = size[0]
+    out = {}
+    cols = np.arange(w, dtype=np.float64)
+    z = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
+    for name in LASERS:
+        plane = cal.planes[name].plane
+        xs = np.linspace(-1.2 * z * w / cal.intrinsics.fx, 1.2 * z * w / cal.intrinsics.fx, 257)
+        n, d = plane.normal, plane.offset_mm
+        ys = (d - n[0] * xs - n[2] * z) / n[1]
+        uv = cal.intrinsics.project(np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation)
+        order = np.argsort(uv[:, 0])
+        out[name] = np.interp(cols, uv[order, 0], uv[order, 1])
+    return out
+
+
 class _Frames:
     """Decoded frames as ``(index, Planes)`` from a background thread, through a bounded
     queue."""
@@ -595,8 +613,10 @@ def _process(run: _Run) -> Reconstruction:
         lut = run.lut_job.result() if run.lut_job is not None else None
         # each laser's detector knows where the other's stripe can lie: light leaning to the
         # other laser's colour is refused only there
+        ground = ground_rows(run.cal, run.video.size)
         detect = {n: StripeDetector(n, tab.bands[n][0], tab.bands[n][1], run.stripe_params, lut,
-                                    other=tab.bands[next(m for m in LASERS if m != n)])
+                                    other=tab.bands[next(m for m in LASERS if m != n)],
+                                    ground=ground[n])
                   for n in LASERS}
         report(run.progress, 0.03, "background learned")
         tally = _frame_loop(run, tab, kern, acc, detect, finisher)

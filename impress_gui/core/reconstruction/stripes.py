@@ -102,6 +102,16 @@ class StripeParams:
     # white object the luma rose 10-20 grey levels and the stripe was found in none of the
     # columns where plain background subtraction finds it (issue 18, real laser light)
     faint: bool = True
+    # with the other laser's band and the stripe's row on the ground known (the
+    # reconstruction), a column whose stripe was found inside that band (widened by the half
+    # window) is searched again in this laser's own rows, outside it; a stripe found there at
+    # least EXCLUSIVE_SHARE as strong and nearer the ground's row is taken instead. Nothing in
+    # those rows can be the other laser's stripe (it lies in its band whatever the surface's
+    # height), while the peak inside may be: on near-white soil with both lasers blooming and
+    # both from behind, the two stripes' cores are the same white, the 4:2:0 chroma of a thin
+    # stripe is the soil's, and the green stripe took the red one in 1.7 % of its cells, 55 mm
+    # too high (issue 18, random rig 102, 2026-12-04)
+    prefer_own_rows: bool = True
     max_width_px: int = 20
     # the centre's sub-pixel estimate: "window" (the centre of mass above half maximum refined
     # by window_refine: less locked to the pixel grid; docs/accuracy.md) or "half-max" (that
@@ -203,7 +213,7 @@ Band = tuple[np.ndarray, int]  # (first row per column, rows)
 
 def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height: int,
                   params: StripeParams, lut: BackgroundLUT | None,
-                  other: Band | None = None) -> StripeResult:
+                  other: Band | None = None, ground: np.ndarray | None = None) -> StripeResult:
     """Detect one laser's stripe; column ``c`` is searched in rows
     ``band_start[c] .. band_start[c] + band_height``. ``other``: the other laser's band (where
     its stripe can lie, from the calibration and the height range): a peak whose halo leans to
@@ -211,7 +221,8 @@ def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height
     a halo must lean to this laser's colour (``StripeParams.min_lean_in_other_band``) unless
     the headroom test keeps it; without it, a lean to the other colour is refused everywhere. The compiled kernel
     (:func:`impress_gui.core.reconstruction.kernels.detect_stripe`) of :func:`detect_planes_numpy`."""
-    return StripeDetector(name, band_start, band_height, params, lut, other)(planes).copy()
+    return StripeDetector(name, band_start, band_height, params, lut, other,
+                          ground)(planes).copy()
 
 
 def _other_band(other: Band | None, w: int) -> tuple[np.ndarray, int]:
@@ -251,13 +262,66 @@ def _wrong_lean(params: StripeParams, other: Band | None) -> float:
     return -float(params.min_lean_in_other_band)
 
 
+#: a stripe in this laser's own rows replaces one found in the other laser's band when it is
+#: at least this share of that one's strength (StripeParams.prefer_own_rows)
+EXCLUSIVE_SHARE = 0.7
+
+
+def own_regions(band_start: np.ndarray, band_height: int, other: Band, k: int,
+                image_height: int) -> list[tuple[np.ndarray, int, np.ndarray, np.ndarray]]:
+    """This laser's rows outside the other laser's band (widened by ``k`` rows), per column:
+    the part of the band before it and the part after it. Each as ``(start, height, lo, hi)``:
+    a band (first row per column, one height: the largest part's) to search, and the rows
+    ``lo[c] .. hi[c] - 1`` of column ``c`` that are really outside (a search band reaching
+    into the other laser's band is cut back to them afterwards). Parts no column has (fewer
+    than ``2 k + 1`` rows) are left out."""
+    b0 = np.asarray(band_start, np.int64)
+    b1 = b0 + int(band_height)
+    o0, oh = other
+    o0 = np.asarray(o0, np.int64)
+    out = []
+    for lo, hi in ((b0, np.minimum(o0 - k, b1)), (np.maximum(o0 + int(oh) + k, b0), b1)):
+        lo = np.clip(lo, 0, image_height - 1)
+        hi = np.clip(hi, 0, image_height)
+        height = int((hi - lo).max(initial=0))
+        if height >= 2 * k + 1:
+            out.append((lo, height, lo, hi))
+    return out
+
+
+def prefer_own_rows(rows: np.ndarray, strength: np.ndarray, other: Band, k: int,
+                    found: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+                    ground: np.ndarray) -> int:
+    """In place: where ``rows`` lie inside the other laser's band (widened by ``k``), take the
+    stripe found in this laser's own rows instead (``found``: per part of
+    :func:`own_regions`, its rows, strengths and the part's ``lo``/``hi``), if it lies
+    within the part, is at least :data:`EXCLUSIVE_SHARE` as strong and nearer the row where
+    the stripe falls on the ground (``ground``, per column: a surface at height 0): the
+    other laser's stripe, taken for this one's, reads heights far from the ground (rig 102:
+    55-61 mm), while this laser's own stripe inside that band on the ground must not give way
+    to a piece of bright soil in its own rows. Returns how many columns changed."""
+    o0, oh = other
+    inside = np.isfinite(rows) & (rows + k >= o0) & (rows - k < np.asarray(o0) + oh)
+    changed = 0
+    for r2, s2, lo, hi in found:
+        take = (inside & np.isfinite(r2) & (r2 >= lo) & (r2 < hi)
+                & (s2 >= EXCLUSIVE_SHARE * strength)
+                & (np.abs(r2 - ground) < np.abs(rows - ground)))
+        if take.any():
+            rows[take] = r2[take]
+            strength[take] = s2[take]
+            inside &= ~take
+            changed += int(take.sum())
+    return changed
+
+
 class StripeDetector:
     """:func:`detect_planes` for one laser, frame after frame: the kernel's arguments are
     prepared once, and each call's result is in arrays the next call overwrites."""
 
     def __init__(self, name: str, band_start: np.ndarray, band_height: int,
                  params: StripeParams, lut: BackgroundLUT | None,
-                 other: Band | None = None) -> None:
+                 other: Band | None = None, ground: np.ndarray | None = None) -> None:
         from impress_gui.core.reconstruction.compiled import kernels
 
         method = params.method
@@ -288,12 +352,35 @@ class StripeDetector:
              int(params.min_value), method == "combined", float(params.min_tint), table,
              int(params.lut_margin)),
             (sdiv, hdiv), (self.result.rows, self.result.strength))
+        # this laser's own rows, searched again where the stripe was found in the other
+        # laser's band (StripeParams.prefer_own_rows)
+        self._other, self._ground = other, ground
+        self._own: list = []
+        if params.prefer_own_rows and other is not None and ground is not None \
+                and len(band_start):
+            import dataclasses
+
+            alone = dataclasses.replace(params, prefer_own_rows=False)
+            # the image's height is not known before the first frame: the band's end bounds it
+            for start, height, lo, hi in own_regions(band_start, band_height, other,
+                                                     int(params.half_window_px),
+                                                     int(np.max(band_start)) + band_height):
+                self._own.append((StripeDetector(name, start, height, alone, lut, other), lo, hi))
 
     def __call__(self, planes: Planes) -> StripeResult:
         if planes.y.shape[1] != len(self.result.rows):
             raise InputError(f"a frame {planes.y.shape[1]} pixels wide, bands for "
                              f"{len(self.result.rows)}", code=codes.E_SIZE_MISMATCH)
         self._kernel((planes.y, planes.cb, planes.cr, planes.chroma_step), *self._args)
+        if self._own:
+            res, k = self.result, int(self._args[2][1])
+            o0, oh = self._other
+            if (np.isfinite(res.rows) & (res.rows + k >= o0) & (res.rows - k < o0 + oh)).any():
+                found = []
+                for det, lo, hi in self._own:
+                    r = det(planes)
+                    found.append((r.rows.copy(), r.strength.copy(), lo, hi))
+                prefer_own_rows(res.rows, res.strength, self._other, k, found, self._ground)
         return self.result
 
 
@@ -311,7 +398,8 @@ def _hsv_tables():
 
 def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_height: int,
                         params: StripeParams, lut: BackgroundLUT | None,
-                        other: Band | None = None) -> StripeResult:
+                        other: Band | None = None,
+                        ground: np.ndarray | None = None) -> StripeResult:
     """The readable numpy reference of :func:`detect_planes` (the tests check they agree).
 
     1. candidate: per column the brightest pixel of luma biased towards the laser's chroma;
@@ -565,6 +653,22 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
             take = has4 & ok4
             out_rows = np.where(take, centre4, out_rows)
             strength = np.where(take, top4, strength).astype(np.float32)
+    if params.prefer_own_rows and other is not None and ground is not None:
+        # this laser's own rows, searched again where the stripe lies in the other's band
+        import dataclasses
+
+        k = int(params.half_window_px)
+        o0, oh = other
+        if (np.isfinite(out_rows) & (out_rows + k >= o0) & (out_rows - k < o0 + oh)).any():
+            alone = dataclasses.replace(params, prefer_own_rows=False)
+            found = []
+            for start, height, lo, hi in own_regions(band_start, band_height, other, k,
+                                                     int(np.max(band_start)) + band_height):
+                r = detect_planes_numpy(name, planes, start, height, alone, lut, other)
+                found.append((r.rows, r.strength, lo, hi))
+            out_rows = np.array(out_rows, np.float64)
+            strength = np.array(strength, np.float32)
+            prefer_own_rows(out_rows, strength, other, k, found, ground)
     return StripeResult(out_rows, strength)
 
 
