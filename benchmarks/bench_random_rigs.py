@@ -183,6 +183,7 @@ def measure(seed: int, width: int, height: int, with_fill: bool = True) -> dict:
         row["seconds"] = time.perf_counter() - t0
         return row
     row.update(height_figures(d, cal, rec, with_fill))
+    row["own_rows"] = rec.stats.get("stripe_columns_from_own_rows")
     row["seconds"] = time.perf_counter() - t0
     row["warnings"] = list(cal.warnings) + list(rec.warnings)
     return row

@@ -586,6 +586,7 @@ class _Tally:
     found_frames: dict[str, int]  # frames in which each laser's stripe was found
     found_cols: dict[str, int]  # stripe columns found, summed over frames
     weak_cols: dict[str, int] = field(default_factory=dict)  # columns of weak pieces dropped
+    own_rows: dict[str, int] = field(default_factory=dict)  # columns taken from own rows
     seen: int = 0  # frames read
     skipped: int = 0  # frames the decoder reported as damaged
     t_loop: float = 0.0  # when the loop started (perf_counter)
@@ -620,6 +621,7 @@ def _process(run: _Run) -> Reconstruction:
                   for n in LASERS}
         report(run.progress, 0.03, "background learned")
         tally = _frame_loop(run, tab, kern, acc, detect, finisher)
+        tally.own_rows = {n: detect[n].own_rows_taken for n in LASERS}
     finally:
         run.frames.close()
         finisher.close()
@@ -882,6 +884,9 @@ def _stats(run: _Run, tab: _Tables, tally: _Tally, finisher: RowFinisher, loop_s
         "stripe_column_share": {
             n: round(tally.found_cols[n] / max(1, tally.found_frames[n] * w), 3) for n in LASERS},
         "weak_stripe_columns_dropped": tally.weak_cols,
+        # columns whose stripe, found in the other laser's band, gave way to one in the
+        # laser's own rows nearer the ground (stripes.StripeParams.prefer_own_rows)
+        "stripe_columns_from_own_rows": tally.own_rows,
         # where both lasers agree, the fused height is their mean with these weights
         # (fusion_weight)
         "fusion_weights": {"green": round(finisher.weight_green, 6),

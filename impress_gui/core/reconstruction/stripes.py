@@ -282,7 +282,7 @@ def own_regions(band_start: np.ndarray, band_height: int, other: Band, k: int,
     out = []
     for lo, hi in ((b0, np.minimum(o0 - k, b1)), (np.maximum(o0 + int(oh) + k, b0), b1)):
         lo = np.clip(lo, 0, image_height - 1)
-        hi = np.clip(hi, 0, image_height)
+        hi = np.maximum(np.clip(hi, 0, image_height), lo)  # empty where lo >= hi
         height = int((hi - lo).max(initial=0))
         if height >= 2 * k + 1:
             out.append((lo, height, lo, hi))
@@ -356,6 +356,7 @@ class StripeDetector:
         # laser's band (StripeParams.prefer_own_rows)
         self._other, self._ground = other, ground
         self._own: list = []
+        self.own_rows_taken = 0  # columns changed by prefer_own_rows, over all calls
         if params.prefer_own_rows and other is not None and ground is not None \
                 and len(band_start):
             import dataclasses
@@ -380,7 +381,8 @@ class StripeDetector:
                 for det, lo, hi in self._own:
                     r = det(planes)
                     found.append((r.rows.copy(), r.strength.copy(), lo, hi))
-                prefer_own_rows(res.rows, res.strength, self._other, k, found, self._ground)
+                self.own_rows_taken += prefer_own_rows(res.rows, res.strength, self._other, k,
+                                                       found, self._ground)
         return self.result
 
 
