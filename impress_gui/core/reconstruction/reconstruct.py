@@ -254,21 +254,12 @@ def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
     stripe can fall for surfaces within the height range (clipped to ``rois`` when given)."""
     w, h = size
     out = {}
-    cols = np.arange(w, dtype=np.float64)
     lo_h, hi_h = height_range_mm
     for name in LASERS:
-        plane = cal.planes[name].plane
-        z_ref = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
         rmin = np.full(w, np.inf)
         rmax = np.full(w, -np.inf)
         for hgt in np.linspace(lo_h, hi_h, 9):
-            z = z_ref - hgt
-            xs = np.linspace(-1.2 * z * w / cal.intrinsics.fx, 1.2 * z * w / cal.intrinsics.fx, 257)
-            n, d = plane.normal, plane.offset_mm
-            ys = (d - n[0] * xs - n[2] * z) / n[1]
-            uv = cal.intrinsics.project(np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation)
-            order = np.argsort(uv[:, 0])
-            r = np.interp(cols, uv[order, 0], uv[order, 1])
+            r = _column_rows(cal, name, w, float(hgt))
             rmin, rmax = np.minimum(rmin, r), np.maximum(rmax, r)
         start = np.floor(rmin).astype(np.int64) - margin_px
         stop = np.ceil(rmax).astype(np.int64) + margin_px + 1
@@ -281,22 +272,23 @@ def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
     return out
 
 
+def _column_rows(cal: SceneCalibration, name: str, w: int, height_mm: float) -> np.ndarray:
+    """The row in each of ``w`` columns where laser ``name``'s stripe falls on a flat surface
+    ``height_mm`` above the calibration's ground (level at the reference point)."""
+    z = float(cal.reference_depth(np.array(0.0), np.array(0.0))) - height_mm
+    plane = cal.planes[name].plane
+    xs = np.linspace(-1.2 * z * w / cal.intrinsics.fx, 1.2 * z * w / cal.intrinsics.fx, 257)
+    n, d = plane.normal, plane.offset_mm
+    ys = (d - n[0] * xs - n[2] * z) / n[1]
+    uv = cal.intrinsics.project(np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation)
+    order = np.argsort(uv[:, 0])
+    return np.interp(np.arange(w, dtype=np.float64), uv[order, 0], uv[order, 1])
+
+
 def ground_rows(cal: SceneCalibration, size: tuple[int, int]) -> dict[str, np.ndarray]:
     """Per laser, the row in every column where its stripe falls on a surface at height 0
-    (the calibration's ground; as :func:`column_bands` computes its bands' ends)."""
-    w = size[0]
-    out = {}
-    cols = np.arange(w, dtype=np.float64)
-    z = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
-    for name in LASERS:
-        plane = cal.planes[name].plane
-        xs = np.linspace(-1.2 * z * w / cal.intrinsics.fx, 1.2 * z * w / cal.intrinsics.fx, 257)
-        n, d = plane.normal, plane.offset_mm
-        ys = (d - n[0] * xs - n[2] * z) / n[1]
-        uv = cal.intrinsics.project(np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation)
-        order = np.argsort(uv[:, 0])
-        out[name] = np.interp(cols, uv[order, 0], uv[order, 1])
-    return out
+    (the calibration's ground)."""
+    return {name: _column_rows(cal, name, size[0], 0.0) for name in LASERS}
 
 
 class _Frames:
