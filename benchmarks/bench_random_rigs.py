@@ -152,6 +152,8 @@ def height_figures(scan_dir: Path, cal, rec, with_fill: bool) -> dict:
         else:
             out[f"slope_{k}"] = float("nan")
     out["wild"] = out["wild_f"]
+    # columns whose stripe the detector took from its own rows (StripeParams.prefer_own_rows)
+    out["own_rows"] = rec.stats.get("stripe_columns_from_own_rows")
     if with_fill:
         seen = fill_mask(scan_dir, spec, rec.frames, rot) & ~edge
         out["fill"] = 100.0 * float(np.isfinite(maps["f"])[seen].mean())
@@ -183,7 +185,6 @@ def measure(seed: int, width: int, height: int, with_fill: bool = True) -> dict:
         row["seconds"] = time.perf_counter() - t0
         return row
     row.update(height_figures(d, cal, rec, with_fill))
-    row["own_rows"] = rec.stats.get("stripe_columns_from_own_rows")
     row["seconds"] = time.perf_counter() - t0
     row["warnings"] = list(cal.warnings) + list(rec.warnings)
     return row
