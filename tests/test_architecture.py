@@ -67,8 +67,10 @@ def test_help_is_fast_and_loads_no_heavy_modules():
     loaded, n = res.stdout.strip().rsplit(" ", 1)[0], int(res.stdout.split()[-1])
     # what --help loads (not how long that takes on a busy machine): the command table only,
     # no library of the work itself and about the standard library's argparse
+    # (quiet: the console's filter of library warnings, standard library only)
     assert loaded == ("[] ['impress_gui', 'impress_gui.cli', 'impress_gui.core', "
-                      "'impress_gui.core.base', 'impress_gui.core.base.codes']"), res.stdout
+                      "'impress_gui.core.base', 'impress_gui.core.base.codes', "
+                      "'impress_gui.core.base.quiet']"), res.stdout
     assert n < 150, f"--help loads {n} modules"
 
 

@@ -373,7 +373,7 @@ class StripeDetector:
             raise InputError(f"a frame {planes.y.shape[1]} pixels wide, bands for "
                              f"{len(self.result.rows)}", code=codes.E_SIZE_MISMATCH)
         self._kernel((planes.y, planes.cb, planes.cr, planes.chroma_step), *self._args)
-        if self._own:
+        if self._own and self._other is not None and self._ground is not None:
             res, k = self.result, int(self._args[2][1])
             o0, oh = self._other
             if (np.isfinite(res.rows) & (res.rows + k >= o0) & (res.rows - k < o0 + oh)).any():
