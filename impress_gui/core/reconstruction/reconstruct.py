@@ -54,6 +54,7 @@ from impress_gui.core.reconstruction.texture import (
     fill_texture_ends,
     reference_coeffs,
 )
+from impress_gui.core.reconstruction.unlit import UnlitSoil
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,10 @@ class ProcessParams:
     # drop_islands; 0 keeps them)
     island_max_cells: int = 50
     island_step_mm: float = 0.5
+    # the soil under the stripe, seen unlit in earlier frames, subtracted from its profile
+    # before the centre is estimated again (unlit.UnlitSoil; docs/accuracy.md, "Dim stripes
+    # on grainy soil"); False: the centre on the luma as it is
+    unlit_soil: bool = True
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -579,6 +584,7 @@ class _Tally:
     found_cols: dict[str, int]  # stripe columns found, summed over frames
     weak_cols: dict[str, int] = field(default_factory=dict)  # columns of weak pieces dropped
     own_rows: dict[str, int] = field(default_factory=dict)  # columns taken from own rows
+    unlit: dict[str, int] = field(default_factory=dict)  # columns re-estimated, soil subtracted
     seen: int = 0  # frames read
     skipped: int = 0  # frames the decoder reported as damaged
     t_loop: float = 0.0  # when the loop started (perf_counter)
@@ -670,6 +676,8 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
     # frames the decoder reports as damaged (filled in by the decoding thread before a frame
     # is queued) give no stripe points: their rows are left to the neighbouring frames
     damage = getattr(frames.video, "damage", {})
+    unlit = (UnlitSoil(run.cal.intrinsics, run.cal.rotation, tab.travel, tab.rays, tab.bands,
+                       plane, (w, run.video.size[1])) if params.unlit_soil else None)
     for k, planes in frames:
         run.cancel.check()
         tally.seen += 1
@@ -684,6 +692,8 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
             res = detect[name](planes)
             tally.weak_cols[name] += kern.prune_weak_runs(res.rows, res.strength, CONNECT_PX,
                                                           long_cols, ratio, run_id, scratch)
+            if unlit is not None:
+                unlit.refine(name, k, planes.y, res.rows)
             pr = profile[name]
             up = pr.next()
             pl = plane[name]
@@ -700,6 +710,11 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
             pr.used()
             acc[name].add_profile(*up)
             finisher.check_range(name, s_k, pr.y_range)
+        if unlit is not None:
+            if bad:
+                unlit.skip(k)
+            else:
+                unlit.keep(k, planes.y, {n: detect[n].result.rows for n in LASERS})
         if tex is not None:
             kern.sample_rgb(planes.y, planes.cb, planes.cr, planes.chroma_step, *tex.sample,
                             tex.colours)
@@ -715,6 +730,7 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
             el = time.perf_counter() - tally.t_loop
             report(run.progress, 0.05 + 0.85 * i / n_total,
                    f"frame {i}/{n_total} ({i / max(el, 1e-9):.1f} frames/s)")
+    tally.unlit = dict(unlit.refined) if unlit is not None else dict.fromkeys(LASERS, 0)
     return tally
 
 
@@ -879,6 +895,9 @@ def _stats(run: _Run, tab: _Tables, tally: _Tally, finisher: RowFinisher, loop_s
         # columns whose stripe, found in the other laser's band, gave way to one in the
         # laser's own rows nearer the ground (stripes.StripeParams.prefer_own_rows)
         "stripe_columns_from_own_rows": tally.own_rows,
+        # columns whose centre was estimated again with the soil seen unlit in earlier frames
+        # subtracted (ProcessParams.unlit_soil)
+        "stripe_columns_unlit_soil": tally.unlit,
         # where both lasers agree, the fused height is their mean with these weights
         # (fusion_weight)
         "fusion_weights": {"green": round(finisher.weight_green, 6),
