@@ -194,3 +194,16 @@ def test_heightmap_grows_in_a_preview_during_the_run(qtbot, tab, scan, tmp_path,
     assert len(shown) >= 3 and tab.run_panel.growing_updates == len(shown)
     assert tab.run_panel.growing.isVisible()
     assert shown[-1] > shown[0] > 0
+
+
+def test_the_unlit_soil_switch_reaches_the_parameters_and_the_project(qtbot, tab):
+    box = tab.params.unlit_soil
+    assert box.isChecked() and tab.params.params().unlit_soil
+    with qtbot.waitSignal(tab.params.changed, timeout=2000):
+        QTest.mouseClick(box, Qt.MouseButton.LeftButton, pos=box.rect().center())
+    assert not box.isChecked() and tab.params.params().unlit_soil is False
+    tab.params.set_params({"unlit_soil": True})
+    assert tab.params.params().unlit_soil is True
+    # a project saved before the switch existed was processed without it: reopened, it stays so
+    tab.params.set_params({"method": "combined"})
+    assert tab.params.params().unlit_soil is False

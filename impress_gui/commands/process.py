@@ -51,6 +51,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(a false stripe's heights floating off the surface; 0 keeps them; default 50)")
     p.add_argument("--island-step-mm", type=float, default=0.5,
                    help="the step that separates an island from its surroundings (default 0.5)")
+    p.add_argument("--no-unlit-soil", action="store_true",
+                   help="estimate the stripe's centre on the luma as it is, without first "
+                   "subtracting the soil under it as earlier frames saw it unlit (see "
+                   "docs/accuracy.md, 'Dim stripes on grainy soil')")
     p.add_argument("--no-texture", action="store_true", help="skip the texture")
     p.add_argument("--fps", type=float, default=None, help="override the frame rate")
 
@@ -65,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
                            min_peak=args.min_peak, weak_run_ratio=args.weak_run_ratio,
                            texture=not args.no_texture, subpixel=args.subpixel,
                            island_max_cells=args.island_cells,
-                           island_step_mm=args.island_step_mm)
+                           island_step_mm=args.island_step_mm,
+                           unlit_soil=not args.no_unlit_soil)
     progress = progress_printer()
 
     from impress_gui.core.reconstruction.pipeline import process_files

@@ -39,7 +39,7 @@ GB_PER_JOB = 2.5
 SUMMARY_FILES = ("summary.csv", "summary.json")
 #: processing parameters a manifest may set (the others keep their defaults)
 PARAM_KEYS = ("method", "frame_start", "frame_stop", "grid_mm", "min_peak", "subpixel", "texture",
-              "fps")
+              "unlit_soil", "fps")
 
 
 @dataclass(frozen=True)
@@ -52,8 +52,8 @@ class BatchItem:
 
 #: the type each manifest parameter must have (bool is not a number here)
 PARAM_TYPES = {"method": (str,), "frame_start": (int, type(None)), "frame_stop": (int, type(None)),
-               "grid_mm": (int, float), "min_peak": (int, float), "subpixel": (bool,),
-               "texture": (bool,), "fps": (int, float, type(None))}
+               "grid_mm": (int, float), "min_peak": (int, float), "subpixel": (str,),
+               "texture": (bool,), "unlit_soil": (bool,), "fps": (int, float, type(None))}
 
 
 def _control(text: str) -> bool:

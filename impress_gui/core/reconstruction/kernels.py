@@ -1019,3 +1019,156 @@ from impress_gui.core.reconstruction.grid_kernels import (  # noqa: E402
 __all__ = ["detect_stripe", "triangulate", "upsample", "stripe_profile", "splat_heights", "sample_rgb",
            "hsv_tables", "fuse_rows", "mean_colours", "mean_heights", "resolve_conflicts",
            "texture_rows", "band_rays"]
+
+
+# the soil seen unlit (``unlit.UnlitSoil``; its numpy reference ``unlit.refine_numpy``):
+UNLIT_HALF = 6  # rows either side of the stripe re-estimated (the detector's half window)
+UNLIT_REACH = 12.0  # px: a cut this close to either laser's stripe in the earlier frame is left
+UNLIT_MIN_PEAK = 8.0  # grey levels: the difference's least peak
+
+
+@_jit
+def _unlit_window(diff, at, rows, rr, sig):
+    """The ``2 UNLIT_HALF + 1`` values of ``diff`` around index ``at`` above their minimum into
+    ``sig``, their image rows into ``rr``; returns (top, centre of mass above half maximum)."""
+    n = 2 * UNLIT_HALF + 1
+    lo = 1e300
+    hi = -1e300
+    for j in range(n):
+        v = diff[at - UNLIT_HALF + j]
+        sig[j] = v
+        rr[j] = rows[at - UNLIT_HALF + j]
+        lo = min(lo, v)
+        hi = max(hi, v)
+    top = hi - lo
+    acc = 0.0
+    ws = 0.0
+    for j in range(n):
+        sig[j] -= lo
+        a = sig[j] - 0.5 * top
+        if a > 0:
+            ws += a
+            acc += a * rr[j]
+    return top, (acc / ws) if ws > 0 else np.nan
+
+
+@_kernel(
+    "int64(float64[:], int64[:], float64[:, :, :], float64[:], float64, float64[:, :], "
+    "float64[:, :], float64[:], boolean, uint8[:, :], uint8[:, :, :], int64[:], float64[:], "
+    "float64[:, :, :], float64)"
+)
+def unlit_refine(rows, band_start, rays, normal, offset, rot, kmat, dist, rational, y, ring,
+                 slots, shifts, ring_rows, clip):
+    """``unlit.refine_numpy`` of one laser's stripe ``rows`` (full-image rows, NaN where none;
+    re-estimated in place): per column, the ray through the row (``rays`` as in
+    :func:`triangulate`) meets the laser plane; that point moved by ``shifts[i]`` along the
+    rail's y (the travel from each earlier frame to this one) and projected (``rot``: camera ->
+    rail, row vectors times ``rot``; ``kmat``/``dist``: the lens, ``rational`` for 8
+    coefficients) gives its place in ring frame ``slots[i]``; the 17 rows around the stripe are
+    sampled there (bilinear) and averaged over the frames, subtracted from this frame's, rows
+    at or above ``clip`` set to the difference's top, and the centre estimated again (centre of
+    mass above half maximum around the row, then around its own row, then
+    :func:`_window_refine`). A column is left where a cut leaves the picture or lies within
+    ``UNLIT_REACH`` of a stripe row of that frame (``ring_rows[slot, laser, column]``), where
+    the difference's peak is under ``UNLIT_MIN_PEAK``, or where the new centre lies
+    ``UNLIT_HALF - 1`` rows or more from the old. Returns the columns re-estimated."""
+    h = y.shape[0]
+    w = y.shape[1]
+    nt = rays.shape[1]
+    nf = slots.shape[0]
+    nc = 2 * UNLIT_HALF + 5
+    mid = UNLIT_HALF + 2
+    bg = np.empty(nc)
+    diff = np.empty(nc)
+    crow = np.empty(nc)
+    rr = np.empty(2 * UNLIT_HALF + 1)
+    sig = np.empty(2 * UNLIT_HALF + 1)
+    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+    k4, k5, k6 = dist[5], dist[6], dist[7]
+    count = 0
+    for c in range(rows.shape[0]):
+        r = rows[c]
+        if math.isnan(r):
+            continue
+        t = r - band_start[c]
+        j = min(max(int(math.floor(t)), 0), nt - 2)
+        f = t - j
+        d0 = rays[c, j, 0] + f * (rays[c, j + 1, 0] - rays[c, j, 0])
+        d1 = rays[c, j, 1] + f * (rays[c, j + 1, 1] - rays[c, j, 1])
+        d2 = rays[c, j, 2] + f * (rays[c, j + 1, 2] - rays[c, j, 2])
+        den = d0 * normal[0] + d1 * normal[1] + d2 * normal[2]
+        if abs(den) <= 1e-12:
+            continue
+        lam = offset / den
+        px = lam * d0
+        py = lam * d1
+        pz = lam * d2
+        r0 = int(math.floor(r + 0.5))
+        if r0 - mid < 0 or r0 + mid > h - 1:
+            continue
+        for q in range(nc):
+            bg[q] = 0.0
+            crow[q] = r0 - mid + q
+        ok = True
+        for i in range(nf):
+            s = slots[i]
+            qy = py + shifts[i]
+            cx = px * rot[0, 0] + qy * rot[1, 0] + pz * rot[2, 0]
+            cy = px * rot[0, 1] + qy * rot[1, 1] + pz * rot[2, 1]
+            cz = px * rot[0, 2] + qy * rot[1, 2] + pz * rot[2, 2]
+            if not cz > 0:
+                ok = False
+                break
+            xn = cx / cz
+            yn = cy / cz
+            r2 = xn * xn + yn * yn
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            if rational:
+                radial = radial / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+            xd = xn * radial + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
+            yd = yn * radial + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
+            u = kmat[0, 0] * xd + kmat[0, 1] * yd + kmat[0, 2]
+            v = kmat[1, 1] * yd + kmat[1, 2]
+            if not (u >= 0.0 and u <= w - 1 and v - UNLIT_HALF - 3 >= 0.0
+                    and v + UNLIT_HALF + 3 <= h - 1):
+                ok = False
+                break
+            cu = min(max(int(math.floor(u + 0.5)), 0), w - 1)
+            for m in range(ring_rows.shape[1]):
+                other = ring_rows[s, m, cu]
+                if not math.isnan(other) and abs(other - v) <= UNLIT_REACH:
+                    ok = False
+            if not ok:
+                break
+            u0 = min(int(math.floor(u)), w - 2)
+            fu = u - u0
+            for q in range(nc):
+                yy = v + crow[q] - r
+                v0 = min(max(int(math.floor(yy)), 0), h - 2)
+                fv = yy - v0
+                a = ring[s, v0, u0] * (1.0 - fu) + ring[s, v0, u0 + 1] * fu
+                b = ring[s, v0 + 1, u0] * (1.0 - fu) + ring[s, v0 + 1, u0 + 1] * fu
+                bg[q] += a * (1.0 - fv) + b * fv
+        if not ok:
+            continue
+        top_all = -1e300
+        for q in range(nc):
+            diff[q] = y[r0 - mid + q, c] - bg[q] / nf
+            top_all = max(top_all, diff[q])
+        for q in range(nc):
+            if y[r0 - mid + q, c] >= clip:
+                diff[q] = top_all
+        top, centre = _unlit_window(diff, mid, crow, rr, sig)
+        at = mid
+        if not math.isnan(centre):
+            at = min(max(mid + int(math.floor(centre - crow[mid] + 0.5)), UNLIT_HALF),
+                     nc - 1 - UNLIT_HALF)
+        top, centre = _unlit_window(diff, at, crow, rr, sig)
+        if not (top >= UNLIT_MIN_PEAK) or math.isnan(centre):
+            continue
+        new = _window_refine(rr, sig, 2 * UNLIT_HALF + 1, top, centre)
+        if math.isnan(new) or abs(new - r) > UNLIT_HALF - 1:
+            continue
+        rows[c] = new
+        count += 1
+    return count

@@ -676,8 +676,10 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
     # frames the decoder reports as damaged (filled in by the decoding thread before a frame
     # is queued) give no stripe points: their rows are left to the neighbouring frames
     damage = getattr(frames.video, "damage", {})
-    unlit = (UnlitSoil(run.cal.intrinsics, run.cal.rotation, tab.travel, tab.rays, tab.bands,
-                       plane, (w, run.video.size[1])) if params.unlit_soil else None)
+    unlit = (UnlitSoil(run.cal.intrinsics, run.cal.rotation, tab.travel,
+                       tab.rays, tab.bands, plane, (w, run.video.size[1]),
+                       float(run.cal.reference_depth(np.array(0.0), np.array(0.0))))
+             if params.unlit_soil else None)
     for k, planes in frames:
         run.cancel.check()
         tally.seen += 1

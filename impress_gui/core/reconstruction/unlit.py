@@ -18,14 +18,18 @@ keep the difference's top: under a clipped core there is no texture to take out,
 subtracting it there would put the texture back, inverted.
 
 Left as the detector found it: a column whose earlier place would leave the picture or lie
-within reach of either laser's stripe in that frame, or whose difference has no peak of
-:data:`MIN_PEAK` grey levels inside the window; every column while the carriage has not yet
-moved :data:`SHIFT_PX` pixels' worth (the start of a scan, a stop).
+within reach of either laser's stripe in that frame, whose difference has no peak of
+``kernels.UNLIT_MIN_PEAK`` grey levels, or whose new centre lies ``kernels.UNLIT_HALF - 1``
+rows or more from the detector's; every column while the carriage has not yet moved
+:data:`SHIFT_PX` pixels' worth (the start of a scan, a stop) and where a damaged frame is
+among the five. The steps run in a compiled kernel (``kernels.unlit_refine``); its numpy
+reference is :func:`refine_numpy`.
 """
 
 from __future__ import annotations
 
-import cv2
+import math
+
 import numpy as np
 
 from impress_gui.core.reconstruction.stripes import window_refine
@@ -38,60 +42,93 @@ SHIFT_PX = 24.0
 SIDE_FRAMES = 2
 #: luma at or above which a row counts as clipped
 CLIP = 225.0
-#: rows either side of the stripe's row that are re-estimated (the detector's half window)
-HALF = 6
-#: the difference's least peak (grey levels) for a column to be re-estimated
-MIN_PEAK = 8.0
 #: frames of luma kept at most (a slow carriage at 1080p moves the soil 0.7 px a frame: 35
-#: frames for :data:`SHIFT_PX`; 80 MB of luma at 1080p)
+#: frames for :data:`SHIFT_PX`; 100 MB of luma at 1080p); fewer when the carriage's speed
+#: needs fewer (:meth:`UnlitSoil.ring_size`)
 RING_FRAMES = 48
 
 
+def _k():
+    from impress_gui.core.reconstruction.compiled import kernels
+
+    return kernels()
+
+
 class UnlitSoil:
-    """The earlier frames' luma and stripe rows, and the re-estimate of a frame's stripe.
+    """The earlier frames' luma and stripe rows (a ring), and the re-estimate of a frame's
+    stripe.
 
     ``rays``/``bands``: the frame loop's per-laser tables (rail-frame rays through every
     column's band rows, the band's first row per column); ``travel``: the camera's travel (mm)
-    of every frame; ``rotation``: camera -> rail frame; ``intrinsics``: the calibrated lens."""
+    of every frame; ``rotation``: camera -> rail frame; ``intrinsics``: the calibrated lens;
+    ``depth_mm``: the ground's depth (sizes the ring); ``compiled``: the kernel
+    (``kernels.unlit_refine``) or its numpy reference (:func:`refine_numpy`)."""
 
     def __init__(self, intrinsics, rotation: np.ndarray, travel: np.ndarray,
                  rays: dict[str, np.ndarray], bands: dict[str, tuple[np.ndarray, int]],
-                 planes: dict, size: tuple[int, int]) -> None:
+                 planes: dict, size: tuple[int, int], depth_mm: float,
+                 compiled: bool = True) -> None:
         self.intr = intrinsics
-        self.rot = np.asarray(rotation, float)
+        self.rot = np.ascontiguousarray(rotation, np.float64)
         self.travel = np.asarray(travel, float)
         self.rays = rays
         self.bands = bands
         self.planes = planes
+        self.names = list(rays)
         self.width, self.height = size
-        self.luma: dict[int, np.ndarray] = {}
-        self.rows: dict[int, dict[str, np.ndarray]] = {}
+        self.compiled = compiled
         self.refined = dict.fromkeys(rays, 0)
-        self.offset = np.arange(-HALF - 2, HALF + 3, dtype=np.float64)  # rows cut (17)
+        self.kmat = np.ascontiguousarray(intrinsics.camera_matrix, np.float64)
+        dc = np.asarray(intrinsics.dist_coeffs, float).ravel()
+        self.dist = np.zeros(8)
+        self.dist[: min(dc.size, 8)] = dc[:8]
+        self.rational = dc.size == 8
+        self.n_ring = self.ring_size(depth_mm)
+        self.ring: np.ndarray | None = None  # (n_ring, H, W) uint8, allocated on first use
+        self.ring_rows = np.full((self.n_ring, len(self.names), self.width), np.nan)
+        self.held = np.full(self.n_ring, -1, np.int64)  # the frame in each slot (-1: none)
+
+    def ring_size(self, depth_mm: float) -> int:
+        """Frames kept: enough for :data:`SHIFT_PX` at the scan's typical speed (the median
+        travel per frame), its :data:`SIDE_FRAMES` and a margin; at most :data:`RING_FRAMES`."""
+        step = np.abs(np.diff(self.travel))
+        step = float(np.median(step[step > 0])) if (step > 0).any() else 0.0
+        if step <= 0 or not depth_mm > 0:
+            return RING_FRAMES
+        j = math.ceil(SHIFT_PX * depth_mm / (float(self.intr.fx) * step))
+        return int(min(RING_FRAMES, j + 2 * SIDE_FRAMES + 6))
 
     # ----- the ring of earlier frames ---------------------------------------------------
     def keep(self, k: int, luma: np.ndarray, rows: dict[str, np.ndarray]) -> None:
         """Frame ``k``'s luma and final stripe rows, for the frames after it."""
-        self.luma[k] = np.array(luma, copy=True)
-        self.rows[k] = {n: np.array(r, copy=True) for n, r in rows.items()}
-        for old in [i for i in self.luma if i <= k - RING_FRAMES]:
-            del self.luma[old], self.rows[old]
+        if self.ring is None or self.ring.shape[1:] != luma.shape:
+            self.ring = np.zeros((self.n_ring, *luma.shape), np.uint8)
+            self.held[:] = -1
+        s = k % self.n_ring
+        self.ring[s] = luma
+        for m, name in enumerate(self.names):
+            self.ring_rows[s, m] = rows[name]
+        self.held[s] = k
 
     def skip(self, k: int) -> None:
         """Frame ``k`` was not read whole (damaged): no frame after it uses it."""
-        self.luma.pop(k, None)
-        self.rows.pop(k, None)
+        s = k % self.n_ring
+        self.held[s] = -1
+        self.ring_rows[s] = np.nan
+
+    def _has(self, k: int) -> bool:
+        return k >= 0 and bool(self.held[k % self.n_ring] == k)
 
     def _source(self, k: int, depth: float) -> int | None:
         """The earlier frame whose soil lies :data:`SHIFT_PX` or more from frame ``k``'s
         stripe (at ``depth`` mm), with its :data:`SIDE_FRAMES` neighbours all kept."""
         f = float(self.intr.fx)
-        for j in range(1, RING_FRAMES - SIDE_FRAMES):
+        for j in range(1, self.n_ring):
             kk = k - j
-            if kk - SIDE_FRAMES not in self.luma:
+            if not self._has(kk - SIDE_FRAMES):
                 return None
             if f * abs(self.travel[k] - self.travel[kk]) / depth >= SHIFT_PX:
-                if all(i in self.luma for i in range(kk - SIDE_FRAMES, kk + SIDE_FRAMES + 1)):
+                if all(self._has(i) for i in range(kk - SIDE_FRAMES, kk + SIDE_FRAMES + 1)):
                     return kk
                 return None
         return None
@@ -100,86 +137,128 @@ class UnlitSoil:
     def refine(self, name: str, k: int, luma: np.ndarray, rows: np.ndarray) -> int:
         """Re-estimate laser ``name``'s stripe ``rows`` (full-image rows per column, NaN where
         none) of frame ``k`` in place; returns the number of columns re-estimated."""
-        cols = np.flatnonzero(np.isfinite(rows))
-        if cols.size == 0:
+        if self.ring is None or self.ring.shape[1:] != luma.shape:
             return 0
-        r = rows[cols]
-        b0, _ = self.bands[name]
-        rays = self.rays[name]
-        t = r - b0[cols]
-        j = np.clip(np.floor(t).astype(np.int64), 0, rays.shape[1] - 2)
-        f = (t - j)[:, None]
-        d = rays[cols, j] + f * (rays[cols, j + 1] - rays[cols, j])
-        pl = self.planes[name]
-        den = d @ np.asarray(pl.normal, float)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = float(pl.offset_mm) / den
-        p = lam[:, None] * d  # the lit points, rail frame, relative to the camera
-        ok = np.isfinite(p).all(axis=1) & (p[:, 2] > 0)
-        if not ok.any():
-            return 0
-        depth = float(np.median((p[ok] @ self.rot)[:, 2]))
+        depth = self._depth(name, rows)
         src = self._source(k, depth) if depth > 0 else None
         if src is None:
             return 0
-        h, w = luma.shape
-        r0 = np.rint(r).astype(np.int64)
-        ok &= (r0 - HALF - 2 >= 0) & (r0 + HALF + 2 <= h - 1)
-        rows_cut = r0[:, None] + self.offset[None, :].astype(np.int64)  # (n, 17)
-        rel = rows_cut - r[:, None]  # the cut's rows relative to the stripe's sub-pixel row
-        bg = np.zeros(rows_cut.shape, np.float64)
-        for kk in range(src - SIDE_FRAMES, src + SIDE_FRAMES + 1):
-            moved = p.copy()
-            moved[:, 1] += self.travel[k] - self.travel[kk]
-            cam = moved @ self.rot
-            with np.errstate(divide="ignore", invalid="ignore"):
-                u, v = self.intr.distort_normalized(cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2])
-            ok &= np.isfinite(u) & np.isfinite(v) & (cam[:, 2] > 0)
-            ok &= (u >= 0) & (u <= w - 1) & (v - HALF - 3 >= 0) & (v + HALF + 3 <= h - 1)
-            ok &= self._clear(kk, u, v)
-            mx = np.broadcast_to(np.nan_to_num(u)[:, None], rel.shape).astype(np.float32)
-            my = (np.nan_to_num(v)[:, None] + rel).astype(np.float32)
-            bg += cv2.remap(self.luma[kk], mx, my, cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
-        bg /= 2 * SIDE_FRAMES + 1
-        if not ok.any():
-            return 0
-        sel = np.flatnonzero(ok)
-        cut = luma[rows_cut[sel], cols[sel, None]].astype(np.float64)
-        new = _estimate(cut, bg[sel], rows_cut[sel].astype(np.float64))
-        good = np.isfinite(new) & (np.abs(new - r[sel]) <= HALF - 1)
-        rows[cols[sel[good]]] = new[good]
-        n = int(good.sum())
+        frames = np.arange(src - SIDE_FRAMES, src + SIDE_FRAMES + 1)
+        slots = (frames % self.n_ring).astype(np.int64)
+        shifts = self.travel[k] - self.travel[frames]
+        b0, _ = self.bands[name]
+        pl = self.planes[name]
+        args = (rows, np.ascontiguousarray(b0, np.int64), self.rays[name],
+                np.ascontiguousarray(pl.normal, np.float64), float(pl.offset_mm), self.rot,
+                self.kmat, self.dist, self.rational, luma, self.ring, slots, shifts,
+                self.ring_rows, CLIP)
+        n = int(_k().unlit_refine(*args) if self.compiled else refine_numpy(*args))
         self.refined[name] += n
         return n
 
-    def _clear(self, kk: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Where the cut around ``(u, v)`` in frame ``kk`` keeps clear of both lasers'
-        stripes of that frame (their rows in the nearest column; a column where a laser's
-        stripe was not found counts as clear)."""
-        c = np.clip(np.rint(np.nan_to_num(u)).astype(np.int64), 0, self.width - 1)
-        clear = np.ones(u.shape, bool)
-        reach = HALF + 3 + 3.0  # the cut's half height, and a stripe's half width
-        for rows in self.rows[kk].values():
-            rr = rows[c]
-            clear &= ~(np.abs(rr - v) <= reach)
-        return clear
+    def _depth(self, name: str, rows: np.ndarray) -> float:
+        """The camera depth (mm) of the stripe's lit points, median over every 16th column
+        found (0 if none)."""
+        cols = np.flatnonzero(np.isfinite(rows))[::16]
+        if cols.size == 0:
+            return 0.0
+        p = _lit_points(rows[cols], cols, self.bands[name][0], self.rays[name],
+                        self.planes[name])
+        z = (p @ self.rot)[:, 2]
+        z = z[np.isfinite(z) & (z > 0)]
+        return float(np.median(z)) if z.size else 0.0
 
 
-def _estimate(cut: np.ndarray, bg: np.ndarray, rows: np.ndarray) -> np.ndarray:
+def _lit_points(r: np.ndarray, cols: np.ndarray, b0: np.ndarray, rays: np.ndarray, plane):
+    """Rail-frame points (relative to the camera) where the rays through rows ``r`` of
+    columns ``cols`` meet the laser plane (NaN where parallel)."""
+    t = r - b0[cols]
+    j = np.clip(np.floor(t).astype(np.int64), 0, rays.shape[1] - 2)
+    f = (t - j)[:, None]
+    d = rays[cols, j] + f * (rays[cols, j + 1] - rays[cols, j])
+    den = d @ np.asarray(plane.normal, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = np.where(np.abs(den) > 1e-12, float(plane.offset_mm) / den, np.nan)
+    return lam[:, None] * d
+
+
+def refine_numpy(rows, band_start, rays, normal, offset, rot, kmat, dist, rational, y, ring,
+                 slots, shifts, ring_rows, clip) -> int:
+    """The readable numpy reference of ``kernels.unlit_refine`` (same arguments, same steps;
+    the tests check the two agree)."""
+    from impress_gui.core.calibration.geometry import Plane
+    from impress_gui.core.reconstruction import kernels as kn
+
+    half = kn.UNLIT_HALF
+    cols = np.flatnonzero(np.isfinite(rows))
+    if cols.size == 0:
+        return 0
+    h, w = y.shape
+    r = rows[cols]
+    p = _lit_points(r, cols, band_start, rays, Plane(normal, offset))
+    r0 = np.floor(r + 0.5).astype(np.int64)
+    mid = half + 2
+    ok = np.isfinite(p).all(axis=1) & (r0 - mid >= 0) & (r0 + mid <= h - 1)
+    crow = r0[:, None] + np.arange(-mid, mid + 1)[None, :]
+    bg = np.zeros(crow.shape)
+    for s, shift in zip(slots, shifts, strict=True):
+        moved = p.copy()
+        moved[:, 1] += shift
+        cam = moved @ rot
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xn, yn = cam[:, 0] / cam[:, 2], cam[:, 1] / cam[:, 2]
+        k1, k2, p1, p2, k3, k4, k5, k6 = dist
+        r2 = xn * xn + yn * yn
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        if rational:
+            radial = radial / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+        xd = xn * radial + 2 * p1 * xn * yn + p2 * (r2 + 2 * xn * xn)
+        yd = yn * radial + p1 * (r2 + 2 * yn * yn) + 2 * p2 * xn * yn
+        u = kmat[0, 0] * xd + kmat[0, 1] * yd + kmat[0, 2]
+        v = kmat[1, 1] * yd + kmat[1, 2]
+        ok &= (cam[:, 2] > 0) & (u >= 0) & (u <= w - 1) & (v - half - 3 >= 0) & (
+            v + half + 3 <= h - 1)
+        u, v = np.nan_to_num(u), np.nan_to_num(v)
+        cu = np.clip(np.floor(u + 0.5).astype(np.int64), 0, w - 1)
+        near = np.abs(ring_rows[s][:, cu] - v[None, :]) <= kn.UNLIT_REACH
+        ok &= ~near.any(axis=0)
+        u0 = np.minimum(np.floor(u).astype(np.int64), w - 2)
+        fu = (u - u0)[:, None]
+        yy = v[:, None] + crow - r[:, None]
+        v0 = np.clip(np.floor(yy).astype(np.int64), 0, h - 2)
+        fv = yy - v0
+        u0 = np.clip(u0, 0, w - 2)[:, None]
+        img = ring[s].astype(np.float64)
+        a = img[v0, u0] * (1 - fu) + img[v0, u0 + 1] * fu
+        b = img[v0 + 1, u0] * (1 - fu) + img[v0 + 1, u0 + 1] * fu
+        bg += a * (1 - fv) + b * fv
+    sel = np.flatnonzero(ok)
+    if sel.size == 0:
+        return 0
+    cut = y[crow[sel], cols[sel, None]].astype(np.float64)
+    new = estimate(cut, bg[sel] / len(slots), crow[sel].astype(np.float64), clip)
+    good = np.isfinite(new) & (np.abs(new - r[sel]) <= half - 1)
+    rows[cols[sel[good]]] = new[good]
+    return int(good.sum())
+
+
+def estimate(cut: np.ndarray, bg: np.ndarray, rows: np.ndarray, clip: float = CLIP) -> np.ndarray:
     """The detector's estimate on the luma ``cut`` ``(n, 17)`` less the unlit soil ``bg``:
     clipped rows at the difference's top; the centre of mass above half maximum in the window
-    of :data:`HALF` rows around the middle, then around its own row, refined. NaN where the
-    difference has no peak of :data:`MIN_PEAK`."""
+    of ``UNLIT_HALF`` rows around the middle, then around its own row, refined. NaN where the
+    difference has no peak of ``UNLIT_MIN_PEAK``."""
+    from impress_gui.core.reconstruction import kernels as kn
+
+    half = kn.UNLIT_HALF
     diff = cut - bg
     top_all = diff.max(axis=1, keepdims=True)
-    diff = np.where(cut >= CLIP, top_all, diff)
+    diff = np.where(cut >= clip, top_all, diff)
     n = diff.shape[0]
     idx = np.arange(n)[:, None]
-    mid = HALF + 2
+    mid = half + 2
 
     def window(at: np.ndarray):
-        ii = at[:, None] + np.arange(-HALF, HALF + 1)[None, :]
+        ii = at[:, None] + np.arange(-half, half + 1)[None, :]
         sig = diff[idx, ii]
         sig = sig - sig.min(axis=1, keepdims=True)
         top = sig.max(axis=1)
@@ -190,8 +269,8 @@ def _estimate(cut: np.ndarray, bg: np.ndarray, rows: np.ndarray) -> np.ndarray:
         return rr, sig, top, centre
 
     rr, sig, top, centre = window(np.full(n, mid))
-    shift = np.rint(np.nan_to_num(centre - rows[:, mid])).astype(np.int64)
-    at = np.clip(mid + shift, HALF, 2 * mid - HALF)
+    shift = np.floor(np.nan_to_num(centre - rows[:, mid]) + 0.5).astype(np.int64)
+    at = np.clip(mid + shift, half, 2 * mid - half)
     rr, sig, top, centre = window(at)
     out = window_refine(rr.T, sig.T, top, centre)
-    return np.where((top >= MIN_PEAK) & np.isfinite(out), out, np.nan)
+    return np.where((top >= kn.UNLIT_MIN_PEAK) & np.isfinite(out), out, np.nan)

@@ -88,6 +88,11 @@ class ParamsPanel(QGroupBox):
             "(soil of the laser's colour is not the stripe); 0 keeps every piece")
         self.texture = QCheckBox("Registered texture")
         self.texture.setChecked(d.texture)
+        self.unlit_soil = QCheckBox("Subtract the soil seen unlit")
+        self.unlit_soil.setChecked(d.unlit_soil)
+        self.unlit_soil.setToolTip(
+            "Before the stripe's centre is estimated, take out the soil under it as earlier "
+            "frames saw it, unlit: grainy soil no longer moves a dim stripe's centre")
         self.auto_rois = QCheckBox("Automatic regions of interest (from the calibration)")
         self.auto_rois.setChecked(True)
         self.h_lo = _dspin(-200, 200, d.height_range_mm[0], 5, 0)
@@ -113,6 +118,8 @@ class ParamsPanel(QGroupBox):
             g.addWidget(w, row, 1, 1, 3)
             row += 1
         g.addWidget(self.texture, row, 0, 1, 4)
+        row += 1
+        g.addWidget(self.unlit_soil, row, 0, 1, 4)
         row += 1
         g.addWidget(self.auto_rois, row, 0, 1, 4)
         row += 1
@@ -142,7 +149,7 @@ class ParamsPanel(QGroupBox):
             *[s for ab in self.roi.values() for s in ab],
         ):
             w.valueChanged.connect(lambda _v: self.changed.emit())
-        for w in (self.texture, self.auto_rois):
+        for w in (self.texture, self.unlit_soil, self.auto_rois):
             w.toggled.connect(lambda _on: self.changed.emit())
         self.auto_rois.toggled.connect(self._enable_rois)
         self._enable_rois(True)
@@ -189,6 +196,7 @@ class ParamsPanel(QGroupBox):
             max_step_mm=self.max_step.value(),
             weak_run_ratio=self.weak_ratio.value(),
             texture=self.texture.isChecked(),
+            unlit_soil=self.unlit_soil.isChecked(),
         )
 
     def set_params(self, doc: dict) -> None:
@@ -210,6 +218,8 @@ class ParamsPanel(QGroupBox):
                 w.setValue(doc[key])
         if isinstance(doc.get("texture"), bool):
             self.texture.setChecked(doc["texture"])
+        # a project saved before the option existed was processed without it
+        self.unlit_soil.setChecked(doc.get("unlit_soil") is True)
         hr = doc.get("height_range_mm")
         if isinstance(hr, list) and len(hr) == 2:
             self.h_lo.setValue(float(hr[0]))

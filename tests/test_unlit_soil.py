@@ -1,0 +1,116 @@
+"""The soil seen unlit in earlier frames, subtracted from the stripe's profile
+(core.reconstruction.unlit, issue 18): on a synthetic scan of grainy ground whose exact stripe
+row is known, against the same estimate on the luma as it is."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from impress_gui.core.calibration.geometry import Intrinsics, Plane
+from impress_gui.core.reconstruction import kernels
+from impress_gui.core.reconstruction import unlit as U
+
+W, H, F, Z = 200, 120, 300.0, 300.0  # image, focal length (px), the ground's depth (mm)
+STEP = 1.5  # travel per frame (mm): 1.5 px of soil a frame
+ROW = 40.0  # the stripe's row on the ground: the plane y = 0.2 z - 80 meets z = 300 at y = -20
+
+
+class _Scene:
+    def __init__(self, grain: float, seed: int = 5) -> None:
+        rng = np.random.default_rng(seed)
+        # the soil's luma over X -120..120, Y -100..300 mm at 0.25 mm, grains of about 1.5 mm
+        tex = cv2.GaussianBlur(rng.normal(0.0, 1.0, (1600, 960)).astype(np.float32), (0, 0), 6)
+        self.tex = 150.0 + grain * tex / tex.std()
+        self.rng = rng
+        self.cols, self.rows = np.meshgrid(np.arange(W, dtype=np.float32),
+                                           np.arange(H, dtype=np.float32))
+
+    def frame(self, k: int) -> np.ndarray:
+        x = (self.cols - W / 2) / F * Z
+        y = k * STEP + (self.rows - H / 2) / F * Z
+        soil = cv2.remap(self.tex, ((x + 120) * 4).astype(np.float32),
+                         ((y + 100) * 4).astype(np.float32), cv2.INTER_LINEAR)
+        stripe = 35.0 * np.exp(-0.5 * ((self.rows - ROW) / 1.2) ** 2)
+        noisy = soil + stripe + self.rng.normal(0.0, 1.5, soil.shape)
+        return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+
+
+def _soil(compiled: bool = True) -> U.UnlitSoil:
+    intr = Intrinsics(np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1]]), np.zeros(5), (W, H))
+    j = np.arange(H, dtype=float)
+    rays = np.empty((W, H, 3))
+    rays[..., 0] = ((np.arange(W) - W / 2) / F)[:, None]
+    rays[..., 1] = ((j - H / 2) / F)[None, :]
+    rays[..., 2] = 1.0
+    bands = {"green": (np.zeros(W, np.int64), H - 1)}
+    planes = {"green": Plane(np.array([0.0, 1.0, -0.2]), -80.0)}
+    return U.UnlitSoil(intr, np.eye(3), STEP * np.arange(200), {"green": rays}, bands, planes,
+                       (W, H), Z, compiled=compiled)
+
+
+def _plain(y: np.ndarray) -> np.ndarray:
+    """The estimate on the luma as it is (the same estimator, nothing subtracted)."""
+    r0 = int(ROW)
+    half = kernels.UNLIT_HALF
+    rows = (r0 + np.arange(-half - 2, half + 3))[None, :].repeat(W, axis=0)
+    cut = y[rows, np.arange(W)[:, None]].astype(float)
+    return U.estimate(cut, np.zeros_like(cut), rows.astype(float))
+
+
+def _run(scene: _Scene, frames: range, damaged: frozenset = frozenset(),
+         compiled: bool = True):
+    soil = _soil(compiled)
+    before, after, counts = [], [], []
+    for k in frames:
+        if k in damaged:
+            soil.skip(k)
+            continue
+        y = scene.frame(k)
+        rows = _plain(y)
+        before.append(rows.copy())
+        counts.append(soil.refine("green", k, y, rows))
+        after.append(rows)
+        soil.keep(k, y, {"green": rows})
+    return np.array(before), np.array(after), counts
+
+
+def _rms(rows: np.ndarray) -> float:
+    e = rows[np.isfinite(rows)] - ROW
+    return float(np.sqrt(np.mean(e ** 2)))
+
+
+def test_the_soil_seen_unlit_takes_the_grain_out_of_the_stripe():
+    before, after, counts = _run(_Scene(grain=8.0), range(40))
+    # the earlier frames are 16 frames (24 px) back, with two either side: none before frame 18
+    assert counts[:18] == [0] * 18
+    assert min(counts[19:]) > 0.9 * W
+    late = slice(19, None)
+    assert _rms(before[late]) > 0.3  # the grain moves the plain estimate by a third of a pixel or more
+    assert _rms(after[late]) < 0.3 * _rms(before[late])
+    assert _rms(after[late]) < 0.12
+
+
+def test_on_smooth_soil_it_changes_next_to_nothing():
+    before, after, _ = _run(_Scene(grain=0.0), range(30))
+    late = slice(19, None)
+    assert _rms(after[late]) == pytest.approx(_rms(before[late]), abs=0.03)
+    assert _rms(after[late]) < 0.08
+
+
+def test_a_damaged_frame_among_the_earlier_ones_leaves_the_frames_that_need_it_alone():
+    _, _, counts = _run(_Scene(grain=8.0), range(30), damaged=frozenset({5}))
+    # frames 19..23 would take frame 5 among their five (16 back, two either side)
+    kept = [k for k in range(30) if k != 5]
+    by_frame = dict(zip(kept, counts, strict=True))
+    assert all(by_frame[k] == 0 for k in range(19, 24))
+    assert by_frame[25] > 0.9 * W
+
+
+def test_the_kernel_agrees_with_its_numpy_reference():
+    scene = _Scene(grain=8.0)
+    _, fast, n_fast = _run(scene, range(30))
+    _, slow, n_slow = _run(_Scene(grain=8.0), range(30), compiled=False)
+    assert n_fast == n_slow and sum(n_fast) > 0
+    np.testing.assert_allclose(fast, slow, atol=1e-9, equal_nan=True)
