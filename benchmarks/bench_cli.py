@@ -458,7 +458,7 @@ def bench_scan(name: str, args, tmp_root: Path) -> dict:
               f"({frames / default_s:.0f} frames/s, {frames} frames)", flush=True)
     tdesc = "PyAV's default threads" if threads == 0 else f"{threads} frame threads"
     print(f"decode-only reference: {tdesc}", flush=True)
-    cmd_args = ["process", str(video), "--calibration", str(cal)]
+    cmd_args = ["process", str(video), "--calibration", str(cal), *args.process_args.split()]
     rounds = []
     for k in range(args.warmup + args.rounds):
         warm = k < args.warmup
@@ -567,6 +567,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scans", default="shoe", help="comma list of " + ", ".join(SCANS))
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--process-args", default="",
+                    help="more options for the timed command, one string (e.g. "
+                    "'--unlit-soil' to time it with the unlit soil's subtraction)")
     ap.add_argument("--warmup", type=int, default=1,
                     help="untimed command runs first (numba's cache, the page cache)")
     ap.add_argument("--resolution", default="1920x1080", help="WIDTHxHEIGHT of the scans")

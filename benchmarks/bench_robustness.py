@@ -161,7 +161,7 @@ def measure(seed: int, w: int, h: int, with_fill: bool, draws: int, noise_px: fl
         row["readout"] = _readout_text(cal)
         row.update(R.calibration_figures(d, cal))
         with open_video(d / truth["video"]) as v:
-            rec = reconstruct(v, cal, ProcessParams())
+            rec = reconstruct(v, cal, ProcessParams(**PROCESS))
         row.update(R.height_figures(d, cal, rec, with_fill))
         t = truth_for_reconstruction(d, rec.spec, rec.height_mm, cal.reference_depth,
                                      cal.rotation)
@@ -179,7 +179,7 @@ def measure(seed: int, w: int, h: int, with_fill: bool, draws: int, noise_px: fl
                 continue
             row.setdefault("noise_readout", []).append(_readout_text(cal_n))
             with open_video(d / truth["video"]) as v:
-                rec_n = reconstruct(v, cal_n, ProcessParams())
+                rec_n = reconstruct(v, cal_n, ProcessParams(**PROCESS))
             m = physical_mae(d, cal_n, rec_n)
             worst = m if not np.isfinite(worst) else max(worst, m)
             mc = R.height_figures(d, cal_n, rec_n, False)["mae_f"]
@@ -237,11 +237,17 @@ def verdicts(rows: list[dict], draws: int, with_fill: bool) -> list[tuple[str, b
     return out
 
 
+#: processing parameters other than the defaults (``--unlit-soil``)
+PROCESS: dict = {}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="24", help="how many seeds (0..N-1) or a comma list")
     ap.add_argument("--resolution", default="1920x1080")
     ap.add_argument("--draws", type=int, default=5, help="click-noise draws per rig (0: none)")
+    ap.add_argument("--unlit-soil", action="store_true",
+                    help="reconstruct with ProcessParams.unlit_soil (off by default)")
     ap.add_argument("--click-noise", type=float, default=0.5, help="pick noise, px (1 sigma)")
     ap.add_argument("--no-fill", action="store_true", help="skip the fill figure")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
@@ -254,6 +260,8 @@ def main() -> None:
                     "without it (estimated from the picks, or none), or told the camera has a "
                     "global shutter")
     args = ap.parse_args()
+    if args.unlit_soil:
+        PROCESS["unlit_soil"] = True
     global READOUT
     READOUT = args.readout
     if args.cache_key:

@@ -200,7 +200,7 @@ class Rig:
         self.cal = cal = common.calibrate(d, noise_px=noise_px, seed=1000 * seed + draw + 1,
                                           speed_mm_s=self.entered_speed)
         with open_video(d / truth["video"]) as v:
-            rec = reconstruct(v, cal, ProcessParams())
+            rec = reconstruct(v, cal, ProcessParams(**PROCESS))
         self.t_rec = time.perf_counter() - t0
         self.spec = rec.spec
         self.h = rec.height_mm
@@ -557,10 +557,16 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines + verdicts)
 
 
+#: processing parameters other than the defaults (``--unlit-soil``)
+PROCESS: dict = {}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0,1,2,3")
     ap.add_argument("--draws", type=int, default=2)
+    ap.add_argument("--unlit-soil", action="store_true",
+                    help="reconstruct with ProcessParams.unlit_soil (off by default)")
     ap.add_argument("--first-draw", type=int, default=0,
                     help="the first draw's number (draws first .. first + draws - 1; other "
                          "numbers give other click noise, e.g. to check on new calibrations)")
@@ -578,6 +584,8 @@ def main() -> None:
                     help="print the table of readings saved with --json (several files: "
                          "their readings together) and measure nothing")
     args = ap.parse_args()
+    if args.unlit_soil:
+        PROCESS["unlit_soil"] = True
     if args.from_json:
         rows = [r for f in args.from_json for r in json.loads(f.read_text())]
         print(table(rows))

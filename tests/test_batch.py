@@ -128,6 +128,17 @@ def test_the_summary_is_safe_to_open_in_a_spreadsheet(flat_scan, flat_calibratio
     assert summary["scans"][1]["video"].endswith("/=1+1.mp4")
 
 
+def test_a_manifest_names_the_estimate_and_switches_the_unlit_soil(tmp_path):
+    from impress_gui.session.batch import _params
+
+    manifest = tmp_path / "m.json"
+    manifest.write_text(json.dumps({"format": "impress.batch", "version": 1, "scans": [
+        {"name": "a", "video": "v.mp4", "calibration": "c.json",
+         "parameters": {"subpixel": "half-max", "unlit_soil": True}}]}))
+    params = _params(load_manifest(manifest)[0])
+    assert params.subpixel == "half-max" and params.unlit_soil is True
+
+
 @pytest.mark.parametrize("scans, code", [
     ([], "E-BATCH"),
     ([{"name": "../x", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),
@@ -156,17 +167,6 @@ def test_the_summary_is_safe_to_open_in_a_spreadsheet(flat_scan, flat_calibratio
     ([{"name": "a", "video": "v.mp4", "calibration": "c.json",
        "parameters": {"unlit_soil": "yes"}}], "E-BATCH"),
 ])
-def test_a_manifest_names_the_estimate_and_switches_the_unlit_soil(tmp_path):
-    from impress_gui.session.batch import _params
-
-    manifest = tmp_path / "m.json"
-    manifest.write_text(json.dumps({"format": "impress.batch", "version": 1, "scans": [
-        {"name": "a", "video": "v.mp4", "calibration": "c.json",
-         "parameters": {"subpixel": "half-max", "unlit_soil": False}}]}))
-    params = _params(load_manifest(manifest)[0])
-    assert params.subpixel == "half-max" and params.unlit_soil is False
-
-
 def test_bad_manifests_are_refused(scans, code, tmp_path, capsys):
     manifest = tmp_path / "m.json"
     manifest.write_text(json.dumps({"format": "impress.batch", "version": 1, "scans": scans}))

@@ -14,7 +14,7 @@ import pytest
 from event_loop import EventLoopMonitor
 from gui_helpers import FakeDialogs
 from measure_scans import block_a_frames, blocks_scan, guard_pyside_none
-from PySide6.QtCore import Qt
+from PySide6.QtCore import QPoint, Qt
 from PySide6.QtTest import QTest
 
 from impress_gui.core.calibration.scene import SceneCalibration
@@ -198,12 +198,21 @@ def test_heightmap_grows_in_a_preview_during_the_run(qtbot, tab, scan, tmp_path,
 
 def test_the_unlit_soil_switch_reaches_the_parameters_and_the_project(qtbot, tab):
     box = tab.params.unlit_soil
-    assert box.isChecked() and tab.params.params().unlit_soil
-    with qtbot.waitSignal(tab.params.changed, timeout=2000):
-        QTest.mouseClick(box, Qt.MouseButton.LeftButton, pos=box.rect().center())
     assert not box.isChecked() and tab.params.params().unlit_soil is False
+    scroll = box.parent()
+    while scroll is not None and not hasattr(scroll, "ensureWidgetVisible"):
+        scroll = scroll.parent()
+    if scroll is not None:  # the parameters scroll on a small window: bring it into view
+        scroll.ensureWidgetVisible(box)
+    at = QPoint(8, box.height() // 2)  # on the box's indicator, at its left
+    qtbot.waitUntil(lambda: box.visibleRegion().contains(at), timeout=2000)
+    with qtbot.waitSignal(tab.params.changed, timeout=2000):
+        QTest.mouseClick(box, Qt.MouseButton.LeftButton, pos=at)
+    assert box.isChecked() and tab.params.params().unlit_soil is True
+    tab.params.set_params({"unlit_soil": False})
+    assert tab.params.params().unlit_soil is False
     tab.params.set_params({"unlit_soil": True})
     assert tab.params.params().unlit_soil is True
-    # a project saved before the switch existed was processed without it: reopened, it stays so
+    # a project saved before the switch existed was processed without it: reopened, it is off
     tab.params.set_params({"method": "combined"})
     assert tab.params.params().unlit_soil is False

@@ -51,10 +51,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(a false stripe's heights floating off the surface; 0 keeps them; default 50)")
     p.add_argument("--island-step-mm", type=float, default=0.5,
                    help="the step that separates an island from its surroundings (default 0.5)")
-    p.add_argument("--no-unlit-soil", action="store_true",
-                   help="estimate the stripe's centre on the luma as it is, without first "
-                   "subtracting the soil under it as earlier frames saw it unlit (see "
-                   "docs/accuracy.md, 'Dim stripes on grainy soil')")
+    p.add_argument("--unlit-soil", action="store_true",
+                   help="subtract the soil under each stripe, as earlier frames saw it unlit, "
+                   "before its centre is estimated: dim stripes on grainy soil (off by "
+                   "default; see docs/accuracy.md, 'Dim stripes on grainy soil')")
     p.add_argument("--no-texture", action="store_true", help="skip the texture")
     p.add_argument("--fps", type=float, default=None, help="override the frame rate")
 
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
                            texture=not args.no_texture, subpixel=args.subpixel,
                            island_max_cells=args.island_cells,
                            island_step_mm=args.island_step_mm,
-                           unlit_soil=not args.no_unlit_soil)
+                           unlit_soil=args.unlit_soil)
     progress = progress_printer()
 
     from impress_gui.core.reconstruction.pipeline import process_files

@@ -91,8 +91,8 @@ class UnlitSoil:
     def ring_size(self, depth_mm: float) -> int:
         """Frames kept: enough for :data:`SHIFT_PX` at the scan's typical speed (the median
         travel per frame), its :data:`SIDE_FRAMES` and a margin; at most :data:`RING_FRAMES`."""
-        step = np.abs(np.diff(self.travel))
-        step = float(np.median(step[step > 0])) if (step > 0).any() else 0.0
+        steps = np.abs(np.diff(self.travel))
+        step = float(np.median(steps[steps > 0])) if (steps > 0).any() else 0.0
         if step <= 0 or not depth_mm > 0:
             return RING_FRAMES
         j = math.ceil(SHIFT_PX * depth_mm / (float(self.intr.fx) * step))
