@@ -24,6 +24,10 @@ rows or more from the detector's; every column while the carriage has not yet mo
 :data:`SHIFT_PX` pixels' worth (the start of a scan, a stop) and where a damaged frame is
 among the five. The steps run in a compiled kernel (``kernels.unlit_refine``); its numpy
 reference is :func:`refine_numpy`.
+
+An option, off by default (``ProcessParams.unlit_soil``): better on 20 of 24 random rigs and
+much better on grainy soil, but worse on the test suite's white blocks (clipped white stripes:
+a slot's wall less sharp), for a cause not yet found (docs/accuracy.md).
 """
 
 from __future__ import annotations
