@@ -16,6 +16,24 @@ from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
 
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def load_benchmark(name: str):
+    """The module of ``benchmarks/<name>.py`` (not a package: loaded from its file, with the
+    folder on the path while it imports its neighbour ``common``)."""
+    import importlib.util
+    import sys
+
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    return mod
+
 
 def pytest_configure(config):
     # PySide6 6.12.0 loses a reference to True on every emit (the pinned 6.11.3 does not);

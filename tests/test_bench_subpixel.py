@@ -4,27 +4,10 @@ unlit, subtracted, leaves the stripe; a clipped core is left as the plateau it i
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
+from conftest import load_benchmark
 
-_DIR = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
-def _load():
-    sys.path.insert(0, str(_DIR))  # the benchmark imports its neighbour `common`
-    try:
-        spec = importlib.util.spec_from_file_location("bench_subpixel", _DIR / "bench_subpixel.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-    finally:
-        sys.path.remove(str(_DIR))
-    return mod
-
-
-bench = _load()
+bench = load_benchmark("bench_subpixel")
 
 
 def _columns(n: int, amplitude: float, texture: float, rng) -> tuple:

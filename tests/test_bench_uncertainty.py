@@ -3,26 +3,9 @@ bootstrap over the calibrations, since every reading of a scan shares its calibr
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
+from conftest import load_benchmark
 
-_DIR = Path(__file__).resolve().parents[1] / "benchmarks"
-
-
-def _load():
-    sys.path.insert(0, str(_DIR))  # the benchmark imports its neighbour `common`
-    try:
-        spec = importlib.util.spec_from_file_location("bench_uncertainty",
-                                                      _DIR / "bench_uncertainty.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-    finally:
-        sys.path.remove(str(_DIR))
-    return mod
-
-
-bench = _load()
+bench = load_benchmark("bench_uncertainty")
 
 
 def _rows(n_cal: int, outside: int, per_cal: int = 25, clustered: bool = True) -> list[dict]:

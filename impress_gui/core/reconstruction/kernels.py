@@ -741,6 +741,24 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
                         strength_out[c] = top
 
 
+@_jit
+def _lit_point(t, rays, c, normal, offset):
+    """Where the ray through column ``c`` at band row ``t`` (sub-pixel: linear between the rows
+    of ``rays[c]`` around it) meets the plane ``normal . p = offset``: the rail-frame point
+    relative to the camera, ``(x, y, z)``; NaNs where the ray runs parallel to the plane."""
+    nt = rays.shape[1]
+    j = min(max(int(math.floor(t)), 0), nt - 2)
+    f = t - j
+    d0 = rays[c, j, 0] + f * (rays[c, j + 1, 0] - rays[c, j, 0])
+    d1 = rays[c, j, 1] + f * (rays[c, j + 1, 1] - rays[c, j, 1])
+    d2 = rays[c, j, 2] + f * (rays[c, j + 1, 2] - rays[c, j, 2])
+    den = d0 * normal[0] + d1 * normal[1] + d2 * normal[2]
+    if abs(den) <= 1e-12:
+        return np.nan, np.nan, np.nan
+    lam = offset / den
+    return lam * d0, lam * d1, lam * d2
+
+
 @_kernel(
     "void(float64[:], boolean[:], int64[:], float64[:, :, :], float64[:], float64, float64, float64, float64[:], float64[:], float64[:], float64[:])"
 )
@@ -755,30 +773,21 @@ def triangulate(rows, valid, band_start, rays, normal, offset, travel, row_mm, r
     added to y, and under a rolling shutter ``row_mm`` per image row (the camera's travel
     while the rows above were read; 0 for a global shutter). NaN where not ``valid`` or where
     the ray runs parallel to the plane."""
-    nt = rays.shape[1]
     for c in range(rows.shape[0]):
         x_out[c] = np.nan
         y_out[c] = np.nan
         h_out[c] = np.nan
         if not valid[c]:
             continue
-        t = rows[c] - band_start[c]
-        j = min(max(int(math.floor(t)), 0), nt - 2)
-        f = t - j
-        d0 = rays[c, j, 0] + f * (rays[c, j + 1, 0] - rays[c, j, 0])
-        d1 = rays[c, j, 1] + f * (rays[c, j + 1, 1] - rays[c, j, 1])
-        d2 = rays[c, j, 2] + f * (rays[c, j + 1, 2] - rays[c, j, 2])
-        den = d0 * normal[0] + d1 * normal[1] + d2 * normal[2]
-        if abs(den) <= 1e-12:
+        x, yy, z = _lit_point(rows[c] - band_start[c], rays, c, normal, offset)
+        if math.isnan(x):
             continue
-        lam = offset / den
-        x = lam * d0
-        yy = lam * d1 + travel
+        yy += travel
         if row_mm != 0.0:
             yy += row_mm * rows[c]
         x_out[c] = x
         y_out[c] = yy
-        h_out[c] = ref[0] + ref[1] * x + ref[2] * yy - lam * d2
+        h_out[c] = ref[0] + ref[1] * x + ref[2] * yy - z
 
 
 @_kernel(
@@ -1074,7 +1083,6 @@ def unlit_refine(rows, band_start, rays, normal, offset, rot, kmat, dist, ration
     ``UNLIT_HALF - 1`` rows or more from the old. Returns the columns re-estimated."""
     h = y.shape[0]
     w = y.shape[1]
-    nt = rays.shape[1]
     nf = slots.shape[0]
     nc = 2 * UNLIT_HALF + 5
     mid = UNLIT_HALF + 2
@@ -1090,19 +1098,9 @@ def unlit_refine(rows, band_start, rays, normal, offset, rot, kmat, dist, ration
         r = rows[c]
         if math.isnan(r):
             continue
-        t = r - band_start[c]
-        j = min(max(int(math.floor(t)), 0), nt - 2)
-        f = t - j
-        d0 = rays[c, j, 0] + f * (rays[c, j + 1, 0] - rays[c, j, 0])
-        d1 = rays[c, j, 1] + f * (rays[c, j + 1, 1] - rays[c, j, 1])
-        d2 = rays[c, j, 2] + f * (rays[c, j + 1, 2] - rays[c, j, 2])
-        den = d0 * normal[0] + d1 * normal[1] + d2 * normal[2]
-        if abs(den) <= 1e-12:
+        px, py, pz = _lit_point(r - band_start[c], rays, c, normal, offset)
+        if math.isnan(px):
             continue
-        lam = offset / den
-        px = lam * d0
-        py = lam * d1
-        pz = lam * d2
         r0 = int(math.floor(r + 0.5))
         if r0 - mid < 0 or r0 + mid > h - 1:
             continue
