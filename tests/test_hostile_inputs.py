@@ -8,8 +8,9 @@ holding a copy of the evidence, and asserts:
 - nothing outside the output the case names was created, changed or removed (every file of
   the sandbox is hashed before and after), so the evidence is never lost;
 - no traceback on the console, no Python type or errno text in the message;
-- nothing hangs: ``pytest-timeout`` fails a case that runs 30 s (the cases take well under a
-  second; no bound on their time is asserted, which would fail only on a busy machine).
+- nothing hangs: ``pytest-timeout`` fails a case that runs 120 s (the cases take well under a
+  second; the bound is generous, as any bound on their time would otherwise fail on a busy
+  machine: a hang never ends).
 """
 
 from __future__ import annotations
@@ -453,7 +454,7 @@ def test_the_table_is_large_enough():
     assert len({c.name for c in CASES}) == len(CASES)
 
 
-@pytest.mark.timeout(30, func_only=True)
+@pytest.mark.timeout(120, func_only=True)
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
 def test_hostile_input(case: Case, evidence, tmp_path, capsys, monkeypatch):
     box = tmp_path / "box"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -47,16 +46,40 @@ pytestmark = pytest.mark.usefixtures("no_stray_threads")
 TIME_SCALE = 50.0  # emulated seconds per wall second
 
 
+class CommandClock:
+    """Emulated time that advances by ``step_s`` for every command line the motor receives
+    (and by what :meth:`advance` adds), never with the wall clock: a move lasts as many of the
+    driver's queries as its length says, however long a busy machine keeps the test waiting
+    between two of them."""
+
+    def __init__(self, step_s: float) -> None:
+        self.step_s, self.extra_s = step_s, 0.0
+        self.motor: CM1Emulator | None = None
+
+    def __call__(self) -> float:
+        return self.extra_s + self.step_s * (0 if self.motor is None else len(self.motor.received))
+
+    def advance(self, seconds: float) -> None:
+        self.extra_s += seconds
+
+
 @pytest.fixture
 def rig():
     made: list[CoolMuscle] = []
 
-    def make(*, echo=True, events=False, time_scale=TIME_SCALE, emulator=None, **config):
+    def make(*, echo=True, events=False, time_scale=TIME_SCALE, emulator=None, step_s=None,
+             **config):
+        """The emulated motor and a connected driver; with ``step_s`` the motor's clock is a
+        :class:`CommandClock` (else the wall clock, ``time_scale`` times faster)."""
+        clock = None if step_s is None else CommandClock(step_s)
         emu = CM1Emulator(
             EmulatorConfig(
                 echo=echo, report_events=events, time_scale=time_scale, **(emulator or {})
-            )
+            ),
+            clock=clock,
         )
+        if clock is not None:
+            clock.motor = emu
         config = {"poll_interval_s": 0.005, "reply_timeout_s": 0.3, **config}
         driver = CoolMuscle(emulated_port(emu), MotorConfig(**config))
         made.append(driver)
@@ -75,6 +98,8 @@ def assert_stopped(emu: CM1Emulator, short_of_mm: float | None = None) -> None:
         assert abs(emu.position_pulses / 78.0) < short_of_mm - 1.0
     here = emu.position_pulses
     emu.wait_output(0.02)  # let emulated time pass
+    if isinstance(emu.clock, CommandClock):
+        emu.clock.advance(1.0)  # (a clock the wall clock does not move)
     assert emu.position_pulses == here
 
 
@@ -220,7 +245,9 @@ def test_move_duration_matches_speed(rig):
 
 
 def test_positions_are_reported_during_a_move(rig):
-    emu, driver = rig(time_scale=10.0)
+    # 0.05 emulated s per command: the 20 mm move (1.95 s at 10.26 mm/s) lasts about twenty
+    # polls of two queries each, however busy the machine is
+    emu, driver = rig(step_s=0.05)
     seen: list[float] = []
     driver.move_to_mm(20.0, 10.0, on_update=lambda s: seen.append(s.position_mm))
     inside = [p for p in seen if 0.5 < p < 19.5]
@@ -241,7 +268,7 @@ def test_stop_mid_move_from_another_thread(rig):
 
 
 def test_enable_disable_zero_and_speed(rig):
-    emu, driver = rig()
+    emu, driver = rig(step_s=0.05)  # emulated time moves with the commands, not the wall clock
     driver.disable()
     assert driver.status().free
     driver.enable()
@@ -252,12 +279,12 @@ def test_enable_disable_zero_and_speed(rig):
     watch = driver.start_move_mm(50.0, 5.0)
     driver.check(watch)
     # The emulator ramps up at the configured acceleration; poll until cruising (the
-    # 50-mm move at 5 mm/s lasts ten seconds, the ramp a few hundredths of one).
+    # 50-mm move at 5 mm/s lasts ten emulated seconds, two hundred queries; the ramp 4 ms).
     cruise = driver.units.units_to_speed_mm_s(4)
-    deadline = time.monotonic() + 5.0
     speed = driver.speed_mm_s()
-    while speed != pytest.approx(cruise, rel=0.05) and time.monotonic() < deadline:
-        time.sleep(0.02)
+    for _ in range(20):
+        if speed == pytest.approx(cruise, rel=0.05):
+            break
         speed = driver.speed_mm_s()
     assert speed == pytest.approx(cruise, rel=0.05)
     driver.stop()
@@ -275,7 +302,9 @@ def test_home_returns_to_the_switch_and_zeroes(rig):
 
 
 def test_emergency_stop_and_release(rig):
-    emu, driver = rig()
+    # emulated time moves with the commands: the 100 mm move (20 s) cannot end, however long
+    # the machine keeps the test from sending the emergency stop
+    emu, driver = rig(step_s=0.05)
     driver.start_move_mm(100.0, 5.0)
     driver.emergency_stop()
     status = driver.status()
@@ -288,7 +317,9 @@ def test_emergency_stop_and_release(rig):
 
 
 def test_write_program_and_run_banks(rig):
-    emu, driver = rig(events=True)
+    # emulated time moves 0.05 s per command, not with the wall clock: the long run (1000
+    # pulses at 1000 pulses/s) lasts twenty queries, and bank 2 is sent three after it starts
+    emu, driver = rig(events=True, step_s=0.05)
     driver.write_program(scanner_program(home_pulses=-100, short_end_pulses=-1000,
                                          long_end_pulses=-2000, speed_units=10))  # fmt: skip
     assert emu.saved == 1
@@ -296,11 +327,12 @@ def test_write_program_and_run_banks(rig):
     assert driver.run_bank(1).position_pulses == -100  # home: zero here, go to P1
     assert driver.run_bank(3).position_pulses == -1000  # short run
     watch = driver.start_bank(4)  # long run, stopped by bank 2
-    driver.check(watch)
+    done, snap = driver.check(watch)
+    assert not done and snap.status.moving
     driver.start_bank(2)
     snap = driver.wait(watch)
-    # stopped well before the long run's target (the stop may arrive before it has moved)
-    assert -2000 < snap.position_pulses <= -1000
+    # stopped well before the long run's target, after it had set off
+    assert -2000 < snap.position_pulses < -1000
     assert_stopped(emu)
     with pytest.raises(MotorRangeError):
         driver.start_bank(0)

@@ -11,6 +11,7 @@ import time
 
 import pytest
 import serial
+from test_motor_driver import CommandClock
 
 from impress_gui.cli import main
 from impress_gui.hardware.cool_muscle import (
@@ -165,8 +166,13 @@ def test_faults_alarm_no_reply_garbage_disconnect():
 def pty_motor():
     servers: list[PtyServer] = []
 
-    def start(**config):
-        emu = CM1Emulator(EmulatorConfig(**{"time_scale": 50.0, **config}))
+    def start(step_s: float | None = None, **config):
+        """The motor behind a pseudo-terminal; with ``step_s``, its clock is a
+        :class:`CommandClock` (else the wall clock, ``time_scale`` times faster)."""
+        clock = None if step_s is None else CommandClock(step_s)
+        emu = CM1Emulator(EmulatorConfig(**{"time_scale": 50.0, **config}), clock=clock)
+        if clock is not None:
+            clock.motor = emu
         server = PtyServer(emu)
         servers.append(server)
         return emu, server.start()
@@ -179,7 +185,10 @@ def pty_motor():
 @posix_only
 @pytest.mark.parametrize("echo", [True, False])
 def test_driver_through_a_pseudo_terminal(pty_motor, echo):
-    emu, path = pty_motor(echo=echo)
+    # emulated time moves 0.05 s per command received, not with the wall clock: the 15 mm
+    # move (1.46 s at 10.26 mm/s) lasts about fifteen polls of two queries each, each poll
+    # finding the carriage about 0.8 mm further on, however busy the machine is
+    emu, path = pty_motor(echo=echo, step_s=0.05)
     assert path.startswith("/dev/")
     config = MotorConfig(reply_timeout_s=0.5, poll_interval_s=0.005)
     driver = CoolMuscle.open(path, config)
@@ -361,9 +370,11 @@ def test_cli_move_ended_by_a_signal_stops_the_motor(pty_motor, signame, status, 
         command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True
     )
     try:
-        _wait_for(lambda: emu.moving and emu.position_pulses < -40)  # on its way
+        # (generous bounds: a busy machine may take long to start the command; the move
+        # itself lasts over three minutes)
+        _wait_for(lambda: emu.moving and emu.position_pulses < -40, timeout_s=60.0)  # on its way
         proc.send_signal(getattr(signal, signame))
-        out, err = proc.communicate(timeout=10)
+        out, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -373,7 +384,7 @@ def test_cli_move_ended_by_a_signal_stops_the_motor(pty_motor, signame, status, 
     start = max(i for i, line in enumerate(emu.received) if line == "^.1")
     # the stop reached the motor (the pseudo-terminal's server thread may still be passing on
     # the last bytes the command wrote before it exited)
-    _wait_for(lambda: "].1" in emu.received[start:], timeout_s=2.0)
+    _wait_for(lambda: "].1" in emu.received[start:], timeout_s=10.0)
     assert not emu.moving
     here = emu.position_pulses
     assert 0 > here > -1000 * 78  # stopped part way

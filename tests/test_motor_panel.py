@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import pytest
 from PySide6.QtCore import Qt
+from test_motor_driver import CommandClock
 
 from impress_gui.hardware.cool_muscle import CoolMuscle, MotorConfig
 from impress_gui.hardware.emulator import CM1Emulator, EmulatorConfig, PtyServer, emulated_port
@@ -29,10 +30,15 @@ class Rig:
         self.panels: list[MotorPanel] = []
         self.motors: list[CM1Emulator] = []
         self.ports: list[str] = []
+        #: when set, the motors' clocks are a CommandClock of this step (not the wall clock)
+        self.step_s: float | None = None
 
     def factory(self, port, config, on_traffic):
         self.ports.append(port)
-        motor = CM1Emulator(EmulatorConfig(time_scale=TIME_SCALE))
+        clock = None if self.step_s is None else CommandClock(self.step_s)
+        motor = CM1Emulator(EmulatorConfig(time_scale=TIME_SCALE), clock=clock)
+        if clock is not None:
+            clock.motor = motor
         self.motors.append(motor)
         return CoolMuscle(emulated_port(motor), config, on_traffic=on_traffic)
 
@@ -96,6 +102,10 @@ def test_connect_shows_version_state_and_position(rig):
 
 
 def test_scan_shows_positions_during_the_move_and_stops_on_stop(rig, qtbot):
+    # emulated time moves 0.01 s per command, not with the wall clock: each poll (two
+    # queries, then 10 ms of sleep) finds the carriage 0.1 mm further on, and the 500 mm scan
+    # (97.5 s) cannot end before some 4900 polls, over 48 s, however busy the machine is
+    rig.step_s = 0.01
     panel = rig.connected_panel(short_scan_mm=500.0, speed_mm_s=5.0, end_mm=100.0)
     motor = rig.motors[0]
     positions: list[float] = []
@@ -103,12 +113,14 @@ def test_scan_shows_positions_during_the_move_and_stops_on_stop(rig, qtbot):
     panel.short_button.click()  # a preset: fills the end position, does not move
     assert panel.end_spin.value() == 500.0 and not panel.is_busy
     panel.scan_button.click()
-    qtbot.waitUntil(lambda: len({round(p, 1) for p in positions if 0.5 < p < 499.0}) >= 5)
+    qtbot.waitUntil(lambda: len({round(p, 1) for p in positions if 0.5 < p < 499.0}) >= 5,
+                    timeout=30000)
     assert panel.is_busy and panel.state_label.text() == "moving"
     assert not panel.scan_button.isEnabled() and panel.stop_button.isEnabled()
     assert positions == sorted(positions)  # the carriage advances
     qtbot.mouseClick(panel.stop_button, Qt.MouseButton.LeftButton)
-    qtbot.waitUntil(lambda: not panel.is_busy and panel.state_label.text() == "in position")
+    qtbot.waitUntil(lambda: not panel.is_busy and panel.state_label.text() == "in position",
+                    timeout=30000)
     assert not motor.moving
     assert 0.5 < motor.position_pulses / -78.0 < 499.0  # stopped part way
     assert panel.scan_button.isEnabled()
@@ -428,12 +440,12 @@ def test_invalid_scan_is_refused_with_a_message_and_no_motion(
     panel = rig.connected_panel(start_mm=start, end_mm=end, speed_mm_s=speed)
     motor = rig.motors[0]
     assert reason in panel.range_label.text() and panel.range_label.isVisibleTo(panel)  # before trying
-    with qtbot.waitSignal(panel.error, timeout=1000) as blocker:
+    with qtbot.waitSignal(panel.error, timeout=10000) as blocker:
         panel.scan_button.click()
     assert blocker.args[0] == code
     assert reason in panel.error_label.text() and panel.error_label.isVisibleTo(panel)
     assert code in panel.error_label.text()
-    with qtbot.waitSignal(panel.state_changed, timeout=2000):
+    with qtbot.waitSignal(panel.state_changed, timeout=10000):
         pass  # the worker has handled everything queued before its next poll
     assert not panel.is_busy and not motor.moving
     assert not [line for line in motor.received if line.startswith(("P", "S", "^"))]

@@ -176,14 +176,18 @@ def test_lut_plots_start_at_zero_with_a_colour_bar(qtbot):
     t[:30, :40] = 200
     view.set_tables({"green": t, "red": t.T.copy()})
     qtbot.wait(50)
-    bars = [i for i in view.ci.items if isinstance(i, pg.ColorBarItem)]
-    plots = [i for i in view.ci.items if isinstance(i, pg.PlotItem) and i not in bars]
-    assert len(plots) == 2
-    for p in plots:
-        (x0, x1), (y0, y1) = p.getViewBox().viewRange()
-        assert x0 >= 0 and y0 >= 0 and x1 >= 63 and y1 >= 63
-    assert len(bars) == 1 and bars[0].isVisible()
-    assert tuple(bars[0].levels()) == (0, 255)
+
+    def drawn() -> None:
+        bars = [i for i in view.ci.items if isinstance(i, pg.ColorBarItem)]
+        plots = [i for i in view.ci.items if isinstance(i, pg.PlotItem) and i not in bars]
+        assert len(plots) == 2
+        for p in plots:
+            (x0, x1), (y0, y1) = p.getViewBox().viewRange()
+            assert x0 >= 0 and y0 >= 0 and x1 >= 63 and y1 >= 63, ((x0, x1), (y0, y1))
+        assert len(bars) == 1 and bars[0].isVisible()
+        assert tuple(bars[0].levels()) == (0, 255)
+
+    qtbot.waitUntil(drawn, timeout=5000)  # on a busy machine the ranges may settle later
 
 
 def test_the_viewer_colour_bar_label_stays_beside_the_bar(qtbot):
@@ -205,11 +209,15 @@ def test_the_viewer_colour_bar_label_stays_beside_the_bar(qtbot):
         m.show_rgb(contribution_png(np.full((100, 100), 3, np.uint8)), nearest=True)
         m.show_scalar(a, (-0.4, 0.3), "turbo", "green - red (mm)")
         qtbot.wait(100)
-        axis = m.colour_bar.getAxis("left")
-        assert axis.width() > 5
-        label = axis.label.mapRectToScene(axis.label.boundingRect())
-        bar = m.colour_bar.bar.sceneBoundingRect()
-        assert label.right() <= bar.left() + 1, (label, bar)
+
+        def beside() -> None:
+            axis = m.colour_bar.getAxis("left")
+            assert axis.width() > 5
+            label = axis.label.mapRectToScene(axis.label.boundingRect())
+            bar = m.colour_bar.bar.sceneBoundingRect()
+            assert label.right() <= bar.left() + 1, (label, bar)
+
+        qtbot.waitUntil(beside, timeout=5000)  # on a busy machine the layout settles later
     finally:
         m.shutdown()
 
