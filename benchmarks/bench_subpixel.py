@@ -17,6 +17,9 @@ row, column by column, where the stripe is continuous (no occlusion edge within 
   cut there, in five consecutive frames averaged, ``BG_SHIFT_PX`` or more from the stripe's row
   and on the side farther from the other laser's stripe; rows where the luma is clipped
   (>= ``CLIP``) are left at the difference's top (a clipped core has no texture to remove).
+  With ``--texture-weights 0.5,0.7,1``, one ``bg-sub`` column per share of the unlit soil's
+  texture taken out (its straight-line fit kept whole: ``unlit.texture_weighted``, the
+  product's; the compressed video keeps only part of the texture under a stripe).
 
 Printed per scan and laser: the RMS error (px; errors over 2 px left out, their share printed
 with ``--background``) and the swing of the mean error over the exact
@@ -24,7 +27,7 @@ centre's position within the pixel (eight bins: pixel locking); then median and 
 
 Usage: .venv/bin/python benchmarks/bench_subpixel.py [--seeds 0,7,1,2,4,6]
        [--resolution 1920x1080] [--frames 10] [--shoe] [--cache-key KEY] [--folder SCAN ...]
-       [--background]
+       [--background [--texture-weights 1]]
 (scans are taken from benchmarks/.cache and rendered there when missing)
 """
 
@@ -138,8 +141,13 @@ def _background(kept: dict, project, p: np.ndarray, k: int, j: int, v: float, r0
     return np.mean(cuts, axis=0) if cuts else None
 
 
-def subtracted(cut: np.ndarray, bg: np.ndarray) -> np.ndarray:
-    """The luma minus the background, clipped rows (>= ``CLIP``) at the difference's top."""
+def subtracted(cut: np.ndarray, bg: np.ndarray, weight: float = 1.0) -> np.ndarray:
+    """The luma minus the background (``weight`` of its texture, as the product's
+    ``unlit.texture_weighted``), clipped rows (>= ``CLIP``) at the difference's top."""
+    from impress_gui.core.reconstruction.unlit import texture_weighted
+
+    if weight != 1.0:
+        bg = texture_weighted(bg, weight)
     d = cut.astype(float) - bg
     top = np.nanmax(d, axis=1, keepdims=True)
     d = np.where(cut >= CLIP, top, d)
@@ -200,6 +208,9 @@ def main() -> None:
     ap.add_argument("--background", action="store_true",
                     help="also the window estimate on the luma minus the motion-compensated "
                     "background (the soil under the stripe seen unlit in other frames)")
+    ap.add_argument("--texture-weights", default="1",
+                    help="with --background: the shares of the unlit soil's texture taken out, "
+                    "comma-separated (one bg-sub column each)")
     ap.add_argument("--folder", action="append", default=[], type=Path,
                     help="another scan folder with truth.json (e.g. a test's cached render); "
                     "repeatable")
@@ -212,10 +223,13 @@ def main() -> None:
     if args.shoe:
         scans.append(("shoe 1080p", shoe))
     scans += [(f.name[:12], f) for f in args.folder]
-    names = ("half-max", "window", "uncapped") + (("bg-sub",) if args.background else ())
+    weights = [float(x) for x in args.texture_weights.split(",") if x]
+    subs = {(f"bg-sub {wt:g}" if len(weights) > 1 else "bg-sub"): wt for wt in weights}
+    names = ("half-max", "window", "uncapped") + (tuple(subs) if args.background else ())
     print(f"{'scan':12s} {'laser':6s} {'cols':>5s} " + " ".join(f"{n + ' rms':>13s}" for n in names)
           + "   " + " ".join(f"{n + ' lock':>14s}" for n in names)
-          + ("   window >1px  bg-sub >1px" if args.background else ""))
+          + ("   window >1px " + " ".join(f"{n + ' >1px':>12s}" for n in subs)
+             if args.background else ""))
     rms_all: dict[str, list[float]] = {n: [] for n in names}
     for label, folder in scans:
         if not (folder / "truth.json").exists():
@@ -227,10 +241,11 @@ def main() -> None:
             extra = ""
             if args.background:
                 good &= np.isfinite(bg).all(axis=1)
-                est["bg-sub"] = estimates(subtracted(cut, np.nan_to_num(bg)))["window"]
+                for n, wt in subs.items():
+                    est[n] = estimates(subtracted(cut, np.nan_to_num(bg), wt))["window"]
                 extra = "   " + " ".join(
                     f"{100 * np.mean(np.abs(est[n] - v)[good] > 1):10.1f} %"
-                    for n in ("window", "bg-sub"))
+                    for n in ("window", *subs))
             rows = [figures((est[n] - v)[good], v[good]) for n in names]
             for n, (r, _) in zip(names, rows, strict=True):
                 rms_all[n].append(r)

@@ -52,3 +52,21 @@ def test_a_clipped_core_is_left_as_a_plateau():
         naive = rms(bench.estimates(raw - raw.min(axis=1, keepdims=True))["window"] - centre)
         assert sub <= 1.05 * plain
         assert naive > 1.3 * sub
+
+
+def test_a_share_of_the_texture_matches_a_video_that_kept_only_that_share():
+    """When the frame under the stripe kept only 60 % of the soil's texture (compressed video),
+    taking 0.6 of the unlit texture out beats taking all of it; the straight-line part of the
+    unlit soil is taken out whole whatever the share."""
+    rng = np.random.default_rng(11)
+    centre, soil, _ = _columns(400, 40.0, 12.0, rng)
+    k = bench.K
+    rows = np.arange(2 * k + 1, dtype=float)
+    slope = 1.5 * (rows - k)[None, :]  # shading across the cut: all of it in both frames
+    stripe = 40.0 * np.exp(-0.5 * ((rows[None, :] - centre[:, None]) / 1.5) ** 2)
+    kept = 170.0 + 0.6 * (soil - 170.0) + slope + stripe
+    rms = lambda e: float(np.sqrt(np.mean(e[np.isfinite(e)] ** 2)))  # noqa: E731
+    err = {w: rms(bench.estimates(bench.subtracted(kept, soil + slope, w))["window"] - centre)
+           for w in (0.6, 1.0)}
+    assert err[0.6] < 0.6 * err[1.0]
+    assert err[0.6] < 0.08

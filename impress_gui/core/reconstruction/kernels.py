@@ -1034,6 +1034,11 @@ __all__ = ["detect_stripe", "triangulate", "upsample", "stripe_profile", "splat_
 UNLIT_HALF = 6  # rows either side of the stripe re-estimated (the detector's half window)
 UNLIT_REACH = 12.0  # px: a cut this close to either laser's stripe in the earlier frame is left
 UNLIT_MIN_PEAK = 8.0  # grey levels: the difference's least peak
+#: share of the unlit soil's texture (its cut less a straight line fitted to it) subtracted by
+#: default: compressed video keeps only part of the soil's texture under a stripe (on the
+#: renderer's uncompressed frames all of it is best), so taking all of it out puts some back,
+#: inverted (docs/accuracy.md)
+UNLIT_TEXTURE_WEIGHT = 0.7
 
 
 @_jit
@@ -1061,20 +1066,44 @@ def _unlit_window(diff, at, rows, rr, sig):
     return top, (acc / ws) if ws > 0 else np.nan
 
 
+@_jit
+def _texture_weighted(bg, nf, weight):
+    """``bg`` (sums over ``nf`` frames) in place to its mean's straight-line fit plus
+    ``weight`` times the rest."""
+    n = bg.shape[0]
+    sq = 0.0
+    sqq = 0.0
+    sb = 0.0
+    sqb = 0.0
+    for q in range(n):
+        b = bg[q] / nf
+        bg[q] = b
+        sq += q
+        sqq += q * q
+        sb += b
+        sqb += q * b
+    slope = (n * sqb - sq * sb) / (n * sqq - sq * sq)
+    icpt = (sb - slope * sq) / n
+    for q in range(n):
+        line = icpt + slope * q
+        bg[q] = line + weight * (bg[q] - line)
+
+
 @_kernel(
     "int64(float64[:], int64[:], float64[:, :, :], float64[:], float64, float64[:, :], "
     "float64[:, :], float64[:], boolean, uint8[:, :], uint8[:, :, :], int64[:], float64[:], "
-    "float64[:, :, :], float64)"
+    "float64[:, :, :], float64, float64)"
 )
 def unlit_refine(rows, band_start, rays, normal, offset, rot, kmat, dist, rational, y, ring,
-                 slots, shifts, ring_rows, clip):
+                 slots, shifts, ring_rows, clip, weight):
     """``unlit.refine_numpy`` of one laser's stripe ``rows`` (full-image rows, NaN where none;
     re-estimated in place): per column, the ray through the row (``rays`` as in
     :func:`triangulate`) meets the laser plane; that point moved by ``shifts[i]`` along the
     rail's y (the travel from each earlier frame to this one) and projected (``rot``: camera ->
     rail, row vectors times ``rot``; ``kmat``/``dist``: the lens, ``rational`` for 8
     coefficients) gives its place in ring frame ``slots[i]``; the 17 rows around the stripe are
-    sampled there (bilinear) and averaged over the frames, subtracted from this frame's, rows
+    sampled there (bilinear) and averaged over the frames, ``weight`` of its texture kept
+    (:func:`_texture_weighted`), subtracted from this frame's, rows
     at or above ``clip`` set to the difference's top, and the centre estimated again (centre of
     mass above half maximum around the row, then around its own row, then
     :func:`_window_refine`). A column is left where a cut leaves the picture or lies within
@@ -1149,9 +1178,10 @@ def unlit_refine(rows, band_start, rays, normal, offset, rot, kmat, dist, ration
                 bg[q] += a * (1.0 - fv) + b * fv
         if not ok:
             continue
+        _texture_weighted(bg, nf, weight)
         top_all = -1e300
         for q in range(nc):
-            diff[q] = y[r0 - mid + q, c] - bg[q] / nf
+            diff[q] = y[r0 - mid + q, c] - bg[q]
             top_all = max(top_all, diff[q])
         for q in range(nc):
             if y[r0 - mid + q, c] >= clip:

@@ -11,7 +11,10 @@ from the stripe itself: the detected row's ray meets the laser plane at the lit 
 depth, not the ground's: a 30 mm relief at 300 mm would be 10 % of the shift off), the
 calibrated travel between the frames moves it, the calibrated lens projects it. The column of
 rows around the stripe is cut there from five consecutive earlier frames (their sensor noise
-averaged), subtracted, and the centre estimated again on the difference, with the detector's
+averaged), its straight-line fit and ``kernels.UNLIT_TEXTURE_WEIGHT`` (0.7) of the rest (the
+texture) subtracted - compressed video keeps only part of the soil's texture under a bright
+stripe, so all of it taken out would put some back, inverted (on the renderer's uncompressed
+frames all of it is best) - and the centre estimated again on the difference, with the detector's
 own estimator (centre of mass above half maximum, re-centred once, then
 :func:`~impress_gui.core.reconstruction.stripes.window_refine`). Rows whose luma is clipped
 keep the difference's top: under a clipped core there is no texture to take out, and
@@ -66,12 +69,14 @@ class UnlitSoil:
     column's band rows, the band's first row per column); ``travel``: the camera's travel (mm)
     of every frame; ``rotation``: camera -> rail frame; ``intrinsics``: the calibrated lens;
     ``depth_mm``: the ground's depth (sizes the ring); ``compiled``: the kernel
-    (``kernels.unlit_refine``) or its numpy reference (:func:`refine_numpy`)."""
+    (``kernels.unlit_refine``) or its numpy reference (:func:`refine_numpy`);
+    ``texture_weight``: the share of the unlit soil's texture taken out (by default
+    ``kernels.UNLIT_TEXTURE_WEIGHT``, for compressed video)."""
 
     def __init__(self, intrinsics, rotation: np.ndarray, travel: np.ndarray,
                  rays: dict[str, np.ndarray], bands: dict[str, tuple[np.ndarray, int]],
                  planes: dict, size: tuple[int, int], depth_mm: float,
-                 compiled: bool = True) -> None:
+                 compiled: bool = True, texture_weight: float | None = None) -> None:
         self.intr = intrinsics
         self.rot = np.ascontiguousarray(rotation, np.float64)
         self.travel = np.asarray(travel, float)
@@ -81,6 +86,10 @@ class UnlitSoil:
         self.names = list(rays)
         self.width, self.height = size
         self.compiled = compiled
+        from impress_gui.core.reconstruction import kernels as kn
+
+        self.texture_weight = float(kn.UNLIT_TEXTURE_WEIGHT if texture_weight is None
+                                    else texture_weight)
         self.refined = dict.fromkeys(rays, 0)
         self.kmat = np.ascontiguousarray(intrinsics.camera_matrix, np.float64)
         dc = np.asarray(intrinsics.dist_coeffs, float).ravel()
@@ -155,7 +164,7 @@ class UnlitSoil:
         args = (rows, np.ascontiguousarray(b0, np.int64), self.rays[name],
                 np.ascontiguousarray(pl.normal, np.float64), float(pl.offset_mm), self.rot,
                 self.kmat, self.dist, self.rational, luma, self.ring, slots, shifts,
-                self.ring_rows, CLIP)
+                self.ring_rows, CLIP, self.texture_weight)
         n = int(_k().unlit_refine(*args) if self.compiled else refine_numpy(*args))
         self.refined[name] += n
         return n
@@ -187,7 +196,7 @@ def _lit_points(r: np.ndarray, cols: np.ndarray, b0: np.ndarray, rays: np.ndarra
 
 
 def refine_numpy(rows, band_start, rays, normal, offset, rot, kmat, dist, rational, y, ring,
-                 slots, shifts, ring_rows, clip) -> int:
+                 slots, shifts, ring_rows, clip, weight) -> int:
     """The readable numpy reference of ``kernels.unlit_refine`` (same arguments, same steps;
     the tests check the two agree)."""
     from impress_gui.core.calibration.geometry import Plane
@@ -240,10 +249,21 @@ def refine_numpy(rows, band_start, rays, normal, offset, rot, kmat, dist, ration
     if sel.size == 0:
         return 0
     cut = y[crow[sel], cols[sel, None]].astype(np.float64)
-    new = estimate(cut, bg[sel] / len(slots), crow[sel].astype(np.float64), clip)
+    new = estimate(cut, texture_weighted(bg[sel] / len(slots), weight),
+                   crow[sel].astype(np.float64), clip)
     good = np.isfinite(new) & (np.abs(new - r[sel]) <= half - 1)
     rows[cols[sel[good]]] = new[good]
     return int(good.sum())
+
+
+def texture_weighted(bg: np.ndarray, weight: float) -> np.ndarray:
+    """The unlit cuts ``bg`` ``(n, rows)`` with only ``weight`` of their texture: each cut's
+    straight-line fit plus that share of the rest."""
+    q = np.arange(bg.shape[1], dtype=np.float64)
+    design = np.stack([np.ones_like(q), q], axis=1)
+    coef = np.linalg.lstsq(design, bg.T, rcond=None)[0]
+    line = (design @ coef).T
+    return line + weight * (bg - line)
 
 
 def estimate(cut: np.ndarray, bg: np.ndarray, rows: np.ndarray, clip: float = CLIP) -> np.ndarray:
