@@ -569,7 +569,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--process-args", default="",
                     help="more options for the timed command, one string (e.g. "
-                    "'--unlit-soil' to time it with the unlit soil's subtraction)")
+                    "'--no-unlit-soil' to time it without the unlit soil's subtraction)")
     ap.add_argument("--warmup", type=int, default=1,
                     help="untimed command runs first (numba's cache, the page cache)")
     ap.add_argument("--resolution", default="1920x1080", help="WIDTHxHEIGHT of the scans")

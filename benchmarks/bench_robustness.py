@@ -237,7 +237,7 @@ def verdicts(rows: list[dict], draws: int, with_fill: bool) -> list[tuple[str, b
     return out
 
 
-#: processing parameters other than the defaults (``--unlit-soil``)
+#: processing parameters other than the defaults (``--no-unlit-soil``)
 PROCESS: dict = {}
 
 
@@ -246,8 +246,8 @@ def main() -> None:
     ap.add_argument("--seeds", default="24", help="how many seeds (0..N-1) or a comma list")
     ap.add_argument("--resolution", default="1920x1080")
     ap.add_argument("--draws", type=int, default=5, help="click-noise draws per rig (0: none)")
-    ap.add_argument("--unlit-soil", action="store_true",
-                    help="reconstruct with ProcessParams.unlit_soil (off by default)")
+    ap.add_argument("--no-unlit-soil", action="store_true",
+                    help="reconstruct without ProcessParams.unlit_soil (on by default)")
     ap.add_argument("--click-noise", type=float, default=0.5, help="pick noise, px (1 sigma)")
     ap.add_argument("--no-fill", action="store_true", help="skip the fill figure")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
@@ -260,8 +260,8 @@ def main() -> None:
                     "without it (estimated from the picks, or none), or told the camera has a "
                     "global shutter")
     args = ap.parse_args()
-    if args.unlit_soil:
-        PROCESS["unlit_soil"] = True
+    if args.no_unlit_soil:
+        PROCESS["unlit_soil"] = False
     global READOUT
     READOUT = args.readout
     if args.cache_key:

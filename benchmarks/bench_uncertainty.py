@@ -557,7 +557,7 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines + verdicts)
 
 
-#: processing parameters other than the defaults (``--unlit-soil``)
+#: processing parameters other than the defaults (``--no-unlit-soil``)
 PROCESS: dict = {}
 
 
@@ -565,8 +565,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0,1,2,3")
     ap.add_argument("--draws", type=int, default=2)
-    ap.add_argument("--unlit-soil", action="store_true",
-                    help="reconstruct with ProcessParams.unlit_soil (off by default)")
+    ap.add_argument("--no-unlit-soil", action="store_true",
+                    help="reconstruct without ProcessParams.unlit_soil (on by default)")
     ap.add_argument("--first-draw", type=int, default=0,
                     help="the first draw's number (draws first .. first + draws - 1; other "
                          "numbers give other click noise, e.g. to check on new calibrations)")
@@ -584,8 +584,8 @@ def main() -> None:
                     help="print the table of readings saved with --json (several files: "
                          "their readings together) and measure nothing")
     args = ap.parse_args()
-    if args.unlit_soil:
-        PROCESS["unlit_soil"] = True
+    if args.no_unlit_soil:
+        PROCESS["unlit_soil"] = False
     if args.from_json:
         rows = [r for f in args.from_json for r in json.loads(f.read_text())]
         print(table(rows))

@@ -134,9 +134,9 @@ def test_a_manifest_names_the_estimate_and_switches_the_unlit_soil(tmp_path):
     manifest = tmp_path / "m.json"
     manifest.write_text(json.dumps({"format": "impress.batch", "version": 1, "scans": [
         {"name": "a", "video": "v.mp4", "calibration": "c.json",
-         "parameters": {"subpixel": "half-max", "unlit_soil": True}}]}))
+         "parameters": {"subpixel": "half-max", "unlit_soil": False}}]}))
     params = _params(load_manifest(manifest)[0])
-    assert params.subpixel == "half-max" and params.unlit_soil is True
+    assert params.subpixel == "half-max" and params.unlit_soil is False  # (on by default)
 
 
 @pytest.mark.parametrize("scans, code", [

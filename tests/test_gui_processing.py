@@ -204,7 +204,7 @@ def test_heightmap_grows_in_a_preview_during_the_run(qtbot, tab, scan, tmp_path,
 
 def test_the_unlit_soil_switch_reaches_the_parameters_and_the_project(qtbot, tab):
     box = tab.params.unlit_soil
-    assert not box.isChecked() and tab.params.params().unlit_soil is False
+    assert box.isChecked() and tab.params.params().unlit_soil is True  # on by default
     scroll = box.parent()
     while scroll is not None and not hasattr(scroll, "ensureWidgetVisible"):
         scroll = scroll.parent()
@@ -214,7 +214,7 @@ def test_the_unlit_soil_switch_reaches_the_parameters_and_the_project(qtbot, tab
     qtbot.waitUntil(lambda: box.visibleRegion().contains(at), timeout=2000)
     with qtbot.waitSignal(tab.params.changed, timeout=2000):
         QTest.mouseClick(box, Qt.MouseButton.LeftButton, pos=at)
-    assert box.isChecked() and tab.params.params().unlit_soil is True
+    assert not box.isChecked() and tab.params.params().unlit_soil is False
     tab.params.set_params({"unlit_soil": False})
     assert tab.params.params().unlit_soil is False
     tab.params.set_params({"unlit_soil": True})

@@ -167,3 +167,25 @@ def test_the_reconstruction_subtracts_the_soil_when_asked(flat_scan, flat_calibr
         err[on] = float(np.abs(h[ok] - t[ok]).mean())
     assert not np.array_equal(maps[False], maps[True], equal_nan=True)
     assert err[True] <= 1.05 * err[False], err
+
+
+def test_the_command_subtracts_by_default_and_not_when_told(flat_scan, flat_calibration,
+                                                            tmp_path, capsys):
+    """``impress process``: on by default (recorded, columns counted); ``--no-unlit-soil``
+    leaves every stripe as the frame shows it."""
+    import json
+
+    from impress_gui.cli import main
+
+    got = {}
+    for name, more in (("default", []), ("off", ["--no-unlit-soil"])):
+        out = tmp_path / name
+        code = main(["process", str(flat_scan / "scan.mp4"), "--calibration",
+                     str(flat_calibration), "-o", str(out), "--frames", "20:90",
+                     "--no-texture", *more])
+        assert code == 0, capsys.readouterr().err
+        meta = json.loads((out / "metadata.json").read_text())
+        got[name] = (meta["parameters"]["unlit_soil"],
+                     sum(meta["stats"]["stripe_columns_unlit_soil"].values()))
+    assert got["default"][0] is True and got["default"][1] > 1000
+    assert got["off"] == (False, 0)

@@ -51,10 +51,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(a false stripe's heights floating off the surface; 0 keeps them; default 50)")
     p.add_argument("--island-step-mm", type=float, default=0.5,
                    help="the step that separates an island from its surroundings (default 0.5)")
-    p.add_argument("--unlit-soil", action="store_true",
+    p.add_argument("--unlit-soil", action=argparse.BooleanOptionalAction, default=True,
                    help="subtract the soil under each stripe, as earlier frames saw it unlit, "
-                   "before its centre is estimated: dim stripes on grainy soil (off by "
-                   "default; see docs/accuracy.md, 'Dim stripes on grainy soil')")
+                   "before its centre is estimated: dim stripes on grainy soil (on by "
+                   "default; --no-unlit-soil leaves the stripe's profile as the frame shows "
+                   "it; see docs/accuracy.md, 'Dim stripes on grainy soil')")
     p.add_argument("--no-texture", action="store_true", help="skip the texture")
     p.add_argument("--fps", type=float, default=None, help="override the frame rate")
 

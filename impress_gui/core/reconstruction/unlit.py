@@ -28,9 +28,11 @@ rows or more from the detector's; every column while the carriage has not yet mo
 among the five. The steps run in a compiled kernel (``kernels.unlit_refine``); its numpy
 reference is :func:`refine_numpy`.
 
-An option, off by default (``ProcessParams.unlit_soil``): better on 20 of 24 random rigs and
-much better on grainy soil, but worse on the test suite's white blocks (clipped white stripes:
-a slot's wall less sharp), for a cause not yet found (docs/accuracy.md).
+On by default (``ProcessParams.unlit_soil``; ``impress process --no-unlit-soil`` turns it
+off): with 0.7 of the texture taken out, better on 17 of 24 random rigs and worse on none,
+much better on grainy soil; on the test suite's white blocks the flat tops are 0.002 mm
+worse and the edges beside a slot's walls closer to the truth (docs/accuracy.md, "Part of
+the texture").
 """
 
 from __future__ import annotations
