@@ -496,7 +496,7 @@ def test_hostile_input(case: Case, evidence, tmp_path, capsys, monkeypatch):
         assert any(w.startswith(case.expect) for w in meta["warnings"]), meta["warnings"]
 
 
-@pytest.mark.timeout(20, func_only=True)
+@pytest.mark.timeout(60, func_only=True)
 @pytest.mark.parametrize("member", ["metadata.json", "heightmap.tif", "texture.png", "folder"])
 def test_a_reconstruction_folder_with_a_fifo_never_hangs(member, tmp_path):
     """The reconstruction reader (viewer, cast, validation) refuses a pipe or a folder where
