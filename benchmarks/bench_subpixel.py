@@ -143,14 +143,15 @@ def _background(kept: dict, project, p: np.ndarray, k: int, j: int, v: float, r0
 
 def subtracted(cut: np.ndarray, bg: np.ndarray, weight: float = 1.0) -> np.ndarray:
     """The luma minus the background (``weight`` of its texture, as the product's
-    ``unlit.texture_weighted``), clipped rows (>= ``CLIP``) at the difference's top."""
-    from impress_gui.core.reconstruction.unlit import texture_weighted
+    ``unlit.texture_weighted``), the clipped core (the run of rows >= ``CLIP`` through the
+    middle row, as the product's ``unlit.clipped_core``) at the difference's top."""
+    from impress_gui.core.reconstruction.unlit import clipped_core, texture_weighted
 
     if weight != 1.0:
         bg = texture_weighted(bg, weight)
     d = cut.astype(float) - bg
     top = np.nanmax(d, axis=1, keepdims=True)
-    d = np.where(cut >= CLIP, top, d)
+    d = np.where(clipped_core(cut, cut.shape[1] // 2, CLIP), top, d)
     return d - np.nanmin(d, axis=1, keepdims=True)
 
 

@@ -189,3 +189,31 @@ def test_the_command_subtracts_by_default_and_not_when_told(flat_scan, flat_cali
                      sum(meta["stats"]["stripe_columns_unlit_soil"].values()))
     assert got["default"][0] is True and got["default"][1] > 1000
     assert got["off"] == (False, 0)
+
+
+def test_a_bright_grain_beside_a_clipped_stripe_is_not_its_core():
+    """White soil whose grains reach the clipping level: only the run of clipped rows through
+    the stripe's row is the core; a clipped grain four rows off keeps its difference, where
+    taken as core it moves the centre by a pixel or more (random rig 13)."""
+    rng = np.random.default_rng(2)
+    n, half = 300, kernels.UNLIT_HALF
+    k = half + 2
+    rows = np.arange(2 * k + 1, dtype=float)
+    centre = k + rng.uniform(-0.4, 0.4, n)
+    soil = 205.0 + rng.normal(0.0, 4.0, (n, 2 * k + 1))
+    stripe = 120.0 * np.exp(-0.5 * ((rows[None, :] - centre[:, None]) / 1.2) ** 2)
+    cut = np.minimum(soil + stripe, 240.0)
+    side = rng.choice([-4, 4], n)
+    cut[np.arange(n), k + side] = 232.0  # a bright grain, clipped, seen unlit as well
+    bg = soil.copy()
+    bg[np.arange(n), k + side] = 232.0
+    grid = np.broadcast_to(rows, cut.shape)
+    core = U.clipped_core(cut, k, U.CLIP)
+    assert not core[np.arange(n), k + side].any() and core[:, k].all()
+    err = U.estimate(cut, bg, grid) - centre
+    assert np.sqrt(np.nanmean(err ** 2)) < 0.15 and np.isfinite(err).mean() > 0.95
+    # every clipped row taken as core (the rule before): the grain drags the centre
+    diff = cut - bg
+    old = np.where(cut >= U.CLIP, diff.max(axis=1, keepdims=True), diff)
+    err_old = U.estimate(old, np.zeros_like(old), grid, clip=1e9) - centre
+    assert np.sqrt(np.nanmean(err_old ** 2)) > 0.5

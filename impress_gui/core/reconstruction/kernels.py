@@ -1103,8 +1103,8 @@ def unlit_refine(rows, band_start, rays, normal, offset, rot, kmat, dist, ration
     rail, row vectors times ``rot``; ``kmat``/``dist``: the lens, ``rational`` for 8
     coefficients) gives its place in ring frame ``slots[i]``; the 17 rows around the stripe are
     sampled there (bilinear) and averaged over the frames, ``weight`` of its texture kept
-    (:func:`_texture_weighted`), subtracted from this frame's, rows
-    at or above ``clip`` set to the difference's top, and the centre estimated again (centre of
+    (:func:`_texture_weighted`), subtracted from this frame's, the run of rows at or above
+    ``clip`` through the stripe's row set to the difference's top, and the centre estimated again (centre of
     mass above half maximum around the row, then around its own row, then
     :func:`_window_refine`). A column is left where a cut leaves the picture or lies within
     ``UNLIT_REACH`` of a stripe row of that frame (``ring_rows[slot, laser, column]``), where
@@ -1183,8 +1183,16 @@ def unlit_refine(rows, band_start, rays, normal, offset, rot, kmat, dist, ration
         for q in range(nc):
             diff[q] = y[r0 - mid + q, c] - bg[q]
             top_all = max(top_all, diff[q])
-        for q in range(nc):
-            if y[r0 - mid + q, c] >= clip:
+        # the clipped core: the run of rows at or above ``clip`` through the detector's row
+        # (a grain of bright soil beside the stripe may reach ``clip`` too: not the core)
+        if y[r0, c] >= clip:
+            lo = mid
+            while lo > 0 and y[r0 - mid + lo - 1, c] >= clip:
+                lo -= 1
+            hi = mid
+            while hi < nc - 1 and y[r0 - mid + hi + 1, c] >= clip:
+                hi += 1
+            for q in range(lo, hi + 1):
                 diff[q] = top_all
         top, centre = _unlit_window(diff, mid, crow, rr, sig)
         at = mid
