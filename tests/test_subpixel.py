@@ -93,3 +93,36 @@ def test_the_processing_parameter_is_checked_and_recorded():
     assert ProcessParams(subpixel="half-max").to_json()["subpixel"] == "half-max"
     with pytest.raises(InputError, match="sub-pixel"):
         ProcessParams(subpixel="gauss").validate()
+
+
+def _saturated_stripe(noise: float = 2.0, seed: int = 3):
+    """A wide green stripe whose green channel saturates over about seven rows on light soil
+    (red and blue not: the luma's top is a plateau at about 235, as random rig 14's green at
+    1080p), with sensor noise."""
+    rng = np.random.default_rng(seed)
+    rows = np.arange(H, dtype=float)[:, None]
+    centre = 30.0 + np.arange(W) / W * 2.0
+    g = 400.0 * np.exp(-0.5 * ((rows - centre[None, :]) / 2.0) ** 2)
+    rgb = np.stack([160 + 0.05 * g, 170 + g, 150 + 0.03 * g], axis=-1)
+    rgb = np.clip(rgb, 0, 255) + noise * rng.standard_normal((H, W, 3))
+    return Planes.from_rgb(np.clip(np.rint(rgb), 0, 255).astype(np.uint8)), centre
+
+
+def test_a_saturated_core_wider_than_the_cap_widens_the_window(monkeypatch):
+    """Where the profile's top is a plateau wider than the capped window (kernels.
+    REFINE_MAX_HALF_CLIPPED), the window saw only the plateau's noise: its floor, the row
+    just outside it, lay on the plateau too, and the centre wandered (0.14 px RMS, up to 0.76
+    px here; 0.30 px on random rig 14's green at 1080p). The window is never narrower than
+    the run of rows at or above 0.85 of the maximum (kernels.REFINE_CORE) plus half a row, so
+    it reaches the flanks that carry the position: 0.04 px RMS, compiled and numpy alike."""
+    from impress_gui.core.reconstruction import kernels as kn
+
+    planes, centre = _saturated_stripe()
+    for ref in (False, True):
+        e = _error(planes, centre, "window", numpy_reference=ref)
+        assert np.sqrt(np.mean(e ** 2)) < 0.06
+        assert np.abs(e).max() < 0.3
+    monkeypatch.setattr(kn, "REFINE_CORE", 9.0)  # the core never widens the window
+    e = _error(planes, centre, "window", numpy_reference=True)
+    assert np.sqrt(np.mean(e ** 2)) > 0.1
+    assert np.abs(e).max() > 0.45

@@ -791,13 +791,44 @@ def guided_prediction(rows: np.ndarray) -> np.ndarray:
     return np.where(ok, pred, np.nan)
 
 
+def _core_run(sig: np.ndarray, rr: np.ndarray, top: np.ndarray, centre: np.ndarray,
+              share: float) -> np.ndarray:
+    """Per column of ``sig`` (``(2k+1, W)``, rows ``rr``): the length of the run of rows at or
+    above ``share`` of ``top`` through the row nearest ``centre`` (0 where that row is below
+    it or the centre is NaN)."""
+    n, w = sig.shape
+    cols = np.arange(w)
+    with np.errstate(invalid="ignore"):
+        pos = np.floor(np.where(np.isfinite(centre), centre - rr[0] + 0.5, -1.0))
+    ok = (pos >= 0) & (pos <= n - 1)
+    i = np.clip(pos, 0, n - 1).astype(int)
+    hi = sig >= share * top
+    ok &= hi[i, cols]
+    lo, up = i.copy(), i.copy()
+    alive = ok.copy()
+    for _ in range(n):
+        m = alive & (lo > 0)
+        m &= hi[np.maximum(lo - 1, 0), cols]
+        lo = np.where(m, lo - 1, lo)
+        alive = m
+    alive = ok.copy()
+    for _ in range(n):
+        m = alive & (up < n - 1)
+        m &= hi[np.minimum(up + 1, n - 1), cols]
+        up = np.where(m, up + 1, up)
+        alive = m
+    return np.where(ok, up - lo + 1, 0).astype(np.float64)
+
+
 def window_refine(rr: np.ndarray, sig: np.ndarray, top: np.ndarray,
                   centre: np.ndarray) -> np.ndarray:
     """The stripe's centre refined per column (``rr``, ``sig``: ``(2k+1, W)`` rows and luma
     above the window's minimum; ``top`` its maximum; ``centre`` the centre of mass above half
     maximum): the centre of mass of the luma above a floor, weighted by a window of fixed half
     width (0.9 x the rows above half maximum, at least 1.5, at most 3.5, or 3 where the profile
-    is clipped: three rows within 4 % of its maximum) centred on the estimate, with
+    is clipped: three rows within 4 % of its maximum; never narrower than half the run of
+    rows at or above 0.85 of the maximum through the estimate plus half a row, a wide
+    saturated core) centred on the estimate, with
     fractional weights at its ends, iterated 4 times. The floor is a tenth of the maximum, or
     the row just outside that window on either side where it is brighter (a brighter surface
     beside the stripe would otherwise pull the centre towards it). Measured against the
@@ -814,6 +845,10 @@ def window_refine(rr: np.ndarray, sig: np.ndarray, top: np.ndarray,
     wc = (sig > 0.5 * top).sum(axis=0)
     clipped = (sig >= kn.REFINE_PLATEAU * top).sum(axis=0) >= kn.REFINE_PLATEAU_ROWS
     cap = np.where(clipped, kn.REFINE_MAX_HALF_CLIPPED, kn.REFINE_MAX_HALF)
+    # never narrower than the profile's own core (the run of rows >= REFINE_CORE of its
+    # maximum through the estimate's row): half its length plus REFINE_CORE_MARGIN
+    cap = np.maximum(cap, 0.5 * _core_run(sig, rr, top, centre, kn.REFINE_CORE)
+                     + kn.REFINE_CORE_MARGIN)
     hw = np.minimum(cap, np.maximum(kn.REFINE_MIN_HALF, kn.REFINE_WIDTH * wc))
     c = centre.astype(np.float64)
     keep = ~np.isfinite(c)
