@@ -791,33 +791,31 @@ def guided_prediction(rows: np.ndarray) -> np.ndarray:
     return np.where(ok, pred, np.nan)
 
 
+def run_through(over: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Per column of ``over`` (``(rows, W)`` booleans): the run of True rows through row
+    ``at`` (per column; a column whose ``at`` lies outside the rows has none), as a mask."""
+    n = over.shape[0]
+    at = np.asarray(at)
+    inside = (at >= 0) & (at <= n - 1)
+    rows = np.arange(n)[:, None]
+    run = np.zeros_like(over)
+    run[np.clip(at, 0, n - 1), np.arange(over.shape[1])] = inside
+    run &= over
+    for q in range(1, n):  # down from the row, then up to it
+        run[q] |= run[q - 1] & over[q] & (rows[q] > at)
+    for q in range(n - 2, -1, -1):
+        run[q] |= run[q + 1] & over[q] & (rows[q] < at)
+    return run
+
+
 def _core_run(sig: np.ndarray, rr: np.ndarray, top: np.ndarray, centre: np.ndarray,
               share: float) -> np.ndarray:
     """Per column of ``sig`` (``(2k+1, W)``, rows ``rr``): the length of the run of rows at or
     above ``share`` of ``top`` through the row nearest ``centre`` (0 where that row is below
     it or the centre is NaN)."""
-    n, w = sig.shape
-    cols = np.arange(w)
     with np.errstate(invalid="ignore"):
         pos = np.floor(np.where(np.isfinite(centre), centre - rr[0] + 0.5, -1.0))
-    ok = (pos >= 0) & (pos <= n - 1)
-    i = np.clip(pos, 0, n - 1).astype(int)
-    hi = sig >= share * top
-    ok &= hi[i, cols]
-    lo, up = i.copy(), i.copy()
-    alive = ok.copy()
-    for _ in range(n):
-        m = alive & (lo > 0)
-        m &= hi[np.maximum(lo - 1, 0), cols]
-        lo = np.where(m, lo - 1, lo)
-        alive = m
-    alive = ok.copy()
-    for _ in range(n):
-        m = alive & (up < n - 1)
-        m &= hi[np.minimum(up + 1, n - 1), cols]
-        up = np.where(m, up + 1, up)
-        alive = m
-    return np.where(ok, up - lo + 1, 0).astype(np.float64)
+    return run_through(sig >= share * top, pos.astype(int)).sum(axis=0).astype(np.float64)
 
 
 def window_refine(rr: np.ndarray, sig: np.ndarray, top: np.ndarray,

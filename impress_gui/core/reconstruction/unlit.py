@@ -43,7 +43,7 @@ import math
 
 import numpy as np
 
-from impress_gui.core.reconstruction.stripes import window_refine
+from impress_gui.core.reconstruction.stripes import run_through, window_refine
 
 #: least shift (pixels, along the image) of the soil's place in the earlier frame from the
 #: stripe's row: twice the detector's window and a stripe's width, so the stripe of that frame
@@ -273,14 +273,7 @@ def texture_weighted(bg: np.ndarray, weight: float) -> np.ndarray:
 def clipped_core(cut: np.ndarray, mid: int, clip: float = CLIP) -> np.ndarray:
     """Per cut ``(n, rows)``: the run of rows at or above ``clip`` through row ``mid`` (the
     stripe's), not a grain of bright soil beside it that reaches ``clip`` too."""
-    over = cut >= clip
-    core = np.zeros_like(over)
-    core[:, mid] = over[:, mid]
-    for q in range(mid - 1, -1, -1):
-        core[:, q] = core[:, q + 1] & over[:, q]
-    for q in range(mid + 1, cut.shape[1]):
-        core[:, q] = core[:, q - 1] & over[:, q]
-    return core
+    return run_through((cut >= clip).T, np.full(len(cut), mid)).T
 
 
 def estimate(cut: np.ndarray, bg: np.ndarray, rows: np.ndarray, clip: float = CLIP) -> np.ndarray:
