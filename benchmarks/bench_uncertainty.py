@@ -51,7 +51,7 @@ of stripe shift of the lasers at its (first) point.
 
 Usage: .venv/bin/python benchmarks/bench_uncertainty.py [--seeds 0,1,2,3] [--draws 2]
        [--first-draw 0] [--noise-px 0.5] [--trials 30] [--per-kind 25] [--json out.json]
-       [--stripe-model measured]
+       [--stripe-model measured] [--noise-rules largest,median,rms,agreement]
        .venv/bin/python benchmarks/bench_uncertainty.py --from-json a.json b.json
 """
 
@@ -523,6 +523,11 @@ def verdict(cov: float, low: float, high: float) -> str:
 
 
 def table(rows: list[dict]) -> str:
+    rules = sorted({r.get("noise_rule", "") for r in rows})
+    if len(rules) > 1:  # one table per way of combining the surface noise's estimates
+        return "\n\n".join(f"surface noise: {rule or 'the default'}\n"
+                            + table([r for r in rows if r.get("noise_rule", "") == rule])
+                            for rule in rules)
     lines = [f"{'reading':<13} {'n':>4} {'cal':>4} {'within U':>9} {'90% interval':>13} "
              f"{'median U':>9} {'median |e|':>10} {'rms e/u_c':>9}  largest components "
              "(median u_i, mm)"]
@@ -579,6 +584,10 @@ def main() -> None:
     ap.add_argument("--stripe-model", default=None,
                     help="the calibration Monte Carlo's stripe model (impress_gui.core."
                          "calibration.uncertainty.STRIPE_MODELS; default: the product's)")
+    ap.add_argument("--noise-rules", default=None,
+                    help="comma-separated ways of combining the surface noise's estimates "
+                         "(impress_gui.core.measure.uncertainty.NOISE_RULES; default: the "
+                         "product's): the same readings are taken with each, one table each")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--from-json", type=Path, nargs="+", default=None, metavar="JSON",
                     help="print the table of readings saved with --json (several files: "
@@ -591,6 +600,12 @@ def main() -> None:
         print(table(rows))
         return
     seeds = [int(s) for s in args.seeds.split(",") if s]
+    from impress_gui.core.measure import uncertainty as U
+
+    rules = [r for r in (args.noise_rules or "").split(",") if r] or [""]
+    for rule in rules:
+        if rule and rule not in U.NOISE_RULES:
+            ap.error(f"--noise-rules: {rule!r} is not one of {', '.join(U.NOISE_RULES)}")
     print(f"random rigs {seeds} at 640x360, {args.draws} draws of click noise "
           f"{args.noise_px} px each, {args.trials} Monte Carlo trials per calibration, "
           f"speed entered within +-{args.speed_error_pct:g} % of the true")
@@ -603,11 +618,18 @@ def main() -> None:
             except Exception as exc:  # noqa: BLE001 - a rig the product refuses is a result
                 print(f"  seed {seed} draw {draw}: not measured ({type(exc).__name__}: {exc})")
                 continue
-            rng = np.random.default_rng(100 * seed + draw)
-            got = readings(rig, rng, args.per_kind)
-            for r in got:
-                r.update(seed=seed, draw=draw,
-                         per_px_lasers={k: _finite(v) for k, v in rig.per_px.items()})
+            got = []
+            for rule in rules:
+                if rule:
+                    U.NOISE_RULE = rule
+                rng = np.random.default_rng(100 * seed + draw)
+                these = readings(rig, rng, args.per_kind)
+                for r in these:
+                    r.update(seed=seed, draw=draw,
+                             per_px_lasers={k: _finite(v) for k, v in rig.per_px.items()})
+                    if rule:
+                        r["noise_rule"] = rule
+                got += these
             rows += got
             e = rig.ctx.ensemble
             print(f"  seed {seed} draw {draw}: {len(got)} readings; calibrate+reconstruct "

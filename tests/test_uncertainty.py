@@ -870,6 +870,56 @@ def test_surface_noise_from_the_lasers_disagreement():
     assert U.laser_agreement_px(maps["green"][:-1], maps["red"][:-1], spec, 0.5, per_px) is None
 
 
+def test_relief_between_nearby_means_is_not_noise_where_the_lasers_tell_the_noise():
+    """Bumps 0.2 mm high every 3 mm under a small stripe error: the means on a ring around a
+    point differ by relief a plane through them cannot follow. With both lasers' maps their
+    disagreement states the reconstruction's random error, and the ring's scatter is left
+    out (the default rule); without the maps the ring still counts (the only estimate of
+    errors correlated over more than the disk). The former rule - the largest of the three
+    - stated the relief as noise."""
+    per_px = {"green": 0.8, "red": 1.6}
+    spec, relief, maps, fused = _streaky_lasers(0.05, per_px)
+    ii, jj = np.mgrid[0:400, 0:400]
+    bumps = (0.2 * np.sin(2 * np.pi * jj * 0.1 / 3.0) * np.sin(2 * np.pi * ii * 0.1 / 3.5)
+             ).astype(np.float32)
+    maps = {k: v + bumps for k, v in maps.items()}
+    fused, relief = fused + bumps, relief + bumps
+    code = np.full(spec.shape, 3, np.uint8)
+    plain = U.UncertaintyContext(fused, spec, contribution=code, per_px=per_px)
+    ctx = replace(plain, per_laser=maps)
+    pts = np.random.default_rng(3).uniform(5.0, 35.0, (150, 2))
+    true_sd = float(np.std([M.readout(fused - relief, spec, x, y, 0.5).height_mm
+                            for x, y in pts]))
+
+    def noise(c):
+        return float(np.median([
+            next(k.u_mm for k in U.height_budget(c, M.readout(c.height, spec, x, y, 0.5))
+                 .components if k.name == "surface noise") for x, y in pts[:20]]))
+
+    assert U.NOISE_RULE == "agreement"
+    got, ring = noise(ctx), noise(plain)
+    assert 0.7 * true_sd < got < 1.3 * true_sd, (got, true_sd)
+    assert ring > 1.6 * true_sd, (ring, true_sd)  # the relief, stated as noise
+    old = U.NOISE_RULE
+    try:
+        U.NOISE_RULE = "largest"
+        assert noise(ctx) == pytest.approx(ring, rel=1e-9)
+    finally:
+        U.NOISE_RULE = old
+    # the rules themselves
+    est = {"standard error": 0.01, "ring": 0.05, "agreement": 0.02}
+    assert U.combine_noise(est) == 0.02
+    assert U.combine_noise(est, "largest") == 0.05
+    assert U.combine_noise({"standard error": 0.03, "ring": 0.05, "agreement": 0.02}) == 0.03
+    assert U.combine_noise({"standard error": 0.01, "ring": 0.05, "agreement": math.nan}) == 0.05
+    assert U.combine_noise(est, difference=True) == 0.05  # the ends of a dz or a depth
+    assert U.combine_noise(est, "median") == 0.02
+    assert U.combine_noise(est, "rms") == pytest.approx(math.sqrt((1 + 25 + 4) / 3) / 100)
+    assert math.isnan(U.combine_noise({"ring": math.nan}))
+    with pytest.raises(ValueError, match="unknown noise rule"):
+        U.combine_noise(est, "smallest")
+
+
 # ----- the coverage factor (EA-4/02, GUM G.2.3; JCGM 101's propagation of distributions) ---------
 def _rect(u: float, *half_widths: float) -> U.Component:
     return U.Component("r", "q", "B", "rectangular", u, "mm", 1.0, u, "", tuple(half_widths))
