@@ -620,10 +620,13 @@ def main() -> None:
                 continue
             got = []
             for rule in rules:
-                if rule:
-                    U.NOISE_RULE = rule
-                rng = np.random.default_rng(100 * seed + draw)
-                these = readings(rig, rng, args.per_kind)
+                default = U.NOISE_RULE
+                U.NOISE_RULE = rule or default
+                try:
+                    these = readings(rig, np.random.default_rng(100 * seed + draw),
+                                     args.per_kind)
+                finally:
+                    U.NOISE_RULE = default
                 for r in these:
                     r.update(seed=seed, draw=draw,
                              per_px_lasers={k: _finite(v) for k, v in rig.per_px.items()})
