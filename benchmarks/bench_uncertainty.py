@@ -525,7 +525,7 @@ def verdict(cov: float, low: float, high: float) -> str:
 def table(rows: list[dict]) -> str:
     rules = sorted({r.get("noise_rule", "") for r in rows})
     if len(rules) > 1:  # one table per way of combining the surface noise's estimates
-        return "\n\n".join(f"surface noise: {rule or 'the default'}\n"
+        return "\n\n".join(f"surface noise: {rule or 'untagged (before 2026-12-05: largest)'}\n"
                             + table([r for r in rows if r.get("noise_rule", "") == rule])
                             for rule in rules)
     lines = [f"{'reading':<13} {'n':>4} {'cal':>4} {'within U':>9} {'90% interval':>13} "
@@ -602,7 +602,7 @@ def main() -> None:
     seeds = [int(s) for s in args.seeds.split(",") if s]
     from impress_gui.core.measure import uncertainty as U
 
-    rules = [r for r in (args.noise_rules or "").split(",") if r] or [""]
+    rules = list(dict.fromkeys(r for r in (args.noise_rules or "").split(",") if r)) or [""]
     for rule in rules:
         if rule and rule not in U.NOISE_RULES:
             ap.error(f"--noise-rules: {rule!r} is not one of {', '.join(U.NOISE_RULES)}")
@@ -630,12 +630,12 @@ def main() -> None:
                 for r in these:
                     r.update(seed=seed, draw=draw,
                              per_px_lasers={k: _finite(v) for k, v in rig.per_px.items()})
-                    if rule:
-                        r["noise_rule"] = rule
+                    r["noise_rule"] = rule or U.NOISE_RULE
                 got += these
             rows += got
             e = rig.ctx.ensemble
-            print(f"  seed {seed} draw {draw}: {len(got)} readings; calibrate+reconstruct "
+            print(f"  seed {seed} draw {draw}: {len(got) // len(rules)} readings"
+                  + (f" x {len(rules)} rules" if len(rules) > 1 else "") + "; calibrate+reconstruct "
                   f"{rig.t_rec:.0f} s, Monte Carlo {rig.t_mc:.0f} s; click sigma "
                   f"{e.click_sigma_px if e else float('nan'):.2f} px; "
                   + (f"UNSTABLE calibration, no U stated: {rig.ctx.unstable}"

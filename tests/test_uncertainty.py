@@ -870,7 +870,7 @@ def test_surface_noise_from_the_lasers_disagreement():
     assert U.laser_agreement_px(maps["green"][:-1], maps["red"][:-1], spec, 0.5, per_px) is None
 
 
-def test_relief_between_nearby_means_is_not_noise_where_the_lasers_tell_the_noise():
+def test_relief_between_nearby_means_is_not_noise_where_the_lasers_tell_the_noise(monkeypatch):
     """Bumps 0.2 mm high every 3 mm under a small stripe error: the means on a ring around a
     point differ by relief a plane through them cannot follow. With both lasers' maps their
     disagreement states the reconstruction's random error, and the ring's scatter is left
@@ -900,12 +900,14 @@ def test_relief_between_nearby_means_is_not_noise_where_the_lasers_tell_the_nois
     got, ring = noise(ctx), noise(plain)
     assert 0.7 * true_sd < got < 1.3 * true_sd, (got, true_sd)
     assert ring > 1.6 * true_sd, (ring, true_sd)  # the relief, stated as noise
-    old = U.NOISE_RULE
-    try:
-        U.NOISE_RULE = "largest"
-        assert noise(ctx) == pytest.approx(ring, rel=1e-9)
-    finally:
-        U.NOISE_RULE = old
+    rd = M.readout(fused, spec, 20.0, 20.0, 0.5)
+    u_pt, how = U.point_noise(ctx, rd)
+    assert "lasers' disagreement taken" in how and "nearby means left out" in how
+    # the end of a difference (a ruler's dz, a depth): its ring spans the points' distance and
+    # sees what the disagreement at the disk's scale does not - the largest of the three
+    u_end, how_end = U.point_noise(ctx, rd, 10.0)
+    assert how_end.endswith("the largest taken")
+    assert u_end >= u_pt
     # the rules themselves
     est = {"standard error": 0.01, "ring": 0.05, "agreement": 0.02}
     assert U.combine_noise(est) == 0.02
@@ -918,6 +920,9 @@ def test_relief_between_nearby_means_is_not_noise_where_the_lasers_tell_the_nois
     assert math.isnan(U.combine_noise({"ring": math.nan}))
     with pytest.raises(ValueError, match="unknown noise rule"):
         U.combine_noise(est, "smallest")
+    # the former rule: the ring's relief, with the maps too
+    monkeypatch.setattr(U, "NOISE_RULE", "largest")
+    assert noise(ctx) == pytest.approx(ring, rel=1e-9)
 
 
 # ----- the coverage factor (EA-4/02, GUM G.2.3; JCGM 101's propagation of distributions) ---------

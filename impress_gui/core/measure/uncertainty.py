@@ -788,8 +788,10 @@ def point_noise(ctx: UncertaintyContext, readout, ring_mm: float | None = None
     reconstruction's random error at the disk's scale from their disagreement
     (:func:`agreement_noise`); without the disagreement, the larger of the standard error and
     the scatter of such means nearby (:func:`disk_repeatability`, which adds any relief the
-    plane through them leaves). :func:`combine_noise` with :data:`NOISE_RULE`; its standard
-    uncertainty and how it was found."""
+    plane through them leaves). With ``ring_mm`` (an end of a ruler's dz, a point of a depth:
+    the ring as wide as the points' distance, where it sees errors correlated over that
+    distance) the largest of the three. :func:`combine_noise` with :data:`NOISE_RULE`; its
+    standard uncertainty and how it was found."""
     x, y = readout.x_mm, readout.y_mm
     sigma, n_eff, n, _, _ = patch_noise(ctx.height, ctx.spec, x, y, readout.radius_mm)
     if readout.n_valid > 1 and readout.radius_mm > 0:
@@ -1025,7 +1027,10 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
     u = float(math.sqrt(np.nansum((np.append(w, 1.0) * us) ** 2)))
     comps.append(Component("surface noise", "means at the point and the three plane points", "A",
                            "normal", u, "mm", 1.0, u,
-                           "each mean's standard error, weighted by its share of the plane at "
+                           "each mean's surface noise (the largest of its cells' standard "
+                           "error, the lasers' disagreement and the scatter of such means on a "
+                           "ring as wide as the points' distance), weighted by its share of the "
+                           "plane at "
                            "the point (" + ", ".join(f"{v:+.2f}" for v in w) + ")"))
     # depth = plane(P) - h(P), plane(P) = w . the supports' heights
     comps += _method_component(ctx, 1.0, [*zip(xs, ys, [*w, -1.0])], "difference")
@@ -1086,9 +1091,10 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
             c_noise = 1.0 if key == "dz" else (abs(dz) / val if val > 0 else 0.0)
             comps.append(Component("surface noise", "heights of the two ends", "A", "normal",
                                    u_noise, "mm", c_noise, c_noise * u_noise,
-                                   "the two ends' means (each as a point's height: "
-                                   "standard error, lasers' disagreement or nearby "
-                                   "scatter), in quadrature"))
+                                   "the two ends' means (each the largest of its cells' "
+                                   "standard error, the lasers' disagreement and the "
+                                   "scatter of such means on a ring as wide as the ruler, "
+                                   "up to 15 mm), in quadrature"))
             # the heights are read at the cell nearest each end (radius 0) or over a disk
             # about it: the position's resolution moves a height by the slope there
             c_grid = slope if key == "dz" else c_noise * slope
@@ -1144,7 +1150,8 @@ def step_budget(ctx: UncertaintyContext, profile, step, band_a, band_b) -> Budge
     rb, kb = _band_repeatability(ctx, profile, band_b, ring)
     u_ring = math.hypot(float(np.nanmax([ua, ra])), float(np.nanmax([ub, rb])))
     rep, k = _step_repeatability(ctx, profile, band_a, band_b)
-    u = combine_noise({"standard error": u_se, "ring": u_ring, "parallel": rep})
+    u = combine_noise({"standard error": u_se, "ring": u_ring, "parallel": rep},
+                      difference=True)
     comps.append(Component("surface noise", "means of the two bands", "A", "normal", u, "mm", 1.0,
                            u, f"band A: SD {sa[0]:.4f} mm, n {sa[2]}, effective n {sa[1]:.1f}; "
                            f"band B: SD {sb[0]:.4f} mm, n {sb[2]}, effective n {sb[1]:.1f}; "
