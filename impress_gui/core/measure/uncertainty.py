@@ -807,8 +807,7 @@ def point_noise(ctx: UncertaintyContext, readout, ring_mm: float | None = None
     how = (f"cells: SD {sigma:.4f} mm, n {n}, effective n {n_eff:.1f}, standard error "
            f"{se:.4f} mm; {k} neighbouring means scatter {rep:.4f} mm; "
            + (ag[1] + "; " if ag is not None else "")
-           + _RULE_SAYS["largest" if NOISE_RULE == "agreement" and (
-               ring_mm is not None or ag is None) else NOISE_RULE])
+           + _RULE_SAYS[_effective_rule(NOISE_RULE, ring_mm is not None, ag is not None)])
     return u, how
 
 
@@ -821,6 +820,14 @@ _RULE_SAYS = {
 }
 
 
+def _effective_rule(rule: str, difference: bool, has_agreement: bool) -> str:
+    """The rule :func:`combine_noise` applies: ``agreement`` falls back to ``largest`` for the
+    ends of a difference and where the lasers' disagreement is not known."""
+    if rule == "agreement" and (difference or not has_agreement):
+        return "largest"
+    return rule
+
+
 def combine_noise(estimates: Mapping[str, float], rule: str | None = None,
                   difference: bool = False) -> float:
     """One standard uncertainty from the estimates of a mean's surface noise (NaN: not
@@ -831,10 +838,10 @@ def combine_noise(estimates: Mapping[str, float], rule: str | None = None,
     the distance between the points, where it sees errors correlated over that distance,
     which the disagreement at the disk's scale does not) the largest. NaN when none is
     known."""
-    rule = rule or NOISE_RULE
     v = {k: float(x) for k, x in estimates.items() if x is not None and math.isfinite(x)}
     if not v:
         return math.nan
+    rule = _effective_rule(rule or NOISE_RULE, difference, "agreement" in v)
     vals = np.array(list(v.values()))
     if rule == "largest":
         return float(vals.max())
@@ -843,9 +850,7 @@ def combine_noise(estimates: Mapping[str, float], rule: str | None = None,
     if rule == "rms":
         return float(np.sqrt(np.mean(vals * vals)))
     if rule == "agreement":
-        if "agreement" in v and not difference:
-            return max(v["agreement"], v.get("standard error", 0.0))
-        return float(vals.max())
+        return max(v["agreement"], v.get("standard error", 0.0))
     raise ValueError(f"unknown noise rule {rule!r} (one of {', '.join(NOISE_RULES)})")
 
 
@@ -1159,8 +1164,7 @@ def step_budget(ctx: UncertaintyContext, profile, step, band_a, band_b) -> Budge
                            f"{ring:.1f} mm scatters {ra:.4f} ({ka}) and {rb:.4f} ({kb}) mm, "
                            f"together {u_ring:.4f} mm; the same step on {k} parallel profiles "
                            f"scatters {rep:.4f} mm; "
-                           + ("the largest taken" if NOISE_RULE in ("agreement", "largest")
-                              else _RULE_SAYS[NOISE_RULE])))
+                           + _RULE_SAYS[_effective_rule(NOISE_RULE, True, False)]))
     comps += _method_component(
         ctx, 1.0, [*((px_, py_, -1.0 / len(xa)) for px_, py_ in zip(xa, ya)),
                    *((px_, py_, 1.0 / len(xb)) for px_, py_ in zip(xb, yb))], "difference")
