@@ -47,11 +47,16 @@ product's figure (impress_gui.core.measure.uncertainty.METHOD_STRIPE_PX), whose 
 were found on seeds 0-23 and checked on seeds 24-47 (docs/uncertainty.md "The method's own
 component"); ``--stripe-model`` chooses the calibration Monte Carlo's stripe model. Each
 reading saved with ``--json`` carries its budget's parts and ``per_px``, the height per pixel
-of stripe shift of the lasers at its (first) point.
+of stripe shift of the lasers at its (first) point; a width its ``walls``: per wall the gap
+between the samples with data that bracket its crossing, the level's fraction of the drop
+between them, one scanner sample along the profile and how far the true crossing lies into
+the gap from the measured one (``--gap-rules`` chooses how far a wall hidden in a gap may
+lie: impress_gui.core.measure.uncertainty.GAP_RULES).
 
 Usage: .venv/bin/python benchmarks/bench_uncertainty.py [--seeds 0,1,2,3] [--draws 2]
        [--first-draw 0] [--noise-px 0.5] [--trials 30] [--per-kind 25] [--json out.json]
        [--stripe-model measured] [--noise-rules largest,median,rms,agreement]
+       [--gap-rules whole,geometric]
        .venv/bin/python benchmarks/bench_uncertainty.py --from-json a.json b.json
 """
 
@@ -264,7 +269,7 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
     ctx, spec = rig.ctx, rig.spec
     radius = 0.5
 
-    def add(kind, budget, err, x, y):
+    def add(kind, budget, err, x, y, walls=None):
         if math.isfinite(err) and budget.incomplete:  # no U stated: counted, not covered
             out.append({"kind": kind, "err": float(err), "U": None, "u_c": None,
                         "incomplete": budget.incomplete, "x": x, "y": y,
@@ -277,6 +282,8 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
                         "value": budget.value_mm,
                         # the mm per stripe pixel of the lasers that made the point
                         "per_px": _finite(sum(w * rig.per_px[la] for la, w in ctx.lasers_at(x, y)))})
+            if walls is not None:
+                out[-1]["walls"] = walls
 
     tries = 0
     counts = dict.fromkeys([k for k in KINDS if k != "width (bands)"], 0)
@@ -343,7 +350,8 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
                             pts = rig.to_true(x + tc * ux, y + tc * uy, [level, level])
                             w_true = math.hypot(pts[0, 1] - pts[0, 0], pts[1, 1] - pts[1, 0])
                             add("width", U.width_budget(ctx, prof, w), w.width_mm - w_true,
-                                x + around * ux, y + around * uy)
+                                x + around * ux, y + around * uy,
+                                _walls(U, ctx, prof, w, [level, level], tc))
                             counts["width"] += 1
         # depth below a plane through three points 8-15 mm around
         if counts["depth"] < per_kind:
@@ -398,7 +406,7 @@ def readings(rig: Rig, rng, per_kind: int) -> list[dict]:
         prof = M.line_profile(rig.h, spec, (x, y), (x3, y3), 1.0)
         wb = _band_width(M, U, rig, ctx, prof, tprof, (x, y), (x3, y3))
         if wb is not None:
-            add("width (bands)", *wb)
+            add("width (bands)", *wb[:4], walls=wb[4])
             n += 1
     return out
 
@@ -465,7 +473,25 @@ def _band_width(M, U, rig: Rig, ctx, prof, tprof, p0, p1):
     pts = rig.to_true(x0 + ends * ux, y0 + ends * uy, [tlevel, tlevel])
     w_true = math.hypot(pts[0, 1] - pts[0, 0], pts[1, 1] - pts[1, 0])
     b = U.width_budget(ctx, prof, w, level_bands=(bands, bands))
-    return b, w.width_mm - w_true, x0 + mid * ux, y0 + mid * uy
+    return (b, w.width_mm - w_true, x0 + mid * ux, y0 + mid * uy,
+            _walls(U, ctx, prof, w, [level, level], ends))
+
+
+def _walls(U, ctx, prof, w, levels, true_mm) -> list[dict]:
+    """Per wall of a width (left, right): the samples with data that bracket its crossing
+    (their gap, the level's fraction of the drop between them), one scanner sample along the
+    profile, and how far the true crossing lies from the measured one towards the lower
+    sample (mm; positive: into the gap), for the wall-in-a-gap term's rule (--gap-rules)."""
+    L = prof.length_mm or 1.0
+    (x0, y0), (x1, y1) = prof.start, prof.end
+    s_mm, _ = U._profile_sampling(ctx, (x1 - x0) / L, (y1 - y0) / L)
+    ds = [w.left_mm, w.right_mm]
+    out = []
+    for dd, t, (gap, _, frac, lower) in zip(ds, true_mm, U.crossing_samples(prof, ds, levels)):
+        out.append({"gap": _finite(gap), "fraction": _finite(frac), "sample": s_mm,
+                    "step": float(prof.distance_mm[1] - prof.distance_mm[0]),
+                    "into_gap": _finite((t - dd) * lower) if lower else None})
+    return out
 
 
 def _true_crossings(rig: Rig, p0, p1, level: float, near: np.ndarray):
@@ -528,6 +554,11 @@ def table(rows: list[dict]) -> str:
         return "\n\n".join(f"surface noise: {rule or 'untagged (before 2026-12-05: largest)'}\n"
                             + table([r for r in rows if r.get("noise_rule", "") == rule])
                             for rule in rules)
+    rules = sorted({r.get("gap_rule", "") for r in rows})
+    if len(rules) > 1:  # one table per reach of a wall hidden in a gap
+        return "\n\n".join(f"wall in a gap: {rule or 'untagged (before 2026-12-05: whole)'}\n"
+                            + table([r for r in rows if r.get("gap_rule", "") == rule])
+                            for rule in rules)
     lines = [f"{'reading':<13} {'n':>4} {'cal':>4} {'within U':>9} {'90% interval':>13} "
              f"{'median U':>9} {'median |e|':>10} {'rms e/u_c':>9}  largest components "
              "(median u_i, mm)"]
@@ -588,6 +619,10 @@ def main() -> None:
                     help="comma-separated ways of combining the surface noise's estimates "
                          "(impress_gui.core.measure.uncertainty.NOISE_RULES; default: the "
                          "product's): the same readings are taken with each, one table each")
+    ap.add_argument("--gap-rules", default=None,
+                    help="comma-separated reaches of a wall hidden in a gap of the map "
+                         "(impress_gui.core.measure.uncertainty.GAP_RULES; default: the "
+                         "product's): the same readings are taken with each, one table each")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--from-json", type=Path, nargs="+", default=None, metavar="JSON",
                     help="print the table of readings saved with --json (several files: "
@@ -602,10 +637,15 @@ def main() -> None:
     seeds = [int(s) for s in args.seeds.split(",") if s]
     from impress_gui.core.measure import uncertainty as U
 
-    rules = list(dict.fromkeys(r for r in (args.noise_rules or "").split(",") if r)) or [""]
-    for rule in rules:
+    noise_rules = list(dict.fromkeys(r for r in (args.noise_rules or "").split(",") if r)) or [""]
+    for rule in noise_rules:
         if rule and rule not in U.NOISE_RULES:
             ap.error(f"--noise-rules: {rule!r} is not one of {', '.join(U.NOISE_RULES)}")
+    gap_rules = list(dict.fromkeys(r for r in (args.gap_rules or "").split(",") if r)) or [""]
+    for rule in gap_rules:
+        if rule and rule not in U.GAP_RULES:
+            ap.error(f"--gap-rules: {rule!r} is not one of {', '.join(U.GAP_RULES)}")
+    rules = [(n, g) for n in noise_rules for g in gap_rules]
     print(f"random rigs {seeds} at 640x360, {args.draws} draws of click noise "
           f"{args.noise_px} px each, {args.trials} Monte Carlo trials per calibration, "
           f"speed entered within +-{args.speed_error_pct:g} % of the true")
@@ -619,18 +659,19 @@ def main() -> None:
                 print(f"  seed {seed} draw {draw}: not measured ({type(exc).__name__}: {exc})")
                 continue
             got = []
-            for rule in rules:
-                default = U.NOISE_RULE
-                U.NOISE_RULE = rule or default
+            for noise_rule, gap_rule in rules:
+                defaults = U.NOISE_RULE, U.GAP_RULE
+                U.NOISE_RULE = noise_rule or defaults[0]
+                U.GAP_RULE = gap_rule or defaults[1]
                 try:
                     these = readings(rig, np.random.default_rng(100 * seed + draw),
                                      args.per_kind)
+                    for r in these:
+                        r.update(seed=seed, draw=draw,
+                                 per_px_lasers={k: _finite(v) for k, v in rig.per_px.items()},
+                                 noise_rule=U.NOISE_RULE, gap_rule=U.GAP_RULE)
                 finally:
-                    U.NOISE_RULE = default
-                for r in these:
-                    r.update(seed=seed, draw=draw,
-                             per_px_lasers={k: _finite(v) for k, v in rig.per_px.items()})
-                    r["noise_rule"] = rule or U.NOISE_RULE
+                    U.NOISE_RULE, U.GAP_RULE = defaults
                 got += these
             rows += got
             e = rig.ctx.ensemble

@@ -552,31 +552,75 @@ def test_a_widths_crossings_carry_the_lasers_disagreement_on_the_walls():
     assert noise(high, bands).u_mm < 0.1
 
 
-def test_a_wall_hidden_in_a_gap_lies_anywhere_in_it():
+def test_a_hidden_wall_reaches_into_its_gap_no_further_than_the_grazing_ray_allows():
+    """A stretch hidden from a laser (or the camera) behind a top edge ends where the ray
+    grazing the edge meets the lower surface, so a wall hidden there is steeper than that ray
+    and falls to a level ``f`` of the drop below the top within ``f`` of the hidden stretch;
+    the edge lies up to one sample beyond the last sample on the top. Drawn walls, rays,
+    samplings and levels: the true crossing always lies between the higher side's sample and
+    ``hidden_reach`` (``"geometric"``), which is the gap itself at a level at the drop's foot,
+    and comes near that reach."""
+    rng = np.random.default_rng(7)
+    ratios = []
+    for _ in range(2000):
+        top, low = rng.uniform(0.5, 5.0), rng.uniform(-1.0, 0.4)
+        ray = rng.uniform(0.2, 3.0)  # the grazing ray's drop per mm
+        wall = ray * rng.uniform(1.0, 20.0)  # the hidden wall is steeper
+        s = rng.uniform(0.1, 0.8)  # one sample of the scanner along the profile
+        edge = rng.uniform(0.0, s)  # the top's edge, after the top's last sample at 0
+        foot_hit = edge + (top - low) / ray  # where the grazing ray meets the lower surface
+        after = s * math.ceil(foot_hit / s)  # the first sample the light reaches again
+        level = low + rng.uniform(0.0, 1.0) * (top - low)
+        crossing = edge + (top - level) / wall
+        f = U._hidden_fraction(top, low, level)
+        reach = U.hidden_reach(after, f, s, "geometric")
+        assert 0.0 <= crossing <= reach + 1e-9
+        assert reach <= U.hidden_reach(after, f, s, "whole") == after
+        ratios.append(crossing / reach)
+    assert max(ratios) > 0.95  # the bound is reached, not loose
+    # the level at the drop's foot: the whole gap; at the top: at most one sample
+    assert U.hidden_reach(1.3, 1.0, 0.4, "geometric") == pytest.approx(1.3)
+    assert U.hidden_reach(1.3, 0.0, 0.4, "geometric") == pytest.approx(0.4)
+    with pytest.raises(ValueError):
+        U.hidden_reach(1.3, 0.5, 0.4, "middle")
+
+
+def test_a_wall_hidden_in_a_gap_lies_in_it_as_far_as_the_level_reaches(monkeypatch):
     """A wall whose foot is missing from the map (occluded, shadowed) is crossed at the higher
-    side's last sample; the true wall lies anywhere in the gap: the component "wall in a gap"
-    is gap / sqrt(3) per such wall, and that wall carries no lateral-sampling term and no one-laser wall error
-    (the gap holds them). A map without gaps has no such component."""
+    side's last sample; the true wall lies in the gap, at most as far as a wall steeper than
+    the ray grazing its top reaches at the level (``hidden_reach``: the level's fraction of the
+    drop times the gap, plus the rest of a sample for the top's edge): the component "wall in a
+    gap" is that reach / sqrt(3) per such wall, with "method, top beside a gap" for the top's
+    last sample, and that wall carries no lateral-sampling term and no one-laser wall error
+    (the gap holds them). A map without gaps has neither; the whole gap (``GAP_RULE``
+    "whole") states more."""
     spec = GridSpec(0.0, 0.0, 0.1, (200, 400))
     xs = np.broadcast_to(spec.xs(), spec.shape)
     up = np.clip((xs - 15.0) / 0.4, 0.0, 1.0) * np.clip((25.0 - xs) / 0.4, 0.0, 1.0)
     ridge = (2.0 * up).astype(np.float32)
 
-    def budget(h):
+    def budget(h, level=1.0):
         p = M.line_profile(h, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
-        w = M.width_at_level(p, 1.0, 15.0)  # around the ridge's middle (x 20 mm)
+        w = M.width_at_level(p, level, 15.0)  # around the ridge's middle (x 20 mm)
         b = U.width_budget(U.UncertaintyContext(h, spec, sampling_mm=(0.4, 0.4)), p, w)
         return w, {c.name: c for c in b.components}
 
     _, whole = budget(ridge)
-    assert "wall in a gap" not in whole
+    assert "wall in a gap" not in whole and "method, top beside a gap" not in whole
     hidden = ridge.copy()
     hidden[:, 245:257] = np.nan  # the right wall and its foot: x 24.5-25.6 mm missing
     w, comps = budget(hidden)
     assert w.right_mm == pytest.approx(19.4, abs=0.01)  # x 24.4: the higher side's sample
     gap = comps["wall in a gap"]
-    assert gap.u_mm == pytest.approx(1.3 / math.sqrt(3), rel=0.01)  # x 24.4 to 25.7 mm
-    assert "1.30 mm apart" in gap.note and "adjacent" in gap.note
+    # x 24.4 to 25.7 mm; the level halfway down the 2 mm drop, a sample 0.4 mm
+    reach = 0.5 * 1.3 + 0.5 * 0.4
+    assert gap.u_mm == pytest.approx(reach / math.sqrt(3), rel=0.01)
+    assert "1.30 mm apart, the wall within 0.85 mm" in gap.note and "adjacent" in gap.note
+    assert comps["method, top beside a gap"].u_mm == pytest.approx(U.ONE_LASER_WALL_MM["bands"])
+    # a level higher up the wall: the wall reaches less far into the gap
+    _, high = budget(hidden, 1.5)
+    assert high["wall in a gap"].u_mm == pytest.approx(
+        (0.25 * 1.3 + 0.75 * 0.4) / math.sqrt(3), rel=0.01)
     # only the left wall keeps a lateral-sampling term: half of the whole map's two walls
     assert comps["lateral sampling"].u_mm == pytest.approx(
         whole["lateral sampling"].u_mm / math.sqrt(2), rel=0.05)
@@ -589,14 +633,21 @@ def test_a_wall_hidden_in_a_gap_lies_anywhere_in_it():
     w, comps = budget(hidden_left)
     assert w.left_mm == pytest.approx(10.5, abs=0.01)  # x 15.5: the higher side's sample
     gap = comps["wall in a gap"]
-    assert gap.u_mm == pytest.approx(1.3 / math.sqrt(3), rel=0.01)  # x 14.2 to 15.5 mm
+    assert gap.u_mm == pytest.approx(reach / math.sqrt(3), rel=0.01)  # x 14.2 to 15.5 mm
     assert gap.note.index("1.30 mm apart") < gap.note.index("adjacent")  # the left wall's
     both = ridge.copy()
     both[:, 143:155] = np.nan
     both[:, 245:257] = np.nan
     _, comps = budget(both)
-    assert comps["wall in a gap"].u_mm == pytest.approx(1.3 * math.sqrt(2 / 3), rel=0.01)
+    assert comps["wall in a gap"].u_mm == pytest.approx(reach * math.sqrt(2 / 3), rel=0.01)
+    assert comps["method, top beside a gap"].u_mm == pytest.approx(
+        U.ONE_LASER_WALL_MM["bands"] * math.sqrt(2))
     assert comps["lateral sampling"].u_mm == 0.0
+    # the former rule, the wall anywhere in the gap, states more and has no top term
+    monkeypatch.setattr(U, "GAP_RULE", "whole")
+    _, old = budget(both)
+    assert old["wall in a gap"].u_mm == pytest.approx(1.3 * math.sqrt(2 / 3), rel=0.01)
+    assert "method, top beside a gap" not in old
     # one laser's map only near the right wall: a wall seen (the left) carries the one-laser
     # wall error, the wall in the gap does not (its placement error is the gap's)
     red = hidden.copy()
