@@ -421,7 +421,8 @@ def _band_width(M, U, rig: Rig, ctx, prof, tprof, p0, p1):
     """A width the way ``impress validate`` measures one: at half the step between a band on
     the feature and one beside it, both on the measured profile (the level moves with the
     surface); the truth's width at half the step between the same bands of the true profile,
-    its crossings taken to where they truly are. ``(budget, error, x, y)`` or None where the
+    its crossings taken to where they truly are. ``(budget, error, x, y, walls)`` (walls:
+    :func:`_walls`) or None where the
     true profile has no feature (between its first two crossings of its mid-height) with bands
     on and beside it that hold no height edge and have data on both profiles."""
     th = tprof.height_mm
@@ -488,7 +489,7 @@ def _walls(U, ctx, prof, w, levels, true_mm) -> list[dict]:
     ds = [w.left_mm, w.right_mm]
     out = []
     for dd, t, (gap, _, frac, lower) in zip(ds, true_mm, U.crossing_samples(prof, ds, levels)):
-        out.append({"gap": _finite(gap), "fraction": _finite(frac), "sample": s_mm,
+        out.append({"gap": _finite(gap), "fraction": _finite(frac), "sample": _finite(s_mm),
                     "step": float(prof.distance_mm[1] - prof.distance_mm[0]),
                     "into_gap": _finite((t - dd) * lower) if lower else None})
     return out
