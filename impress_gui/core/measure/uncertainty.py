@@ -1479,7 +1479,7 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                "the other sample (RMS about the crossing: gap / sqrt(3))")
             + "; no one-laser wall error or lateral sampling for such a wall",
             tuple(math.sqrt(3.0) * v for v in ug if v > 0)))
-        if GAP_RULE == "geometric":
+        if geometric:
             # the reach holds the wall on the gap's side only; the higher side's last sample
             # is itself placed by the stripe's centre next to the image of the top's edge,
             # which a detector puts up to cells past it (docs/accuracy.md): a sideways error
