@@ -53,6 +53,7 @@ Components (docs/uncertainty.md says the same for a quality manager):
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -101,8 +102,12 @@ METHOD_STRIPE_PX = {"absolute": 0.03, "difference": 0.03, "absolute, alone": 0.0
 #: rigs 0-23, 2026-12-05: ``median`` put steps at 89 %, ``rms`` dz at 90 % within U).
 #: ``"agreement"`` (the default since 2026-12-05): for a point's own height the larger of the
 #: standard error and the disagreement where the disagreement is known, else the largest; for
-#: the ends of a difference (dz, depth; their ring as wide as the points' distance) the
-#: largest; ``"largest"``: the largest estimate always (before: heights 98.3 % within U on
+#: the ends of a difference (dz, depth; their ring as wide as the points' distance) the larger
+#: of the standard error and the disagreement, the ring's scatter instead where it exceeds the
+#: disagreement beyond its own sampling spread (:func:`ring_exceeds`, since 2026-12-05 later;
+#: before, the largest of the three: depths 97.4 % within U on 65 calibrations, the largest of
+#: two estimates of one noise at the ring's 6 degrees of freedom is biased up);
+#: ``"largest"``: the largest estimate always (before: heights 98.3 % within U on
 #: rigs 0-23, 97.9 % on rigs 90-117; the disagreement in place of the ring for differences
 #: too put dz at 91.8 % on rigs 90-117: the ring at the ends' distance sees what the
 #: disagreement at the disk's scale does not).
@@ -118,6 +123,9 @@ NOISE_RULE = "agreement"
 #: ray"). The other is for ``bench_uncertainty.py --gap-rules``.
 GAP_RULES = ("geometric", "whole")
 GAP_RULE = "geometric"
+#: the one-sided level at which a ring's scatter counts as exceeding the lasers' disagreement
+#: (:func:`ring_exceeds`)
+RING_TEST_P = 0.95
 LASER_NAMES = ("green", "red")
 
 
@@ -799,8 +807,10 @@ def point_noise(ctx: UncertaintyContext, readout, ring_mm: float | None = None
     the scatter of such means nearby (:func:`disk_repeatability`, which adds any relief the
     plane through them leaves). With ``ring_mm`` (an end of a ruler's dz, a point of a depth:
     the ring as wide as the points' distance, where it sees errors correlated over that
-    distance) the largest of the three. :func:`combine_noise` with :data:`NOISE_RULE`; its
-    standard uncertainty and how it was found."""
+    distance) the ring's scatter counts where it exceeds the disagreement beyond its own
+    sampling spread (:func:`ring_exceeds`), and without the disagreement the largest of the
+    standard error and the ring. :func:`combine_noise` with :data:`NOISE_RULE`; its standard
+    uncertainty and how it was found."""
     x, y = readout.x_mm, readout.y_mm
     sigma, n_eff, n, _, _ = patch_noise(ctx.height, ctx.spec, x, y, readout.radius_mm)
     if readout.n_valid > 1 and readout.radius_mm > 0:
@@ -812,17 +822,25 @@ def point_noise(ctx: UncertaintyContext, readout, ring_mm: float | None = None
     ag = agreement_noise(ctx, x, y, readout.radius_mm)
     u = combine_noise({"standard error": se, "ring": rep,
                        "agreement": ag[0] if ag is not None else math.nan},
-                      difference=ring_mm is not None)
+                      difference=ring_mm is not None, ring_dof=k - 3)
+    rule = _effective_rule(NOISE_RULE, ring_mm is not None, ag is not None)
+    says = _RULE_SAYS[rule]
+    if rule == "ring test":
+        says += (": it does" if ring_exceeds(rep, ag[0], k - 3) else ": it does not") \
+            if ag is not None and math.isfinite(rep) else ": no ring"
     how = (f"cells: SD {sigma:.4f} mm, n {n}, effective n {n_eff:.1f}, standard error "
            f"{se:.4f} mm; {k} neighbouring means scatter {rep:.4f} mm; "
-           + (ag[1] + "; " if ag is not None else "")
-           + _RULE_SAYS[_effective_rule(NOISE_RULE, ring_mm is not None, ag is not None)])
+           + (ag[1] + "; " if ag is not None else "") + says)
     return u, how
 
 
 _RULE_SAYS = {
     "agreement": "the larger of the standard error and the lasers' disagreement taken (the "
                  "nearby means left out: at a point's own scale they add relief)",
+    "ring test": "the larger of the standard error and the lasers' disagreement taken, the "
+                 "nearby means' scatter instead where it exceeds the disagreement beyond its "
+                 "own sampling spread (one-sided 95 %; noise correlated over the points' "
+                 "distance that the disagreement at the disk's scale does not see)",
     "largest": "the largest taken",
     "median": "the median taken",
     "rms": "their root mean square taken",
@@ -830,23 +848,52 @@ _RULE_SAYS = {
 
 
 def _effective_rule(rule: str, difference: bool, has_agreement: bool) -> str:
-    """The rule :func:`combine_noise` applies: ``agreement`` falls back to ``largest`` for the
-    ends of a difference and where the lasers' disagreement is not known."""
-    if rule == "agreement" and (difference or not has_agreement):
-        return "largest"
+    """The rule :func:`combine_noise` applies: ``agreement`` falls back to ``largest`` where
+    the lasers' disagreement is not known, and is the ``ring test`` for the ends of a
+    difference."""
+    if rule == "agreement":
+        if not has_agreement:
+            return "largest"
+        if difference:
+            return "ring test"
     return rule
 
 
+@functools.lru_cache(maxsize=64)
+def _ring_limit(dof: int, p: float) -> float:
+    from scipy.stats import chi2
+
+    return math.sqrt(float(chi2.ppf(p, dof)) / dof)
+
+
+def ring_exceeds(ring: float, agreement: float, dof: int, p: float = RING_TEST_P) -> bool:
+    """Whether the scatter of nearby means (``ring``, an SD with ``dof`` degrees of freedom:
+    the means used less the plane's 3) exceeds the lasers' disagreement (``agreement``, from
+    hundreds of tiles: taken as exact) beyond the ring's own sampling spread: a one-sided
+    chi-square test at ``p``, ``ring^2 / agreement^2 > chi2_p(dof) / dof`` (with 6 degrees of
+    freedom at 95 %, a ring more than 1.45 times the disagreement). Two estimates of one
+    noise, the larger of them taken, state it too high; the ring counts only where it sees
+    more than the disagreement can (errors both lasers share, correlated over the points'
+    distance)."""
+    if not (math.isfinite(ring) and math.isfinite(agreement)) or dof < 1:
+        return math.isfinite(ring) and not math.isfinite(agreement)
+    if agreement <= 0:
+        return ring > 0
+    return ring > agreement * _ring_limit(int(dof), float(p))
+
+
 def combine_noise(estimates: Mapping[str, float], rule: str | None = None,
-                  difference: bool = False) -> float:
+                  difference: bool = False, ring_dof: int = 6) -> float:
     """One standard uncertainty from the estimates of a mean's surface noise (NaN: not
     available) by ``rule`` (default :data:`NOISE_RULE`): ``largest``; ``median``; ``rms``
     (root mean square); ``agreement``: for a point's own height (not ``difference``) the
     larger of the standard error and the lasers' disagreement where that is known, else the
     largest; for the ends of a ``difference`` (a ruler's dz, a depth: their ring as wide as
     the distance between the points, where it sees errors correlated over that distance,
-    which the disagreement at the disk's scale does not) the largest. NaN when none is
-    known."""
+    which the disagreement at the disk's scale does not) the larger of the standard error
+    and the disagreement, or the ring's scatter where it exceeds the disagreement beyond its
+    sampling spread (:func:`ring_exceeds`, ``ring_dof`` its degrees of freedom). NaN when
+    none is known."""
     v = {k: float(x) for k, x in estimates.items() if x is not None and math.isfinite(x)}
     if not v:
         return math.nan
@@ -859,6 +906,11 @@ def combine_noise(estimates: Mapping[str, float], rule: str | None = None,
     if rule == "rms":
         return float(np.sqrt(np.mean(vals * vals)))
     if rule == "agreement":
+        return max(v["agreement"], v.get("standard error", 0.0))
+    if rule == "ring test":
+        ring = v.get("ring", math.nan)
+        if ring_exceeds(ring, v["agreement"], ring_dof):
+            return max(ring, v.get("standard error", 0.0))
         return max(v["agreement"], v.get("standard error", 0.0))
     raise ValueError(f"unknown noise rule {rule!r} (one of {', '.join(NOISE_RULES)})")
 
@@ -1041,10 +1093,11 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
     u = float(math.sqrt(np.nansum((np.append(w, 1.0) * us) ** 2)))
     comps.append(Component("surface noise", "means at the point and the three plane points", "A",
                            "normal", u, "mm", 1.0, u,
-                           "each mean's surface noise (the largest of its cells' standard "
-                           "error, the lasers' disagreement and the scatter of such means on a "
-                           "ring as wide as the points' distance), weighted by its share of the "
-                           "plane at "
+                           "each mean's surface noise (the larger of its cells' standard "
+                           "error and the lasers' disagreement, the scatter of such means on a "
+                           "ring as wide as the points' distance where it exceeds the "
+                           "disagreement beyond its sampling spread), weighted by its share of "
+                           "the plane at "
                            "the point (" + ", ".join(f"{v:+.2f}" for v in w) + ")"))
     # depth = plane(P) - h(P), plane(P) = w . the supports' heights
     comps += _method_component(ctx, 1.0, [*zip(xs, ys, [*w, -1.0])], "difference")
@@ -1105,10 +1158,11 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
             c_noise = 1.0 if key == "dz" else (abs(dz) / val if val > 0 else 0.0)
             comps.append(Component("surface noise", "heights of the two ends", "A", "normal",
                                    u_noise, "mm", c_noise, c_noise * u_noise,
-                                   "the two ends' means (each the largest of its cells' "
-                                   "standard error, the lasers' disagreement and the "
+                                   "the two ends' means (each the larger of its cells' "
+                                   "standard error and the lasers' disagreement, the "
                                    "scatter of such means on a ring as wide as the ruler, "
-                                   "up to 15 mm), in quadrature"))
+                                   "up to 15 mm, where it exceeds the disagreement beyond "
+                                   "its sampling spread), in quadrature"))
             # the heights are read at the cell nearest each end (radius 0) or over a disk
             # about it: the position's resolution moves a height by the slope there
             c_grid = slope if key == "dz" else c_noise * slope
