@@ -201,10 +201,12 @@ def print_table(rows: list[dict]) -> None:
         cells = [label.rjust(4 + 1 + 7 + 1 + 6 + 1 + 5)]
         for k, f in num:
             a = np.array([r[k] for r in rows], float)
-            if k == "fill":
+            if not np.isfinite(a).any():  # e.g. the fill with --no-fill
+                v = float("nan")
+            elif k == "fill":
                 v = float(np.nanmin(a)) if label == "worst" else fn(a)
             else:
-                v = fn(a) if np.isfinite(a).any() else float("nan")
+                v = fn(a)
             cells.append(f.format(v))
         print(" ".join(cells))
 

@@ -1111,8 +1111,12 @@ def test_the_ends_of_a_difference_see_an_offset_both_lasers_share():
             r = M.ruler(c.height, spec, (x, y), (x, y + 12.0), 0.5)
             taken[name] += [U.point_noise(c, p, 12.0)[1].endswith(": it does")
                             for p in (r.start, r.end)]
+            dz = U.ruler_budgets(c, r)["dz"]
+            note = next(k.note for k in dz.components if k.name == "surface noise")
+            assert note.endswith(f"the ring's scatter taken at {sum(taken[name][-2:])} of 2 "
+                                 "points"), note
             if name == "jolted":
-                z.append(r.dz_mm / U.ruler_budgets(c, r)["dz"].u_c_mm)  # the true dz is 0
+                z.append(r.dz_mm / dz.u_c_mm)  # the true dz is 0
                 ag = [U.agreement_noise(c, p.x_mm, p.y_mm, 0.5)[0] for p in (r.start, r.end)]
                 z_ag.append(r.dz_mm / math.hypot(*ag))
     rms = float(np.sqrt(np.mean(np.square(z))))

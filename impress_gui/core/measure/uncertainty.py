@@ -1089,7 +1089,8 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
         comps += _cal_component(_trial_depths(xs, ys, np.append(pts[:, 2], h), d) - depth,
                                 "depth below the plane", ctx)
     ring = min(RING_MAX_MM, float(np.median(np.hypot(pts[:, 0] - x, pts[:, 1] - y))))
-    us = np.array([point_noise(ctx, r, ring)[0] for r in (*support, readout)])
+    got = [point_noise(ctx, r, ring) for r in (*support, readout)]
+    us = np.array([u for u, _ in got])
     u = float(math.sqrt(np.nansum((np.append(w, 1.0) * us) ** 2)))
     comps.append(Component("surface noise", "means at the point and the three plane points", "A",
                            "normal", u, "mm", 1.0, u,
@@ -1098,10 +1099,21 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
                            "ring as wide as the points' distance where it exceeds the "
                            "disagreement beyond its sampling spread), weighted by its share of "
                            "the plane at "
-                           "the point (" + ", ".join(f"{v:+.2f}" for v in w) + ")"))
+                           "the point (" + ", ".join(f"{v:+.2f}" for v in w) + ")"
+                           + _ring_taken([h for _, h in got])))
     # depth = plane(P) - h(P), plane(P) = w . the supports' heights
     comps += _method_component(ctx, 1.0, [*zip(xs, ys, [*w, -1.0])], "difference")
     return _budget(ctx, "depth below a plane", depth, comps)
+
+
+def _ring_taken(hows: Sequence[str]) -> str:
+    """What the ring test decided at the points whose :func:`point_noise` notes are
+    ``hows`` ("" where no point was tested)."""
+    tested = [h for h in hows if h.endswith((": it does", ": it does not", ": no ring"))]
+    if not tested:
+        return ""
+    n = sum(h.endswith(": it does") for h in tested)
+    return f"; the ring's scatter taken at {n} of {len(hows)} points"
 
 
 def _trial_depths(xs, ys, hs, d) -> np.ndarray:
@@ -1137,11 +1149,12 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
     out["xy"] = _budget(ctx, "ruler xy", xy, comps)
     # dz and 3D
     if np.isfinite(hs).all():
-        noise = []
+        noise, hows = [], []
         for p in (a, b):
             _, _, _, gx, gy = patch_noise(ctx.height, ctx.spec, p.x_mm, p.y_mm, p.radius_mm)
-            noise.append((point_noise(ctx, p, min(xy, RING_MAX_MM))[0],
-                           math.hypot(gx, gy) if math.isfinite(gx) else 0.0))
+            u_p, how_p = point_noise(ctx, p, min(xy, RING_MAX_MM))
+            noise.append((u_p, math.hypot(gx, gy) if math.isfinite(gx) else 0.0))
+            hows.append(how_p)
         u_noise = math.sqrt(sum(u * u for u, _ in noise if math.isfinite(u)))
         slope = math.sqrt(sum(g * g for _, g in noise))
         dz = r.dz_mm
@@ -1162,7 +1175,7 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
                                    "standard error and the lasers' disagreement, the "
                                    "scatter of such means on a ring as wide as the ruler, "
                                    "up to 15 mm, where it exceeds the disagreement beyond "
-                                   "its sampling spread), in quadrature"))
+                                   "its sampling spread), in quadrature" + _ring_taken(hows)))
             # the heights are read at the cell nearest each end (radius 0) or over a disk
             # about it: the position's resolution moves a height by the slope there
             c_grid = slope if key == "dz" else c_noise * slope
