@@ -105,8 +105,9 @@ METHOD_STRIPE_PX = {"absolute": 0.03, "difference": 0.03, "absolute, alone": 0.0
 #: the ends of a difference (dz, depth; their ring as wide as the points' distance) the larger
 #: of the standard error and the disagreement, the ring's scatter instead where it exceeds the
 #: disagreement beyond its own sampling spread (:func:`ring_exceeds`, since 2026-12-05 later;
-#: before, the largest of the three: depths 97.4 % within U on 65 calibrations, the largest of
-#: two estimates of one noise at the ring's 6 degrees of freedom is biased up);
+#: before, the largest of the three: depths 97.4 % within U on 65 calibrations, the larger of
+#: two estimates of one noise, one with the ring's 6 degrees of freedom, is biased up; now
+#: 95.8 % on 77, dz 96.4 -> 95.1 %: docs/uncertainty.md "The ring at the ends of a difference");
 #: ``"largest"``: the largest estimate always (before: heights 98.3 % within U on
 #: rigs 0-23, 97.9 % on rigs 90-117; the disagreement in place of the ring for differences
 #: too put dz at 91.8 % on rigs 90-117: the ring at the ends' distance sees what the
