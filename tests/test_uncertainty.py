@@ -962,9 +962,10 @@ def test_relief_between_nearby_means_is_not_noise_where_the_lasers_tell_the_nois
     assert "lasers' disagreement taken" in how and "nearby means left out" in how
     # the end of a difference (a ruler's dz, a depth): its ring spans the points' distance and
     # counts where it sees more than the disagreement at the disk's scale can
+    # (here the bumps leave too few consistent means on a 10 mm ring: no ring, the disagreement)
     u_end, how_end = U.point_noise(ctx, rd, 10.0)
-    assert "beyond its own sampling spread" in how_end
-    assert u_end >= u_pt
+    assert how_end.endswith(": no ring (too few consistent neighbouring means)"), how_end
+    assert u_end == u_pt
     # the rules themselves
     est = {"standard error": 0.01, "ring": 0.05, "agreement": 0.02}
     assert U.combine_noise(est) == 0.02
@@ -1105,22 +1106,62 @@ def test_the_ends_of_a_difference_see_an_offset_both_lasers_share():
     jolted = ctx_of({k: v + shared - relief for k, v in maps.items()})
     quiet = ctx_of({k: v - relief for k, v in maps.items()})
     z, z_ag, taken = [], [], {"jolted": [], "quiet": []}
-    for k in range(40):
-        x, y = 14.0 + 0.3 * k, 14.0 + 0.25 * k
+    for n in range(40):
+        x, y = 14.0 + 0.3 * n, 14.0 + 0.25 * n
         for name, c in (("jolted", jolted), ("quiet", quiet)):
             r = M.ruler(c.height, spec, (x, y), (x, y + 12.0), 0.5)
-            taken[name] += [U.point_noise(c, p, 12.0)[1].endswith(": it does")
-                            for p in (r.start, r.end)]
+            for p in (r.start, r.end):
+                u, how, took = U._point_noise(c, p, 12.0)
+                ring, used = U.disk_repeatability(c.height, spec, p.x_mm, p.y_mm, 0.5, 12.0)
+                ag = U.agreement_noise(c, p.x_mm, p.y_mm, 0.5)[0]
+                sd = U.patch_noise(c.height, spec, p.x_mm, p.y_mm, 0.5)[0]
+                se = sd / math.sqrt(U.patch_noise(c.height, spec, p.x_mm, p.y_mm, 0.5, 0.0)[1])
+                # the value is the estimate the note names: the ring where it exceeds the
+                # disagreement, else the disagreement; the cells' standard error where larger
+                over = U.ring_exceeds(ring, ag, used - 3)
+                assert u == max(ring if over else ag, se), (u, ring, ag, se, how)
+                assert took == (over and ring >= se)
+                assert how.endswith("the ring taken" if took else "exceeded, the standard "
+                                    "error larger" if over else "not exceeded"), how
+                taken[name].append(took)
             dz = U.ruler_budgets(c, r)["dz"]
             note = next(k.note for k in dz.components if k.name == "surface noise")
             assert note.endswith(f"the ring's scatter taken at {sum(taken[name][-2:])} of 2 "
                                  "points"), note
             if name == "jolted":
                 z.append(r.dz_mm / dz.u_c_mm)  # the true dz is 0
-                ag = [U.agreement_noise(c, p.x_mm, p.y_mm, 0.5)[0] for p in (r.start, r.end)]
-                z_ag.append(r.dz_mm / math.hypot(*ag))
+                ag2 = [U.agreement_noise(c, p.x_mm, p.y_mm, 0.5)[0] for p in (r.start, r.end)]
+                z_ag.append(r.dz_mm / math.hypot(*ag2))
     rms = float(np.sqrt(np.mean(np.square(z))))
     assert 0.5 < rms < 1.6, rms
     assert float(np.sqrt(np.mean(np.square(z_ag)))) > 2.5  # the disagreement alone: far under
     assert np.mean(taken["jolted"]) > 0.6, np.mean(taken["jolted"])
     assert np.mean(taken["quiet"]) < 0.2, np.mean(taken["quiet"])
+    # a depth's note: the same decision at its four points
+    sup = [M.readout(jolted.height, spec, px, py, 0.5) for px, py in ((12, 12), (28, 14), (20, 28))]
+    pt = M.readout(jolted.height, spec, 20.0, 18.0, 0.5)
+    ring = min(U.RING_MAX_MM, float(np.median([math.hypot(r.x_mm - 20, r.y_mm - 18)
+                                               for r in sup])))
+    took4 = [U._point_noise(jolted, r, ring)[2] for r in (*sup, pt)]
+    d = U.depth_budget(jolted, pt, sup)
+    note = next(k.note for k in d.components if k.name == "surface noise")
+    assert note.endswith(f"the ring's scatter taken at {sum(took4)} of 4 points"), note
+
+
+@pytest.mark.parametrize("ring, agreement, dof, taken", [
+    (0.0145, 0.01, 6, True), (0.0144, 0.01, 6, False),  # the limit with 6 dof: 1.449
+    (0.0195, 0.01, 1, False), (0.0197, 0.01, 1, True),  # with 1: 1.960
+    (0.0161, 0.01, 3, False), (0.0162, 0.01, 3, True),  # with 3: 1.614
+    (math.nan, 0.01, 6, False),  # no ring: the disagreement stands
+    (0.02, math.nan, 6, True),  # no disagreement: the ring
+    (0.02, 0.01, 0, False),  # no degrees of freedom: nothing to test with
+    (0.001, 0.0, 6, True),  # any scatter exceeds a disagreement of 0
+])
+def test_the_ring_counts_beyond_its_sampling_spread(ring, agreement, dof, taken):
+    """:func:`ring_exceeds`: a one-sided chi-square test at 95 %, ring^2 / agreement^2 against
+    chi2_0.95(dof) / dof, and what it does without one of the figures."""
+    assert U.ring_exceeds(ring, agreement, dof) is taken
+    est = {"standard error": 0.001, "ring": ring, "agreement": agreement}
+    u = U.combine_noise(est, difference=True, ring_dof=dof)
+    if math.isfinite(agreement):
+        assert u == (ring if taken else agreement)

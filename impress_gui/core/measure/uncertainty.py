@@ -103,11 +103,12 @@ METHOD_STRIPE_PX = {"absolute": 0.03, "difference": 0.03, "absolute, alone": 0.0
 #: ``"agreement"`` (the default since 2026-12-05): for a point's own height the larger of the
 #: standard error and the disagreement where the disagreement is known, else the largest; for
 #: the ends of a difference (dz, depth; their ring as wide as the points' distance) the larger
-#: of the standard error and the disagreement, the ring's scatter instead where it exceeds the
-#: disagreement beyond its own sampling spread (:func:`ring_exceeds`, since 2026-12-05 later;
-#: before, the largest of the three: depths 97.4 % within U on 65 calibrations, the larger of
-#: two estimates of one noise, one with the ring's 6 degrees of freedom, is biased up; now
-#: 95.8 % on 77, dz 96.4 -> 95.1 %: docs/uncertainty.md "The ring at the ends of a difference");
+#: of the standard error and the disagreement, with the ring's scatter in place of the
+#: disagreement where it exceeds it beyond its own sampling spread (:func:`ring_exceeds`, since
+#: 2026-12-05, night; before, the largest of the three. The larger of two estimates of one
+#: noise is biased up, the ring's having only 6 degrees of freedom: on the same 65
+#: calibrations depths 97.4 -> 95.9 % within U, dz 96.4 -> 95.4 %; docs/uncertainty.md "The
+#: ring at the ends of a difference");
 #: ``"largest"``: the largest estimate always (before: heights 98.3 % within U on
 #: rigs 0-23, 97.9 % on rigs 90-117; the disagreement in place of the ring for differences
 #: too put dz at 91.8 % on rigs 90-117: the ring at the ends' distance sees what the
@@ -801,6 +802,14 @@ def agreement_noise(ctx: UncertaintyContext, x: float, y: float, radius_mm: floa
 
 def point_noise(ctx: UncertaintyContext, readout, ring_mm: float | None = None
                 ) -> tuple[float, str]:
+    """The surface noise of one point reading and how it was found
+    (:func:`_point_noise`)."""
+    u, how, _ = _point_noise(ctx, readout, ring_mm)
+    return u, how
+
+
+def _point_noise(ctx: UncertaintyContext, readout, ring_mm: float | None = None
+                 ) -> tuple[float, str, bool | None]:
     """The surface noise of one point reading (mean over its radius): the larger of the
     standard error of its cells (effective count) and, with both lasers' maps, the
     reconstruction's random error at the disk's scale from their disagreement
@@ -809,9 +818,10 @@ def point_noise(ctx: UncertaintyContext, readout, ring_mm: float | None = None
     plane through them leaves). With ``ring_mm`` (an end of a ruler's dz, a point of a depth:
     the ring as wide as the points' distance, where it sees errors correlated over that
     distance) the ring's scatter counts where it exceeds the disagreement beyond its own
-    sampling spread (:func:`ring_exceeds`), and without the disagreement the largest of the
+    sampling spread (:func:`ring_exceeds`), and without the disagreement the larger of the
     standard error and the ring. :func:`combine_noise` with :data:`NOISE_RULE`; its standard
-    uncertainty and how it was found."""
+    uncertainty, how it was found, and whether the ring's scatter was taken (None where the
+    ring was not tested: a point's own height, or no disagreement)."""
     x, y = readout.x_mm, readout.y_mm
     sigma, n_eff, n, _, _ = patch_noise(ctx.height, ctx.spec, x, y, readout.radius_mm)
     if readout.n_valid > 1 and readout.radius_mm > 0:
@@ -821,27 +831,35 @@ def point_noise(ctx: UncertaintyContext, readout, ring_mm: float | None = None
     se = sigma / math.sqrt(max(n_eff, 1.0)) if math.isfinite(sigma) else math.nan
     rep, k = disk_repeatability(ctx.height, ctx.spec, x, y, readout.radius_mm, ring_mm)
     ag = agreement_noise(ctx, x, y, readout.radius_mm)
-    u = combine_noise({"standard error": se, "ring": rep,
-                       "agreement": ag[0] if ag is not None else math.nan},
-                      difference=ring_mm is not None, ring_dof=k - 3)
+    u, which = _choose_noise({"standard error": se, "ring": rep,
+                              "agreement": ag[0] if ag is not None else math.nan},
+                             difference=ring_mm is not None, ring_dof=k - 3)
     rule = _effective_rule(NOISE_RULE, ring_mm is not None, ag is not None)
     says = _RULE_SAYS[rule]
-    if rule == "ring test":
-        says += (": it does" if ring_exceeds(rep, ag[0], k - 3) else ": it does not") \
-            if ag is not None and math.isfinite(rep) else ": no ring"
+    tested = rule == "ring test" and ag is not None
+    if tested and ag is not None:
+        if math.isfinite(rep) and k > 3:
+            lim = _ring_limit(k - 3, RING_TEST_P)
+            says += (f": ring {rep:.4f} mm against the limit {lim:.2f} x {ag[0]:.4f} = "
+                     f"{lim * ag[0]:.4f} mm ({k - 3} degrees of freedom), "
+                     + ("the ring taken" if which == "ring" else
+                        "exceeded, the standard error larger" if ring_exceeds(rep, ag[0], k - 3)
+                        else "not exceeded"))
+        else:
+            says += ": no ring (too few consistent neighbouring means)"
     how = (f"cells: SD {sigma:.4f} mm, n {n}, effective n {n_eff:.1f}, standard error "
            f"{se:.4f} mm; {k} neighbouring means scatter {rep:.4f} mm; "
            + (ag[1] + "; " if ag is not None else "") + says)
-    return u, how
+    return u, how, (which == "ring") if tested else None
 
 
 _RULE_SAYS = {
     "agreement": "the larger of the standard error and the lasers' disagreement taken (the "
                  "nearby means left out: at a point's own scale they add relief)",
-    "ring test": "the larger of the standard error and the lasers' disagreement taken, the "
-                 "nearby means' scatter instead where it exceeds the disagreement beyond its "
-                 "own sampling spread (one-sided 95 %; noise correlated over the points' "
-                 "distance that the disagreement at the disk's scale does not see)",
+    "ring test": "the larger of the standard error and the lasers' disagreement taken; the "
+                 "nearby means' scatter in place of the disagreement where it exceeds it by "
+                 "more than chance alone would 19 times in 20 (noise correlated over the "
+                 "points' distance that the disagreement at the disk's scale does not see)",
     "largest": "the largest taken",
     "median": "the median taken",
     "rms": "their root mean square taken",
@@ -870,7 +888,8 @@ def _ring_limit(dof: int, p: float) -> float:
 def ring_exceeds(ring: float, agreement: float, dof: int, p: float = RING_TEST_P) -> bool:
     """Whether the scatter of nearby means (``ring``, an SD with ``dof`` degrees of freedom:
     the means used less the plane's 3) exceeds the lasers' disagreement (``agreement``, from
-    hundreds of tiles: taken as exact) beyond the ring's own sampling spread: a one-sided
+    at least 50 tiles, usually thousands: taken as exact, an approximation) beyond the ring's
+    own sampling spread: a one-sided
     chi-square test at ``p``, ``ring^2 / agreement^2 > chi2_p(dof) / dof`` (with 6 degrees of
     freedom at 95 %, a ring more than 1.45 times the disagreement). Two estimates of one
     noise, the larger of them taken, state it too high; the ring counts only where it sees
@@ -895,25 +914,35 @@ def combine_noise(estimates: Mapping[str, float], rule: str | None = None,
     and the disagreement, or the ring's scatter where it exceeds the disagreement beyond its
     sampling spread (:func:`ring_exceeds`, ``ring_dof`` its degrees of freedom). NaN when
     none is known."""
+    return _choose_noise(estimates, rule, difference, ring_dof)[0]
+
+
+def _choose_noise(estimates: Mapping[str, float], rule: str | None = None,
+                  difference: bool = False, ring_dof: int = 6) -> tuple[float, str | None]:
+    """:func:`combine_noise` and which estimate it took (None where the rule combines
+    several, or none is known): the value and what a budget says of it come from one
+    decision."""
+    rule = rule or NOISE_RULE
+    if rule not in NOISE_RULES:
+        raise ValueError(f"unknown noise rule {rule!r} (one of {', '.join(NOISE_RULES)})")
     v = {k: float(x) for k, x in estimates.items() if x is not None and math.isfinite(x)}
     if not v:
-        return math.nan
-    rule = _effective_rule(rule or NOISE_RULE, difference, "agreement" in v)
+        return math.nan, None
+    rule = _effective_rule(rule, difference, "agreement" in v)
     vals = np.array(list(v.values()))
-    if rule == "largest":
-        return float(vals.max())
     if rule == "median":
-        return float(np.median(vals))
+        return float(np.median(vals)), None
     if rule == "rms":
-        return float(np.sqrt(np.mean(vals * vals)))
+        return float(np.sqrt(np.mean(vals * vals))), None
     if rule == "agreement":
-        return max(v["agreement"], v.get("standard error", 0.0))
-    if rule == "ring test":
-        ring = v.get("ring", math.nan)
-        if ring_exceeds(ring, v["agreement"], ring_dof):
-            return max(ring, v.get("standard error", 0.0))
-        return max(v["agreement"], v.get("standard error", 0.0))
-    raise ValueError(f"unknown noise rule {rule!r} (one of {', '.join(NOISE_RULES)})")
+        v = {k: v[k] for k in ("agreement", "standard error") if k in v}
+    elif rule == "ring test":
+        if not ring_exceeds(v.get("ring", math.nan), v["agreement"], ring_dof):
+            v = {k: v[k] for k in ("agreement", "standard error") if k in v}
+        else:
+            v = {k: v[k] for k in ("ring", "standard error") if k in v}
+    which = max(v, key=lambda k: v[k])  # the largest; the first of equal ones
+    return v[which], which
 
 
 def _noise_component(sigma: float, n_eff: float, n: int, what: str) -> Component:
@@ -1090,8 +1119,8 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
         comps += _cal_component(_trial_depths(xs, ys, np.append(pts[:, 2], h), d) - depth,
                                 "depth below the plane", ctx)
     ring = min(RING_MAX_MM, float(np.median(np.hypot(pts[:, 0] - x, pts[:, 1] - y))))
-    got = [point_noise(ctx, r, ring) for r in (*support, readout)]
-    us = np.array([u for u, _ in got])
+    got = [_point_noise(ctx, r, ring) for r in (*support, readout)]
+    us = np.array([u for u, _, _ in got])
     u = float(math.sqrt(np.nansum((np.append(w, 1.0) * us) ** 2)))
     comps.append(Component("surface noise", "means at the point and the three plane points", "A",
                            "normal", u, "mm", 1.0, u,
@@ -1101,20 +1130,18 @@ def depth_budget(ctx: UncertaintyContext, readout, support: Sequence) -> Budget:
                            "disagreement beyond its sampling spread), weighted by its share of "
                            "the plane at "
                            "the point (" + ", ".join(f"{v:+.2f}" for v in w) + ")"
-                           + _ring_taken([h for _, h in got])))
+                           + _ring_taken([t for _, _, t in got])))
     # depth = plane(P) - h(P), plane(P) = w . the supports' heights
     comps += _method_component(ctx, 1.0, [*zip(xs, ys, [*w, -1.0])], "difference")
     return _budget(ctx, "depth below a plane", depth, comps)
 
 
-def _ring_taken(hows: Sequence[str]) -> str:
-    """What the ring test decided at the points whose :func:`point_noise` notes are
-    ``hows`` ("" where no point was tested)."""
-    tested = [h for h in hows if h.endswith((": it does", ": it does not", ": no ring"))]
-    if not tested:
+def _ring_taken(taken: Sequence[bool | None]) -> str:
+    """What the ring test decided at the points (:func:`_point_noise`'s third value; "" where
+    no point was tested)."""
+    if all(t is None for t in taken):
         return ""
-    n = sum(h.endswith(": it does") for h in tested)
-    return f"; the ring's scatter taken at {n} of {len(hows)} points"
+    return f"; the ring's scatter taken at {sum(bool(t) for t in taken)} of {len(taken)} points"
 
 
 def _trial_depths(xs, ys, hs, d) -> np.ndarray:
@@ -1153,9 +1180,9 @@ def ruler_budgets(ctx: UncertaintyContext, r) -> dict[str, Budget]:
         noise, hows = [], []
         for p in (a, b):
             _, _, _, gx, gy = patch_noise(ctx.height, ctx.spec, p.x_mm, p.y_mm, p.radius_mm)
-            u_p, how_p = point_noise(ctx, p, min(xy, RING_MAX_MM))
+            u_p, _, taken = _point_noise(ctx, p, min(xy, RING_MAX_MM))
             noise.append((u_p, math.hypot(gx, gy) if math.isfinite(gx) else 0.0))
-            hows.append(how_p)
+            hows.append(taken)
         u_noise = math.sqrt(sum(u * u for u, _ in noise if math.isfinite(u)))
         slope = math.sqrt(sum(g * g for _, g in noise))
         dz = r.dz_mm
