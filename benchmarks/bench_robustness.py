@@ -22,8 +22,8 @@ there for the columns) plus:
   printed beside it as ``cell``). A draw whose clicks the calibration refuses is counted
   (``refused``), not taken as the rig's failure.
 
-Then median and worst over the rigs, and each acceptance point of the issue as PASS/FAIL with
-the figure that decides it.
+Then median and worst over the rigs (the edge error also over the crossings across the scan
+alone), and each acceptance point of the issue as PASS/FAIL with the figure that decides it.
 
 Usage: .venv/bin/python benchmarks/bench_robustness.py [--seeds 24 | --seeds 3,7,11]
        [--resolution 1920x1080] [--draws 5] [--click-noise 0.5] [--no-fill] [--json out.json]

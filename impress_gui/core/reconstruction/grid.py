@@ -67,13 +67,14 @@ class HeightAccumulator:
     and each miss left a hole two frames long in that laser's map (issue 18, random rig 13: the
     fused fill 88.7 -> 96.5 % at 640x360 with the detector's guided pass). Only one missed
     profile is bridged, and never a long run of missed points: a laser shadow or a hidden
-    groove floor spans many columns, and is left a hole rather than covered with a lid. Nor is
-    a step (a height change beyond ``max_step_mm``) bridged: between consecutive profiles a
-    step's strip is split between its two ends, but across a missed profile that guess spans
-    two frames' travel, and at an edge the missed frame is where the stripe left the higher
-    surface; a wrong point beyond the edge then drew the higher surface up to a millimetre
-    past it (issue 18, random rig 13 at 1080p: the edge error across the scan 0.20 -> 0.10
-    mm)."""
+    groove floor spans many columns, and is left a hole rather than covered with a lid.
+
+    Nor is a step bridged (a height change beyond ``max_step_mm``). Between consecutive
+    profiles, a step's strip is split between its two ends. Across a missed profile that guess
+    would span two frames' travel. At an edge, the missed frame is where the stripe left the
+    higher surface, and the point after it is often wrong: bridged, it drew the higher surface
+    up to a millimetre past the edge (issue 18, random rig 13 at 1080p: the edge error
+    0.20 -> 0.10 mm)."""
 
     def __init__(self, spec: GridSpec, max_gap_mm: float, max_step_mm: float,
                  bridge_points: int = 0) -> None:
