@@ -38,7 +38,13 @@ def setup(flat_scan, flat_calibration):
     cal = SceneCalibration.load(flat_calibration)
     target = TargetModel.load(flat_scan / "target.json")
     picks = CU.model_picks(cal, target)
-    segs = {la: CU._segments(cal, target, la) for la in CU.LASERS}
+    # 15 of the calibration's frames per laser, as the calibration took before 2026-12-05
+    # (more frames average the stray light down: with 45 the plain fit is turned 0.0013 deg)
+    segs = {}
+    for la in CU.LASERS:
+        frames = sorted(cal.planes[la].frames)
+        kept = {frames[i] for i in np.linspace(0, len(frames) - 1, 15).round().astype(int)}
+        segs[la] = [s for s in CU._segments(cal, target, la) if s[0] in kept]
     rng = np.random.default_rng(18)
     clean = CU._observations(cal, target, segs, rng, {la: 0.02 for la in CU.LASERS},
                              model="conservative")  # 0.02 mm per point, no face offsets
@@ -60,7 +66,8 @@ def test_stray_light_on_the_target_does_not_turn_the_tilt(setup, monkeypatch):
     """From a start 3 deg off, the tilt found with 8 % of the red stripe's points a dozen rows
     off is within 0.003 deg of the tilt found without them; the plain plane fit the refinement
     used before (every point in the plane) is turned by them more than twice as far (measured
-    0.0002 against 0.021 deg)."""
+    0.0002 against 0.021 deg; 0.0007 against 0.014 deg since 2026-12-05, the calibration's
+    frames chosen from 45)."""
     reference = _refined_tilt(setup, setup[3])
     assert abs(reference - np.degrees(setup[5].tilt_rad)) < 0.05  # the clean stripes find it
     robust = abs(_refined_tilt(setup, setup[4]) - reference)

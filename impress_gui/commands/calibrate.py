@@ -17,7 +17,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--speed", type=_speed, required=True,
                    help="rail speed in mm/s (or slow, medium, fast)")
     p.add_argument("--fps", type=float, default=None, help="frame rate (default: from the video)")
-    p.add_argument("--plane-frames", type=int, default=15,
+    # scene.DEFAULT_PLANE_FRAMES (not imported here: the parser is built on every start)
+    p.add_argument("--plane-frames", type=int, default=45,
                    help="frames used per laser plane around t1/t2 (1 = the seed's single "
                         "frame; at most 300)")
     p.add_argument("--planes", choices=("stripe-fit", "three-point"), default="stripe-fit",

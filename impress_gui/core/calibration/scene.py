@@ -306,12 +306,19 @@ def check_picks(picks: Picks, intrinsics: Intrinsics, frame_count: int) -> None:
                                code=codes.E_PICKS)
 
 
-#: the most frames a laser plane is fitted from (``plane_frames``; 15 by default)
+#: the most frames a laser plane is fitted from (``plane_frames``)
 MAX_PLANE_FRAMES = 300
+#: frames a laser plane is fitted from by default, spread evenly over the stripe's travel
+#: across the target (``plane_travel_mm``). The tilt the stripes refine is limited by the
+#: stripe rows' noise, which more frames average: on 36 random rigs at 1080p with exact
+#: picks, 15 frames left the tilt up to 0.013 deg off (rigs 11 and 67), 45 frames at most
+#: 0.006 deg; with the renderer's exact stripe rows it is exact (issue 18, 2026-12-05)
+DEFAULT_PLANE_FRAMES = 45
 
 
 def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: Picks,
-                    speed_mm_s: float, fps: float | None = None, plane_frames: int = 15,
+                    speed_mm_s: float, fps: float | None = None,
+                    plane_frames: int = DEFAULT_PLANE_FRAMES,
                     plane_span: int = 300, plane_travel_mm: float = 25.0,
                     refine_with_stripes: bool = True, click_sigma_px: float = 0.5,
                     progress: ProgressCallback | None = None,
@@ -396,6 +403,8 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
                                  with_ground=True)
         planes = {name: fit for name, (fit, _) in planes0.items()}
         warnings += plane_residual_warnings(planes)
+        warnings += face_agreement_warnings(
+            obs, planes, pose.rotation, (pose.target_rotation, pose.target_translation_mm))
         check_plane_distances(planes)
         warnings += plane_span_warnings(planes)
         warnings += [f"the {name} stripe blooms (a saturated, nearly white core) on the "
@@ -436,6 +445,43 @@ def plane_residual_warnings(planes: dict[str, LaserPlaneFit]) -> list[str]:
             out.append(f"the {name} stripe's points lie {fit.rms_mm:.3f} mm (RMS) from their "
                        f"plane (usually below 0.05 mm): heights may be off by as much; check "
                        "the target file and the picks, or choose other frames t1/t2")
+    return out
+
+
+#: a laser's plane should lie within this many of its RMS (and at least FACE_AGREE_MIN_MM)
+#: of most of its stripe's points on each face of the target
+FACE_AGREE_RMS = 5.0
+FACE_AGREE_MIN_MM = 0.05
+#: the share of a face's stripe points the plane must agree with, below which it warns
+FACE_AGREE_SHARE = 0.5
+
+
+def face_agreement_warnings(obs, planes: dict[str, LaserPlaneFit], rot: np.ndarray,
+                            pose_rt) -> list[str]:
+    """A warning per laser plane that most of its stripe's points on one face of the target
+    do not lie on (within :data:`FACE_AGREE_RMS` x its RMS): the robust fit left them out
+    as outliers. A plane fitted to one face's points and a few frames of another light on
+    the other face fits them closely and has a small RMS, yet is turned about the first
+    face's line by tens of degrees (random rig 15 at 1080p with 45 frames, before the fit's
+    start was judged face by face): its RMS alone does not show it."""
+    out = []
+    for name, fit in planes.items():
+        if fit.method != "stripe-fit" or name not in obs.rays:
+            continue
+        pts, hts, _ = obs.points(name, rot, pose_rt)
+        if not pts:
+            continue
+        p, h = np.concatenate(pts), np.concatenate(hts)
+        near = np.abs(fit.plane.distance(p)) <= max(FACE_AGREE_RMS * fit.rms_mm,
+                                                    FACE_AGREE_MIN_MM)
+        for lv in np.unique(h):
+            m = h == lv
+            share = float(near[m].mean())
+            if m.sum() >= 10 and share < FACE_AGREE_SHARE:
+                out.append(f"the {name} laser plane lies on only {100 * share:.0f} % of its "
+                           f"stripe's points on the target's face at {lv:.1f} mm: it may be "
+                           "turned by other light on the target; check the stripe on the "
+                           "faces in the calibration frames, or choose other frames t1/t2")
     return out
 
 
