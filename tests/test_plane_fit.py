@@ -94,6 +94,33 @@ def test_a_plane_that_most_points_on_a_face_do_not_lie_on_is_warned_of():
     c = wrong_pts.mean(0)
     normal = np.linalg.svd(wrong_pts - c)[2][2]
     wrong = LaserPlaneFit("red", Plane(normal, float(normal @ c)), 0.005, len(wrong_pts),
-                          (0, 1, 2), (10.936, 21.355))
+                          tuple(range(42)), (10.936, 21.355))
     msgs = face_agreement_warnings(obs, {"red": wrong}, np.eye(3), None)
     assert len(msgs) == 1 and "face at 10.9 mm" in msgs[0], msgs
+    # only the frames the fit kept are judged: the three wrong frames alone lie on it
+    kept_three = LaserPlaneFit("red", wrong.plane, 0.005, len(wrong_pts), (0, 1, 2),
+                               (10.936, 21.355))
+    assert face_agreement_warnings(obs, {"red": kept_three}, np.eye(3), None) == []
+
+
+def test_the_median_leaving_out_one_group_equals_the_masked_median():
+    """planes._median_excluding: each column's median of the rows outside its group, the
+    groups' rows in any order (even counts left out: exact; odd: within half a rank)."""
+    from impress_gui.core.calibration.planes import _median_excluding
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        n = int(rng.integers(20, 200))
+        group = rng.integers(0, 6, n)  # interleaved, not consecutive
+        cols = np.unique(group)
+        dist = rng.random((n, len(cols)))
+        others = group[:, None] != cols[None, :]
+        got = _median_excluding(dist, others, group)
+        for c in range(len(cols)):
+            kept = np.sort(dist[others[:, c], c])
+            if (~others[:, c]).sum() % 2 == 0:
+                assert np.isclose(got[c], np.median(kept))
+            else:  # half a rank off: within the median's neighbours
+                m = len(kept)
+                lo, hi = kept[max((m - 1) // 2 - 1, 0)], kept[min(m // 2 + 1, m - 1)]
+                assert lo - 1e-12 <= got[c] <= hi + 1e-12

@@ -276,33 +276,50 @@ FRAME_START_SPREAD_MM = 1.0
 MEDIAN_POINTS = 2000
 
 
-def _median_excluding(dist: np.ndarray, others: np.ndarray) -> np.ndarray:
-    """Per column of ``dist`` (N, C): the median of the rows ``others`` (N, C) marks. The rows
-    left out are set to -inf and +inf by their row's parity, which leaves the median where it
-    is when they alternate (to half a rank otherwise; a frame's points are consecutive rows):
-    one partition of the whole array, where masked medians per column took most of the
-    calibration's Monte Carlo."""
-    fill = np.where(np.arange(len(dist)) % 2 == 0, -np.inf, np.inf)[:, None]
+def _rank_in_group(group: np.ndarray) -> np.ndarray:
+    """Each row's place (0, 1, ...) among the rows of its group, in row order."""
+    order = np.argsort(group, kind="stable")
+    g = group[order]
+    rank = np.empty(len(group), int)
+    rank[order] = np.arange(len(g)) - np.searchsorted(g, g, side="left")
+    return rank
+
+
+def _median_excluding(dist: np.ndarray, others: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """Per column of ``dist`` (N, C): the median of the rows ``others`` (N, C) marks, where each
+    column leaves out the rows of one ``group`` (N,). The rows left out are set to -inf and
+    +inf in turn within their group, which leaves the median where it is (to half a rank when
+    their number is odd): one partition of the whole array, where masked medians per column
+    took most of the calibration's Monte Carlo."""
+    fill = np.where(_rank_in_group(group) % 2 == 0, -np.inf, np.inf)[:, None]
     return np.median(np.where(others, dist, fill), axis=0)
 
 
-def _median_by_level(dist: np.ndarray, others: np.ndarray, levels: np.ndarray | None
-                     ) -> np.ndarray:
-    """Per column of ``dist`` (N, C): the median of the rows ``others`` (N, C) marks; with
-    ``levels`` (each point's face height), the largest over the levels of each level's median
-    (levels with fewer than 10 such points left out)."""
+def _median_by_level(dist: np.ndarray, others: np.ndarray, group: np.ndarray,
+                     levels: np.ndarray | None) -> np.ndarray:
+    """Per column of ``dist`` (N, C): the median of the rows ``others`` (N, C) marks (each
+    column leaves out the rows of one ``group``). With ``levels`` (each point's face height),
+    the largest over the levels of each level's median, levels with fewer than 10 such points
+    left out; where two or more levels have 10 points in all, a column judged on fewer than
+    two of them is +inf (one face alone is what turned the plane)."""
     if levels is None:
-        return _median_excluding(dist, others)
+        return _median_excluding(dist, others, group)
     out = np.full(dist.shape[1], -np.inf)
+    judged = np.zeros(dist.shape[1], int)
+    usable = 0
     for lv in np.unique(levels):
         m = levels == lv
+        usable += int(m.sum() >= 10)
         enough = others[m].sum(0) >= 10
         if not enough.any():
             continue
-        med = _median_excluding(dist[m][:, enough], others[m][:, enough])
+        med = _median_excluding(dist[m][:, enough], others[m][:, enough], group[m])
         out[enough] = np.maximum(out[enough], med)
+        judged += enough
+    if usable >= 2:
+        return np.where(judged >= 2, out, np.inf)
     if not np.isfinite(out).all():
-        out = np.where(np.isfinite(out), out, _median_excluding(dist, others))
+        out = np.where(np.isfinite(out), out, _median_excluding(dist, others, group))
     return out
 
 
@@ -322,7 +339,8 @@ def _frame_start(points: np.ndarray, groups: np.ndarray, floor_mm: float,
     0.002 mm)."""
     plane0, _, _ = fit_plane(points)
     d0 = np.abs(plane0.distance(points))[:, None]
-    best_med = float(_median_by_level(d0, np.ones_like(d0, bool), levels)[0])
+    best_med = float(_median_by_level(d0, np.ones_like(d0, bool), np.zeros(len(d0), int),
+                                      levels)[0])
     limit, best = best_med / FRAME_START_GAIN, None
     ids, inv, cnt = np.unique(groups, return_inverse=True, return_counts=True)
     # judged by the points it was not fitted to: as many as its own at least
@@ -349,7 +367,7 @@ def _frame_start(points: np.ndarray, groups: np.ndarray, floor_mm: float,
     rows = np.arange(0, len(q), max(1, -(-len(q) // MEDIAN_POINTS)))
     dist = np.abs(q[rows] @ normal.T - np.einsum("ij,ij->i", centre_q, normal))  # (n, frames)
     others = inv[rows][:, None] != frame[None, :]
-    meds = _median_by_level(dist, others, None if levels is None else levels[rows])
+    meds = _median_by_level(dist, others, inv[rows], None if levels is None else levels[rows])
     for i in range(len(frame)):
         if spread[i] / math.sqrt(cnt[i]) < FRAME_START_SPREAD_MM:
             continue

@@ -468,10 +468,14 @@ def face_agreement_warnings(obs, planes: dict[str, LaserPlaneFit], rot: np.ndarr
     for name, fit in planes.items():
         if fit.method != "stripe-fit" or name not in obs.rays:
             continue
-        pts, hts, _ = obs.points(name, rot, pose_rt)
-        if not pts:
+        pts, hts, used = obs.points(name, rot, pose_rt)
+        # the frames the fit kept (those whose points disagreed with the others as a whole,
+        # an acceleration ramp say, were dropped and are not the plane's to lie on)
+        kept = [i for i, k in enumerate(used) if k in set(fit.frames)]
+        if not kept:
             continue
-        p, h = np.concatenate(pts), np.concatenate(hts)
+        p = np.concatenate([pts[i] for i in kept])
+        h = np.concatenate([hts[i] for i in kept])
         near = np.abs(fit.plane.distance(p)) <= max(FACE_AGREE_RMS * fit.rms_mm,
                                                     FACE_AGREE_MIN_MM)
         for lv in np.unique(h):
