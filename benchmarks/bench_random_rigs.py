@@ -152,6 +152,15 @@ def height_figures(scan_dir: Path, cal, rec, with_fill: bool) -> dict:
         else:
             out[f"slope_{k}"] = float("nan")
     out["wild"] = out["wild_f"]
+    # the fused map where both lasers measured (contribution 3 agreeing, 4 disagreeing) and
+    # the share of its cells only one laser made (the scan's ends, where one stripe has not
+    # reached or has left the surface, and occlusions): there the map is that laser's alone
+    ok_f = np.isfinite(maps["f"]) & np.isfinite(truths["f"]) & ~edge
+    both = ok_f & (rec.contribution >= 3)
+    e_both = (maps["f"] - truths["f"])[both]
+    out["mae_f_both"] = float(np.mean(np.abs(e_both))) if e_both.size else float("nan")
+    out["single_pct"] = (100.0 * float(1.0 - both.sum() / ok_f.sum())) if ok_f.any() \
+        else float("nan")
     # columns whose stripe the detector took from its own rows (StripeParams.prefer_own_rows)
     out["own_rows"] = rec.stats.get("stripe_columns_from_own_rows")
     if with_fill:

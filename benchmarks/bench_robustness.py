@@ -14,6 +14,12 @@ there for the columns) plus:
   per-rig line also prints it apart for edges running along the scan (crossed along grid rows:
   located within one frame's stripe) and across it (crossed along grid columns: located
   between two frames, which are a frame's travel apart), with the number of crossings each.
+- ``fused MAE where both lasers measured`` (per-rig line and summary; not an acceptance
+  point): the fused map's MAE off edges on the cells both lasers made, and the share of the
+  cells one laser alone made (the scan's ends, where one stripe has not yet reached the
+  surface or has left it, and occlusions). On a short render with the lasers' stripes far
+  apart along the scan that share is a third or more, and there the map has the noise of that
+  laser alone (docs/accuracy.md, "Where the fused error comes from").
 - ``noise mae``: with ``--click-noise PX`` (default 0.5 px) and ``--draws N`` (default 5), the
   corner picks get Gaussian noise of that standard deviation per coordinate, the scan is
   calibrated and reconstructed again per draw; the worst fused MAE over the draws, against the
@@ -277,7 +283,9 @@ def main() -> None:
         row = measure(s, w, h, not args.no_fill, args.draws, args.click_noise)
         rows.append(row)
         print(f"  seed {s} ({row['preset']}): {row['seconds']:.0f} s; fused MAE "
-              f"{row['mae_f']:.4f} mm, wild {row['wild']:.4f} %, edge {row['edge_mm']:.4f} mm "
+              f"{row['mae_f']:.4f} mm (where both lasers measured "
+              f"{row.get('mae_f_both', np.nan):.4f} mm; one laser alone on "
+              f"{row.get('single_pct', np.nan):.1f} % of the cells), wild {row['wild']:.4f} %, edge {row['edge_mm']:.4f} mm "
               f"(edges along the scan {row.get('edge_x_mm', np.nan):.4f} mm, n "
               f"{row.get('edge_n_x', 0)}; across it {row.get('edge_y_mm', np.nan):.4f} mm, n "
               f"{row.get('edge_n_y', 0)}), "
@@ -297,7 +305,9 @@ def main() -> None:
         ex = np.array([r.get("edge_y_mm", np.nan) for r in rows], float)
         n = np.array([r["noise_mae"] for r in rows], float)
         nc = np.array([r.get("noise_mae_cell", np.nan) for r in rows], float)
-        print(f"{label}: edge error {fn(e):.4f} mm (edges across the scan {fn(ex):.4f} mm); "
+        fb = np.array([r.get("mae_f_both", np.nan) for r in rows], float)
+        print(f"{label}: fused MAE where both lasers measured {fn(fb):.4f} mm; "
+              f"edge error {fn(e):.4f} mm (edges across the scan {fn(ex):.4f} mm); "
               f"click-noise fused MAE {fn(n):.4f} mm (same-cell truth {fn(nc):.4f} mm)")
     if args.draws:
         refused = sum(r.get("noise_refused", 0) for r in rows)

@@ -645,10 +645,35 @@ def test_a_wall_hidden_in_a_gap_lies_in_it_as_far_as_the_level_reaches(monkeypat
     both[:, 143:155] = np.nan
     both[:, 245:257] = np.nan
     _, comps = budget(both)
-    assert comps["wall in a gap"].u_mm == pytest.approx(reach * math.sqrt(2 / 3), rel=0.01)
+    # both walls lie on their gaps' sides, outside the ridge: the reading is narrow by 0 to
+    # both reaches, by one reach on average (one-sided; RMS about the reading)
+    gap = comps["wall in a gap"]
+    assert gap.offset_mm == pytest.approx(reach, rel=0.01) and "adding" in gap.note
+    assert gap.rectangles_mm() == pytest.approx((reach / 2, reach / 2), rel=0.01)
+    assert gap.u_mm == pytest.approx(reach * math.sqrt(1 / 6 + 1), rel=0.01)
     assert comps["method, top beside a gap"].u_mm == pytest.approx(
         U.ONE_LASER_WALL_MM["bands"] * math.sqrt(2))
     assert comps["lateral sampling"].u_mm == 0.0
+    # two steps up, each edge at its own bands' level (an edge distance, as impress validate
+    # reads it), both walls hidden: the two shifts go the same way along the profile and
+    # cancel in the distance (found with the ridge's sum, rigs 4 and 11 widths lay outside U)
+    rise = (2.0 * np.clip((xs - 15.0) / 0.4, 0.0, 1.0)
+            + 2.0 * np.clip((xs - 25.0) / 0.4, 0.0, 1.0)).astype(np.float32)
+    stairs = rise.copy()
+    stairs[:, 143:155] = np.nan
+    stairs[:, 245:257] = np.nan
+    p = M.line_profile(stairs, spec, (5.0, 10.0), (35.0, 10.0), 1.0)
+    lo, mid, hi = (3.0, 7.0), (13.0, 17.0), (23.0, 27.0)
+    a, b = M.level_crossings(p, 1.0), M.level_crossings(p, 3.0)
+    assert a.size == 1 and b.size == 1
+    pair = M.Width(float(a[0]), float(b[0]), float(b[0] - a[0]), math.nan)
+    sb = U.width_budget(U.UncertaintyContext(stairs, spec, sampling_mm=(0.4, 0.4)), p, pair,
+                        level_bands=((lo, mid), (mid, hi)))
+    stair_gap = {c.name: c for c in sb.components}["wall in a gap"]
+    assert stair_gap.offset_mm == pytest.approx(0.0, abs=1e-9) and "cancelling" in stair_gap.note
+    assert stair_gap.u_mm == pytest.approx(reach / math.sqrt(6), rel=0.01)
+    # the true distance (mid-levels at x 15.2 and 25.2) within the reading's U
+    assert abs(pair.width_mm - 10.0) <= sb.U_mm
     # the former rule, the wall anywhere in the gap, states more and has no top term
     monkeypatch.setattr(U, "GAP_RULE", "whole")
     _, old = budget(both)
@@ -1002,12 +1027,20 @@ def _norm(u: float) -> U.Component:
     return U.Component("n", "q", "A", "normal", u, "mm", 1.0, u)
 
 
+def _one_sided(offset: float, *half_widths: float) -> U.Component:
+    """Rectangles about ``offset`` (a one-sided error); u the RMS about 0."""
+    u = math.sqrt(sum(a * a / 3.0 for a in half_widths) + offset * offset)
+    return U.Component("g", "q", "B", "rectangular", u, "mm", 1.0, u, "", tuple(half_widths),
+                       offset)
+
+
 def _k_sampled(components, n: int = 2_000_000) -> float:
-    """The k of the central 95.45 % interval of the components' sum, by sampling (independent
+    """The k of the 95.45 % interval about 0 of the components' sum, by sampling (independent
     of the convolution coverage_factor does)."""
     rng = np.random.default_rng(5)
     total = np.zeros(n)
     for c in components:
+        total += c.offset_mm
         if c.distribution == "rectangular":
             for a in c.rectangles_mm():
                 total += rng.uniform(-a, a, n)
@@ -1025,6 +1058,12 @@ def _k_sampled(components, n: int = 2_000_000) -> float:
     [_rect(1.0), _norm(1.0)],
     [_rect(1.0), _norm(0.3)],
     [_rect(1.0), _rect(0.4), _norm(0.2)],
+    # one-sided: a wall hidden in a gap (uniform 0..1), two adding, with noise beside them
+    [_one_sided(0.5, 0.5)],
+    [_one_sided(1.0, 0.5, 0.5)],
+    [_one_sided(1.0, 0.5, 0.5), _norm(0.3)],
+    [_one_sided(0.5, 0.5), _norm(0.5)],
+    [_one_sided(0.4, 0.5, 0.3), _rect(0.3), _norm(0.1)],
 ])
 def test_the_coverage_factor_is_that_of_the_components_sum(comps):
     k = U.coverage_factor(comps)
@@ -1046,6 +1085,10 @@ def test_k_is_2_for_normal_sums_and_165_for_a_rectangle_alone():
     assert f"(k={b.k:g})" in b.short() and f"U = {b.k:g} u_c" in b.text()
     again = U.budget_from_json(json.loads(json.dumps(b.to_json())))
     assert again.k == b.k and again.components[1].rectangles_mm() == (0.6, 0.6)
+    one = U.Budget("w", 1.0, (_norm(0.1), _one_sided(0.6, 0.3, 0.3)))
+    back = U.budget_from_json(json.loads(json.dumps(one.to_json())))
+    assert back.components[1].offset_mm == 0.6 and back.components[1].rectangles_mm() == (0.3, 0.3)
+    assert U.coverage_factor(back.components) == U.coverage_factor(one.components)
     assert U.k_text([b, 2.0]) == f"k={b.k:g}-2" and U.k_text([2.0, 2.0]) == "k=2"
 
 

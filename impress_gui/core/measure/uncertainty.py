@@ -149,6 +149,11 @@ class Component:
     #: gap): their half-widths in mm (``u_mm`` is their root-sum-square over sqrt 3); empty:
     #: one rectangle of half-width ``sqrt(3) u_mm``
     half_widths_mm: tuple[float, ...] = ()
+    #: a one-sided component (an error of known sign the reading does not correct: a wall
+    #: hidden in a gap lies on the gap's side of the crossing): the mean of the error it adds,
+    #: mm; its rectangles are about that mean, and ``u_mm`` is the RMS about 0 (the
+    #: rectangles' root-sum-square over sqrt 3 and the offset, in quadrature)
+    offset_mm: float = 0.0
 
     def rectangles_mm(self) -> tuple[float, ...]:
         """The half-widths (mm) of the rectangular distributions this component sums; () for
@@ -162,7 +167,8 @@ class Component:
                 "distribution": self.distribution, "u_x": _r(self.u_x), "unit": self.unit,
                 "c": _r(self.sensitivity), "u_mm": _r(self.u_mm), "note": self.note,
                 **({"half_widths_mm": [_r(a) for a in self.half_widths_mm]}
-                   if self.half_widths_mm else {})}
+                   if self.half_widths_mm else {}),
+                **({"offset_mm": _r(self.offset_mm)} if self.offset_mm else {})}
 
 
 def _r(v, nd: int = 6):
@@ -214,6 +220,7 @@ class Budget:
         for c in self.components:
             lines.append(f"{c.name} | {_g(c.u_x)} {c.unit} | {_g(c.sensitivity)} | "
                          f"{_g4(c.u_mm)} | {c.evaluation}, {c.distribution}"
+                         + (f", one-sided (mean {c.offset_mm:.3f} mm)" if c.offset_mm else "")
                          + (f" - {c.note}" if c.note else ""))
         lines += list(self.notes)
         return "\n".join(lines)
@@ -235,26 +242,35 @@ def coverage_factor(components: Sequence[Component], p: float = COVERAGE_P) -> f
     their sum computed by convolution on a grid of 1/2000 of its range (JCGM 101's propagation
     of distributions, done exactly instead of by sampling: the same budget always gives the
     same k) and k the half-width of the central interval holding ``p`` over ``u_c``, rounded up
-    to 0.01 and at most 2 (2 for a normal sum; 1.66 for one rectangle alone)."""
+    to 0.01 and at most 2 (2 for a normal sum; 1.66 for one rectangle alone).
+
+    One-sided components (:attr:`Component.offset_mm`) shift the sum by their offsets: the
+    interval is still the one about 0 (the reading) holding ``p``, and ``u_c`` their RMS
+    about 0."""
     us = [c.u_mm for c in components if math.isfinite(c.u_mm)]
     uc = math.sqrt(sum(u * u for u in us)) if us else 0.0
     if not uc > 0:
         return K
     rect = [a for c in components for a in c.rectangles_mm() if a > 0]
-    var_n = max(uc * uc - sum(a * a / 3.0 for a in rect), 0.0)
+    off = abs(sum(c.offset_mm for c in components
+                  if math.isfinite(c.u_mm) and math.isfinite(c.offset_mm)))
+    var_n = max(uc * uc - sum(a * a / 3.0 for a in rect) - off * off, 0.0)
     rect = [a for a in rect if a > 0.01 * uc]  # a rectangle this narrow adds no shape
-    if not rect:
+    if not rect and not off > 0.01 * uc:
         return K
     sn = math.sqrt(var_n)
     h = (sum(rect) + 6.0 * sn) / 2000.0
-    dens = np.ones(1)
-    for a in rect:
-        m = max(int(round(a / h)), 1)
-        dens = np.convolve(dens, np.full(2 * m + 1, 1.0 / (2 * m + 1)))
-    if sn > 0.5 * h:
-        m = int(math.ceil(6.0 * sn / h))
-        g = np.exp(-0.5 * (np.arange(-m, m + 1) * h / sn) ** 2)
-        dens = np.convolve(dens, g / g.sum())
+    if off > 0.01 * uc:
+        h = h if h > 0 else off / 2000.0
+        dens = _sum_density(rect, sn, h)
+        # the sum shifted by the offsets: the smallest half-width about 0 holding p
+        x = np.abs((np.arange(dens.size) - dens.size // 2) * h + off)
+        order = np.argsort(x, kind="stable")
+        cum = np.cumsum(dens[order]) / dens.sum()
+        i = min(int(np.searchsorted(cum, p)), cum.size - 1)
+        t = float(x[order][i]) + 0.5 * h  # where the cell holding the p-quantile ends
+        return min(K, math.ceil(100.0 * t / uc - 1e-9) / 100.0)
+    dens = _sum_density(rect, sn, h)
     c = dens.size // 2
     # the mass within +-t for t = 0, h, 2h, ... (each grid point stands for a cell of width h)
     mass = dens[c] + 2.0 * np.cumsum(dens[c + 1:])
@@ -263,11 +279,26 @@ def coverage_factor(components: Sequence[Component], p: float = COVERAGE_P) -> f
     return min(K, math.ceil(100.0 * t / uc - 1e-9) / 100.0)
 
 
+def _sum_density(rect: Sequence[float], sn: float, h: float) -> np.ndarray:
+    """The density, on a grid of step ``h`` centred on 0, of the sum of uniform distributions
+    of half-widths ``rect`` and a normal of SD ``sn`` (:func:`coverage_factor`)."""
+    dens = np.ones(1)
+    for a in rect:
+        m = max(int(round(a / h)), 1)
+        dens = np.convolve(dens, np.full(2 * m + 1, 1.0 / (2 * m + 1)))
+    if sn > 0.5 * h:
+        m = int(math.ceil(6.0 * sn / h))
+        g = np.exp(-0.5 * (np.arange(-m, m + 1) * h / sn) ** 2)
+        dens = np.convolve(dens, g / g.sum())
+    return dens
+
+
 def budget_from_json(doc: Mapping) -> Budget:
     comps = tuple(Component(c.get("name", ""), c.get("quantity", ""), c.get("type", ""),
                             c.get("distribution", ""), _f(c.get("u_x")), c.get("unit", ""),
                             _f(c.get("c")), _f(c.get("u_mm")), c.get("note", ""),
-                            tuple(_f(a) for a in c.get("half_widths_mm") or ()))
+                            tuple(_f(a) for a in c.get("half_widths_mm") or ()),
+                            _f(c.get("offset_mm", 0.0)))
                   for c in doc.get("components", []))
     return Budget(doc.get("reading", ""), _f(doc.get("value_mm")), comps,
                   float(doc.get("k", K)), tuple(doc.get("notes", [])),
@@ -1554,9 +1585,20 @@ def width_budget(ctx: UncertaintyContext, profile, width,
     if any(in_gap):
         reach = [hidden_reach(g, f, s_mm) if hid else 0.0
                  for g, f, hid in zip(gaps, hidden_f, in_gap)]
-        ug = [r / math.sqrt(3.0) for r in reach]
-        u_gap = math.hypot(*ug)
         geometric = GAP_RULE == "geometric"
+        # a hidden wall lies on the gap's side of its crossing, towards the lower side: the
+        # truth minus the reading moves along the profile by 0 to the reach, forward where
+        # the wall falls (slope < 0); the width is right minus left, so the walls' shifts add
+        # (a block, a groove: both walls widen or both narrow it) or cancel (two steps the
+        # same way). One-sided: rectangles of half the reach about their mean, the mean
+        # summed with its sign; a wall whose slope is not known is taken either side
+        signs = [(1.0 if g < 0 else -1.0) * (1.0 if k == 1 else -1.0)
+                 if hid and geometric and math.isfinite(g) and g != 0 else 0.0
+                 for k, (g, hid) in enumerate(zip(slopes, in_gap))]
+        halves = [r / 2.0 if sg else r for r, sg in zip(reach, signs)]
+        off = abs(sum(sg * r / 2.0 for r, sg in zip(reach, signs)))
+        ug = [a / math.sqrt(3.0) for a in halves]
+        u_gap = math.sqrt(sum(v * v for v in ug) + off * off)
         said = "; ".join(f"{side}: " + (
             f"{g:.2f} mm apart" + (f", the wall within {r:.2f} mm of the higher side's sample "
                                    f"(the level at {f:.2f} of the drop)" if geometric else "")
@@ -1570,10 +1612,15 @@ def width_budget(ctx: UncertaintyContext, profile, width,
             + ("the reach stated (a wall hidden from a laser or the camera is steeper than "
                "the ray that grazes its top, so it crosses the level within f of the hidden "
                "stretch, f the level's fraction of the drop, plus up to a sample for the top "
-               "edge's own place; RMS about the crossing: reach / sqrt(3))" if geometric else
-               "the other sample (RMS about the crossing: gap / sqrt(3))")
+               "edge's own place; on the gap's side only, so one-sided: each wall's place "
+               "uniform from 0 to its reach, the reading's mean shift "
+               f"{off:.3f} mm (" + ("the two walls' shifts adding" if signs[0] * signs[1] > 0
+                                    else "the two walls' shifts cancelling"
+                                    if signs[0] * signs[1] < 0 else "one wall's")
+               + "); u the RMS about the reading)"
+               if geometric else "the other sample (RMS about the crossing: gap / sqrt(3))")
             + "; no one-laser wall error or lateral sampling for such a wall",
-            tuple(math.sqrt(3.0) * v for v in ug if v > 0)))
+            tuple(math.sqrt(3.0) * v for v in ug if v > 0), off))
         if geometric:
             # the reach holds the wall on the gap's side only; the higher side's last sample
             # is itself placed by the stripe's centre next to the image of the top's edge,
