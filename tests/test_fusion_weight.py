@@ -121,6 +121,16 @@ def test_the_reconstruction_fuses_and_records_with_these_weights(flat_recon, fla
     assert c.sum() > 1000
     assert np.abs(f - (wg * g + (1 - wg) * r)).max() < 1e-4
     assert np.abs(f - 0.5 * (g + r)).max() > 1e-3  # ... which is not the plain mean
+    # the record says how much of the map each laser made alone, and each laser's precision
+    stats = data.metadata["stats"]
+    fused = np.isfinite(data.layers["fused"])
+    for code, name in ((1, "green"), (2, "red")):
+        alone = fused & (data.layers["contribution"] == code)
+        assert stats["cells_one_laser"][name] == int(alone.sum())
+        assert np.isfinite(data.layers[name][alone]).all()
+    assert 0 < sum(stats["cells_one_laser"].values()) < int(fused.sum())
+    assert stats["height_per_stripe_pixel_mm"] == pytest.approx(
+        height_per_pixel(cal, tuple(cal.intrinsics.image_size)), abs=1e-4)
     # the uncertainty budget moves such a cell with the recorded weights
     ctx = UncertaintyContext.for_calibration(data.height_mm, data.spec, cal, None,
                                              data.layers["contribution"],

@@ -905,7 +905,21 @@ def _stats(run: _Run, tab: _Tables, tally: _Tally, finisher: RowFinisher, loop_s
         # (fusion_weight)
         "fusion_weights": {"green": round(finisher.weight_green, 6),
                            "red": round(1.0 - finisher.weight_green, 6)},
+        # where one laser alone measured (the scan's ends, where the other's stripe has not
+        # reached the surface or has left it, and occlusions), the map is that laser's alone,
+        # with its own precision: the height one pixel of stripe shift means for each
+        # (docs/accuracy.md, "Where the fused error comes from")
+        "cells_one_laser": _one_laser_cells(finisher.contrib, fused),
+        "height_per_stripe_pixel_mm": {
+            n: (round(v, 4) if np.isfinite(v) else None)
+            for n, v in height_per_pixel(run.cal, run.video.size).items()},
     }
+
+
+def _one_laser_cells(contrib: np.ndarray, fused: np.ndarray) -> dict[str, int]:
+    """Cells of the fused map each laser alone made (contribution codes 1 and 2)."""
+    counts = np.bincount(contrib[np.isfinite(fused)].ravel(), minlength=5)
+    return {"green": int(counts[1]), "red": int(counts[2])}
 
 
 def _direction(travel: np.ndarray) -> int:
