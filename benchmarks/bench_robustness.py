@@ -15,8 +15,8 @@ there for the columns) plus:
   located within one frame's stripe) and across it (crossed along grid columns: located
   between two frames, which are a frame's travel apart), with the number of crossings each.
 - ``fused MAE where both lasers measured`` (per-rig line and summary; not an acceptance
-  point): the fused map's MAE off edges on the cells both lasers made, and the share of the
-  cells one laser alone made (the scan's ends, where one stripe has not yet reached the
+  point): the fused map's MAE off edges on the cells both lasers made, and (per-rig line
+  only) the share of the cells one laser alone made (the scan's ends, where one stripe has not yet reached the
   surface or has left it, and occlusions). On a short render with the lasers' stripes far
   apart along the scan that share is a third or more, and there the map has the noise of that
   laser alone (docs/accuracy.md, "Where the fused error comes from").

@@ -595,7 +595,9 @@ def test_a_wall_hidden_in_a_gap_lies_in_it_as_far_as_the_level_reaches(monkeypat
     side's last sample; the true wall lies in the gap, at most as far as a wall steeper than
     the ray grazing its top reaches at the level (``hidden_reach``: the level's fraction of the
     drop times the gap, plus the rest of a sample for the top's edge): the component "wall in a
-    gap" is that reach / sqrt(3) per such wall, with "method, top beside a gap" for the top's
+    gap" is one-sided (each wall uniform from 0 to its reach on the gap's side: reach / sqrt(3)
+    for one wall, the two walls' shifts adding across a ridge and cancelling between two
+    steps the same way), with "method, top beside a gap" for the top's
     last sample, and that wall carries no lateral-sampling term and no one-laser wall error
     (the gap holds them). A map without gaps has neither; the whole gap (``GAP_RULE``
     "whole") states more."""
@@ -648,7 +650,13 @@ def test_a_wall_hidden_in_a_gap_lies_in_it_as_far_as_the_level_reaches(monkeypat
     # both walls lie on their gaps' sides, outside the ridge: the reading is narrow by 0 to
     # both reaches, by one reach on average (one-sided; RMS about the reading)
     gap = comps["wall in a gap"]
-    assert gap.offset_mm == pytest.approx(reach, rel=0.01) and "adding" in gap.note
+    assert gap.offset_mm == pytest.approx(-reach, rel=0.01) and "adding" in gap.note
+    assert f"short by {reach:.3f} mm on average" in gap.note
+    b_ridge = U.width_budget(U.UncertaintyContext(both, spec, sampling_mm=(0.4, 0.4)),
+                             M.line_profile(both, spec, (5.0, 10.0), (35.0, 10.0), 1.0),
+                             M.width_at_level(
+                                 M.line_profile(both, spec, (5.0, 10.0), (35.0, 10.0), 1.0),
+                                 1.0, 15.0))
     assert gap.rectangles_mm() == pytest.approx((reach / 2, reach / 2), rel=0.01)
     assert gap.u_mm == pytest.approx(reach * math.sqrt(1 / 6 + 1), rel=0.01)
     assert comps["method, top beside a gap"].u_mm == pytest.approx(
@@ -670,10 +678,12 @@ def test_a_wall_hidden_in_a_gap_lies_in_it_as_far_as_the_level_reaches(monkeypat
     sb = U.width_budget(U.UncertaintyContext(stairs, spec, sampling_mm=(0.4, 0.4)), p, pair,
                         level_bands=((lo, mid), (mid, hi)))
     stair_gap = {c.name: c for c in sb.components}["wall in a gap"]
-    assert stair_gap.offset_mm == pytest.approx(0.0, abs=1e-9) and "cancelling" in stair_gap.note
+    assert stair_gap.offset_mm == 0.0 and "cancelling" in stair_gap.note
+    assert "is right on average" in stair_gap.note and "one-sided (mean" not in sb.text()
     assert stair_gap.u_mm == pytest.approx(reach / math.sqrt(6), rel=0.01)
-    # the true distance (mid-levels at x 15.2 and 25.2) within the reading's U
-    assert abs(pair.width_mm - 10.0) <= sb.U_mm
+    # the same two hidden walls: what the ridge states, the stairs do not
+    assert sb.U_mm < b_ridge.U_mm - 0.5 * reach
+    assert "one-sided (mean error -0.8" in b_ridge.text()
     # the former rule, the wall anywhere in the gap, states more and has no top term
     monkeypatch.setattr(U, "GAP_RULE", "whole")
     _, old = budget(both)
@@ -1086,6 +1096,11 @@ def test_k_is_2_for_normal_sums_and_165_for_a_rectangle_alone():
     again = U.budget_from_json(json.loads(json.dumps(b.to_json())))
     assert again.k == b.k and again.components[1].rectangles_mm() == (0.6, 0.6)
     one = U.Budget("w", 1.0, (_norm(0.1), _one_sided(0.6, 0.3, 0.3)))
+    with pytest.raises(ValueError):  # two offsets' correlation is not known: refused
+        U.coverage_factor([_one_sided(0.5, 0.5), _one_sided(0.5, 0.5)])
+    # an offset alone (no spread): a shift of the reading, k 1 (U the offset itself)
+    alone = U.Component("o", "q", "B", "rectangular", 0.3, "mm", 1.0, 0.3, "", (), -0.3)
+    assert alone.rectangles_mm() == () and U.coverage_factor([alone]) == pytest.approx(1.0, abs=0.02)
     back = U.budget_from_json(json.loads(json.dumps(one.to_json())))
     assert back.components[1].offset_mm == 0.6 and back.components[1].rectangles_mm() == (0.3, 0.3)
     assert U.coverage_factor(back.components) == U.coverage_factor(one.components)

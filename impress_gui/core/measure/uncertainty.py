@@ -146,13 +146,14 @@ class Component:
     u_mm: float
     note: str = ""
     #: a rectangular component that sums independent rectangular ones (two walls each in a
-    #: gap): their half-widths in mm (``u_mm`` is their root-sum-square over sqrt 3); empty:
-    #: one rectangle of half-width ``sqrt(3) u_mm``
+    #: gap): their half-widths in mm (``u_mm`` is their root-sum-square over sqrt 3, with the
+    #: offset below in quadrature); empty: one rectangle of half-width ``sqrt(3) u_mm``
     half_widths_mm: tuple[float, ...] = ()
     #: a one-sided component (an error of known sign the reading does not correct: a wall
-    #: hidden in a gap lies on the gap's side of the crossing): the mean of the error it adds,
-    #: mm; its rectangles are about that mean, and ``u_mm`` is the RMS about 0 (the
-    #: rectangles' root-sum-square over sqrt 3 and the offset, in quadrature)
+    #: hidden in a gap lies on the gap's side of the crossing): the mean of the error it adds
+    #: to the reading (reading minus truth, signed), mm; its rectangles are about that mean,
+    #: and ``u_mm`` is the RMS about 0 (the rectangles' root-sum-square over sqrt 3 and the
+    #: offset, in quadrature). A budget holds at most one (:func:`coverage_factor`)
     offset_mm: float = 0.0
 
     def rectangles_mm(self) -> tuple[float, ...]:
@@ -160,6 +161,8 @@ class Component:
         a normal (or Monte Carlo) one."""
         if self.distribution != "rectangular" or not math.isfinite(self.u_mm):
             return ()
+        if self.offset_mm and not self.half_widths_mm:
+            return ()  # an offset alone: u_mm is the offset, not a rectangle
         return self.half_widths_mm or (math.sqrt(3.0) * abs(self.u_mm),)
 
     def to_json(self) -> dict:
@@ -220,7 +223,8 @@ class Budget:
         for c in self.components:
             lines.append(f"{c.name} | {_g(c.u_x)} {c.unit} | {_g(c.sensitivity)} | "
                          f"{_g4(c.u_mm)} | {c.evaluation}, {c.distribution}"
-                         + (f", one-sided (mean {c.offset_mm:.3f} mm)" if c.offset_mm else "")
+                         + (f", one-sided (mean error {c.offset_mm:+.3f} mm)"
+                            if c.offset_mm else "")
                          + (f" - {c.note}" if c.note else ""))
         lines += list(self.notes)
         return "\n".join(lines)
@@ -244,16 +248,20 @@ def coverage_factor(components: Sequence[Component], p: float = COVERAGE_P) -> f
     same k) and k the half-width of the central interval holding ``p`` over ``u_c``, rounded up
     to 0.01 and at most 2 (2 for a normal sum; 1.66 for one rectangle alone).
 
-    One-sided components (:attr:`Component.offset_mm`) shift the sum by their offsets: the
-    interval is still the one about 0 (the reading) holding ``p``, and ``u_c`` their RMS
-    about 0."""
+    A one-sided component (:attr:`Component.offset_mm`) shifts the sum by its offset: the
+    interval is still the one about 0 (the reading) holding ``p``, and ``u_c`` holds its RMS
+    about 0. A budget holds at most one: two would need their offsets' correlation in
+    ``u_c`` (taken in quadrature, two offsets of one sign would understate it)."""
     us = [c.u_mm for c in components if math.isfinite(c.u_mm)]
     uc = math.sqrt(sum(u * u for u in us)) if us else 0.0
     if not uc > 0:
         return K
     rect = [a for c in components for a in c.rectangles_mm() if a > 0]
-    off = abs(sum(c.offset_mm for c in components
-                  if math.isfinite(c.u_mm) and math.isfinite(c.offset_mm)))
+    offsets = [c.offset_mm for c in components
+               if c.offset_mm and math.isfinite(c.u_mm) and math.isfinite(c.offset_mm)]
+    if len(offsets) > 1:
+        raise ValueError("a budget holds at most one one-sided component")
+    off = abs(offsets[0]) if offsets else 0.0
     var_n = max(uc * uc - sum(a * a / 3.0 for a in rect) - off * off, 0.0)
     rect = [a for a in rect if a > 0.01 * uc]  # a rectangle this narrow adds no shape
     if not rect and not off > 0.01 * uc:
@@ -1596,7 +1604,10 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                  if hid and geometric and math.isfinite(g) and g != 0 else 0.0
                  for k, (g, hid) in enumerate(zip(slopes, in_gap))]
         halves = [r / 2.0 if sg else r for r, sg in zip(reach, signs)]
-        off = abs(sum(sg * r / 2.0 for r, sg in zip(reach, signs)))
+        # the mean error the walls add to the reading (reading minus truth: the signs are the
+        # truth's side), rounded so that two equal reaches cancel to 0 exactly
+        err_mean = round(-sum(sg * r / 2.0 for r, sg in zip(reach, signs)), 9)
+        off = abs(err_mean)
         ug = [a / math.sqrt(3.0) for a in halves]
         u_gap = math.sqrt(sum(v * v for v in ug) + off * off)
         said = "; ".join(f"{side}: " + (
@@ -1613,14 +1624,16 @@ def width_budget(ctx: UncertaintyContext, profile, width,
                "the ray that grazes its top, so it crosses the level within f of the hidden "
                "stretch, f the level's fraction of the drop, plus up to a sample for the top "
                "edge's own place; on the gap's side only, so one-sided: each wall's place "
-               "uniform from 0 to its reach, the reading's mean shift "
-               f"{off:.3f} mm (" + ("the two walls' shifts adding" if signs[0] * signs[1] > 0
-                                    else "the two walls' shifts cancelling"
-                                    if signs[0] * signs[1] < 0 else "one wall's")
+               "uniform from 0 to its reach, and the reading "
+               + (f"is {'short' if err_mean < 0 else 'long'} by {off:.3f} mm on average"
+                  if off else "is right on average")
+               + " (" + ("the two walls' shifts adding" if signs[0] * signs[1] > 0
+                         else "the two walls' shifts cancelling" if signs[0] * signs[1] < 0
+                         else "one wall's")
                + "); u the RMS about the reading)"
                if geometric else "the other sample (RMS about the crossing: gap / sqrt(3))")
             + "; no one-laser wall error or lateral sampling for such a wall",
-            tuple(math.sqrt(3.0) * v for v in ug if v > 0), off))
+            tuple(math.sqrt(3.0) * v for v in ug if v > 0), err_mean))
         if geometric:
             # the reach holds the wall on the gap's side only; the higher side's last sample
             # is itself placed by the stripe's centre next to the image of the top's edge,
