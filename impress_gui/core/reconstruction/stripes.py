@@ -872,6 +872,80 @@ def window_refine(rr: np.ndarray, sig: np.ndarray, top: np.ndarray,
     return np.where(keep, centre, c)
 
 
+def gauss_refine(rr: np.ndarray, sig: np.ndarray, centre: np.ndarray,
+                 clipped: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The stripe's centre per column from a Gaussian on a constant floor fitted to its
+    profile (``rr``, ``sig``: ``(2k+1, W)`` rows and luma above the window's minimum;
+    ``clipped``: rows at the clipping level, left out - a saturated core says nothing of where
+    the profile peaks, its flanks do), over the rows within ``kernels.GAUSS_HALF`` widths of
+    ``centre`` (the width first taken from the rows above half maximum; 2.5-8 rows);
+    Levenberg-Marquardt from ``centre``, a step taken only where it lowers the squared
+    residuals, until a step of nearly Gauss-Newton's own size (damping at most 1e-5) moves
+    the centre less than ``kernels.GAUSS_TOL`` rows or after
+    ``kernels.GAUSS_ITERATIONS`` steps. Returns (centre, width); ``centre`` and a width of 0
+    where fewer than five rows are left, the fit fails or moves the centre more than a row.
+    The numpy reference of ``kernels._gauss_refine``."""
+    from impress_gui.core.reconstruction import kernels as kn
+
+    sig = np.asarray(sig, np.float64)
+    rr = np.asarray(rr, np.float64)
+    c0 = np.asarray(centre, np.float64)
+    w = sig.shape[1]
+    top = sig.max(axis=0)
+    lo = sig.min(axis=0)
+    wc = (sig - lo > 0.5 * (top - lo)).sum(axis=0)
+    s = np.clip(wc / 2.355, 0.5, 4.0)
+    hw = np.clip(kn.GAUSS_HALF * s, 2.5, 8.0)
+    with np.errstate(invalid="ignore"):
+        use = (np.abs(rr - c0) <= hw) & ~clipped
+    amp = np.where(use, sig, -np.inf).max(axis=0)
+    b = np.where(use, sig, np.inf).min(axis=0)
+    a = amp - b
+    c = c0.copy()
+    ok = np.isfinite(c0) & (use.sum(axis=0) >= 5)
+    live = ok.copy()
+
+    def cost(a, c, s, b):
+        e = np.exp(-0.5 * (rr - c) ** 2 / (s * s))
+        return (np.where(use, sig - (a * e + b), 0.0) ** 2).sum(axis=0)
+
+    with np.errstate(invalid="ignore", over="ignore"):
+        now = cost(a, c, s, b)
+    lam = np.full(w, 1e-3)
+    for _ in range(kn.GAUSS_ITERATIONS):
+        if not live.any():
+            break
+        d = rr - c
+        e = np.exp(-0.5 * d * d / (s * s))
+        g = np.stack([e, a * e * d / (s * s), a * e * d * d / (s * s * s), np.ones_like(e)])
+        g = np.where(use & live, g, 0.0)  # (4, n, W)
+        res = np.where(use & live, sig - (a * e + b), 0.0)
+        jt = np.einsum("pnw,qnw->wpq", g, g)
+        rhs = np.einsum("pnw,nw->wp", g, res)
+        m = jt + lam[:, None, None] * jt * np.eye(4)[None]
+        solvable = live & (np.abs(np.linalg.det(m)) > 0)
+        step = np.zeros((w, 4))
+        if solvable.any():
+            step[solvable] = np.linalg.solve(m[solvable], rhs[solvable][..., None])[..., 0]
+        ok &= solvable | ~live
+        live &= solvable
+        a1 = a + step[:, 0]
+        c1 = c + np.clip(step[:, 1], -0.5, 0.5)
+        s1 = np.clip(s + np.clip(step[:, 2], -0.3, 0.3), 0.3, 6.0)
+        b1 = b + step[:, 3]
+        with np.errstate(invalid="ignore", over="ignore"):
+            trial = cost(a1, c1, s1, b1)
+        better = live & (trial < now)
+        done = better & (np.abs(c1 - c) < kn.GAUSS_TOL) & (lam <= 1e-5)
+        a, c, s, b = (np.where(better, x1, x) for x1, x in ((a1, a), (c1, c), (s1, s), (b1, b)))
+        now = np.where(better, trial, now)
+        lam = np.where(better, np.maximum(lam * 0.1, 1e-7), np.where(live, lam * 10.0, lam))
+        live &= ~done
+    with np.errstate(invalid="ignore"):
+        ok &= (a > 0) & (np.abs(c - c0) <= 1.0) & np.isfinite(c)
+    return np.where(ok, c, c0), np.where(ok, s, 0.0)
+
+
 def headroom_lean(name: str, win_rgb: np.ndarray) -> np.ndarray:
     """How far the light in windows of rows leans to laser ``name``'s colour, whatever the
     surface's own colour: ``win_rgb`` is ``(2k+1, N, 3)`` (rows of each column's window); the
