@@ -1067,7 +1067,7 @@ UNLIT_TEXTURE_WEIGHT = 0.7
 GAUSS_MIN_ROWS = 6.0
 GAUSS_HALF = 2.2
 GAUSS_ITERATIONS = 40  # Levenberg-Marquardt steps at most ...
-GAUSS_TOL = 1e-7  # ... ending when a step moves the centre less than this (rows)
+GAUSS_TOL = 1e-4  # ... ending when a step moves the centre less than this (rows)
 
 
 @_jit
@@ -1103,13 +1103,15 @@ def _solve4(a, b, m):
 
 
 @_jit
-def _gauss_cost(rr, sig, n, use, a, c, s, b):
-    """Sum of squared residuals of ``a exp(-(r - c)^2 / 2 s^2) + b`` over the rows ``use``."""
+def _gauss_cost(rr, sig, n, use, a, c, s, b, e):
+    """Sum of squared residuals of ``a exp(-(r - c)^2 / 2 s^2) + b`` over the rows ``use``;
+    the exponentials into ``e``."""
     cost = 0.0
     for j in range(n):
         if use[j]:
             d = rr[j] - c
-            res = sig[j] - (a * math.exp(-0.5 * d * d / (s * s)) + b)
+            e[j] = math.exp(-0.5 * d * d / (s * s))
+            res = sig[j] - (a * e[j] + b)
             cost += res * res
     return cost
 
@@ -1151,7 +1153,9 @@ def _gauss_refine(rr, sig, n, centre, clipped):
     m = np.empty((4, 4))
     rhs = np.empty(4)
     step = np.empty(4)
-    cost = _gauss_cost(rr, sig, n, use, a, c, s, b)
+    e = np.zeros(n)
+    e1 = np.zeros(n)
+    cost = _gauss_cost(rr, sig, n, use, a, c, s, b, e)
     lam = 1e-3
     for _ in range(GAUSS_ITERATIONS):
         for p in range(4):
@@ -1162,9 +1166,8 @@ def _gauss_refine(rr, sig, n, centre, clipped):
             if not use[j]:
                 continue
             d = rr[j] - c
-            e = math.exp(-0.5 * d * d / (s * s))
-            g = (e, a * e * d / (s * s), a * e * d * d / (s * s * s), 1.0)
-            res = sig[j] - (a * e + b)
+            g = (e[j], a * e[j] * d / (s * s), a * e[j] * d * d / (s * s * s), 1.0)
+            res = sig[j] - (a * e[j] + b)
             for p in range(4):
                 rhs[p] += g[p] * res
                 for q in range(4):
@@ -1180,12 +1183,14 @@ def _gauss_refine(rr, sig, n, centre, clipped):
         c1 = c + min(max(step[1], -0.5), 0.5)
         s1 = min(max(s + min(max(step[2], -0.3), 0.3), 0.3), 6.0)
         b1 = b + step[3]
-        cost1 = _gauss_cost(rr, sig, n, use, a1, c1, s1, b1)
+        cost1 = _gauss_cost(rr, sig, n, use, a1, c1, s1, b1, e1)
         if cost1 < cost:
-            # converged: a step of (nearly) Gauss-Newton's own size that moves the centre
-            # less than GAUSS_TOL (a heavily damped step is short however far the optimum)
-            done = abs(c1 - c) < GAUSS_TOL and lam <= 1e-5
+            # converged: a step hardly damped that moves the centre less than GAUSS_TOL (a
+            # heavily damped step is short however far the optimum)
+            done = abs(c1 - c) < GAUSS_TOL and lam <= 1e-3
             a, c, s, b, cost = a1, c1, s1, b1, cost1
+            for j in range(n):
+                e[j] = e1[j]
             lam = max(lam * 0.1, 1e-7)
             if done:
                 break

@@ -880,7 +880,7 @@ def gauss_refine(rr: np.ndarray, sig: np.ndarray, centre: np.ndarray,
     the profile peaks, its flanks do), over the rows within ``kernels.GAUSS_HALF`` widths of
     ``centre`` (the width first taken from the rows above half maximum; 2.5-8 rows);
     Levenberg-Marquardt from ``centre``, a step taken only where it lowers the squared
-    residuals, until a step of nearly Gauss-Newton's own size (damping at most 1e-5) moves
+    residuals, until a step of nearly Gauss-Newton's own size (damping at most 1e-3) moves
     the centre less than ``kernels.GAUSS_TOL`` rows or after
     ``kernels.GAUSS_ITERATIONS`` steps. Returns (centre, width); ``centre`` and a width of 0
     where fewer than five rows are left, the fit fails or moves the centre more than a row.
@@ -936,7 +936,7 @@ def gauss_refine(rr: np.ndarray, sig: np.ndarray, centre: np.ndarray,
         with np.errstate(invalid="ignore", over="ignore"):
             trial = cost(a1, c1, s1, b1)
         better = live & (trial < now)
-        done = better & (np.abs(c1 - c) < kn.GAUSS_TOL) & (lam <= 1e-5)
+        done = better & (np.abs(c1 - c) < kn.GAUSS_TOL) & (lam <= 1e-3)
         a, c, s, b = (np.where(better, x1, x) for x1, x in ((a1, a), (c1, c), (s1, s), (b1, b)))
         now = np.where(better, trial, now)
         lam = np.where(better, np.maximum(lam * 0.1, 1e-7), np.where(live, lam * 10.0, lam))
