@@ -206,6 +206,16 @@ def verdicts(rows: list[dict], draws: int, with_fill: bool) -> list[tuple[str, b
         a = arr(k)
         return float(np.nanmax(np.abs(a))) if np.isfinite(a).any() else float("nan")
 
+    def outside(keys, lim, below: bool = False) -> str:
+        """The rigs beyond ``lim`` in any of ``keys`` (absolute values; ``below``: under it),
+        as the verdict's last words: which rigs a failing point fails on."""
+        bad = []
+        for r in rows:
+            v = [abs(float(r.get(k, np.nan))) for k in keys]
+            if any(np.isfinite(x) and (x < lim if below else x > lim) for x in v):
+                bad.append(r["seed"])
+        return f"; rigs outside: {', '.join(map(str, bad))}" if bad else ""
+
     out = []
     failed = [r["seed"] for r in rows if "error" in r]
     out.append(("every rig calibrates and reconstructs", not failed,
@@ -214,32 +224,40 @@ def verdicts(rows: list[dict], draws: int, with_fill: bool) -> list[tuple[str, b
                          ("roll_err", ACCEPT["roll_err"], "roll within 0.01 deg"),
                          ("tilt_err", ACCEPT["tilt_err"], "tilt within 0.01 deg")):
         v = worst_abs(k)
-        out.append((text, v <= lim, f"worst {v:.4f}"))
+        out.append((text, v <= lim, f"worst {v:.4f}{outside((k,), lim)}"))
     b = max(worst_abs("bias_g"), worst_abs("bias_r"))
-    out.append(("each laser's height bias <= 0.01 mm", b <= ACCEPT["bias"], f"worst {b:.4f} mm"))
+    out.append(("each laser's height bias <= 0.01 mm", b <= ACCEPT["bias"],
+                f"worst {b:.4f} mm{outside(('bias_g', 'bias_r'), ACCEPT['bias'])}"))
     s = max(worst_abs("slope_g"), worst_abs("slope_r"))
-    out.append(("height-scale error <= 0.05 %", s <= ACCEPT["slope_pct"], f"worst {s:.3f} %"))
+    out.append(("height-scale error <= 0.05 %", s <= ACCEPT["slope_pct"],
+                f"worst {s:.3f} %{outside(('slope_g', 'slope_r'), ACCEPT['slope_pct'])}"))
     f = arr("mae_f")
     out.append(("fused MAE median <= 0.025 mm", np.nanmedian(f) <= ACCEPT["mae_f_median"],
                 f"median {np.nanmedian(f):.4f} mm"))
     out.append(("fused MAE worst <= 0.04 mm", np.nanmax(f) <= ACCEPT["mae_f_worst"],
-                f"worst {np.nanmax(f):.4f} mm (seed {rows[int(np.nanargmax(f))]['seed']})"))
+                f"worst {np.nanmax(f):.4f} mm (seed {rows[int(np.nanargmax(f))]['seed']})"
+                f"{outside(('mae_f',), ACCEPT['mae_f_worst'])}"))
     lw = max(np.nanmax(arr("mae_g")), np.nanmax(arr("mae_r")))
-    out.append(("per-laser MAE worst <= 0.05 mm", lw <= ACCEPT["mae_laser_worst"], f"worst {lw:.4f} mm"))
+    out.append(("per-laser MAE worst <= 0.05 mm", lw <= ACCEPT["mae_laser_worst"],
+                f"worst {lw:.4f} mm{outside(('mae_g', 'mae_r'), ACCEPT['mae_laser_worst'])}"))
     wd = arr("wild")
     out.append(("wild points <= 0.01 % on every rig", np.nanmax(wd) <= ACCEPT["wild_pct"],
-                f"worst {np.nanmax(wd):.4f} % (seed {rows[int(np.nanargmax(wd))]['seed']})"))
+                f"worst {np.nanmax(wd):.4f} % (seed {rows[int(np.nanargmax(wd))]['seed']})"
+                f"{outside(('wild',), ACCEPT['wild_pct'])}"))
     if with_fill:
         fl = arr("fill")
         out.append(("fill >= 99 % of what either laser sees", np.nanmin(fl) >= ACCEPT["fill_pct"],
-                    f"worst {np.nanmin(fl):.2f} % (seed {rows[int(np.nanargmin(fl))]['seed']})"))
+                    f"worst {np.nanmin(fl):.2f} % (seed {rows[int(np.nanargmin(fl))]['seed']})"
+                    f"{outside(('fill',), ACCEPT['fill_pct'], below=True)}"))
     e = arr("edge_mm")
     out.append(("feature-edge error <= 0.05 mm", np.nanmax(e) <= ACCEPT["edge_mm"],
-                f"median {np.nanmedian(e):.4f}, worst {np.nanmax(e):.4f} mm"))
+                f"median {np.nanmedian(e):.4f}, worst {np.nanmax(e):.4f} mm"
+                f"{outside(('edge_mm',), ACCEPT['edge_mm'])}"))
     if draws:
         nm = arr("noise_mae")
         out.append(("with click noise, worst fused MAE <= 0.06 mm",
-                    np.nanmax(nm) <= ACCEPT["noise_mae_worst"], f"worst {np.nanmax(nm):.4f} mm"))
+                    np.nanmax(nm) <= ACCEPT["noise_mae_worst"],
+                    f"worst {np.nanmax(nm):.4f} mm{outside(('noise_mae',), ACCEPT['noise_mae_worst'])}"))
     return out
 
 

@@ -1,0 +1,61 @@
+"""The robustness benchmark's verdicts (issue 18) name the rigs a failing point fails on."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def bench():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import bench_robustness
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    return bench_robustness
+
+
+def _rig(seed: int, **over) -> dict:
+    row = {"seed": seed, "rep_px": 0.001, "roll_err": 0.0, "tilt_err": 0.001,
+           "bias_g": 0.001, "bias_r": -0.002, "slope_g": 0.01, "slope_r": -0.01,
+           "mae_f": 0.02, "mae_g": 0.02, "mae_r": 0.03, "wild": 0.0, "fill": 99.8,
+           "edge_mm": 0.002, "noise_mae": 0.03}
+    row.update(over)
+    return row
+
+
+def _by_text(verdicts) -> dict[str, tuple[bool, str]]:
+    return {text: (ok, msg) for text, ok, msg in verdicts}
+
+
+def test_a_failing_point_lists_the_rigs_outside_it_and_only_those(bench):
+    rows = [_rig(3), _rig(7, bias_r=-0.0136, slope_g=0.07), _rig(11, bias_g=0.0107),
+            _rig(12, fill=98.5, edge_mm=0.3), _rig(20, mae_r=0.063)]
+    got = _by_text(bench.verdicts(rows, draws=0, with_fill=True))
+    ok, msg = got["each laser's height bias <= 0.01 mm"]
+    assert not ok and msg.endswith("rigs outside: 7, 11")
+    ok, msg = got["height-scale error <= 0.05 %"]
+    assert not ok and msg.endswith("rigs outside: 7")
+    ok, msg = got["fill >= 99 % of what either laser sees"]
+    assert not ok and msg.endswith("rigs outside: 12")
+    ok, msg = got["feature-edge error <= 0.05 mm"]
+    assert not ok and msg.endswith("rigs outside: 12")
+    ok, msg = got["per-laser MAE worst <= 0.05 mm"]
+    assert not ok and msg.endswith("rigs outside: 20")
+    # the points every rig meets name none
+    for text in ("tilt within 0.01 deg", "fused MAE worst <= 0.04 mm",
+                 "wild points <= 0.01 % on every rig"):
+        ok, msg = got[text]
+        assert ok and "outside" not in msg, (text, msg)
+
+
+def test_a_rig_without_a_figure_is_not_counted_outside(bench):
+    rows = [_rig(1, edge_mm=float("nan")), _rig(2, edge_mm=0.07)]
+    ok, msg = _by_text(bench.verdicts(rows, draws=0, with_fill=False))[
+        "feature-edge error <= 0.05 mm"]
+    assert not ok and msg.endswith("rigs outside: 2")
