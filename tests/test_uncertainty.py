@@ -20,7 +20,9 @@ from impress_gui.core.measure import readings as M
 from impress_gui.core.measure import uncertainty as U
 from impress_gui.core.reconstruction.grid import GridSpec
 
-TRIALS = 10
+#: trials per ensemble: the ensembles compared share their seed (the same standard draws,
+#: scaled), so the comparisons below hold with few; 6 keeps the file near a minute
+TRIALS = 6
 
 
 def test_budget_combines_by_root_sum_square_and_expands_with_k2():
@@ -108,13 +110,15 @@ def test_calibration_monte_carlo_grows_with_click_noise_and_is_deterministic(fla
                   for s in (0.3, 1.2))
     assert _spread(c_hi)[0] > 1.1 * _spread(c_lo)[0]
     assert hi.summary["tilt_sd_deg"] > lo.summary["tilt_sd_deg"]
-    # cached: the same object; recomputed: the same numbers (a fixed seed)
+    # cached: the same object; recomputed: the same numbers (a fixed seed; the trials are
+    # drawn in turn, so fewer trials are the first ones of more)
     assert CU.calibration_ensemble(cal, target, 0.3, n=TRIALS) is lo
     CU._CACHE.clear()
-    again = CU.calibration_ensemble(cal, target, 0.3, n=TRIALS)
-    assert again is not lo
-    np.testing.assert_array_equal(again.trials.rotation, lo.trials.rotation)
-    assert _spread(again) == (h_lo, l_lo)
+    again = CU.calibration_ensemble(cal, target, 0.3, n=3)
+    assert again is not lo and again.n_trials == 3
+    np.testing.assert_array_equal(again.trials.rotation, lo.trials.rotation[:3])
+    for la in ("green", "red"):
+        np.testing.assert_array_equal(again.trials.normals[la], lo.trials.normals[la][:3])
     # the noise-free trial reproduces the calibration: it maps cells onto themselves
     bx, by, bh = CU.map_points(lo.nominal, lo.base, [0.0, 10.0], [30.0, 40.0], [0.0, 2.0],
                                "red")

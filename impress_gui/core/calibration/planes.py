@@ -210,12 +210,13 @@ def points_on_ground(rays: np.ndarray, pose, target: TargetModel, travel_mm
     qq = q[idx]
     if cam.ndim == 2:  # a rolling shutter: each point's own camera position
         cam = cam[idx]
-    hidden = np.zeros(len(idx), bool)
     rise = np.maximum(cam[..., 2] - qq[:, 2], 1e-9)
-    for z in np.linspace(0.0, top, 41)[1:]:
-        pp = qq + (cam - qq) * (z / rise)[:, None]
-        hf = target.heightfield(pp[:, 0], pp[:, 1], grow_mm=GROUND_MARGIN_MM)
-        hidden |= np.isfinite(hf) & (hf >= pp[:, 2])
+    # all 40 heights in one call (40 calls of a few hundred points each took a fifth of the
+    # calibration's Monte Carlo); the same values element by element
+    zs = np.linspace(0.0, top, 41)[1:]
+    pp = qq + (cam - qq) * (zs[:, None] / rise)[..., None]  # (40, N, 3)
+    hf = target.heightfield(pp[..., 0], pp[..., 1], grow_mm=GROUND_MARGIN_MM)
+    hidden = np.any(np.isfinite(hf) & (hf >= pp[..., 2]), axis=0)
     keep[idx[hidden]] = False
     return hit[keep]
 
