@@ -55,15 +55,20 @@ COLUMNS = [  # key, header, format
 #: a rolling shutter's readout (ms) for the scans (``--readout-ms``; 0: a global shutter, the
 #: renders cached without a suffix)
 READOUT_MS = 0.0
+#: the stripes drawn following the soil row by row (``--stripe-follows-soil``; renders cached
+#: apart, with the suffix ``-fs``)
+STRIPE_FOLLOWS_SOIL = False
 
 
 def scan_for(seed: int, width: int, height: int) -> Path:
     from impress_gui.sim.simulate import SimConfig, simulate
 
     rs = f"-rs{READOUT_MS:g}ms" if READOUT_MS else ""
+    rs += "-fs" if STRIPE_FOLLOWS_SOIL else ""
     out = CACHE / f"random-{seed}-{width}x{height}{rs}-{SIM_KEY}"
     if not (out / "truth.json").exists():
-        cfg = SimConfig.random(seed, width, height, readout_ms=READOUT_MS)
+        cfg = SimConfig.random(seed, width, height, readout_ms=READOUT_MS,
+                               stripe_follows_soil=STRIPE_FOLLOWS_SOIL)
         print(f"[simulating random rig {seed} at {width}x{height}: {cfg.preset}]", flush=True)
         simulate(cfg, out, workers=1)
     return out

@@ -283,6 +283,9 @@ def main() -> None:
                     help="with --readout-ms: the calibration given the readout (default), "
                     "without it (estimated from the picks, or none), or told the camera has a "
                     "global shutter")
+    ap.add_argument("--stripe-follows-soil", action="store_true",
+                    help="rigs rendered with each stripe pixel's light following the soil it "
+                    "sees (impress simulate --stripe-follows-soil; cached apart)")
     args = ap.parse_args()
     if args.no_unlit_soil:
         PROCESS["unlit_soil"] = False
@@ -291,6 +294,7 @@ def main() -> None:
     if args.cache_key:
         R.SIM_KEY = args.cache_key
     R.READOUT_MS = args.readout_ms
+    R.STRIPE_FOLLOWS_SOIL = args.stripe_follows_soil
     seeds = ([int(s) for s in args.seeds.split(",") if s] if "," in args.seeds
              else list(range(int(args.seeds))))
     w, h = (int(v) for v in args.resolution.lower().split("x"))

@@ -215,10 +215,14 @@ def main() -> None:
     ap.add_argument("--folder", action="append", default=[], type=Path,
                     help="another scan folder with truth.json (e.g. a test's cached render); "
                     "repeatable")
+    ap.add_argument("--stripe-follows-soil", action="store_true",
+                    help="rigs rendered with each stripe pixel's light following the soil it "
+                    "sees (impress simulate --stripe-follows-soil; cached apart)")
     args = ap.parse_args()
     shoe = CACHE / f"shoe-1080p-{common.SIM_KEY}"  # this simulator's render
     if args.cache_key:
         common.SIM_KEY = R.SIM_KEY = args.cache_key
+    R.STRIPE_FOLLOWS_SOIL = args.stripe_follows_soil
     w, h = (int(v) for v in args.resolution.split("x"))
     scans = [(f"rig {s}", R.scan_for(int(s), w, h)) for s in args.seeds.split(",") if s]
     if args.shoe:

@@ -195,6 +195,78 @@ def test_realistic_stripe_centre_has_no_bias(world, stripe_frame, name, ch):
     assert np.percentile(np.abs(err), 95) < STRIPE_TOL_P95_PX
 
 
+def test_a_stripe_that_follows_the_soil_leans_to_its_brighter_side(world, stripe_frame):
+    """``RenderOptions.stripe_follows_soil``: each pixel of a stripe reflects the laser with the
+    albedo of the surface point it sees, as a real surface does. On ground whose albedo steps
+    from dark to bright along each laser's line, the stripe's centre of mass moves towards the
+    bright side; drawn as before (one albedo per column, at the exact centre) it stays on the
+    line. Away from the stripes the two frames are the same."""
+    from dataclasses import replace
+
+    sc = world.scene
+    ys = sc.y0_mm + sc.pixel_mm * np.arange(sc.albedo.shape[0])
+    xs = sc.x0_mm + sc.pixel_mm * np.arange(sc.albedo.shape[1])
+    opts = dict(noise_sigma_dn=0.0, speckle_contrast=0.0, laser_peak=0.25)
+    for name, ch in (("green", GREEN), ("red", RED)):
+        pts, uv = laser_ground_line(world.rig, world.rig.laser(name), stripe_frame.s)
+        d = pts[-1, :2] - pts[0, :2]
+        side = (d[0] * (ys[:, None] - pts[0, 1]) - d[1] * (xs[None, :] - pts[0, 0])) > 0
+        alb = np.where(side[..., None], 200, 60).astype(np.uint8)
+        scene = replace(sc, albedo=np.ascontiguousarray(np.broadcast_to(alb, sc.albedo.shape)))
+        frames = {}
+        for key, extra in (("bg", dict(laser_peak=0.0)), ("off", {}),
+                           ("on", dict(stripe_follows_soil=True))):
+            r = Renderer(scene, world.rig, world.motion, RenderOptions(**{**opts, **extra}))
+            frames[key] = r.render(stripe_frame.k)[0].astype(np.int16)
+        expected = rows_at_columns(uv, np.arange(W))
+        bg = frames["bg"][..., ch]
+        cols = np.flatnonzero(np.isfinite(expected) & (expected > 8) & (expected < H - 9))
+        rows = np.round(expected[cols]).astype(int)
+        bright_below = np.sign(bg[rows + 4, cols] - bg[rows - 4, cols])  # + : towards more rows
+        assert np.mean(bright_below != 0) > 0.9
+        shift = {}
+        for key in ("off", "on"):
+            sig = np.clip(frames[key][..., ch] - bg, 0, None)
+            found = stripe_centres(sig, expected, floor=0.1)
+            shift[key] = ((found - expected)[cols] * bright_below)
+        ok = np.isfinite(shift["off"]) & np.isfinite(shift["on"]) & (bright_below != 0)
+        assert ok.sum() > 0.8 * W
+        assert abs(np.median(shift["off"][ok])) < 0.05, name  # on the line
+        assert np.median(shift["on"][ok]) > 0.15, name  # towards the bright side
+        # the soil away from both stripes is untouched
+        far = np.ones(H, bool)
+        for la in world.rig.lasers:
+            e = rows_at_columns(laser_ground_line(world.rig, la, stripe_frame.s)[1],
+                                np.arange(W))
+            lo, hi = np.nanmin(e), np.nanmax(e)
+            far[max(0, int(lo) - 12):int(hi) + 13] = False
+        assert far.sum() > H / 3
+        np.testing.assert_array_equal(frames["on"][far], frames["off"][far])
+
+
+def test_the_stripe_option_reaches_the_renderer_and_the_truth(monkeypatch):
+    """``impress simulate --stripe-follows-soil``, with a random rig or a preset: the config
+    the renderer is built from has it, and ``truth.json``'s config records it (left out when
+    off: a render's truth stays as before the option)."""
+    from impress_gui.cli import build_parser
+    from impress_gui.commands import simulate as cmd
+    from impress_gui.sim.simulate import _make_renderer
+
+    seen = []
+    monkeypatch.setattr(cmd, "_run", lambda args, cfg: seen.append(cfg) or 0)
+    for extra in (["--random-rig", "13"], ["--preset", "flat"]):
+        for flag in ([], ["--stripe-follows-soil"]):
+            args = build_parser("simulate").parse_args(
+                ["simulate", "out", "--resolution", "320x180", "--grid-mm", "0.5", *extra,
+                 *flag])
+            assert cmd.run(args) == 0
+            cfg = seen[-1]
+            assert cfg.stripe_follows_soil is bool(flag)
+            assert cfg.to_json().get("stripe_follows_soil", False) is bool(flag)
+            if cfg.random_rig is not None:
+                assert _make_renderer(cfg)[0].opt.stripe_follows_soil is bool(flag)
+
+
 # ----- (b) target corners -------------------------------------------------------------------------
 def edge_points(gray, world, s, corner, other, centre):
     """Sub-pixel image points of the target edge ``corner -> other`` (object frame, mm) where

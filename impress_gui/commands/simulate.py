@@ -117,6 +117,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "the last's, ms (0, the default: a global shutter; a CMOS camcorder reads "
                    "its rows over most of a frame interval, e.g. 20-30 ms at 30 frames/s); "
                    "recorded in truth.json")
+    p.add_argument("--stripe-follows-soil", action="store_true",
+                   help="draw each pixel of a laser stripe with the albedo of the soil it "
+                   "sees, as a real surface reflects it (default: each column's stripe scaled "
+                   "by the albedo at its centre, as renders before 6 December 2026); recorded "
+                   "in truth.json")
     p.add_argument("--lamp-video", type=float, default=None, metavar="HZ",
                    help="also film a plain card under a lamp flickering at HZ (100 on 50 Hz "
                    "mains, 120 on 60 Hz) with this camera: lamp.mp4, the input of impress "
@@ -148,7 +153,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "scene, soil, motion, noise and bitrate from SEED over the documented "
                    "family (docs/accuracy.md, Random rigs), every drawn value recorded in "
                    "truth.json's random_rig section; only --resolution, --format, --grid-mm, "
-                   "--click-noise-px, --readout-ms and --workers still apply")
+                   "--click-noise-px, --readout-ms, --stripe-follows-soil and --workers still apply")
     p.add_argument("--workers", type=int, default=None,
                    help="render processes (default: 1 for short clips, else up to 2)")
 
@@ -179,7 +184,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--resolution must be between 64x36 and 4096x2304, even width "
                              "and height", code=codes.E_SIM_OPTION)
         cfg = SimConfig.random(args.random_rig, w, h, args.video_format, args.grid_mm,
-                               args.click_noise_px, args.readout_ms)
+                               args.click_noise_px, args.readout_ms,
+                               args.stripe_follows_soil)
     else:
         cfg = _preset_config(args, blocks)
     return _run(args, cfg)
@@ -195,7 +201,7 @@ def _preset_config(args: argparse.Namespace, blocks: dict):
                     bitrate_mbit=args.bitrate_mbit, speckle=args.speckle, noise_dn=args.noise,
                     grid_mm=args.grid_mm, click_noise_px=args.click_noise_px,
                     target_yaw_deg=args.target_yaw, blocks=blocks, shoe=_shoe_options(args),
-                    readout_ms=args.readout_ms)
+                    readout_ms=args.readout_ms, stripe_follows_soil=args.stripe_follows_soil)
 
 
 #: the most render processes ``--workers`` starts (each holds the scene; more than the

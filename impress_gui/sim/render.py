@@ -37,6 +37,12 @@ class RenderOptions:
     #: shutter, the whole frame at its time); row ``v`` of frame ``k`` shows the scene at
     #: ``k / fps + v * line_time_s``, the camera and its lasers moved on by then
     line_time_s: float = 0.0
+    #: the stripe's light follows the soil row by row: each pixel of the stripe reflects the
+    #: laser in proportion to the albedo of the surface point it sees (a real surface); off,
+    #: each column's stripe is scaled by the albedo at its exact centre (renders before
+    #: 2026-12-06, and still the default: docs/accuracy.md, "A stripe whose light follows
+    #: the soil")
+    stripe_follows_soil: bool = False
 
 
 @dataclass
@@ -344,6 +350,9 @@ class Renderer:
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         cos_inc = np.clip(-(nrm[:, 0] * d[:, 0] + nrm[:, 1] * d[:, 1]) + nrm[:, 2] * d[:, 2],
                           0.05, 1.0)
+        follows = bool(self.opt.stripe_follows_soil)
+        if follows:  # the albedo of each pixel's own surface point, below
+            alb = np.ones_like(alb)
         amp = self.opt.laser_peak * (alb / 0.4) * (0.3 + 0.7 * cos_inc)
         kk = int(np.ceil(4 * self.sigma_px))
         rows = np.floor(vc).astype(np.int64)[:, None] + np.arange(-kk, kk + 1)[None, :]
@@ -356,6 +365,8 @@ class Renderer:
         r0, r1 = int(rows.min()), int(rows.max()) + 1
         sums = np.bincount((rows - r0) * w + cols, weights=wgt, minlength=(r1 - r0) * w)
         band = sums.reshape(r1 - r0, w).astype(np.float32)
+        if follows:
+            band *= self._band_albedo(s, r0, r1, ch)
         c = self.opt.speckle_contrast
         if c > 0:
             # granular multiplicative speckle (gamma-distributed, grain ~1 px), in the band only
@@ -365,6 +376,17 @@ class Renderer:
             sp /= sp.mean()
             band *= sp
         return r0, band
+
+    def _band_albedo(self, s: float, r0: int, r1: int, ch: int) -> np.ndarray:
+        """The albedo (0..1, channel ``ch``) of the surface point each pixel of image rows
+        ``r0:r1`` sees with the camera at travel ``s``, ``(r1 - r0, W)`` float32."""
+        sc, w = self.scene, self.width
+        sl = slice(r0 * w, r1 * w)
+        z = self._camera_depth(s, sl)
+        mx = np.float32(-sc.x0_mm / sc.pixel_mm) + z * self._cam_dx[sl]
+        my = np.float32((s - sc.y0_mm) / sc.pixel_mm) + z * self._cam_dy[sl]
+        alb = remap_points(np.ascontiguousarray(self.albedo[..., ch]), mx, my)
+        return (alb.reshape(r1 - r0, w) / np.float32(255.0)).astype(np.float32)
 
     def _rolling_background(self, k: int) -> np.ndarray:
         """The lit surface under a rolling shutter: bands of rows, each at the travel of its

@@ -60,6 +60,9 @@ class SimConfig:
     #: ``k / fps + v * readout_ms / 1000 / (height - 1)``: a CMOS camcorder's rows are read one
     #: after another while the carriage moves on
     readout_ms: float = 0.0
+    #: the stripe's light follows the soil's texture row by row (``RenderOptions``), as on a
+    #: real surface; off by default (the renders and figures before 2026-12-06)
+    stripe_follows_soil: bool = False
 
     @property
     def line_time_s(self) -> float:
@@ -69,10 +72,11 @@ class SimConfig:
     @classmethod
     def random(cls, rig_seed: int, width: int = 1920, height: int = 1080,
                video_format: str = "mp4", grid_mm: float = 0.1,
-               click_noise_px: float = 0.0, readout_ms: float = 0.0) -> SimConfig:
+               click_noise_px: float = 0.0, readout_ms: float = 0.0,
+               stripe_follows_soil: bool = False) -> SimConfig:
         """The configuration of random rig ``rig_seed`` (``impress simulate --random-rig``);
         ``readout_ms``: a rolling shutter's readout (not drawn: the rig's other draws stay
-        those of the seed)."""
+        those of the seed); ``stripe_follows_soil``: likewise not drawn."""
         from impress_gui.sim.random_rig import draw_random_rig
 
         p = draw_random_rig(int(rig_seed), width, height).params
@@ -85,7 +89,7 @@ class SimConfig:
                    speckle=p["speckle"], noise_dn=p["noise_dn"], grid_mm=grid_mm,
                    ramp_s=p["ramp_s"], click_noise_px=click_noise_px,
                    target_yaw_deg=p["target_yaw_deg"], random_rig=int(rig_seed),
-                   readout_ms=float(readout_ms))
+                   readout_ms=float(readout_ms), stripe_follows_soil=bool(stripe_follows_soil))
 
     def to_json(self) -> dict:
         """The fields (``random_rig`` only when set: a preset's truth stays as it was)."""
@@ -96,6 +100,8 @@ class SimConfig:
             del d["shoe"]
         if not d["readout_ms"]:
             del d["readout_ms"]  # a global shutter: the truth as before rolling shutters
+        if not d["stripe_follows_soil"]:
+            del d["stripe_follows_soil"]  # the truth as before the option
         return d
 
     def validate(self) -> None:
@@ -343,7 +349,8 @@ def _make_renderer(cfg: SimConfig, scene=None):
                                 target_pose(cfg), **cfg.blocks, **cfg.shoe)
         opts = RenderOptions(noise_sigma_dn=cfg.noise_dn, speckle_contrast=cfg.speckle,
                              seed=cfg.seed, stripe_sigma_px=max(1.2, 1.6 * cfg.width / 1920.0),
-                             laser_peak=3.5, line_time_s=cfg.line_time_s)
+                             laser_peak=3.5, line_time_s=cfg.line_time_s,
+                             stripe_follows_soil=cfg.stripe_follows_soil)
     else:
         from impress_gui.sim.random_rig import soil_of
 
@@ -355,7 +362,8 @@ def _make_renderer(cfg: SimConfig, scene=None):
                              seed=cfg.seed, laser_peak=p["laser_peak"], ambient=p["ambient"],
                              stripe_sigma_px=max(0.9, p["stripe_sigma_px_1080p"]
                                                  * cfg.width / 1920.0),
-                             line_time_s=cfg.line_time_s)
+                             line_time_s=cfg.line_time_s,
+                             stripe_follows_soil=cfg.stripe_follows_soil)
     return Renderer(scene, rig, motion, opts), scene
 
 
