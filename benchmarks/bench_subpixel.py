@@ -19,7 +19,10 @@ row, column by column, where the stripe is continuous (no occlusion edge within 
   (>= ``CLIP``) are left at the difference's top (a clipped core has no texture to remove).
   With ``--texture-weights 0.5,0.7,1``, one ``bg-sub`` column per share of the unlit soil's
   texture taken out (its straight-line fit kept whole: ``unlit.texture_weighted``, the
-  product's; the compressed video keeps only part of the texture under a stripe).
+  product's; the compressed video keeps only part of the texture under a stripe). With
+  ``--divide``, also ``bg-div``: that difference divided by the unlit soil (normalised on its
+  7 middle rows), for a stripe whose light follows the soil (``--stripe-follows-soil``: rigs
+  rendered so, cached apart).
 
 Printed per scan and laser: the RMS error (px; errors over 2 px left out, their share printed
 with ``--background``) and the swing of the mean error over the exact
@@ -27,7 +30,7 @@ centre's position within the pixel (eight bins: pixel locking); then median and 
 
 Usage: .venv/bin/python benchmarks/bench_subpixel.py [--seeds 0,7,1,2,4,6]
        [--resolution 1920x1080] [--frames 10] [--shoe] [--cache-key KEY] [--folder SCAN ...]
-       [--background [--texture-weights 1]]
+       [--background [--texture-weights 1] [--divide]] [--stripe-follows-soil]
 (scans are taken from benchmarks/.cache and rendered there when missing)
 """
 
@@ -141,15 +144,24 @@ def _background(kept: dict, project, p: np.ndarray, k: int, j: int, v: float, r0
     return np.mean(cuts, axis=0) if cuts else None
 
 
-def subtracted(cut: np.ndarray, bg: np.ndarray, weight: float = 1.0) -> np.ndarray:
+def subtracted(cut: np.ndarray, bg: np.ndarray, weight: float = 1.0,
+               divide: bool = False) -> np.ndarray:
     """The luma minus the background (``weight`` of its texture, as the product's
     ``unlit.texture_weighted``), the clipped core (the run of rows >= ``CLIP`` through the
-    middle row, as the product's ``unlit.clipped_core``) at the difference's top."""
+    middle row, as the product's ``unlit.clipped_core``) at the difference's top.
+    ``divide``: the difference also divided by the background (all of it) over its mean on
+    the 7 middle rows, at least 0.2: a stripe whose light follows the soil's albedo row by
+    row (``--divide``; not the product's)."""
     from impress_gui.core.reconstruction.unlit import clipped_core, texture_weighted
 
+    full = bg
     if weight != 1.0:
         bg = texture_weighted(bg, weight)
     d = cut.astype(float) - bg
+    if divide:
+        m = full.shape[1] // 2
+        norm = full / np.mean(full[:, m - 3:m + 4], axis=1, keepdims=True)
+        d = d / np.maximum(norm, 0.2)
     top = np.nanmax(d, axis=1, keepdims=True)
     d = np.where(clipped_core(cut, cut.shape[1] // 2, CLIP), top, d)
     return d - np.nanmin(d, axis=1, keepdims=True)
@@ -212,6 +224,9 @@ def main() -> None:
     ap.add_argument("--texture-weights", default="1",
                     help="with --background: the shares of the unlit soil's texture taken out, "
                     "comma-separated (one bg-sub column each)")
+    ap.add_argument("--divide", action="store_true",
+                    help="with --background: also each bg-sub estimate with the difference "
+                    "divided by the unlit soil (a stripe whose light follows the soil)")
     ap.add_argument("--folder", action="append", default=[], type=Path,
                     help="another scan folder with truth.json (e.g. a test's cached render); "
                     "repeatable")
@@ -229,7 +244,10 @@ def main() -> None:
         scans.append(("shoe 1080p", shoe))
     scans += [(f.name[:12], f) for f in args.folder]
     weights = [float(x) for x in args.texture_weights.split(",") if x]
-    subs = {(f"bg-sub {wt:g}" if len(weights) > 1 else "bg-sub"): wt for wt in weights}
+    subs = {(f"bg-sub {wt:g}" if len(weights) > 1 else "bg-sub"): (wt, False) for wt in weights}
+    if args.divide:
+        subs.update({(f"bg-div {wt:g}" if len(weights) > 1 else "bg-div"): (wt, True)
+                     for wt in weights})
     names = ("half-max", "window", "uncapped") + (tuple(subs) if args.background else ())
     print(f"{'scan':12s} {'laser':6s} {'cols':>5s} " + " ".join(f"{n + ' rms':>13s}" for n in names)
           + "   " + " ".join(f"{n + ' lock':>14s}" for n in names)
@@ -246,8 +264,8 @@ def main() -> None:
             extra = ""
             if args.background:
                 good &= np.isfinite(bg).all(axis=1)
-                for n, wt in subs.items():
-                    est[n] = estimates(subtracted(cut, np.nan_to_num(bg), wt))["window"]
+                for n, (wt, div) in subs.items():
+                    est[n] = estimates(subtracted(cut, np.nan_to_num(bg), wt, div))["window"]
                 extra = "   " + " ".join(
                     f"{100 * np.mean(np.abs(est[n] - v)[good] > 1):10.1f} %"
                     for n in ("window", *subs))

@@ -70,3 +70,19 @@ def test_a_share_of_the_texture_matches_a_video_that_kept_only_that_share():
            for w in (0.6, 1.0)}
     assert err[0.6] < 0.6 * err[1.0]
     assert err[0.6] < 0.08
+
+
+def test_dividing_by_the_unlit_soil_places_a_stripe_that_follows_it():
+    """``subtracted(..., divide=True)`` (``--divide``): a stripe whose light is the soil's
+    albedo row by row times the beam is placed by the difference divided by the unlit soil;
+    the plain difference leans towards the brighter grains."""
+    rng = np.random.default_rng(11)
+    centre, soil, _ = _columns(400, 40.0, 20.0, rng)
+    soil -= 90.0  # darker soil (80 grey levels, grains of +-25 %): nothing near clipping
+    rows = np.arange(soil.shape[1], dtype=float)
+    beam = 60.0 * np.exp(-0.5 * ((rows[None, :] - centre[:, None]) / 1.5) ** 2)
+    cut = soil + beam * soil / soil.mean(axis=1, keepdims=True)
+    rms = lambda e: float(np.sqrt(np.mean(e[np.isfinite(e)] ** 2)))  # noqa: E731
+    sub = rms(bench.estimates(bench.subtracted(cut, soil))["window"] - centre)
+    div = rms(bench.estimates(bench.subtracted(cut, soil, divide=True))["window"] - centre)
+    assert div < 0.03 and sub > 2 * div, (sub, div)
