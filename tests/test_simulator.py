@@ -265,6 +265,7 @@ def test_the_stripe_option_reaches_the_renderer_and_the_truth(monkeypatch):
                  *flag])
             assert cmd.run(args) == 0
             cfg = seen[-1]
+            cfg.validate()  # a random rig's config is checked against its seed
             assert cfg.stripe_follows_soil is bool(flag)
             assert cfg.to_json().get("stripe_follows_soil", False) is bool(flag)
             if cfg.random_rig is not None:

@@ -127,7 +127,7 @@ class SimConfig:
                 bad("placement options (--rotate90, ...) do not go with --random-rig")
             mine = SimConfig.random(self.random_rig, self.width, self.height,
                                     self.video_format, self.grid_mm, self.click_noise_px,
-                                    self.readout_ms)
+                                    self.readout_ms, self.stripe_follows_soil)
             if mine != self:
                 bad("a random rig's configuration comes from its seed: use "
                     "SimConfig.random(seed, ...)")
