@@ -160,7 +160,8 @@ def subtracted(cut: np.ndarray, bg: np.ndarray, weight: float = 1.0,
     d = cut.astype(float) - bg
     if divide:
         m = full.shape[1] // 2
-        norm = full / np.mean(full[:, m - 3:m + 4], axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):  # a cut with no soil: NaN
+            norm = full / np.mean(full[:, m - 3:m + 4], axis=1, keepdims=True)
         d = d / np.maximum(norm, 0.2)
     top = np.nanmax(d, axis=1, keepdims=True)
     d = np.where(clipped_core(cut, cut.shape[1] // 2, CLIP), top, d)
