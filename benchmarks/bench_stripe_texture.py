@@ -112,8 +112,6 @@ def measure(scan_dir, columns: int, seed: int, grain: float = 0.0) -> list[dict]
         rng = np.random.default_rng([seed, ch])
         alb = soil_columns(tex[..., ch] / 255.0, grid, pixel_mm, columns, rng)
         if grain > 0:  # soil finer than the scene's grid: grains about a pixel across
-            import cv2
-
             g = rng.lognormal(0.0, grain, alb.shape).astype(np.float32)
             alb = alb * np.asarray(cv2.GaussianBlur(g, (0, 0), 0.5), np.float64)
         row = {"seed": seed, "laser": name, "sigma_px": sigma, "pixel_mm": pixel_mm,

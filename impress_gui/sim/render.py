@@ -344,15 +344,15 @@ class Renderer:
         # irradiance: incidence angle on the surface and surface albedo in the laser's colour
         p = pts[:-1][seg] + t[:, None] * (pts[1:][seg] - pts[:-1][seg])
         ch = int(np.argmax(laser.rgb_response))
-        alb = self._sample(self.albedo, p[:, 0], p[:, 1])[:, ch].astype(np.float64) / 255.0
+        follows = bool(self.opt.stripe_follows_soil)
+        # following the soil: the albedo of each pixel's own surface point, on the band below
+        alb = 1.0 if follows else (
+            self._sample(self.albedo, p[:, 0], p[:, 1])[:, ch].astype(np.float64) / 255.0)
         nrm = self._surface_normals(p[:, 0], p[:, 1])
         d = p - (laser.source_mm + np.array([0, s, 0]))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         cos_inc = np.clip(-(nrm[:, 0] * d[:, 0] + nrm[:, 1] * d[:, 1]) + nrm[:, 2] * d[:, 2],
                           0.05, 1.0)
-        follows = bool(self.opt.stripe_follows_soil)
-        if follows:  # the albedo of each pixel's own surface point, below
-            alb = np.ones_like(alb)
         amp = self.opt.laser_peak * (alb / 0.4) * (0.3 + 0.7 * cos_inc)
         kk = int(np.ceil(4 * self.sigma_px))
         rows = np.floor(vc).astype(np.int64)[:, None] + np.arange(-kk, kk + 1)[None, :]
