@@ -101,17 +101,20 @@ class Renderer:
         gx, gy = _minmod_slope(hm, 1, pix), _minmod_slope(hm, 0, pix)
         light = np.array([0.3, -0.35, 1.0])
         light /= np.linalg.norm(light)
-        shade = (-gx * light[0] - gy * light[1] + light[2]) / np.sqrt(1.0 + gx * gx + gy * gy)
-        del gx, gy
         amb = options.ambient
-        factor = (amb + (1 - amb) * np.clip(shade, 0, 1)).astype(np.float32)
-        del shade
         self.albedo = np.ascontiguousarray(scene.albedo)
         #: the albedo under ambient + diffuse light, grey levels (RGB uint8 on the scene grid)
         self.shaded = np.empty_like(self.albedo)
-        for c in range(3):
-            self.shaded[..., c] = np.round(self.albedo[..., c] * factor)
-        del factor
+        # in bands of rows (the same values cell by cell: the float64 temporaries of a whole
+        # scene are hundreds of megabytes, allocated and paged in afresh for every step)
+        for r0 in range(0, hm.shape[0], 256):
+            sx, sy = gx[r0:r0 + 256], gy[r0:r0 + 256]
+            shade = (-sx * light[0] - sy * light[1] + light[2]) / np.sqrt(1.0 + sx * sx + sy * sy)
+            factor = (amb + (1 - amb) * np.clip(shade, 0, 1)).astype(np.float32)
+            alb, out = self.albedo[r0:r0 + 256], self.shaded[r0:r0 + 256]
+            for c in range(3):
+                out[..., c] = np.round(alb[..., c] * factor)
+        del gx, gy
         self.row_max = self.depth.max(axis=1)  # deepest (lowest) surface of each grid row
         self.row_min = self.depth.min(axis=1)  # shallowest (highest)
         self.sigma_px = options.stripe_sigma_px or max(0.9, 1.4 * w / 1920.0)
