@@ -32,7 +32,9 @@ The `impress` command (`.venv/bin/impress` after `scripts/bootstrap.sh`, `python
 or `impress` of the installed application) runs the workstation window and its tools. Without a
 subcommand it opens the window: `impress PROJECT` is `impress gui PROJECT`. Every command has
 `--help`. Errors are printed as `impress COMMAND: error [CODE]: message` and the command exits with
-status 2; [troubleshooting.md](troubleshooting.md) lists every code. Ctrl-C exits with status 130.
+status 2; [troubleshooting.md](troubleshooting.md) lists every code. Ctrl-C exits with status 130; a terminate signal (SIGTERM, or SIGHUP when
+the terminal closes) stops a command the same way - nothing half-written is kept - and exits
+with status 143 (SIGHUP: 129).
 
 Placeholders in capitals (`VIDEO`, `OUT`) stand for your own values; `[...]` is optional;
 `{a,b}` is one of the choices.

@@ -121,24 +121,62 @@ def _looks_like_command(word: str) -> bool:
 _interrupted = False
 
 
+class Terminated(KeyboardInterrupt):
+    """A terminate signal (SIGTERM, or SIGHUP: the terminal closed) ended the command: raised
+    in the main thread as Ctrl-C's KeyboardInterrupt is, so that everything an interruption
+    cleans up - the output folder being written, a batch's workers - is cleaned up as well."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = int(signum)
+        self.name = signal.Signals(self.signum).name
+        super().__init__(self.name)
+
+
+def _on_terminate(signum, frame) -> None:
+    raise Terminated(signum)
+
+
+#: the terminate signals a command ends on as on Ctrl-C (the window and the motor command
+#: install their own handlers while they run)
+TERMINATE_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+def _interrupted_line(who: str, exc: KeyboardInterrupt) -> tuple[str, int]:
+    """The line printed and the exit status of an interruption: 130 for Ctrl-C, 128 + the
+    signal's number for a terminate signal."""
+    if isinstance(exc, Terminated):
+        return (f"{who}: stopped by {exc.name}; nothing half-written was kept",
+                128 + exc.signum)
+    return f"{who}: interrupted", 130
+
+
 def _on_sigint(signum, frame) -> None:
     global _interrupted
     _interrupted = True
     signal.default_int_handler(signum, frame)  # KeyboardInterrupt, as Python's own
 
 
-def _watch_interrupts() -> None:
+def _watch_interrupts() -> dict:
     """Note a Ctrl-C that arrives while modules are still being imported: an import it
     interrupts can surface as an ImportError (numpy's, say) rather than a KeyboardInterrupt,
     which must be reported as an interruption, not as an internal error. Only where Python's
-    own handler is in place (a command may install its own later)."""
+    own handler is in place (a command may install its own later). A terminate signal ends
+    the command as Ctrl-C does (:class:`Terminated`): returns the handlers it replaced, for
+    :func:`main` to put back."""
     import threading
 
     global _interrupted
     _interrupted = False
-    if threading.current_thread() is threading.main_thread() \
-            and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
         signal.signal(signal.SIGINT, _on_sigint)
+    replaced = {}
+    for number in TERMINATE_SIGNALS:
+        # not where the signal is ignored (``nohup`` ignores SIGHUP) or someone else's
+        if signal.getsignal(number) is signal.SIG_DFL:
+            replaced[number] = signal.signal(number, _on_terminate)
+    return replaced
 
 
 def _quiet_libraries() -> None:
@@ -151,16 +189,22 @@ def _quiet_libraries() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """The console command: every outcome is an exit status and, on failure, one coded line;
-    a Ctrl-C at any moment (even while the command's modules load) exits with 130."""
+    a Ctrl-C at any moment (even while the command's modules load) exits with 130, a terminate
+    signal (SIGTERM, SIGHUP) with 128 + its number, each after the same clean-up."""
+    replaced: dict = {}
     try:
-        _watch_interrupts()
+        replaced = _watch_interrupts()
         _quiet_libraries()
         return _main(argv)
-    except KeyboardInterrupt:
-        print("impress: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        line, status = _interrupted_line("impress", exc)
+        print(line, file=sys.stderr)
+        return status
     except Exception:  # noqa: BLE001 - while the command's modules load: no traceback either
         return _unexpected("impress")
+    finally:
+        for number, old in replaced.items():
+            signal.signal(number, old)
 
 
 def _main(argv: list[str] | None = None) -> int:
@@ -190,9 +234,10 @@ def run_command(command: str, args: argparse.Namespace) -> int:
     except ImpressError as exc:
         print(f"impress {command}: error [{exc.code}]: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"impress {command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        line, status = _interrupted_line(f"impress {command}", exc)
+        print(line, file=sys.stderr)
+        return status
     except MemoryError:
         print(f"impress {command}: error [{MEMORY}]: not enough memory for this input",
               file=sys.stderr)

@@ -67,6 +67,34 @@ def test_local_pool_gives_the_same_folders_and_a_summary(flat_scan, flat_calibra
     assert {n: (tmp_path / "batch" / n / "run.json").read_bytes() for n in RANGES} == before
 
 
+def test_a_result_changed_afterwards_is_not_taken_as_done(flat_scan, flat_calibration,
+                                                          tmp_path):
+    """A hostile-input audit: a result folder whose heightmap was changed, or which gained a
+    file, after it was written, or made with another frame rate than the manifest now asks,
+    was reported "done earlier". Now the changed one and the other rate are processed again,
+    and the folder with a file no run wrote is refused (nothing in it is replaced)."""
+    manifest = _manifest(tmp_path, flat_scan, flat_calibration)
+    items = load_manifest(manifest)
+    out = tmp_path / "batch"
+    assert [r["status"] for r in run_batch(items, out, jobs=1)] == ["processed"] * 3
+    with (out / "a" / "heightmap.tif").open("r+b") as fh:  # one byte of the pixels
+        fh.seek(-10, 2)
+        last = fh.read(1)
+        fh.seek(-10, 2)
+        fh.write(bytes([last[0] ^ 1]))
+    (out / "b" / "notes.txt").write_text("the examiner's note\n")
+    doc = json.loads(manifest.read_text())
+    doc["scans"][2]["parameters"]["fps"] = 29.0
+    manifest.write_text(json.dumps(doc))
+    rows = run_batch(load_manifest(manifest), out, jobs=1)
+    assert [r["status"] for r in rows] == ["processed", "failed", "processed"], rows
+    assert rows[1]["code"] == "E-OUTPUT-NOT-EMPTY"
+    assert (out / "b" / "notes.txt").read_text() == "the examiner's note\n"
+    meta = json.loads((out / "c" / "metadata.json").read_text())
+    assert meta["frame_rate"]["given_fps"] == 29.0
+    assert any(w.startswith("W-FPS-OTHER") for w in meta["warnings"])
+
+
 def test_resumes_after_an_interruption(flat_scan, flat_calibration, separate, tmp_path):
     manifest = _manifest(tmp_path, flat_scan, flat_calibration)
     items = load_manifest(manifest)
@@ -184,9 +212,12 @@ def test_a_foreign_batch_folder_is_refused(flat_scan, flat_calibration, tmp_path
     assert [p.name for p in (tmp_path / "photos").iterdir()] == ["IMG_1.JPG"]
 
 
-def test_ctrl_c_stops_the_batch_and_keeps_what_is_done(flat_scan, flat_calibration, tmp_path):
+@pytest.mark.parametrize("stop", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_stops_the_batch_and_keeps_what_is_done(flat_scan, flat_calibration, tmp_path,
+                                                       stop):
     # a hostile-input audit: Ctrl-C at 4 s let a 10-scan batch run on through 8 more scans
-    # and end without a summary
+    # and end without a summary; a second audit: SIGTERM (to the command alone, as a service
+    # manager or `kill` sends it) ended it at once with no summary, and its workers ran on
     import os
     import signal
     import subprocess
@@ -227,14 +258,32 @@ def test_ctrl_c_stops_the_batch_and_keeps_what_is_done(flat_scan, flat_calibrati
             time.sleep(0.05)
         assert proc.poll() is None, proc.communicate()
         assert done and len(done) + jobs < n, done  # scans were left to start
-        os.kill(proc.pid, signal.SIGINT)
+        os.kill(proc.pid, getattr(signal, stop))
         os.killpg(proc.pid, signal.SIGCONT)
         _, err = proc.communicate(timeout=120)
+        # the workers are gone with the command (stopped, not left running on their own):
+        # the process group empties within seconds
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            try:
+                os.killpg(proc.pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.1)
+        else:
+            raise AssertionError("the batch's workers outlived it")
     finally:
-        if proc.poll() is None:
+        try:
             os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        if proc.poll() is None:
             proc.communicate()
-    assert proc.returncode != 0 and "interrupted" in err and "Traceback" not in err
+    assert "Traceback" not in err
+    if stop == "SIGINT":
+        assert proc.returncode == 130 and "interrupted" in err, err
+    else:
+        assert proc.returncode == 128 + signal.SIGTERM and "stopped by SIGTERM" in err, err
     with open(out / "summary.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["name"] for r in rows] == [f"s{k}" for k in range(n)]

@@ -183,13 +183,29 @@ def _done_earlier(item: BatchItem, out: Path, params) -> dict[str, Any] | None:
     try:
         meta = json.loads(meta_path.read_text(encoding="utf-8"))
         ins = meta["inputs"]
+        given = (meta.get("frame_rate") or {}).get("given_fps")
         same = (meta.get("parameters") == params.to_json()
+                and given == item.params.get("fps")
                 and recorded_sha256(ins, "calibration") == sha256_file(item.calibration)
                 and recorded_sha256(ins, "video") == _video_sha(item.video))
-        files_ok = all((out / n).is_file() for n in meta.get("files", {}))
+        files_ok = same and _files_intact(out, meta.get("files") or {})
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
     return _row_from_metadata(meta) if same and files_ok else None
+
+
+def _files_intact(out: Path, digests: dict) -> bool:
+    """Every file the metadata lists has the SHA-256 it records, and the folder holds nothing
+    else (a result changed or added to after it was written is not a finished result)."""
+    from impress_gui.core.base.fileio import sha256_file
+    from impress_gui.core.formats.recon_files import METADATA_FILE, RUN_FILE
+
+    if not digests:
+        return False
+    present = {p.name for p in out.iterdir()}
+    if present != set(digests) | {METADATA_FILE, RUN_FILE}:
+        return False
+    return all(sha256_file(out / name) == digest for name, digest in digests.items())
 
 
 def _video_sha(path: Path) -> str:

@@ -101,6 +101,24 @@ def process_files(
     )
 
 
+#: the relative difference of the frame rate read from the calibration's beyond which a
+#: run is warned of (a video's own rate is measured from its timestamps to about 0.1 %)
+FPS_TOLERANCE = 0.002
+
+
+def frame_rate_warnings(video_fps: float, calibration_fps: float, given: float | None
+                        ) -> list[str]:
+    """``W-FPS-OTHER`` when the video is read at another frame rate than the calibration was
+    made at: each frame's travel (time x speed), and with it the map's length along the scan
+    and every height, follows the rate the video is read at."""
+    if abs(video_fps - calibration_fps) <= FPS_TOLERANCE * calibration_fps:
+        return []
+    how = "the rate given (--fps)" if given is not None else "its own rate"
+    return [f"W-FPS-OTHER: the video is read at {video_fps:.6g} frames/s ({how}) but the "
+            f"calibration was made at {calibration_fps:.6g} frames/s: each frame's travel, "
+            "the map's length along the scan and its heights follow the rate read"]
+
+
 def run_reconstruction(
     video_path: Path,
     calibration: CalibrationInput,
@@ -150,6 +168,7 @@ def run_reconstruction(
                     "W-CALIB-OTHER-VIDEO: the video differs from the one the "
                     "calibration was made on (SHA-256 mismatch)"
                 )
+            warnings += frame_rate_warnings(video.fps, cal.fps, fps)
             rec = reconstruct(
                 video,
                 cal,
@@ -164,6 +183,9 @@ def run_reconstruction(
         rec.warnings[:0] = warnings
         inputs = reconstruction_inputs(input_record(video_path, video_sha), calibration.record)
         meta: dict[str, Any] = build_metadata(rec, cal, params, inputs)
+        # the frame rate the video was read at, and the one given for it (``--fps``), if any
+        meta["frame_rate"] = {"fps": float(video.fps),
+                              "given_fps": None if fps is None else float(fps)}
         meta["dates"] = dates
         run = {
             "date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
