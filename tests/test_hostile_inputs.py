@@ -356,6 +356,15 @@ CASES: list[Case] = [
          _write("ig.json", "\x00\x01garbage")),
     Case("intrinsics: a calibration instead", _calib(intr="{ev}/calibration.json"),
          "E-WRONG-FORMAT"),
+    # a second audit: 1e-300 px focal lengths ended in E-INTERNAL (an SVD that did not
+    # converge); a matrix whose last row is zeros was accepted and saved in the calibration
+    Case("intrinsics: focal lengths of 1e-300 px", _calib(intr="{box}/if.json"), "E-FORMAT",
+         _json_edit("intrinsics.json", "if.json",
+                    lambda d: [d["camera_matrix"][0].__setitem__(0, 1e-300),
+                               d["camera_matrix"][1].__setitem__(1, 1e-300)])),
+    Case("intrinsics: a last row of zeros", _calib(intr="{box}/iz.json"), "E-FORMAT",
+         _json_edit("intrinsics.json", "iz.json",
+                    lambda d: d["camera_matrix"].__setitem__(2, [0, 0, 0]))),
     Case("picks: a FIFO", _calib(picks="{box}/pf"), "E-NOT-A-FILE", _fifo("pf")),
     Case("picks: corners missing", _calib(picks="{box}/pm.json"), "E-PICKS-INCOMPLETE",
          _json_edit("picks.json", "pm.json",

@@ -66,6 +66,11 @@ def roll_tilt_from_direction(m: np.ndarray) -> tuple[float, float]:
     return roll, tilt
 
 
+#: focal lengths accepted, in multiples of the picture's longer side (a fisheye of 180 deg is
+#: about 0.3, a long telephoto lens tens)
+FOCAL_RANGE = (0.05, 500.0)
+
+
 @dataclass(frozen=True)
 class Intrinsics:
     """Pinhole camera with OpenCV distortion ``(k1, k2, p1, p2, k3)``.
@@ -99,6 +104,18 @@ class Intrinsics:
         w, h = (int(v) for v in self.image_size)
         if w <= 0 or h <= 0:
             raise InputError("image size must be positive")
+        if not np.allclose(k[2], [0.0, 0.0, 1.0], atol=1e-9, rtol=0.0) or k[1, 0] != 0.0:
+            raise InputError("the camera matrix's last row must be [0, 0, 1] and its element "
+                             "[1][0] zero (a camera matrix as OpenCV writes it)")
+        side = max(w, h)
+        if not (FOCAL_RANGE[0] * side <= min(k[0, 0], k[1, 1])
+                and max(k[0, 0], k[1, 1]) <= FOCAL_RANGE[1] * side):
+            raise InputError(f"focal lengths of {k[0, 0]:.6g} and {k[1, 1]:.6g} pixels are not "
+                             f"a camera's for a {w}x{h} picture ({FOCAL_RANGE[0]:g} to "
+                             f"{FOCAL_RANGE[1]:g} times its longer side)")
+        if not (-w <= k[0, 2] <= 2 * w and -h <= k[1, 2] <= 2 * h):
+            raise InputError(f"the principal point ({k[0, 2]:.6g}, {k[1, 2]:.6g}) lies far "
+                             f"outside the {w}x{h} picture")
         ro = None if self.readout_ms is None else float(self.readout_ms)
         if ro is not None and not (math.isfinite(ro) and 0.0 <= ro <= MAX_READOUT_MS):
             raise InputError(f"readout_ms (a rolling shutter's readout) must be between 0 and "
