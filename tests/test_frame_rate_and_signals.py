@@ -60,3 +60,14 @@ def test_sigterm_keeps_nothing_half_written(flat_scan, flat_calibration, tmp_pat
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert "stopped by SIGTERM" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []  # neither the output nor a half-made one
+
+
+def test_a_few_frames_are_not_taken_for_a_scan(flat_scan, flat_calibration, tmp_path):
+    """The audit: a one-frame video (or ``--frames 0:1``) gave a map with no warning."""
+    few = process_files(flat_scan / "scan.mp4", flat_calibration, tmp_path / "few",
+                        ProcessParams(**{**PARAMS, "frame_stop": 44}))
+    [warning] = [w for w in few["warnings"] if w.startswith("W-FEW-FRAMES")]
+    assert "only 4 frame(s)" in warning and "frames 40..43" in warning
+    enough = process_files(flat_scan / "scan.mp4", flat_calibration, tmp_path / "enough",
+                           ProcessParams(**{**PARAMS, "frame_stop": 50}))
+    assert not [w for w in enough["warnings"] if w.startswith("W-FEW-FRAMES")]

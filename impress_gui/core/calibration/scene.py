@@ -370,9 +370,9 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
             (pose.target_rotation, pose.target_translation_mm), picks,
             lambda k: v_pose * float(times[k] - times[picks.t1]))
         check_plane_distances(planes)
-        warnings.append("laser planes by the three-point method (three picked stripe points "
-                        "per laser): coarser than the stripe fit, with no residual check, and "
-                        "the tilt is not refined by the stripes")
+        warnings.append("W-THREE-POINT-PLANES: laser planes by the three-point method (three "
+                        "picked stripe points per laser): coarser than the stripe fit, with no "
+                        "residual check, and the tilt is not refined by the stripes")
     else:
         # ----- stripes on the target around each calibration frame ------------------------
         obs = observe_stripes(video, times, intrinsics, target, picks, pose, fps, plane_frames,
@@ -407,9 +407,10 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
             obs, planes, pose.rotation, (pose.target_rotation, pose.target_translation_mm))
         check_plane_distances(planes)
         warnings += plane_span_warnings(planes)
-        warnings += [f"the {name} stripe blooms (a saturated, nearly white core) on the "
-                     "target: found there by the colour it adds to the surface against the "
-                     "background, its core's colour being lost; check its plane's residual"
+        warnings += [f"W-STRIPE-BLOOMS: the {name} stripe blooms (a saturated, nearly white "
+                     "core) on the target: found there by the colour it adds to the surface "
+                     "against the background, its core's colour being lost; check its plane's "
+                     "residual"
                      for name in obs.blooming]
         _refuse_damaged(video, sorted({k for f in planes.values() for k in f.frames}))
     warnings += list(getattr(video, "open_warnings", []))

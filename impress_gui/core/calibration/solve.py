@@ -319,11 +319,12 @@ def solve_pose(intrinsics: Intrinsics, target: TargetModel, picks: Picks, speed_
     m_b = rot_b.T @ np.array([0.0, 1.0, 0.0])
     if abs(implied - speed_mm_s) > SPEED_WARN_FRACTION * speed_mm_s:
         warnings.append(
-            f"the target's size implies a rail speed of {implied:.4f} mm/s but "
+            f"W-SPEED-MISMATCH: the target's size implies a rail speed of {implied:.4f} mm/s but "
             f"{speed_mm_s:.4f} mm/s was entered ({100 * (implied / speed_mm_s - 1):+.1f} %); "
             "check the speed setting (heights and lengths along the scan scale with it)")
     if rms_px > 2.0:
-        warnings.append(f"the corner picks fit the target poorly (reprojection RMS {rms_px:.2f} px)")
+        warnings.append(f"W-PICKS-POOR-FIT: the corner picks fit the target poorly "
+                        f"(reprojection RMS {rms_px:.2f} px)")
     # the corners in the rail frame with the entered speed (what the reconstruction uses)
     corners_entered = parallax_corners(intrinsics, rot_b, picks, d, dt_s)
     _, r_e, t_e = umeyama(obj, corners_entered, with_scale=False)

@@ -787,7 +787,8 @@ def _texture_ends(run: _Run, tab: _Tables, finisher: RowFinisher, warnings: list
                                rgb if rgb is not None else run.video.read(int(kk))))
             ends.append(frames)
     except ImpressError as exc:
-        warnings.append(f"the texture's ends were left without colour: frame {kk} could not "
+        warnings.append(f"W-TEXTURE-ENDS: the texture's ends were left without colour: frame "
+                        f"{kk} could not "
                         f"be read again ({exc.code})")
         return 0
     _, filled = fill_texture_ends(finisher.tex, finisher.fused, tab.spec, run.cal, ends[0],
@@ -847,11 +848,20 @@ def _lost_laser_warnings(tally: _Tally, stats: dict) -> list[str]:
     return out
 
 
+#: fewer frames processed than this are warned of (W-FEW-FRAMES): a one-frame "scan" gave a
+#: map of one stripe's profile without a word (a hostile-input audit)
+FEW_FRAMES = 10
+
+
 def _stripe_warnings(run: _Run, tally: _Tally) -> list[str]:
     """Warnings about stripes found in few frames or few columns; a stripe never found is an
     error (``E-NO-STRIPE``)."""
     w, n_total = run.video.size[0], run.n_frames
     warnings = []
+    if n_total < FEW_FRAMES:
+        warnings.append(f"W-FEW-FRAMES: only {n_total} frame(s) were processed (frames "
+                        f"{run.start}..{run.stop - 1}): a map is made of the stripes of many "
+                        "frames along the scan; this is not a scan of a surface")
     for name in LASERS:
         found = tally.found_frames[name]
         if found == 0:
@@ -859,8 +869,8 @@ def _stripe_warnings(run: _Run, tally: _Tally) -> list[str]:
                                       f"{run.start}..{run.stop - 1} (rows {run.rois[name]})",
                                       code=codes.E_NO_STRIPE)
         if found < 0.5 * n_total:
-            warnings.append(f"the {name} stripe was found in only {found} of "
-                            f"{n_total} frames")
+            warnings.append(f"W-FEW-STRIPE-FRAMES: the {name} stripe was found in only "
+                            f"{found} of {n_total} frames")
         # a stripe crosses the whole picture: a method that finds it in few columns of the
         # frames where it sees it at all drops most of the data (e.g. hue on compressed video)
         share = tally.found_cols[name] / max(1, found * w)
