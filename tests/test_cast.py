@@ -227,6 +227,18 @@ def test_crop_in_the_export_frame(cast_recon, tmp_path):
     assert doc["holes"]["filled_cells"] == 0
 
 
+@pytest.mark.parametrize("far", [1e9, 1e12])
+def test_a_crop_far_beyond_the_grid_on_one_axis_keeps_the_other(cast_recon, tmp_path, far):
+    """A hostile-input audit: ``--crop=-1e12,0,1e12,10`` cast the whole grid's y range (the
+    rounding allowance grew with the values); now x is the whole grid and y the 10 mm asked."""
+    y0, y1 = -90.0, -60.0
+    doc = C.write_cast(cast_recon, tmp_path / "c.stl",
+                       C.CastParams(decimate="sample", crop_mm=(-far, y0, far, y1)))
+    box = doc["mesh"]["bounding_box"]
+    assert box["min_mm"][1] == pytest.approx(y0) and box["max_mm"][1] == pytest.approx(y1)
+    assert doc["parameters"]["crop_mm"] == [-far, y0, far, y1]
+
+
 @pytest.mark.parametrize("cap", [20, 1000, 12345, 100000])
 def test_triangle_cap(cast_recon, tmp_path, cap):
     doc = C.write_cast(cast_recon, tmp_path / "c.stl", C.CastParams(decimate="sample", max_triangles=cap))

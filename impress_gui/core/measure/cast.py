@@ -198,8 +198,13 @@ def crop_region(spec: GridSpec, height: np.ndarray,
         rows, cols = np.nonzero(ok.any(axis=1))[0], np.nonzero(ok.any(axis=0))[0]
         r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
     else:
-        x0, y0, x1, y1 = crop_mm
         p = spec.pixel_mm
+        # each bound clipped to a cell beyond the grid first: the rounding allowance below is
+        # relative to the values, and a bound of 1e12 mm widened the other axis by cells
+        gx = (spec.x0_mm - p, spec.x0_mm + spec.shape[1] * p)
+        gy = (-(spec.y0_mm + spec.shape[0] * p), -spec.y0_mm + p)
+        x0, x1 = (min(max(v, gx[0]), gx[1]) for v in (crop_mm[0], crop_mm[2]))
+        y0, y1 = (min(max(v, gy[0]), gy[1]) for v in (crop_mm[1], crop_mm[3]))
         eps = 1e-9 * max(1.0, abs(x0), abs(x1), abs(y0), abs(y1))
         # export x = x0_mm + j p; export y = -(y0_mm + i p)
         c0 = max(0, math.ceil((min(x0, x1) - spec.x0_mm) / p - eps))
@@ -208,7 +213,8 @@ def crop_region(spec: GridSpec, height: np.ndarray,
         r1 = min(spec.shape[0], math.floor((-min(y0, y1) - spec.y0_mm) / p + eps) + 1)
         if r1 - r0 < 2 or c1 - c0 < 2:
             raise InputError(
-                f"the crop {x0:g},{y0:g},{x1:g},{y1:g} mm holds fewer than 2 x 2 cells of the "
+                f"the crop {','.join(f'{v:g}' for v in crop_mm)} mm holds fewer than 2 x 2 "
+                "cells of the "
                 f"grid (x {spec.x0_mm:g} to {spec.x0_mm + (spec.shape[1] - 1) * p:g} mm, y "
                 f"{-(spec.y0_mm + (spec.shape[0] - 1) * p):g} to {-spec.y0_mm:g} mm in the "
                 "export frame)", code=codes.E_CAST_CROP)
