@@ -182,6 +182,12 @@ def test_a_manifest_names_the_estimate_and_switches_the_unlit_soil(tmp_path):
     # empty batch folder); a string for a switch was stored as given
     ([{"name": "a\u0000b", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),
     ([{"name": "a", "video": "v\u0000.mp4", "calibration": "c.json"}], "E-BATCH"),
+    # a second audit: names Windows cannot make a folder of (a batch folder is copied between
+    # machines)
+    ([{"name": "CON", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),
+    ([{"name": "com1.scan", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),
+    ([{"name": "a:b", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),
+    ([{"name": "a.", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),
     ([{"name": "a\nb", "video": "v.mp4", "calibration": "c.json"}], "E-BATCH"),
     ([{"name": "a", "video": 7, "calibration": "c.json"}], "E-BATCH"),
     ([{"name": "a", "video": "v.mp4", "calibration": "c.json",

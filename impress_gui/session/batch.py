@@ -68,13 +68,24 @@ def _path_field(s: dict, key: str, where: str) -> str:
     return v
 
 
+#: names Windows keeps for devices (with any extension, in any case): a folder named so cannot
+#: be made or opened there, and a batch folder is copied between machines
+WINDOWS_DEVICE_NAMES = frozenset(
+    ["CON", "PRN", "AUX", "NUL"] + [f"{p}{i}" for p in ("COM", "LPT") for i in range(1, 10)])
+#: characters Windows does not allow in a file name
+WINDOWS_FORBIDDEN = set('<>:"|?*')
+
+
 def _safe_name(name: str, where: str) -> str:
     if (not name or name.startswith(".") or "/" in name or "\\" in name or name in SUMMARY_FILES
-            or len(name) > 120 or name != name.strip() or _control(name)):
+            or len(name) > 120 or name != name.strip() or _control(name)
+            or name.endswith(".") or WINDOWS_FORBIDDEN & set(name)
+            or name.split(".")[0].upper() in WINDOWS_DEVICE_NAMES):
         raise FormatError(f"{where}: the scan name {name!r} cannot be a folder name (it must "
-                          "be 1-120 characters without '/', '\\' or control characters, not "
-                          "start with a dot or begin or end with a space, and not be "
-                          f"{' or '.join(SUMMARY_FILES)})", code=codes.E_BATCH)
+                          "be 1-120 characters without '/', '\\', control characters or any of "
+                          "< > : \" | ? *, not start or end with a dot or begin or end with a "
+                          "space, not be a name Windows keeps for a device (CON, NUL, COM1, "
+                          f"...), and not be {' or '.join(SUMMARY_FILES)})", code=codes.E_BATCH)
     return name
 
 
