@@ -370,6 +370,10 @@ CASES: list[Case] = [
          _json_edit("picks.json", "pm.json",
                     lambda d: d["corners"]["t1"].pop("A") if "corners" in d else
                     d["corners_t1"].pop("A"))),
+    # a second audit: a number for the video's hash was accepted and the check against the
+    # video silently off
+    Case("picks: the video's hash a number", _calib(picks="{box}/ph.json"), "E-FORMAT",
+         _json_edit("picks.json", "ph.json", _cal_set("video_sha256", 12))),
     Case("picks: t1 outside the video", _calib(picks="{box}/pt.json"), "E-FRAME-RANGE",
          _json_edit("picks.json", "pt.json", _cal_set("t1", 99999))),
     Case("picks: t1 = t2", _calib(picks="{box}/pe.json"), "E-PICKS",

@@ -4,6 +4,7 @@ stripe points on target edges (the seed's L, M, N) for the three-point laser pla
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -127,6 +128,12 @@ class Picks:
         if t1 < 0 or t2 < 0:
             raise FormatError(f"{where}frame indices must not be negative")
         sha = doc.get("video_sha256")
+        if sha is not None and not (isinstance(sha, str)
+                                    and re.fullmatch(r"[0-9a-fA-F]{64}", sha) is not None):
+            # anything else turned the check against the video (W-PICKS-OTHER-VIDEO) off
+            raise FormatError(f"{where}video_sha256 must be a SHA-256 (64 hex digits) or "
+                              f"absent, not {str(sha)[:40]!r}")
+        sha = sha.lower() if isinstance(sha, str) else None
         stripes = {}
         if doc.get("stripe_points") is not None:  # optional (files before it have none)
             raw = require(doc, "stripe_points", dict, where)
