@@ -231,3 +231,16 @@ def test_every_viewer_export_records_version_source_grid_and_parameters(qtbot, v
     assert got["version"] == __version__ and got["source.video_sha256"] == VIDEO_SHA
     body = [r for r in text.splitlines() if not r.startswith("#")]
     assert len(body) == 2 and body[1].endswith(v.data.metadata["files"]["heightmap.tif"])
+
+
+def test_a_file_name_that_is_not_utf8_is_recorded_as_unicode_text():
+    """A hostile-input audit: a path with a byte that is not UTF-8 went into metadata.json as a
+    lone surrogate (``\\udcff``), which is not Unicode: a strict reader refuses the file."""
+    import os
+
+    from impress_gui.core.formats.provenance import input_record
+
+    rec = input_record(os.fsdecode(b"/evidence/case\xff7/scan.mp4"), "0" * 64)
+    assert rec["path"] == "/evidence/case\\xff7/scan.mp4"
+    json.dumps(rec, ensure_ascii=False).encode("utf-8")  # strict UTF-8: no surrogate left
+    assert input_record("/evidence/fall-ü/scan.mp4", "0" * 64)["path"] == "/evidence/fall-ü/scan.mp4"

@@ -46,8 +46,18 @@ METADATA_CHANGED = (
 # ----- the records of the inputs ----------------------------------------------------------------
 def input_record(path: str | os.PathLike, sha256: str) -> dict[str, str]:
     """One input as a product records it: ``{"path": the path as given, "sha256": the hash of
-    the bytes that were used}`` (the path is kept as the user or the project named it)."""
-    return {"path": str(path), "sha256": sha256}
+    the bytes that were used}`` (the path is kept as the user or the project named it; a byte
+    of a file name that is not UTF-8 is written as ``\\xNN``: as Python holds it, a lone
+    surrogate, it is not Unicode, and a strict JSON reader refuses the file)."""
+    return {"path": printable_path(path), "sha256": sha256}
+
+
+def printable_path(path: str | os.PathLike) -> str:
+    """``path`` as Unicode text: the bytes of a name that are not UTF-8 as ``\\xNN``."""
+    text = os.fspath(path)
+    if isinstance(text, bytes):
+        text = os.fsdecode(text)
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 def reconstruction_inputs(video: Mapping, calibration: Mapping) -> dict[str, dict]:
