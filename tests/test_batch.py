@@ -136,8 +136,10 @@ def test_a_failing_scan_is_reported_and_the_others_finish(flat_scan, flat_calibr
 def test_the_summary_is_safe_to_open_in_a_spreadsheet(flat_scan, flat_calibration, tmp_path):
     """A scan name or a path that a spreadsheet would run as a formula (``=``, ``+``, ``-``,
     ``@``) is written to summary.csv as text (a leading apostrophe), and exactly as given in
-    summary.json (the audit of 4 December 2026 found ``=HYPERLINK(...)`` written as is)."""
-    evil = '=HYPERLINK("http:" & "evil","x")'
+    summary.json (the audit of 4 December 2026 found ``=HYPERLINK(...)`` written as is). The
+    name holds none of the characters a Windows folder name cannot (refused since the audit of
+    6 December)."""
+    evil = "=HYPERLINK('http' & 'evil';'x')"
     doc = {"format": "impress.batch", "version": 1, "scans": [
         {"name": evil, "video": str(flat_scan / "scan.mp4"),
          "calibration": str(flat_calibration),
