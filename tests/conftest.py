@@ -65,7 +65,10 @@ def pytest_configure(config):
 #: On 6 December 2026 (the suite 11:52 on this machine): uncertainty 139, tilt_refinement 123,
 #: compare 115, validate 86 (the others under 51 s); the calibration's Monte Carlo then became
 #: about a fifth faster and test_uncertainty's ensembles went from 10 trials to 6, and
-#: test_validate moved ahead of it.
+#: test_validate moved ahead of it. Later that day (the simulator's scenes built two to three
+#: times faster, the same bytes): tilt_refinement 118, compare 114, uncertainty 82, simulator
+#: 52, gui_viewer 51 s (validate 39 s with its renders cached locally, about 80 s on a clean
+#: clone); the clean-clone suite 9:54-10:01.
 LONG_FILES = (
     "test_compare.py",
     "test_tilt_refinement.py",
