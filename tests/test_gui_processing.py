@@ -19,6 +19,7 @@ from PySide6.QtTest import QTest
 
 from impress_gui.core.calibration.scene import SceneCalibration
 from impress_gui.core.project.project import Project
+from impress_gui.core.reconstruction.reconstruct import ProcessParams
 from impress_gui.ui import pyside_fix
 from impress_gui.ui.messages import Messenger
 from impress_gui.ui.processing.tab import ProcessingTab
@@ -222,3 +223,13 @@ def test_the_unlit_soil_switch_reaches_the_parameters_and_the_project(qtbot, tab
     # a project saved before the switch existed was processed without it: reopened, it is off
     tab.params.set_params({"method": "combined"})
     assert tab.params.params().unlit_soil is False
+
+
+def test_a_reopened_project_keeps_its_floating_pieces_setting(tab):
+    """The floating pieces' step (not shown in the panel) is on by default, and a project
+    keeps what it was processed with: one saved before the step existed reopens without it."""
+    assert tab.params.params().floating_max_cells == 400
+    tab.params.set_params(ProcessParams(floating_max_cells=250).to_json())
+    assert tab.params.params().floating_max_cells == 250
+    tab.params.set_params({"method": "combined", "unlit_soil": True})
+    assert tab.params.params().floating_max_cells == 0

@@ -51,6 +51,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(a false stripe's heights floating off the surface; 0 keeps them; default 50)")
     p.add_argument("--island-step-mm", type=float, default=0.5,
                    help="the step that separates an island from its surroundings (default 0.5)")
+    p.add_argument("--floating-cells", type=int, default=400,
+                   help="drop pieces of at most this many cells of a laser's map (joined as "
+                   "islands are) around which, within 2 mm, at most 15 %% of the cells hold data "
+                   "of either laser (a detector's guess in a laser's shadow; 0 keeps them; "
+                   "default 400)")
     p.add_argument("--unlit-soil", action=argparse.BooleanOptionalAction, default=True,
                    help="subtract the soil under each stripe, as earlier frames saw it unlit, "
                    "before its centre is estimated: dim stripes on grainy soil (on by "
@@ -71,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
                            texture=not args.no_texture, subpixel=args.subpixel,
                            island_max_cells=args.island_cells,
                            island_step_mm=args.island_step_mm,
+                           floating_max_cells=args.floating_cells,
                            unlit_soil=args.unlit_soil)
     progress = progress_printer()
 
@@ -87,6 +93,10 @@ def run(args: argparse.Namespace) -> int:
     isl = st.get("island_cells_dropped") or {}
     if any(isl.values()):
         print("  small islands dropped (cells): " + ", ".join(f"{k} {v}" for k, v in isl.items()))
+    fl = st.get("floating_cells_dropped") or {}
+    if any(fl.values()):
+        print("  floating pieces dropped (cells): "
+              + ", ".join(f"{k} {v}" for k, v in fl.items()))
     for w in meta["warnings"]:
         print(f"  WARNING: {w}")
     return 0

@@ -249,6 +249,28 @@ def fuse_rows(h_green, h_red, tol_mm: float, fused, diff, contrib, lo: int, hi: 
 ISLAND_BLOCK_ROWS = 1024
 
 
+def _small_pieces(win: np.ndarray, valid: np.ndarray, step_mm: float, max_cells: int
+                  ) -> np.ndarray:
+    """The cells of ``win`` (float32, NaN without data) in pieces of at most ``max_cells``
+    cells: cells joined to their 4 neighbours where the heights differ by at most
+    ``step_mm``. Heights compared in hundredths of a millimetre (OpenCV's ``filterSpeckles``
+    on 16-bit cells; beyond +-320 mm they are clipped)."""
+    import cv2
+
+    diff = max(0, int(round(step_mm * 100)))
+    # hundredths of a millimetre, in place in one float32 block (NaN stays NaN and is not
+    # copied): the same values as rint/clip/astype on the valid cells alone, with a third
+    # of the temporaries
+    t = np.multiply(win, 100.0, dtype=np.float32)
+    np.rint(t, out=t)
+    np.clip(t, -32000, 32000, out=t)
+    img = np.full(win.shape, -32768, np.int16)
+    np.copyto(img, t, where=valid, casting="unsafe")
+    del t
+    cv2.filterSpeckles(img, -32768, int(max_cells), diff)
+    return valid & (img == -32768)
+
+
 def drop_islands(h: np.ndarray, step_mm: float, max_cells: int,
                  block_rows: int = ISLAND_BLOCK_ROWS, progress=None) -> int:
     """Set to NaN, in place, every island of at most ``max_cells`` cells of the float32 map
@@ -256,36 +278,21 @@ def drop_islands(h: np.ndarray, step_mm: float, max_cells: int,
     ``step_mm``, cut off from the rest by larger steps or by cells without data. Returns the
     cells dropped. A detector's false stripe (soil of the laser's colour, a reflection)
     gives a few cells floating millimetres off the surface, never joined to it; a real
-    surface is one piece of thousands of cells. Heights are compared in hundredths of a
-    millimetre (OpenCV's ``filterSpeckles`` on 16-bit cells; beyond +-320 mm they are
-    clipped). The map is worked through in blocks of ``block_rows`` rows with ``max_cells
-    + 1`` rows of margin on each side: an island of at most ``max_cells`` cells spans no more
-    rows than that, and a larger piece reaches beyond the margin, so the result is that of
-    the whole map at once. ``progress(fraction)`` is called after each block."""
-    import cv2
-
+    surface is one piece of thousands of cells. The map is worked through in blocks of
+    ``block_rows`` rows with ``max_cells + 1`` rows of margin on each side: an island of at
+    most ``max_cells`` cells spans no more rows than that, and a larger piece reaches beyond
+    the margin, so the result is that of the whole map at once. ``progress(fraction)`` is
+    called after each block."""
     if max_cells <= 0:
         return 0
     rows = h.shape[0]
     margin = int(max_cells) + 1
-    diff = max(0, int(round(step_mm * 100)))
     drops = []
     for a in range(0, rows, block_rows):
         b = min(rows, a + block_rows)
         lo, hi = max(0, a - margin), min(rows, b + margin)
         win = h[lo:hi]
-        valid = np.isfinite(win)
-        # hundredths of a millimetre, in place in one float32 block (NaN stays NaN and is not
-        # copied): the same values as rint/clip/astype on the valid cells alone, with a third
-        # of the temporaries
-        t = np.multiply(win, 100.0, dtype=np.float32)
-        np.rint(t, out=t)
-        np.clip(t, -32000, 32000, out=t)
-        img = np.full(win.shape, -32768, np.int16)
-        np.copyto(img, t, where=valid, casting="unsafe")
-        del t
-        cv2.filterSpeckles(img, -32768, int(max_cells), diff)
-        gone = valid[a - lo:b - lo] & (img[a - lo:b - lo] == -32768)
+        gone = _small_pieces(win, np.isfinite(win), step_mm, max_cells)[a - lo:b - lo]
         # the cells' flat indices, applied after every block is read (islands are few)
         drops.append(np.flatnonzero(gone) + a * h.shape[1])
         if progress is not None:
@@ -293,3 +300,67 @@ def drop_islands(h: np.ndarray, step_mm: float, max_cells: int,
     idx = np.concatenate(drops) if drops else np.zeros(0, np.intp)
     h[np.unravel_index(idx, h.shape)] = np.nan
     return int(idx.size)
+
+
+def drop_floating(maps: list[np.ndarray], step_mm: float, max_cells: int, radius: int,
+                  max_support: float, block_rows: int = ISLAND_BLOCK_ROWS,
+                  progress=None) -> list[int]:
+    """Set to NaN, in place, the floating pieces of each laser's float32 map in ``maps``
+    (all of one shape): pieces of at most ``max_cells`` cells (joined as in
+    :func:`drop_islands`; pieces that touch are taken together) around which, within
+    ``radius`` cells (a square ring), at most a share ``max_support`` of the cells hold
+    data in any of the maps. Returns the cells dropped per map.
+
+    Where one laser's light is shadowed off the ground, its detector may take the soil's
+    texture for the stripe and give pieces of tens to hundreds of cells floating
+    millimetres up, in a hole neither laser measured (docs/accuracy.md, "Floating pieces in
+    a laser's shadow"); a real piece of surface that small stands among data, of its own
+    laser or the other's. Every map is judged on the maps as given (the drops are applied
+    after every piece is judged), so the order of the maps does not matter. Blocks of
+    ``block_rows`` rows with ``max_cells + radius + 1`` rows of margin: a piece is judged
+    in the block holding its first row, and a piece (or group of touching pieces) spanning
+    more than ``max_cells`` rows or columns is kept, so the result is that of the whole
+    map at once. ``progress(fraction)`` is called after each block."""
+    import cv2
+    from scipy import ndimage
+
+    if max_cells <= 0 or not maps:
+        return [0] * len(maps)
+    rows, cols = maps[0].shape
+    r = max(0, int(radius))
+    margin = int(max_cells) + r + 1
+    kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
+    drops: list[list[np.ndarray]] = [[] for _ in maps]
+    for a in range(0, rows, block_rows):
+        b = min(rows, a + block_rows)
+        lo, hi = max(0, a - margin), min(rows, b + margin)
+        valids = [np.isfinite(h[lo:hi]) for h in maps]
+        seen = np.logical_or.reduce(valids)
+        for k, h in enumerate(maps):
+            small = _small_pieces(h[lo:hi], valids[k], step_mm, max_cells)
+            if not small.any():
+                continue
+            lab, _n = ndimage.label(small)
+            for i, sl in enumerate(ndimage.find_objects(lab), 1):
+                if sl is None:
+                    continue
+                (r0, r1), (c0, c1) = (sl[0].start, sl[0].stop), (sl[1].start, sl[1].stop)
+                if not a <= r0 + lo < b or r1 - r0 > max_cells or c1 - c0 > max_cells:
+                    continue
+                br = slice(max(0, r0 - r), min(hi - lo, r1 + r))
+                bc = slice(max(0, c0 - r), min(cols, c1 + r))
+                piece = lab[br, bc] == i
+                ring = cv2.dilate(piece.view(np.uint8), kernel).view(bool) & ~piece
+                n_ring = int(ring.sum())
+                if n_ring and np.count_nonzero(seen[br, bc] & ring) > max_support * n_ring:
+                    continue
+                pr, pc = np.nonzero(piece)
+                drops[k].append((pr + br.start + lo) * cols + (pc + bc.start))
+        if progress is not None:
+            progress(b / rows)
+    out = []
+    for h, d in zip(maps, drops):
+        idx = np.concatenate(d) if d else np.zeros(0, np.intp)
+        h[np.unravel_index(idx, h.shape)] = np.nan
+        out.append(int(idx.size))
+    return out

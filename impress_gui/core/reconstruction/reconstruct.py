@@ -37,6 +37,7 @@ from impress_gui.core.reconstruction.grid import (
     ColorAccumulator,
     GridSpec,
     HeightAccumulator,
+    drop_floating,
     drop_islands,
     fuse_rows,
 )
@@ -84,6 +85,14 @@ class ProcessParams:
     # drop_islands; 0 keeps them)
     island_max_cells: int = 50
     island_step_mm: float = 0.5
+    # then floating pieces of at most floating_max_cells cells (joined as the islands are)
+    # with at most floating_support of the cells within floating_radius_mm around them
+    # holding data in either laser's map are dropped: where a laser's light is shadowed off
+    # the ground its detector may take the soil's texture for the stripe (grid.
+    # drop_floating; docs/accuracy.md, "Floating pieces in a laser's shadow"; 0 keeps them)
+    floating_max_cells: int = 400
+    floating_radius_mm: float = 2.0
+    floating_support: float = 0.15
     # the soil under the stripe, seen unlit in earlier frames, subtracted from its profile
     # before the centre is estimated again (unlit.UnlitSoil; docs/accuracy.md, "Dim stripes
     # on grainy soil"): on by default since 2026-12-04 (0.7 of the unlit texture taken out:
@@ -115,6 +124,15 @@ class ProcessParams:
                              code=codes.E_PARAM)
         if not 0.01 <= self.island_step_mm <= 100.0:
             raise InputError("the step around a dropped island must be 0.01 to 100 mm",
+                             code=codes.E_PARAM)
+        if not 0 <= self.floating_max_cells <= 10000:
+            raise InputError("the largest floating piece dropped must be 0 (none) to 10000 "
+                             "cells", code=codes.E_PARAM)
+        if not 0.0 < self.floating_radius_mm <= 50.0:
+            raise InputError("the ring looked at around a floating piece must be wider than 0 "
+                             "and at most 50 mm", code=codes.E_PARAM)
+        if not 0.0 <= self.floating_support < 1.0:
+            raise InputError("the share of data around a floating piece must be in 0..1",
                              code=codes.E_PARAM)
 
     def to_json(self) -> dict:
@@ -640,12 +658,13 @@ def _process(run: _Run) -> Reconstruction:
     report(run.progress, 0.93, "finishing the maps and the texture")
     finisher.finish()
     finisher.release()  # the accumulators' memory, before the steps below add theirs
-    islands = _drop_islands(run, finisher)
+    islands, floating = _drop_islands(run, finisher)
     end_cells = _texture_ends(run, tab, finisher, warnings)
     stats = _stats(run, tab, tally, finisher, loop_s, t_finish)
     warnings += _lost_laser_warnings(tally, stats)
     stats["texture_end_cells_filled"] = end_cells
     stats["island_cells_dropped"] = islands
+    stats["floating_cells_dropped"] = floating
     if bright is not None:
         stats["ground_near_full_share"] = round(bright, 4)
     report(run.progress, 1.0, "done")
@@ -737,34 +756,43 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
     return tally
 
 
-def _drop_islands(run: _Run, finisher: RowFinisher) -> dict[str, int]:
+def _drop_islands(run: _Run, finisher: RowFinisher) -> tuple[dict[str, int], dict[str, int]]:
     """Drop the small islands of each laser's map (:func:`~impress_gui.core.reconstruction.
-    grid.drop_islands`) and fuse the maps again if any were found; the cells dropped per
-    laser. (The texture was sampled during the loop at the fused heights then: an island's
-    cells keep the colour sampled at its height.)"""
+    grid.drop_islands`), then the floating pieces (:func:`~impress_gui.core.reconstruction.
+    grid.drop_floating`), and fuse the maps again if any were found; the cells dropped per
+    laser by each step. (The texture was sampled during the loop at the fused heights then:
+    a dropped piece's cells keep the colour sampled at its height.)"""
     p = run.params
-    if p.island_max_cells <= 0:
-        return {n: 0 for n in finisher.names}
+    names = finisher.names
+    islands = dict.fromkeys(names, 0)
+    floating = dict.fromkeys(names, 0)
+    if p.island_max_cells <= 0 and p.floating_max_cells <= 0:
+        return islands, floating
     report(run.progress, 0.94, "dropping small islands of heights")
-    out = {}
     last = [time.perf_counter()]
 
-    def step(name: str, fraction: float) -> None:
+    def step(what: str, fraction: float) -> None:
         # a long scan's maps take seconds: progress at least every half second
         if time.perf_counter() - last[0] >= 0.5:
             last[0] = time.perf_counter()
-            report(run.progress, 0.94, f"dropping small islands of heights ({name} laser, "
-                                       f"{100 * fraction:.0f} %)")
+            report(run.progress, 0.94, f"dropping {what} ({100 * fraction:.0f} %)")
 
-    for n in finisher.names:
-        out[n] = drop_islands(finisher.per[n], p.island_step_mm, p.island_max_cells,
-                              progress=lambda f, n=n: step(n, f))
-    if any(out.values()):
+    for n in names:
+        islands[n] = drop_islands(finisher.per[n], p.island_step_mm, p.island_max_cells,
+                                  progress=lambda f, n=n: step(f"small islands of heights, "
+                                                               f"{n} laser", f))
+    if p.floating_max_cells > 0:
+        radius = max(1, int(round(p.floating_radius_mm / p.grid_mm)))
+        dropped = drop_floating([finisher.per[n] for n in names], p.island_step_mm,
+                                p.floating_max_cells, radius, p.floating_support,
+                                progress=lambda f: step("floating pieces of heights", f))
+        floating = dict(zip(names, dropped))
+    if any(islands.values()) or any(floating.values()):
         report(run.progress, 0.945, "fusing the maps again without the islands")
-        g, r = (finisher.per[n] for n in finisher.names)
+        g, r = (finisher.per[n] for n in names)
         fuse_rows(g, r, finisher.tol, finisher.fused, finisher.diff, finisher.contrib, 0,
                   g.shape[0], weight_green=finisher.weight_green)
-    return out
+    return islands, floating
 
 
 def _texture_ends(run: _Run, tab: _Tables, finisher: RowFinisher, warnings: list[str]) -> int:

@@ -67,6 +67,9 @@ class ParamsPanel(QGroupBox):
         super().__init__("Parameters", parent)
         g = QGridLayout(self)
         d = ProcessParams()
+        # not shown: the largest floating piece dropped (ProcessParams.floating_max_cells),
+        # kept as a reopened project was processed
+        self.floating_cells = d.floating_max_cells
         self.method = QComboBox()
         for m in METHODS:
             self.method.addItem(METHOD_TEXT.get(m, m), m)
@@ -197,6 +200,7 @@ class ParamsPanel(QGroupBox):
             weak_run_ratio=self.weak_ratio.value(),
             texture=self.texture.isChecked(),
             unlit_soil=self.unlit_soil.isChecked(),
+            floating_max_cells=self.floating_cells,
         )
 
     def set_params(self, doc: dict) -> None:
@@ -220,6 +224,9 @@ class ParamsPanel(QGroupBox):
             self.texture.setChecked(doc["texture"])
         # a project saved before the option existed was processed without it
         self.unlit_soil.setChecked(doc.get("unlit_soil") is True)
+        # and without dropping floating pieces (2026-12-06)
+        fc = doc.get("floating_max_cells")
+        self.floating_cells = fc if type(fc) is int and 0 <= fc <= 10000 else 0
         hr = doc.get("height_range_mm")
         if isinstance(hr, list) and len(hr) == 2:
             self.h_lo.setValue(float(hr[0]))
