@@ -48,6 +48,24 @@ def test_own_light_outside_the_other_band_is_kept(numpy_reference):
     assert np.nanmax(np.abs(rows - true_rows)) < 0.3
 
 
+@pytest.mark.parametrize("numpy_reference", [False, True])
+def test_the_other_band_is_each_columns_own(numpy_reference):
+    """Random rig 208 (a rolled camera): green's band, as high as its largest column's,
+    reached over the red stripe in a third of the columns, where green's stripe cannot lie;
+    red's stripe, blooming white, was refused there by the lean test (fill 88 %). With the
+    other band given column by column, the stripe is refused only where that column's band
+    covers it."""
+    rgb = _frame([(20.3, 0.05, 1.4, RED)], background=SOIL)
+    w = rgb.shape[1]
+    start = np.full(w, 5, np.int64)
+    own = np.where(np.arange(w) < w // 2, 3, 40).astype(np.int64)  # left: ends at row 8
+    rows = _detect(rgb, "red", (start, own), numpy_reference)
+    left, right = np.isfinite(rows[:w // 2]), np.isfinite(rows[w // 2:])
+    assert left.mean() > 0.95 and right.mean() < 0.05
+    uniform = _detect(rgb, "red", (start, int(own.max())), numpy_reference)
+    assert np.isfinite(uniform).mean() < 0.05  # one height for all: refused everywhere
+
+
 @pytest.mark.parametrize("soil", [SOIL, (150, 190, 90), (120, 110, 100)])
 def test_the_other_lasers_light_in_its_band_is_still_refused(soil):
     """The green stripe where green can lie: the red detector finds no more of it with the

@@ -93,6 +93,10 @@ def run(args: argparse.Namespace) -> int:
     isl = st.get("island_cells_dropped") or {}
     if any(isl.values()):
         print("  small islands dropped (cells): " + ", ".join(f"{k} {v}" for k, v in isl.items()))
+    sh = st.get("stripe_columns_other_laser_dropped") or {}
+    if any(sh.values()):
+        print("  stripe columns on the other laser's light dropped: "
+              + ", ".join(f"{k} {v}" for k, v in sh.items()))
     fl = st.get("floating_cells_dropped") or {}
     if any(fl.values()):
         print("  floating pieces dropped (cells): "

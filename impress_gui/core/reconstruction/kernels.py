@@ -354,7 +354,7 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
         pk = int(np.rint(centre))
         top, wsum, centre = _window(y, c, pk, k, rr, sig)
     ob0 = other_start[c]
-    inside = strict or (pk + k >= ob0 and pk - k < ob0 + other_height)
+    inside = strict or (pk + k >= ob0 and pk - k < ob0 + other_height[c])
     pi = pk - b0
     # a faint stripe (FAINT_SHARE): its light of this laser's colour makes it a peak
     faint = ((retry & 4) != 0 and top < min_peak and top >= FAINT_SHARE * min_peak and wsum > 0
@@ -618,7 +618,7 @@ def _confirm_white(rows, strength, white):
 
 @_kernel(
     "void(Tuple((uint8[:, :], uint8[:, :], uint8[:, :], int64)), "
-    "Tuple((int64[:], int64, int64[:], int64)), "
+    "Tuple((int64[:], int64, int64[:], int64[:])), "
     "UniTuple(int64, 4), "
     "Tuple((float64, int64, int64, float64, float64, int64, int64, float64, float64, boolean, float64)), "
     "Tuple((boolean, int64[:], int64[:], int64, int64, boolean, float64, int16[:, :], int64)), "
@@ -631,8 +631,8 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
 
     * ``frame = (y, cb, cr, chroma_step)``: the frame's planes (:class:`video.Planes`);
     * ``band = (band_start, band_height, other_start, other_height)``: rows searched in each
-      column, and the rows where the other laser's stripe can lie (the lean test refuses a
-      peak only there);
+      column, and the rows where the other laser's stripe can lie, per column (the lean test
+      refuses a peak only there);
     * ``laser = (sign, ch, o1, o2)``: +1 red / -1 green (the chroma lean), the laser's RGB
       channel and the other two;
     * ``peak = (min_peak, k, max_width, max_wrong_lean, min_headroom_lean, refine, retry,

@@ -48,6 +48,7 @@ from impress_gui.core.reconstruction.stripes import (
     BackgroundLUT,
     StripeDetector,
     StripeParams,
+    shared_light,
 )
 from impress_gui.core.reconstruction.texture import (
     RowSpool,
@@ -275,7 +276,20 @@ def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) ->
 def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
                  rois: dict[str, tuple[int, int]] | None = None, margin_px: int = 8):
     """Per laser, the first row to search in every column and the band height: where the
-    stripe can fall for surfaces within the height range (clipped to ``rois`` when given)."""
+    stripe can fall for surfaces within the height range (clipped to ``rois`` when given).
+    The band height is the largest column's: in the other columns the band reaches beyond
+    the height range (:func:`column_band_limits` has each column's own end)."""
+    return {name: (start, int(max(1, (stop - start).max())))
+            for name, (start, stop) in column_band_limits(cal, size, height_range_mm, rois,
+                                                          margin_px).items()}
+
+
+def column_band_limits(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
+                       rois: dict[str, tuple[int, int]] | None = None, margin_px: int = 8
+                       ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per laser, each column's first row and the row after its last where the stripe can
+    fall for surfaces within the height range, ``margin_px`` rows added on either side
+    (clipped to ``rois`` when given)."""
     w, h = size
     out = {}
     lo_h, hi_h = height_range_mm
@@ -292,7 +306,7 @@ def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
             start, stop = np.maximum(start, a), np.minimum(stop, b)
         start = np.clip(start, 0, h - 1)
         stop = np.clip(stop, start + 1, h)
-        out[name] = (start, int(max(1, (stop - start).max())))
+        out[name] = (start, stop)
     return out
 
 
@@ -529,6 +543,10 @@ class _Tables:
     row_mm: float = 0.0
     #: the texture row's travel per frame (its image row's, under a rolling shutter)
     texture_travel: np.ndarray | None = None
+    #: per laser: each column's first row and the row after its last where its stripe can
+    #: fall for surfaces within the height range (column_band_limits; the band searched, as
+    #: high as its largest column's, reaches beyond it in the others)
+    limits: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -553,7 +571,8 @@ def _tables(run: _Run) -> _Tables:
     z_ref0 = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
     # the deepest surface of the height range: where neighbouring pixels lie farthest apart
     z_deep = z_ref0 - min(params.height_range_mm[0], 0.0)
-    bands = column_bands(cal, (w, h), params.height_range_mm, run.rois)
+    limits = column_band_limits(cal, (w, h), params.height_range_mm, run.rois)
+    bands = {n: (a, int(max(1, (b - a).max()))) for n, (a, b) in limits.items()}
     rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
     k_up = max(upsampling(rays[n], z_deep, params.grid_mm) for n in LASERS)
     # grid extent: wherever a stripe point can land (the bands' rays on the laser planes,
@@ -592,7 +611,7 @@ def _tables(run: _Run) -> _Tables:
         texture_travel = travel + row_mm * float(np.median(tv)) if row_mm else travel
     return _Tables(spec, travel, reference_coeffs(cal), bands, rays, k_up,
                    dict(zip(LASERS, (f[1] for f in foot))), max_gap, texture, row_mm,
-                   texture_travel)
+                   texture_travel, limits)
 
 
 @dataclass
@@ -602,6 +621,8 @@ class _Tally:
     found_frames: dict[str, int]  # frames in which each laser's stripe was found
     found_cols: dict[str, int]  # stripe columns found, summed over frames
     weak_cols: dict[str, int] = field(default_factory=dict)  # columns of weak pieces dropped
+    shared_cols: dict[str, int] = field(default_factory=dict)  # the other laser's light dropped
+    beyond_cols: dict[str, int] = field(default_factory=dict)  # rows beyond the height range
     own_rows: dict[str, int] = field(default_factory=dict)  # columns taken from own rows
     unlit: dict[str, int] = field(default_factory=dict)  # columns re-estimated, soil subtracted
     seen: int = 0  # frames read
@@ -633,7 +654,7 @@ def _process(run: _Run) -> Reconstruction:
         # other laser's colour is refused only there
         ground = ground_rows(run.cal, run.video.size)
         detect = {n: StripeDetector(n, tab.bands[n][0], tab.bands[n][1], run.stripe_params, lut,
-                                    other=tab.bands[next(m for m in LASERS if m != n)],
+                                    other=_own_band(tab, next(m for m in LASERS if m != n)),
                                     ground=ground[n])
                   for n in LASERS}
         report(run.progress, 0.03, "background learned")
@@ -686,8 +707,13 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
     plane = {n: run.cal.planes[n].plane for n in LASERS}
     tex = tab.texture
     tally = _Tally(dict.fromkeys(LASERS, 0), dict.fromkeys(LASERS, 0), dict.fromkeys(LASERS, 0))
+    tally.shared_cols = dict.fromkeys(LASERS, 0)
+    tally.beyond_cols = dict.fromkeys(LASERS, 0)
     long_cols = long_run_columns(w)
     run_id, scratch = np.empty(w, np.int64), np.empty(w)
+    shared = {n: (np.empty(w), np.empty(w), np.empty(w)) for n in LASERS}
+    beyond = np.empty(w, bool)
+    last_row = {n: (b - 1 + BEYOND_RANGE_PX).astype(np.float64) for n, (_a, b) in tab.limits.items()}
     ratio = float(params.weak_run_ratio)
     frames.limit(LOOP_QUEUE_FRAMES)
     last_preview = time.perf_counter()
@@ -706,14 +732,28 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
         s_k = float(tab.travel[k])
         bad = k in damage
         tally.skipped += bad
+        if not bad:
+            for name in LASERS:
+                res = detect[name](planes)
+                # rows below the column's own end of the band: a surface beyond the height
+                # range, which the band only reaches because another column's is longer -
+                # in practice the other laser's stripe (rig 208: green took red's, 90 mm down)
+                np.greater(res.rows, last_row[name], out=beyond)
+                if beyond.any():
+                    res.rows[beyond] = np.nan
+                    res.strength[beyond] = 0.0
+                    tally.beyond_cols[name] += int(np.count_nonzero(beyond))
+                tally.weak_cols[name] += kern.prune_weak_runs(res.rows, res.strength,
+                                                              CONNECT_PX, long_cols, ratio,
+                                                              run_id, scratch)
+            for name, n in _drop_shared_light(kern, detect, tab, plane, s_k, shared).items():
+                tally.shared_cols[name] += n
         for name in LASERS:
             if bad:
                 profile[name].next()
                 acc[name].reset_chain()
                 continue
-            res = detect[name](planes)
-            tally.weak_cols[name] += kern.prune_weak_runs(res.rows, res.strength, CONNECT_PX,
-                                                          long_cols, ratio, run_id, scratch)
+            res = detect[name].result
             if unlit is not None:
                 unlit.refine(name, k, planes.y, res.rows)
             pr = profile[name]
@@ -754,6 +794,59 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
                    f"frame {i}/{n_total} ({i / max(el, 1e-9):.1f} frames/s)")
     tally.unlit = dict(unlit.refined) if unlit is not None else dict.fromkeys(LASERS, 0)
     return tally
+
+
+def _own_band(tab: _Tables, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Laser ``name``'s rows per column as the other laser's detector should know them: each
+    column's own (the band searched is as high as its largest column's; where the stripe
+    runs slanted across a rolled camera's picture that reaches hundreds of rows beyond the
+    height range in the other columns, and over the other laser's own stripe there: rig 208,
+    whose red stripe blooming white was refused by the lean test of green's band in a third
+    of the columns)."""
+    start, stop = tab.limits[name]
+    return start, stop - start
+
+
+#: rows found more than this below a column's own end of its band (the height range and the
+#: band's margin) are dropped (a surface beyond the height range: in practice the other
+#: laser's stripe)
+BEYOND_RANGE_PX = 0.0
+
+#: two lasers' stripe rows this close in one column are the same light ...
+SHARED_ROW_PX = 1.0
+#: ... and when the points they give through the two planes lie farther apart than this (in
+#: x, y or height), one laser's detector took the other's stripe (stripes.shared_light)
+SHARED_APART_MM = 1.0
+
+
+def _drop_shared_light(kern, detect: dict[str, StripeDetector], tab: _Tables, plane: dict,
+                       s_k: float, buf: dict) -> dict[str, int]:
+    """Where both lasers' detectors found a stripe at the same row of a column, but the two
+    points it gives lie apart, one of them took the other's light: the columns
+    :func:`~impress_gui.core.reconstruction.stripes.shared_light` names are dropped from
+    that laser's rows (in place). Only on the line where the two planes meet can both lasers
+    light one pixel, and there the two points agree. Returns the columns dropped per laser."""
+    rows = {n: detect[n].result.rows for n in LASERS}
+    g, r = (rows[n] for n in LASERS)
+    close = np.abs(g - r) <= SHARED_ROW_PX  # NaN is never close
+    if not close.any():
+        return dict.fromkeys(LASERS, 0)
+    for n in LASERS:
+        pl = plane[n]
+        kern.triangulate(rows[n], close, tab.bands[n][0], tab.rays[n], pl.normal,
+                         float(pl.offset_mm), s_k, tab.row_mm, tab.ref, *buf[n])
+    (xg, yg, hg), (xr, yr, hr) = (buf[n] for n in LASERS)
+    with np.errstate(invalid="ignore"):
+        apart = close & ((np.abs(xg - xr) > SHARED_APART_MM) | (np.abs(yg - yr) > SHARED_APART_MM)
+                         | (np.abs(hg - hr) > SHARED_APART_MM))
+    if not apart.any():
+        return dict.fromkeys(LASERS, 0)
+    out = {}
+    for n, drop in zip(LASERS, shared_light(g, r, apart, CONNECT_PX)):
+        rows[n][drop] = np.nan
+        detect[n].result.strength[drop] = 0.0
+        out[n] = int(drop.sum())
+    return out
 
 
 def _drop_islands(run: _Run, finisher: RowFinisher) -> tuple[dict[str, int], dict[str, int]]:
@@ -933,6 +1026,8 @@ def _stats(run: _Run, tab: _Tables, tally: _Tally, finisher: RowFinisher, loop_s
         "stripe_column_share": {
             n: round(tally.found_cols[n] / max(1, tally.found_frames[n] * w), 3) for n in LASERS},
         "weak_stripe_columns_dropped": tally.weak_cols,
+        "stripe_columns_other_laser_dropped": tally.shared_cols,
+        "stripe_columns_beyond_height_range": tally.beyond_cols,
         # columns whose stripe, found in the other laser's band, gave way to one in the
         # laser's own rows nearer the ground (stripes.StripeParams.prefer_own_rows)
         "stripe_columns_from_own_rows": tally.own_rows,

@@ -208,7 +208,8 @@ def _hue_ok(name: str, rgb: np.ndarray, params: StripeParams) -> np.ndarray:
     return m & (s >= params.min_saturation) & (v >= params.min_value)
 
 
-Band = tuple[np.ndarray, int]  # (first row per column, rows)
+#: (first row per column, rows: one height for every column or each column's own)
+Band = tuple[np.ndarray, int | np.ndarray]
 
 
 def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height: int,
@@ -225,15 +226,18 @@ def detect_planes(name: str, planes: Planes, band_start: np.ndarray, band_height
                           ground)(planes).copy()
 
 
-def _other_band(other: Band | None, w: int) -> tuple[np.ndarray, int]:
-    """The other laser's band per column; every row (``-2**40`` on, ``2**41`` rows) when unknown."""
+def _other_band(other: Band | None, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """The other laser's band per column: first row and rows (one height for every column,
+    or each column's own); every row (``-2**40`` on, ``2**41`` rows) when unknown."""
     if other is None:
-        return np.full(w, -(1 << 40), np.int64), 1 << 41
+        return np.full(w, -(1 << 40), np.int64), np.full(w, 1 << 41, np.int64)
     start, height = other
-    if len(start) != w:
+    if len(start) != w or (np.ndim(height) and np.size(height) != w):
         raise InputError(f"the other laser's band has {len(start)} columns, the frame {w}",
                          code=codes.E_SIZE_MISMATCH)
-    return np.ascontiguousarray(start, dtype=np.int64), int(height)
+    rows = np.asarray(height, np.int64)
+    return (np.ascontiguousarray(start, dtype=np.int64),
+            np.full(w, int(rows), np.int64) if rows.ndim == 0 else np.array(rows))
 
 
 def _bloom_lean(params: StripeParams, other: Band | None) -> float:
@@ -280,7 +284,8 @@ def own_regions(band_start: np.ndarray, band_height: int, other: Band, k: int,
     o0, oh = other
     o0 = np.asarray(o0, np.int64)
     out = []
-    for lo, hi in ((b0, np.minimum(o0 - k, b1)), (np.maximum(o0 + int(oh) + k, b0), b1)):
+    oh = np.asarray(oh, np.int64)
+    for lo, hi in ((b0, np.minimum(o0 - k, b1)), (np.maximum(o0 + oh + k, b0), b1)):
         lo = np.clip(lo, 0, image_height - 1)
         hi = np.maximum(np.clip(hi, 0, image_height), lo)  # empty where lo >= hi
         height = int((hi - lo).max(initial=0))
@@ -999,6 +1004,47 @@ def prune_weak_runs_numpy(rows: np.ndarray, strength: np.ndarray, tol_px: float,
     rows[drop] = np.nan
     strength[drop] = 0.0
     return int(drop.sum())
+
+
+def shared_light(rows_a: np.ndarray, rows_b: np.ndarray, conflict: np.ndarray,
+                 tol_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where the two lasers' detectors took the same light, which of them took the other's:
+    the columns to drop from each laser's rows (boolean masks).
+
+    ``conflict`` marks the columns where both found a stripe at (nearly) the same row but
+    the two points it gives through the two lasers' planes lie apart (only on the line where
+    the planes meet do both lasers light the same pixel). There one laser's detector took the
+    other's stripe (in rig 205 of the random rigs the red detector took the green stripe on
+    the ground, 350 rows from red's own, in runs of 4-8 columns, frame after frame: pieces of
+    the red map 60 mm up). Each laser's stripe falls into *runs*: columns whose rows continue
+    into each other within ``tol_px`` (as :func:`prune_weak_runs_numpy` has them). A laser
+    whose run lies on the other's light over a larger share of its columns than the other's
+    run does loses the column (the impostor's run is a short piece of the other's stripe; the
+    real stripe runs on beyond it); where the shares are equal both lose it. A run that loses
+    a column and lies on the other's light over at least half of its columns is dropped
+    whole."""
+    n = len(rows_a)
+    drops = []
+    shares = []
+    ids = []
+    for rows in (rows_a, rows_b):
+        link = np.abs(np.diff(rows)) <= tol_px  # NaN never links
+        run_id = np.concatenate([[0], np.cumsum(~link)]) if n else np.zeros(0, np.int64)
+        finite = np.isfinite(rows)
+        count = np.bincount(run_id, weights=finite)
+        on_other = np.bincount(run_id, weights=conflict & finite)
+        share = np.divide(on_other, count, out=np.zeros_like(count), where=count > 0)
+        ids.append(run_id)
+        shares.append(share)
+    sa, sb = shares[0][ids[0]], shares[1][ids[1]]
+    for k, (lose, rows) in enumerate(((conflict & (sa >= sb), rows_a),
+                                      (conflict & (sb >= sa), rows_b))):
+        run_id, share = ids[k], shares[k]
+        whole = np.zeros(len(share), bool)
+        whole[run_id[lose]] = True
+        whole &= share >= 0.5
+        drops.append((lose | whole[run_id]) & np.isfinite(rows))
+    return drops[0], drops[1]
 
 
 def half_max_midpoints(luma: np.ndarray, rows: np.ndarray, half_window: int) -> np.ndarray:
