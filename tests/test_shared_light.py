@@ -95,8 +95,10 @@ def test_the_red_detector_taking_the_green_stripe_leaves_no_wild_points(
     those columns are dropped from red's rows and the red map has no point more than 1 mm
     off the truth; with the check off (monkeypatched) the same input gives such points, so
     the check is what removes them. Green's map is untouched."""
-    # the island steps off, so that only this check can remove the points (the scan's own
-    # red map then has points more than 1 mm off by the target's edges: counted first)
+    # the island steps and the rows' height range off, so that only this check can remove
+    # the points (the scan's own red map then has points more than 1 mm off by the target's
+    # edges: counted first)
+    monkeypatch.setattr(R, "BEYOND_RANGE_PX", 1e9)
     params = R.ProcessParams(texture=False, floating_max_cells=0, island_max_cells=0,
                              frame_start=60, frame_stop=140)
     before, _ = _red_wild_cells(flat_scan, flat_calibration, params)

@@ -281,15 +281,16 @@ def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
     the height range (:func:`column_band_limits` has each column's own end)."""
     return {name: (start, int(max(1, (stop - start).max())))
             for name, (start, stop) in column_band_limits(cal, size, height_range_mm, rois,
-                                                          margin_px).items()}
+                                                          margin_px, unfolded=False).items()}
 
 
 def column_band_limits(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
-                       rois: dict[str, tuple[int, int]] | None = None, margin_px: int = 8
-                       ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+                       rois: dict[str, tuple[int, int]] | None = None, margin_px: int = 8,
+                       unfolded: bool = True) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per laser, each column's first row and the row after its last where the stripe can
     fall for surfaces within the height range, ``margin_px`` rows added on either side
-    (clipped to ``rois`` when given)."""
+    (clipped to ``rois`` when given). ``unfolded=False``: as the search bands have been
+    made since before 2026-12-06 (:func:`column_bands`; :func:`_column_rows`)."""
     w, h = size
     out = {}
     lo_h, hi_h = height_range_mm
@@ -297,7 +298,7 @@ def column_band_limits(cal: SceneCalibration, size: tuple[int, int], height_rang
         rmin = np.full(w, np.inf)
         rmax = np.full(w, -np.inf)
         for hgt in np.linspace(lo_h, hi_h, 9):
-            r = _column_rows(cal, name, w, float(hgt))
+            r = _column_rows(cal, name, w, float(hgt), unfolded)
             rmin, rmax = np.minimum(rmin, r), np.maximum(rmax, r)
         start = np.floor(rmin).astype(np.int64) - margin_px
         stop = np.ceil(rmax).astype(np.int64) + margin_px + 1
@@ -310,15 +311,34 @@ def column_band_limits(cal: SceneCalibration, size: tuple[int, int], height_rang
     return out
 
 
-def _column_rows(cal: SceneCalibration, name: str, w: int, height_mm: float) -> np.ndarray:
+def _column_rows(cal: SceneCalibration, name: str, w: int, height_mm: float,
+                 unfolded: bool = False) -> np.ndarray:
     """The row in each of ``w`` columns where laser ``name``'s stripe falls on a flat surface
-    ``height_mm`` above the calibration's ground (level at the reference point)."""
+    ``height_mm`` above the calibration's ground (level at the reference point).
+    ``unfolded``: only the line's points up to where its projection turns back (a lens's
+    barrel distortion folds points far outside the view back into the picture's edge
+    columns, where they mix with the real ones; random rig 65: rows 20 mm of height off in
+    the last 300 columns), as :func:`column_band_limits` needs them."""
     z = float(cal.reference_depth(np.array(0.0), np.array(0.0))) - height_mm
     plane = cal.planes[name].plane
     xs = np.linspace(-1.2 * z * w / cal.intrinsics.fx, 1.2 * z * w / cal.intrinsics.fx, 257)
     n, d = plane.normal, plane.offset_mm
     ys = (d - n[0] * xs - n[2] * z) / n[1]
     uv = cal.intrinsics.project(np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation)
+    if unfolded:
+        u = uv[:, 0]
+        # the stretch around the point nearest the picture's centre column where u keeps
+        # moving the same way
+        mid = int(np.argmin(np.abs(u - 0.5 * w)))
+        mid = min(mid, len(u) - 2)
+        step = np.sign(np.diff(u))
+        way = step[mid] if step[mid] != 0 else 1.0
+        lo, hi = mid, mid + 1
+        while lo > 0 and step[lo - 1] == way:
+            lo -= 1
+        while hi < len(u) - 1 and step[hi] == way:
+            hi += 1
+        uv = uv[lo:hi + 1]
     order = np.argsort(uv[:, 0])
     return np.interp(np.arange(w, dtype=np.float64), uv[order, 0], uv[order, 1])
 
@@ -571,8 +591,12 @@ def _tables(run: _Run) -> _Tables:
     z_ref0 = float(cal.reference_depth(np.array(0.0), np.array(0.0)))
     # the deepest surface of the height range: where neighbouring pixels lie farthest apart
     z_deep = z_ref0 - min(params.height_range_mm[0], 0.0)
-    limits = column_band_limits(cal, (w, h), params.height_range_mm, run.rois)
-    bands = {n: (a, int(max(1, (b - a).max()))) for n, (a, b) in limits.items()}
+    bands = column_bands(cal, (w, h), params.height_range_mm, run.rois)
+    # each column's own rows for the height range, regions of interest aside: the automatic
+    # ones cut overlapping bands halfway, and the band searched, as high as its largest
+    # column's, reaches past that cut where a column needs it (rig 201: red's stripe on the
+    # ground 2 rows past the cut in its first 31 columns)
+    limits = column_band_limits(cal, (w, h), params.height_range_mm)
     rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
     k_up = max(upsampling(rays[n], z_deep, params.grid_mm) for n in LASERS)
     # grid extent: wherever a stripe point can land (the bands' rays on the laser planes,
