@@ -298,8 +298,13 @@ def column_band_limits(cal: SceneCalibration, size: tuple[int, int], height_rang
         rmin = np.full(w, np.inf)
         rmax = np.full(w, -np.inf)
         for hgt in np.linspace(lo_h, hi_h, 9):
-            r = _column_rows(cal, name, w, float(hgt), unfolded)
-            rmin, rmax = np.minimum(rmin, r), np.maximum(rmax, r)
+            # unfolded: the rows of the whole line as well (where the line's projection
+            # turns back for another reason than the lens - a stripe running nearly along
+            # the image columns - the unfolded stretch is short; rigs 23 and 66 lost 5 and
+            # 3 % of a laser's map with it alone)
+            for uf in {False, unfolded}:
+                r = _column_rows(cal, name, w, float(hgt), uf)
+                rmin, rmax = np.minimum(rmin, r), np.maximum(rmax, r)
         start = np.floor(rmin).astype(np.int64) - margin_px
         stop = np.ceil(rmax).astype(np.int64) + margin_px + 1
         if rois and name in rois:
@@ -317,8 +322,9 @@ def _column_rows(cal: SceneCalibration, name: str, w: int, height_mm: float,
     ``height_mm`` above the calibration's ground (level at the reference point).
     ``unfolded``: only the line's points up to where its projection turns back (a lens's
     barrel distortion folds points far outside the view back into the picture's edge
-    columns, where they mix with the real ones; random rig 65: rows 20 mm of height off in
-    the last 300 columns), as :func:`column_band_limits` needs them."""
+    columns, where they mix with the real ones; random rig 65: the ground's rows up to 135
+    rows off in 178 of the picture's last 410 columns), as :func:`column_band_limits` needs
+    them."""
     z = float(cal.reference_depth(np.array(0.0), np.array(0.0))) - height_mm
     plane = cal.planes[name].plane
     xs = np.linspace(-1.2 * z * w / cal.intrinsics.fx, 1.2 * z * w / cal.intrinsics.fx, 257)
@@ -567,6 +573,9 @@ class _Tables:
     #: fall for surfaces within the height range (column_band_limits; the band searched, as
     #: high as its largest column's, reaches beyond it in the others)
     limits: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    #: per laser: its band column by column as the other laser's detector knows it (first
+    #: row, rows; _own_band)
+    others: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -597,6 +606,12 @@ def _tables(run: _Run) -> _Tables:
     # column's, reaches past that cut where a column needs it (rig 201: red's stripe on the
     # ground 2 rows past the cut in its first 31 columns)
     limits = column_band_limits(cal, (w, h), params.height_range_mm)
+    # the other laser's band for the lean test: its rows for the height range column by
+    # column, clipped to the regions of interest like the band searched (without the clip
+    # the automatic cut between overlapping bands is undone, and the lean test refuses a
+    # laser's stripe in the other's rows again: rigs 23 and 66 lost 5 and 3 % of a map)
+    lean = column_band_limits(cal, (w, h), params.height_range_mm, run.rois, unfolded=False)
+    others = {n: (a, b - a) for n, (a, b) in lean.items()}
     rays = {n: _band_rays(cal, bands[n], h) for n in LASERS}
     k_up = max(upsampling(rays[n], z_deep, params.grid_mm) for n in LASERS)
     # grid extent: wherever a stripe point can land (the bands' rays on the laser planes,
@@ -635,7 +650,7 @@ def _tables(run: _Run) -> _Tables:
         texture_travel = travel + row_mm * float(np.median(tv)) if row_mm else travel
     return _Tables(spec, travel, reference_coeffs(cal), bands, rays, k_up,
                    dict(zip(LASERS, (f[1] for f in foot))), max_gap, texture, row_mm,
-                   texture_travel, limits)
+                   texture_travel, limits, others)
 
 
 @dataclass
@@ -827,8 +842,7 @@ def _own_band(tab: _Tables, name: str) -> tuple[np.ndarray, np.ndarray]:
     height range in the other columns, and over the other laser's own stripe there: rig 208,
     whose red stripe blooming white was refused by the lean test of green's band in a third
     of the columns)."""
-    start, stop = tab.limits[name]
-    return start, stop - start
+    return tab.others[name]
 
 
 #: rows found more than this below a column's own end of its band (the height range and the
