@@ -74,7 +74,8 @@ def _red_takes_green(monkeypatch, cols):
     monkeypatch.setattr(S.StripeDetector, "__call__", call2)
 
 
-def _red_wild_cells(scan, cal_path, params):
+def _wild_cells(scan, cal_path, params, laser="red"):
+    """Cells of ``laser``'s map more than 1 mm off the truth, and the reconstruction."""
     from impress_gui.core.calibration.scene import SceneCalibration
     from impress_gui.core.formats.video import open_video
     from impress_gui.sim.truth import truth_for_reconstruction
@@ -83,7 +84,7 @@ def _red_wild_cells(scan, cal_path, params):
     truth = json.loads((scan / "truth.json").read_text())
     with open_video(scan / truth["video"]) as v:
         rec = R.reconstruct(v, cal, params)
-    h = rec.per_laser_mm["red"]
+    h = rec.per_laser_mm[laser]
     t = truth_for_reconstruction(scan, rec.spec, h, cal.reference_depth, cal.rotation)
     ok = np.isfinite(h) & np.isfinite(t)
     return int((np.abs(h - t)[ok] > 1.0).sum()), rec
@@ -101,14 +102,14 @@ def test_the_red_detector_taking_the_green_stripe_leaves_no_wild_points(
     monkeypatch.setattr(R, "BEYOND_RANGE_PX", 1e9)
     params = R.ProcessParams(texture=False, floating_max_cells=0, island_max_cells=0,
                              frame_start=60, frame_stop=140)
-    before, _ = _red_wild_cells(flat_scan, flat_calibration, params)
+    before, _ = _wild_cells(flat_scan, flat_calibration, params)
     _red_takes_green(monkeypatch, slice(300, 308))
-    wild, rec = _red_wild_cells(flat_scan, flat_calibration, params)
+    wild, rec = _wild_cells(flat_scan, flat_calibration, params)
     dropped = rec.stats["stripe_columns_other_laser_dropped"]
     n = rec.stats["frames_processed"]
     assert dropped["green"] == 0 and dropped["red"] >= 8 * 0.8 * n
     monkeypatch.setattr(R, "SHARED_ROW_PX", -1.0)  # the check off
-    wild_off, rec_off = _red_wild_cells(flat_scan, flat_calibration, params)
+    wild_off, rec_off = _wild_cells(flat_scan, flat_calibration, params)
     print(f"red cells over 1 mm off: scan alone {before}, fed green's light {wild}, "
           f"the same with the check off {wild_off}; columns dropped {dropped} in {n} frames")
     assert wild <= before + 10
@@ -182,17 +183,7 @@ def test_a_stripe_read_beyond_the_height_range_is_dropped(flat_scan, flat_calibr
                              frame_start=60, frame_stop=140)
 
     def green_wild():
-        from impress_gui.core.calibration.scene import SceneCalibration
-        from impress_gui.core.formats.video import open_video
-        from impress_gui.sim.truth import truth_for_reconstruction
-
-        cal = SceneCalibration.load(flat_calibration)
-        with open_video(flat_scan / truth["video"]) as v:
-            rec = R.reconstruct(v, cal, params)
-        h = rec.per_laser_mm["green"]
-        t = truth_for_reconstruction(flat_scan, rec.spec, h, cal.reference_depth, cal.rotation)
-        ok = np.isfinite(h) & np.isfinite(t)
-        return int((np.abs(h - t)[ok] > 1.0).sum()), rec
+        return _wild_cells(flat_scan, flat_calibration, params, "green")
 
     before, _ = green_wild()
     n = _green_reads_beyond(monkeypatch, flat_calibration, size, slice(200, 240), 10)
