@@ -162,6 +162,23 @@ class Intrinsics:
         k = self.camera_matrix
         return k[0, 0] * xd + k[0, 1] * yd + k[0, 2], k[1, 1] * yd + k[1, 2]
 
+    def fold_radius(self, limit: float = 4.0) -> float:
+        """The normalized radius (``sqrt(x^2 + y^2)`` at ``z = 1``) beyond which the lens's
+        radial distortion stops moving points outwards (inf if it does not up to ``limit``).
+        Past it a barrel lens folds rays from far outside the view back into the picture:
+        a projection of such points lands among the real ones (random rig 65: a laser's line
+        on the ground projected up to 135 rows off in its edge columns). Tangential terms
+        are left out (a few tenths of a percent of the radius)."""
+        d = self.dist_coeffs
+        r = np.linspace(0.0, limit, 40001)
+        r2 = r * r
+        radial = 1 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))
+        if d.size == 8:
+            radial = radial / (1 + r2 * (d[5] + r2 * (d[6] + r2 * d[7])))
+        out = r * radial
+        bad = np.flatnonzero((np.diff(out) <= 0) | ~np.isfinite(out[1:]))
+        return float(r[bad[0]]) if len(bad) else math.inf
+
     def project(self, pts_cam: np.ndarray) -> np.ndarray:
         """Project camera-frame points ``(..., 3)`` in mm to distorted pixels ``(..., 2)``."""
         p = np.asarray(pts_cam, dtype=float)

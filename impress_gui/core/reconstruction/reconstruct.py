@@ -177,15 +177,35 @@ def _stripe_uv(cal: SceneCalibration, size: tuple[int, int], name: str, height_m
     """Image points ``(u, v)`` of the laser's line on a level surface ``height_mm`` above the
     reference, sampled across the view (the points inside the image's columns)."""
     w, _ = size
+    uv = _line_uv(cal, name, height_mm, w / cal.intrinsics.fx, n_points)
+    return uv[(uv[:, 0] >= 0) & (uv[:, 0] < w)]
+
+
+#: leave out the points of a laser's line past the lens's fold radius (:meth:`Intrinsics.
+#: fold_radius`) when projecting it (False only to compare with the code before 2026-12-06)
+LENS_FOLD = True
+
+
+def _line_uv(cal: SceneCalibration, name: str, height_mm: float, half_width: float,
+             n_points: int) -> np.ndarray:
+    """Image points ``(u, v)`` of laser ``name``'s line on a level surface ``height_mm``
+    above the reference, sampled at ``n_points`` across ``+-half_width`` times the depth in
+    the ideal frame's X, without the points a barrel lens folds back into the picture (past
+    its fold radius: their projection lands among the real points')."""
     plane = cal.planes[name].plane
     # points of the plane at this height below the camera, across the image
     z = float(cal.reference_depth(np.array(0.0), np.array(0.0))) - height_mm
     # ideal-frame line: plane n.X = d with Z = z -> sample X across the view
-    xs = np.linspace(-z * w / cal.intrinsics.fx, z * w / cal.intrinsics.fx, n_points)
+    xs = np.linspace(-half_width * z, half_width * z, n_points)
     n, d = plane.normal, plane.offset_mm
     ys = (d - n[0] * xs - n[2] * z) / n[1]
-    uv = cal.intrinsics.project(np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation)
-    return uv[(uv[:, 0] >= 0) & (uv[:, 0] < w)]
+    cam = np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation
+    if LENS_FOLD:
+        rad = np.hypot(cam[:, 0], cam[:, 1]) / np.where(cam[:, 2] > 0, cam[:, 2], np.nan)
+        keep = rad < cal.intrinsics.fold_radius()
+        if keep.sum() >= 2:
+            cam = cam[keep]
+    return cal.intrinsics.project(cam)
 
 
 def _stripe_rows(cal: SceneCalibration, size: tuple[int, int], name: str,
@@ -238,12 +258,22 @@ def fusion_weight(cal: SceneCalibration, size: tuple[int, int]) -> float:
     return float(r * r / (g * g + r * r))
 
 
+#: the rows of the regions of interest from the laser's line in every column, and their cut
+#: kept CUT_CLEAR_PX rows clear of either stripe on the ground (False only to compare with
+#: the code before 2026-12-06: sampled points, and random rig 201's red ground stripe cut 2
+#: rows inside in its first 31 columns)
+ROWS_DENSE = True
+CUT_CLEAR_PX = 4
+
+
 def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) -> dict:
     """Rows where each laser's stripe can appear for surfaces within the height range.
 
     Where the two bands overlap they are split halfway through the overlap, so that neither
     detector searches the rows where the other's stripe lies on the ground - unless that row
-    crosses either stripe on the reference surface (height 0): a stripe running across the
+    crosses either stripe on the reference surface (height 0), or passes within
+    ``CUT_CLEAR_PX`` rows of one (the stripe's own width; both taken from the line's row in
+    every column, :func:`_column_rows`): a stripe running across the
     picture (a rolled camera) spans many rows, and the cut then lost part of it in every frame
     (random rig 8: the red stripe's left 80 columns, 2 % of the map; rig 7 at 1080p: the fill
     98.9 %). Then the bands are left overlapping: each column's band (:func:`column_bands`)
@@ -252,25 +282,42 @@ def laser_rois(cal: SceneCalibration, size: tuple[int, int], height_range_mm) ->
     warm soil (wild points 0.16 %); a cut halfway between the two stripes on the ground lost
     the red stripe on its raised target."""
     w, h = size
-    out = {}
-    for name in LASERS:
-        rows = np.concatenate([_stripe_rows(cal, size, name, hgt) for hgt in height_range_mm])
-        if not len(rows):
-            raise ReconstructionError(f"the {name} laser's stripe falls outside the image",
-                                      code=codes.E_NO_STRIPE)
-        a = int(np.floor(rows.min())) - 8
-        b = int(np.ceil(rows.max())) + 9
-        out[name] = (max(0, a - a % 2), min(h, b + b % 2))
+    out = {name: _roi_rows(cal, size, name, height_range_mm) for name in LASERS}
     g, r = out["green"], out["red"]
     if g[0] < r[1] and r[0] < g[1]:  # overlapping bands
         lo, hi = sorted(LASERS, key=lambda n: sum(out[n]))
         cut = (out[lo][1] + out[hi][0]) // 2
         cut -= cut % 2
         ground = [_stripe_rows(cal, size, n, 0.0) for n in LASERS]
-        if not any(len(v) and v.min() <= cut <= v.max() for v in ground):
+        clear = 0
+        if ROWS_DENSE:
+            ground = [np.concatenate([v, _column_rows(cal, n, w, 0.0)])
+                      for v, n in zip(ground, LASERS, strict=True)]
+            clear = CUT_CLEAR_PX
+        if not any(len(v) and v.min() - clear <= cut <= v.max() + clear for v in ground):
             out[lo] = (out[lo][0], cut)
             out[hi] = (cut, out[hi][1])
     return out
+
+
+def _roi_rows(cal: SceneCalibration, size: tuple[int, int], name: str,
+              height_range_mm) -> tuple[int, int]:
+    """The first row and the row after the last (even, within the picture) where laser
+    ``name``'s stripe can fall on surfaces within the height range, 8 rows added on either
+    side, before :func:`laser_rois` splits overlapping bands."""
+    w, h = size
+    rows = np.concatenate([_stripe_rows(cal, size, name, hgt) for hgt in height_range_mm])
+    if not len(rows):
+        raise ReconstructionError(f"the {name} laser's stripe falls outside the image",
+                                  code=codes.E_NO_STRIPE)
+    if ROWS_DENSE:
+        # the line's rows in every column: its points sampled 30-60 columns apart missed up
+        # to 14 rows of a slanted stripe at the picture's edge (random rig 8 at 1080p)
+        rows = np.concatenate([rows] + [_column_rows(cal, name, w, float(hgt))
+                                        for hgt in height_range_mm])
+    a = int(np.floor(rows.min())) - 8
+    b = int(np.ceil(rows.max())) + 9
+    return max(0, a - a % 2), min(h, b + b % 2)
 
 
 def column_bands(cal: SceneCalibration, size: tuple[int, int], height_range_mm,
@@ -325,12 +372,7 @@ def _column_rows(cal: SceneCalibration, name: str, w: int, height_mm: float,
     columns, where they mix with the real ones; random rig 65: the ground's rows up to 135
     rows off in 178 of the picture's last 410 columns), as :func:`column_band_limits` needs
     them."""
-    z = float(cal.reference_depth(np.array(0.0), np.array(0.0))) - height_mm
-    plane = cal.planes[name].plane
-    xs = np.linspace(-1.2 * z * w / cal.intrinsics.fx, 1.2 * z * w / cal.intrinsics.fx, 257)
-    n, d = plane.normal, plane.offset_mm
-    ys = (d - n[0] * xs - n[2] * z) / n[1]
-    uv = cal.intrinsics.project(np.column_stack([xs, ys, np.full_like(xs, z)]) @ cal.rotation)
+    uv = _line_uv(cal, name, height_mm, 1.2 * w / cal.intrinsics.fx, 257)
     if unfolded:
         u = uv[:, 0]
         # the stretch around the point nearest the picture's centre column where u keeps
