@@ -76,6 +76,17 @@ FAINT_TINT = 0.8
 # stripe of this laser that clips everything on a light object clips its own channel at least
 # as widely.
 FAINT_CLIP = 250.0
+# ... and reaches min_value, unless it rises by FAINT_DARK_RISE of the surface's own level or
+# more: on dark soil a dim laser's channel never reaches min_value (random rig 214 at 1080p,
+# soil of luma 30-60: the red stripe's red 45 -> 95, found in 53 % of the columns of a frame,
+# the map's fill 82.8 %), while pixel noise of a dark picture rises far less over its level
+FAINT_DARK_RISE = 0.5
+# ... and by FAINT_DARK_CLEAR x the spread of that channel over the window's rows 3 or more
+# from its centre, each of the three central rows above all of them: a stripe stands clear of
+# the surface's own variation, pixel noise does not (independent noise of 40-90 grey levels in
+# every pixel and channel: 10-17 columns of 960 pass with the first two limits alone, none
+# with this one)
+FAINT_DARK_CLEAR = 2.0
 
 HSV_SHIFT = 12
 
@@ -232,8 +243,11 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
     """Whether column ``c``'s window holds light of this laser's colour against the surface it
     falls on (``FAINT_RISE``, ``FAINT_TINT``): over the central three rows the laser's channel
     ``ch`` rises on average at least ``FAINT_RISE * min_peak`` above the surface (the mean of
-    the window's two end rows on each side) and reaches ``min_value`` on one of them, and
-    each other channel (``o1``, ``o2``) rises on average by at most ``FAINT_TINT`` x the laser
+    the window's two end rows on each side) and reaches ``min_value`` on one of them (or its
+    rise is ``FAINT_DARK_RISE`` of the surface's level and ``FAINT_DARK_CLEAR`` x the spread of
+    the window's rows 3 or more from its centre, each central row above them all: dark soil),
+    and each other
+    channel (``o1``, ``o2``) rises on average by at most ``FAINT_TINT`` x the laser
     channel's rise x the surface's ratio of that channel to the laser's; the other laser's
     channel (``1 - ch``) not clipped (``FAINT_CLIP``) on more of the window's rows than
     ``ch``."""
@@ -246,10 +260,20 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
         bg0 += 0.25 * px[0]
         bg1 += 0.25 * px[1]
         bg2 += 0.25 * px[2]
+    # the surface in this laser's channel, its darkest and brightest: every row of the window
+    # 3 or more from its centre
+    lo = np.inf
+    hi = -np.inf
+    for j in range(n):
+        if abs(j - k) >= 3:
+            v = _rgb(float(y[rr[j], c]), float(cb[rr[j] >> sh, cc]), float(cr[rr[j] >> sh, cc]))[ch]
+            lo = min(lo, v)
+            hi = max(hi, v)
     m0 = 0.0
     m1 = 0.0
     m2 = 0.0
     top = 0.0
+    low = np.inf
     for j in range(k - 1, k + 2):
         r = rr[j]
         px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
@@ -257,10 +281,13 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
         m1 += px[1] / 3.0
         m2 += px[2] / 3.0
         top = max(top, px[ch])
+        low = min(low, px[ch])
     bg = (bg0, bg1, bg2)
     rise = (m0 - bg0, m1 - bg1, m2 - bg2)
     best = rise[ch]
-    if not (best >= FAINT_RISE * min_peak and top >= min_value):
+    if not (best >= FAINT_RISE * min_peak
+            and (top >= min_value or (best >= FAINT_DARK_RISE * bg[ch] and low > hi
+                                       and best >= FAINT_DARK_CLEAR * (hi - lo)))):
         return False
     bc = max(bg[ch], 1.0)
     for o in (o1, o2):

@@ -100,7 +100,10 @@ class StripeParams:
     # clearly less (kernels.FAINT_TINT; faint_light). A red laser on a light surface adds
     # mostly red, a third of which shows in the luma: on photographs of a pinkish stripe on a
     # white object the luma rose 10-20 grey levels and the stripe was found in none of the
-    # columns where plain background subtraction finds it (issue 18, real laser light)
+    # columns where plain background subtraction finds it (issue 18, real laser light). On
+    # dark soil the laser's channel need not reach min_value when it rises by
+    # kernels.FAINT_DARK_RISE of the surface's level, clear of the surface's own variation
+    # (random rig 214: a dim red laser on soil of luma 30-60, the map's fill 82.8 %)
     faint: bool = True
     # with the other laser's band and the stripe's row on the ground known (the
     # reconstruction), a column whose stripe was found inside that band (widened by the half
@@ -728,7 +731,8 @@ def _guide() -> dict:
 
     k = kernels()
     return {"link": k.GUIDE_LINK, "reach": k.GUIDE_REACH, "dev": k.GUIDE_DEV,
-            "weak": k.WEAK_SHARE, "faint": (k.FAINT_SHARE, k.FAINT_RISE, k.FAINT_TINT, k.FAINT_CLIP)}
+            "weak": k.WEAK_SHARE, "faint": (k.FAINT_SHARE, k.FAINT_RISE, k.FAINT_TINT, k.FAINT_CLIP,
+                                            k.FAINT_DARK_RISE, k.FAINT_DARK_CLEAR)}
 
 
 def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
@@ -737,7 +741,9 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     ``name``'s colour against the surface it falls on: over the central three rows the
     laser's channel rises on average at least ``kernels.FAINT_RISE * min_peak`` above the
     surface (the mean of the window's two end rows on each side) and reaches ``min_value`` on
-    one of them, and each other channel rises on average by at most ``kernels.FAINT_TINT`` x
+    one of them (or rises by ``kernels.FAINT_DARK_RISE`` of the surface's level and
+    ``kernels.FAINT_DARK_CLEAR`` x the spread of the window's rows 3 or more from its centre,
+    each central row above them all: a dim laser on dark soil), and each other channel rises on average by at most ``kernels.FAINT_TINT`` x
     the laser channel's rise x the surface's ratio of that channel to the laser's (a brighter
     speck of red soil adds light of the soil's own colour); the other laser's channel is not
     clipped (``kernels.FAINT_CLIP``) on more of the window's rows than the laser's own (a
@@ -746,7 +752,7 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     adds mostly red, which moves the luma by a third of it: a consumer camera's photograph of
     one, pinkish on white, shows 10-20 grey levels of luma where the red channel rises by
     20-40. The numpy reference of the compiled ``kernels._faint``."""
-    _, rise, tint, clip = _guide()["faint"]
+    _, rise, tint, clip, dark, clear = _guide()["faint"]
     n = rr.shape[0]
     k = n // 2
     c, (o1, o2) = _CH[name], _OTHERS[name]
@@ -759,7 +765,11 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     up = mid[0] / 3.0 + mid[1] / 3.0 + mid[2] / 3.0 - bg
     best = up[:, c]
     bc = np.maximum(bg[:, c], 1.0)
-    ok = (best >= rise * min_peak) & (mid[..., c].max(axis=0) >= min_value)
+    side = np.stack([rgb(rr[j])[:, c] for j in range(n) if abs(j - k) >= 3])
+    lo, hi = side.min(axis=0), side.max(axis=0)
+    ok = (best >= rise * min_peak) & ((mid[..., c].max(axis=0) >= min_value)
+                                      | ((best >= dark * bg[:, c]) & (best >= clear * (hi - lo))
+                                         & (mid[..., c].min(axis=0) > hi)))
     for o in (o1, o2):
         ok &= ~(up[:, o] * bc > tint * best * bg[:, o])
     win = rgb(rr)  # (n, N, 3)
