@@ -246,9 +246,8 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
     the window's two end rows on each side) and reaches ``min_value`` on one of them (or its
     rise is ``FAINT_DARK_RISE`` of the surface's level and ``FAINT_DARK_CLEAR`` x the spread of
     the window's rows 3 or more from its centre, each central row above them all: dark soil),
-    and each other
-    channel (``o1``, ``o2``) rises on average by at most ``FAINT_TINT`` x the laser
-    channel's rise x the surface's ratio of that channel to the laser's; the other laser's
+    and each other channel (``o1``, ``o2``) rises on average by at most ``FAINT_TINT`` x the
+    laser channel's rise x the surface's ratio of that channel to the laser's; the other laser's
     channel (``1 - ch``) not clipped (``FAINT_CLIP``) on more of the window's rows than
     ``ch``."""
     bg0 = 0.0
@@ -260,15 +259,6 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
         bg0 += 0.25 * px[0]
         bg1 += 0.25 * px[1]
         bg2 += 0.25 * px[2]
-    # the surface in this laser's channel, its darkest and brightest: every row of the window
-    # 3 or more from its centre
-    lo = np.inf
-    hi = -np.inf
-    for j in range(n):
-        if abs(j - k) >= 3:
-            v = _rgb(float(y[rr[j], c]), float(cb[rr[j] >> sh, cc]), float(cr[rr[j] >> sh, cc]))[ch]
-            lo = min(lo, v)
-            hi = max(hi, v)
     m0 = 0.0
     m1 = 0.0
     m2 = 0.0
@@ -286,9 +276,21 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
     rise = (m0 - bg0, m1 - bg1, m2 - bg2)
     best = rise[ch]
     if not (best >= FAINT_RISE * min_peak
-            and (top >= min_value or (best >= FAINT_DARK_RISE * bg[ch] and low > hi
-                                       and best >= FAINT_DARK_CLEAR * (hi - lo)))):
+            and (top >= min_value or best >= FAINT_DARK_RISE * bg[ch])):
         return False
+    if top < min_value:
+        # dark soil: the surface in this laser's channel, its darkest and brightest over every
+        # row of the window 3 or more from its centre
+        lo = np.inf
+        hi = -np.inf
+        for j in range(n):
+            if abs(j - k) >= 3:
+                r = rr[j]
+                v = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))[ch]
+                lo = min(lo, v)
+                hi = max(hi, v)
+        if not (low > hi and best >= FAINT_DARK_CLEAR * (hi - lo)):
+            return False
     bc = max(bg[ch], 1.0)
     for o in (o1, o2):
         if rise[o] * bc > FAINT_TINT * best * bg[o]:
