@@ -12,7 +12,10 @@ with the truth:
   bias on bare ground (mm, cells whose true height is 0), slope of the height error with the
   true height (% of the height), MAE off edges (mm);
 - fused MAE off edges (mm), wild points (% of the fused cells off edges more than 1 mm off
-  the truth), fill (% of the surface either laser lit and the camera saw).
+  the truth), fill (% of the modelled scene's surface either laser lit and the camera saw),
+  ``off%`` (% of the lit cells the camera saw off the modelled scene, where the renderer
+  repeats the scene grid's edge outwards in streaks: :func:`fill_masks`) and ``all%`` (the
+  fill over every lit cell, on the scene and off it: the fill figure before 2026-12-06).
 
 Heights are compared where each reconstructed point really is (sim.truth.truth_for_reconstruction:
 the calibration's frame is levelled across the scan, nominally the simulator's rail frame; in a
@@ -49,6 +52,7 @@ COLUMNS = [  # key, header, format
     ("slope_g", "slp g%", "{:+7.2f}"), ("slope_r", "slp r%", "{:+7.2f}"),
     ("mae_g", "mae g", "{:6.3f}"), ("mae_r", "mae r", "{:6.3f}"),
     ("mae_f", "mae F", "{:6.3f}"), ("wild", "wild%", "{:6.3f}"), ("fill", "fill%", "{:6.2f}"),
+    ("off_scene", "off%", "{:5.1f}"), ("fill_all", "all%", "{:6.2f}"),
 ]
 
 
@@ -75,33 +79,55 @@ def scan_for(seed: int, width: int, height: int) -> Path:
 
 
 def fill_mask(scan_dir: Path, spec, frames: tuple[int, int], rotation=None) -> np.ndarray:
+    """Cells either laser lit where the camera saw them (:func:`fill_masks`, on the modelled
+    scene and off it together)."""
+    on, off = fill_masks(scan_dir, spec, frames, rotation)
+    return on | off
+
+
+def fill_masks(scan_dir: Path, spec, frames: tuple[int, int],
+               rotation=None) -> tuple[np.ndarray, np.ndarray]:
     """Cells either laser lit where the camera saw them (the simulator's exact stripe points
     whose image position lies within the outermost pixel centres: the renderer traces the
     stripe a pixel or two beyond the picture's edges, ground no camera column shows), in the
     reconstruction's frame (of the calibration whose camera -> frame rotation is
-    ``rotation``), closed along the scan over one frame's travel."""
+    ``rotation``), closed along the scan over one frame's travel: (on the modelled scene, off
+    it). Off it - where a wide view runs past the scene's grid - the renderer repeats the
+    grid's edge cells outwards (heights and colours), so the soil there is streaks running
+    straight out from the scene's edge, a texture no ground has and one a stripe crossing it
+    runs along (random rig 215: a white streak parallel to the red stripe taken for it in a
+    third of the columns at the picture's edge). A cell lit both on and off the scene counts
+    as off it."""
     import cv2
 
     from impress_gui.sim.simulate import SimConfig, _make_renderer
 
     truth = json.loads((scan_dir / "truth.json").read_text())
     renderer, _ = _make_renderer(SimConfig(**truth["config"]))
+    sc = renderer.scene
+    x_hi = sc.x0_mm + sc.pixel_mm * (sc.shape[1] - 1)
+    y_hi = sc.y0_mm + sc.pixel_mm * (sc.shape[0] - 1)
     width, height = truth["image_size"]
-    mask = np.zeros(spec.shape, np.uint8)
+    masks = (np.zeros(spec.shape, np.uint8), np.zeros(spec.shape, np.uint8))
     for k in range(*frames):
         for laser in renderer.rig.lasers:
             tr = renderer.laser_points(laser, k)
             u, v = tr.uv_px[:, 0], tr.uv_px[:, 1]
             inside = (u >= 0) & (u <= width - 1) & (v >= 0) & (v <= height - 1)
-            p = rail_to_reconstruction(scan_dir, tr.points_rail_mm[inside], rotation)
-            j = np.rint((p[:, 0] - spec.x0_mm) / spec.pixel_mm).astype(int)
-            i = np.rint((p[:, 1] - spec.y0_mm) / spec.pixel_mm).astype(int)
-            ok = (i >= 0) & (i < spec.shape[0]) & (j >= 0) & (j < spec.shape[1])
-            mask[i[ok], j[ok]] = 1
+            pr = tr.points_rail_mm
+            on = ((pr[:, 0] >= sc.x0_mm) & (pr[:, 0] <= x_hi) & (pr[:, 1] >= sc.y0_mm)
+                  & (pr[:, 1] <= y_hi))
+            for mask, sel in zip(masks, (inside & on, inside & ~on)):
+                p = rail_to_reconstruction(scan_dir, pr[sel], rotation)
+                j = np.rint((p[:, 0] - spec.x0_mm) / spec.pixel_mm).astype(int)
+                i = np.rint((p[:, 1] - spec.y0_mm) / spec.pixel_mm).astype(int)
+                ok = (i >= 0) & (i < spec.shape[0]) & (j >= 0) & (j < spec.shape[1])
+                mask[i[ok], j[ok]] = 1
     step = np.median(np.abs(np.diff(truth["travel_mm"][frames[0]:frames[1]])))
     n = int(np.ceil(step / spec.pixel_mm)) + 2
-    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((n, 3), np.uint8))
-    return mask.astype(bool)
+    kernel = np.ones((n, 3), np.uint8)
+    on_m, off_m = (cv2.morphologyEx(m, cv2.MORPH_CLOSE, kernel).astype(bool) for m in masks)
+    return on_m & ~off_m, off_m
 
 
 def calibration_figures(scan_dir: Path, cal) -> dict:
@@ -169,10 +195,18 @@ def height_figures(scan_dir: Path, cal, rec, with_fill: bool) -> dict:
     # columns whose stripe the detector took from its own rows (StripeParams.prefer_own_rows)
     out["own_rows"] = rec.stats.get("stripe_columns_from_own_rows")
     if with_fill:
-        seen = fill_mask(scan_dir, spec, rec.frames, rot) & ~edge
-        out["fill"] = 100.0 * float(np.isfinite(maps["f"])[seen].mean())
+        on, off = fill_masks(scan_dir, spec, rec.frames, rot)
+        on &= ~edge
+        off &= ~edge
+        found = np.isfinite(maps["f"])
+        # the verdict's figure: on the modelled scene; beside it the share of the lit cells
+        # off it and the fill over all of them (the figure before 2026-12-06)
+        out["fill"] = 100.0 * float(found[on].mean()) if on.any() else float("nan")
+        out["off_scene"] = 100.0 * float(off.sum() / max(on.sum() + off.sum(), 1))
+        out["fill_all"] = 100.0 * float(found[on | off].mean()) if (on | off).any() \
+            else float("nan")
     else:
-        out["fill"] = float("nan")
+        out["fill"] = out["off_scene"] = out["fill_all"] = float("nan")
     return out
 
 
@@ -217,7 +251,7 @@ def print_table(rows: list[dict]) -> None:
             a = np.array([r[k] for r in rows], float)
             if not np.isfinite(a).any():  # e.g. the fill with --no-fill
                 v = float("nan")
-            elif k == "fill":
+            elif k in ("fill", "fill_all"):
                 v = float(np.nanmin(a)) if label == "worst" else fn(a)
             else:
                 v = fn(a)
