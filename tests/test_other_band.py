@@ -260,3 +260,29 @@ def test_a_green_stripe_blooming_on_warm_soil_is_not_taken_for_red(numpy_referen
     # the green detector keeps most of its own stripe (137 of 240 columns)
     g = fn("green", planes, start, h, StripeParams(), None, (start, h)).rows
     assert (np.abs(g - green_rows) < 1).sum() >= 110
+
+
+@pytest.mark.parametrize("numpy_reference", [False, True])
+def test_a_light_surface_beside_the_other_stripe_does_not_hide_this_one(numpy_reference):
+    """Issue 18, random rig 212: the green stripe on a white block won the red detector's
+    candidate and was refused in green's band; the second candidate, the best more than two
+    half windows from it, was the block's surface, still in green's band, and was refused
+    too, so the red stripe on the dark soil beside the block was lost in 556 of a frame's
+    columns. Refused twice after a refusal in the other laser's band, a column now gets a
+    third candidate: the best of this laser's own rows, outside that band."""
+    h, w = 80, 160
+    green = (12.4, 0.03, 1.5, (0.3, 1.0, 0.25))
+    red = (60.3, 0.02, 0.5, (1.0, 0.1, 0.15))
+    soil = _frame([green, red], background=(35, 33, 30), h=h, w=w)
+    block = _frame([green, red], background=(175, 172, 165), h=h, w=w)
+    rgb = np.where((np.arange(h) < 38)[:, None, None], block, soil).astype(np.uint8)
+    planes = Planes.from_rgb(rgb)
+    start = np.zeros(w, np.int64)
+    green_band = (np.zeros(w, np.int64), 40)  # the green stripe and the block
+    fn = detect_planes_numpy if numpy_reference else detect_planes
+    rows = fn("red", planes, start, h, StripeParams(), None, green_band).rows
+    assert np.isfinite(rows).all()
+    assert np.max(np.abs(rows - (60.3 + 0.02 * np.arange(w)))) < 0.1
+    # the green detector, told red's band, still takes its own stripe on the block
+    g = fn("green", planes, start, h, StripeParams(), None, (np.full(w, 46, np.int64), 30)).rows
+    assert np.isfinite(g).all() and np.max(np.abs(g - (12.4 + 0.03 * np.arange(w)))) < 0.3

@@ -347,6 +347,25 @@ def _candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, first, gap, step):
 
 
 @_jit
+def _candidate_outside(y, cr, sh, c, b0, band_height, r0, r1, sign, ex_lo, ex_hi):
+    """The best :func:`_score` of column ``c``'s band (every second row from ``r0``) outside
+    the rows ``ex_lo .. ex_hi - 1`` (first of equal maxima; -1 when there is none): the
+    third candidate of :func:`detect_stripe`, in this laser's own rows."""
+    lo = max(r0, b0 + ((b0 - r0) & 1))
+    hi = min(r1, b0 + band_height)
+    best = -(1 << 30)
+    row = -1
+    for r in range(lo, hi, 2):
+        if ex_lo <= r < ex_hi:
+            continue
+        v = _score(y, cr, sh, c, r, sign)
+        if v > best:
+            best = v
+            row = r
+    return row
+
+
+@_jit
 def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, sig, strict,
              vouched):
     """Steps 2-4 of :func:`detect_stripe` for column ``c`` at candidate row ``coarse``:
@@ -745,6 +764,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
                                  colour, hsv, rr, sig, False, False)
         w4 = why == 4
         if math.isnan(row) and why and retry & 1:
+            why0 = why
             if why == 1:
                 # refused where the other laser's stripe can lie: that stripe, brighter, can
                 # hide this laser's in the column; the best candidate of the band away from it
@@ -759,7 +779,18 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
                                     coarse, k, RIDGE_STEP)
             if second >= 0:
                 row, top, why = _peak_at(y, cb, cr, sh, c, second, band_start[c], band, laser,
-                                         peak, colour, hsv, rr, sig, why == 2, False)
+                                         peak, colour, hsv, rr, sig, why0 == 2, False)
+            if math.isnan(row) and why0 == 1:
+                # refused again: the second candidate can be a light surface beside the other
+                # laser's stripe, still in that laser's band (a white block under it: random
+                # rig 212); the best candidate of this laser's own rows, outside that band
+                # (widened by the half window), is tested the same way
+                third = _candidate_outside(y, cr, sh, c, band_start[c], band_height, r0, r1,
+                                           sign, band[2][c] - k,
+                                           band[2][c] + band[3][c] + k)
+                if third >= 0:
+                    row, top, why = _peak_at(y, cb, cr, sh, c, third, band_start[c], band,
+                                             laser, peak, colour, hsv, rr, sig, False, False)
         white[c] = 0
         weak[c] = False
         if not math.isnan(row):

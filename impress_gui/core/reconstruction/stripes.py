@@ -67,7 +67,11 @@ class StripeParams:
     # can hide this one: issue 18, rig 1, 38-46 % of the red stripe's columns at one end of the
     # image); where it was no peak (a light target face outscoring the stripe on dark ground:
     # rig 6), the row rising most above the scores RIDGE_STEP rows off, whose halo must then
-    # lean to this laser's colour wherever it lies
+    # lean to this laser's colour wherever it lies; where the first lay in that band and the
+    # second is refused too, a third: the best of this laser's own rows, outside that band
+    # (widened by the half window) - the second can be a light surface beside the other
+    # laser's stripe, still in its band (issue 18, random rig 212: a white block under the
+    # green stripe hid the red stripe on dark soil in 556 of a frame's columns)
     second_candidate: bool = True
     # with the other laser's band known, a column whose row does not continue into a
     # neighbour's is searched again at the row its continuing neighbours predict and takes the
@@ -632,6 +636,23 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         take = has2 & ok2
         ok, centre, top = ok | take, np.where(take, centre2, centre), np.where(take, top2, top)
         white = np.where(take, why2 >= 3, white)
+        # refused again after a refusal in the other laser's band: the second candidate can
+        # be a light surface beside that laser's stripe, still in its band (a white block
+        # under it: random rig 212); the best candidate of this laser's own rows, outside
+        # that band (widened by the half window), is tested the same way
+        third = (why == 1) & ~ok
+        if third.any():
+            rc = rows_c[:, None]
+            own = (rc < (o_start - k)[None, :]) | (rc >= (o_start + o_height + k)[None, :])
+            best3 = np.where(own & (score > -1000), packed, none).max(axis=0)
+            has3 = third & (best3 > none)
+            if has3.any():
+                coarse3 = np.where(has3, r0 + 2 * (4095 - (best3 & 4095)), coarse)
+                ok3, centre3, top3, why3 = attempt(coarse3)
+                take = has3 & ok3
+                ok = ok | take
+                centre, top = np.where(take, centre3, centre), np.where(take, top3, top)
+                white = np.where(take, why3 >= 3, white)
     out_rows = np.where(ok, centre, np.nan)
     strength = np.where(ok, top, 0).astype(np.float32)
     if params.guided and other is not None:
