@@ -96,8 +96,9 @@ def fill_masks(scan_dir: Path, spec, frames: tuple[int, int],
     grid's edge cells outwards (heights and colours), so the soil there is streaks running
     straight out from the scene's edge, a texture no ground has and one a stripe crossing it
     runs along (random rig 215: a white streak parallel to the red stripe taken for it in a
-    third of the columns at the picture's edge). A cell lit both on and off the scene counts
-    as off it."""
+    third of the columns at the picture's edge). The truth is not defined there either
+    (``truth_for_reconstruction`` gives NaN off the scene's grid): the height figures count the
+    modelled scene only. A cell lit both on and off the scene counts as off it."""
     import cv2
 
     from impress_gui.sim.simulate import SimConfig, _make_renderer
