@@ -188,3 +188,53 @@ def test_a_dim_stripe_on_dark_soil_is_found(monkeypatch):
     # without the rule (the numpy reference reads the constants when it runs)
     monkeypatch.setattr(kernels(), "FAINT_DARK_RISE", np.inf)
     assert found(detect_planes_numpy) < 0.4
+
+
+def _planes_420(rgb: np.ndarray) -> Planes:
+    """``rgb`` as 4:2:0 video carries it: the chroma of each 2x2 block, one sample."""
+    p = Planes.from_rgb(rgb)
+    h, w = p.y.shape
+    cb, cr = (np.rint(a.astype(float).reshape(h // 2, 2, w // 2, 2).mean(axis=(1, 3)))
+              .astype(np.uint8) for a in (p.cb, p.cr))
+    return Planes(p.y, cb, cr, 2)
+
+
+def test_a_dim_red_stripe_on_green_soil_is_not_refused_by_its_own_chroma_skirt(monkeypatch):
+    # random rig 212 at 1080p: a red stripe over green soil lifts the red channel 14 -> 52,
+    # but in 4:2:0 video the channel carries the chroma's rows, two image rows each and
+    # smeared, and three rows from the centre it still reads 29: the dark-soil rule's limit,
+    # twice the spread of the rows 3 or more from the centre, refused it. With subsampled
+    # chroma those rows start one further out (kernels.FAINT_DARK_SIDE + 1)
+    from test_calibration_blooming import _frame
+
+    from impress_gui.core.reconstruction.compiled import kernels
+
+    rgb = _frame([(30.3, 0.02, 0.03, (1.0, 0.04, 0.03))], background=(12, 62, 13), w=160)
+    noisy = rgb + np.random.default_rng(1).normal(0, 1.5, rgb.shape)
+    planes = _planes_420(np.clip(noisy, 0, 255).astype(np.uint8))
+    true_rows = 30.3 + 0.02 * np.arange(160)
+
+    def found(fn):
+        rows = fn("red", planes, np.zeros(160, np.int64), 60, StripeParams(), None).rows
+        assert not (np.isfinite(rows) & ~(np.abs(rows - true_rows) < 1)).any()
+        return (np.abs(rows - true_rows) < 1).mean()
+
+    for fn in DETECTORS:
+        assert found(fn) > 0.99
+    # as before (the numpy reference reads the constant when it runs): 89 % of the columns
+    monkeypatch.setattr(kernels(), "FAINT_DARK_SIDE", kernels().FAINT_DARK_SIDE - 1)
+    assert found(detect_planes_numpy) < 0.92
+
+
+@pytest.mark.parametrize("fn", DETECTORS)
+def test_dark_pixel_noise_in_420_video_is_hardly_a_faint_stripe(fn):
+    # the same independent noise as 4:2:0 video carries it: the wider reach of the dark-soil
+    # rule's surface rows lets a few columns through (3 of 1920 here, 0 before; 1-3 over
+    # four such images), scattered, far below the 2 % of the picture's columns a frame's
+    # stripe profile needs
+    img = np.random.default_rng(0).integers(40, 90, (SIZE[1], SIZE[0], 3), np.uint8)
+    planes = _planes_420(img)
+    found = sum(int(np.isfinite(fn(laser, planes, np.zeros(SIZE[0], np.int64), SIZE[1],
+                                    StripeParams(), None).rows).sum())
+                for laser in ("red", "green"))
+    assert found <= 0.0025 * 2 * SIZE[0]

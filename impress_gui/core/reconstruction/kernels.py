@@ -87,6 +87,12 @@ FAINT_DARK_RISE = 0.5
 # every pixel and channel: 10-17 columns of 960 pass with the first two limits alone, none
 # with this one)
 FAINT_DARK_CLEAR = 2.0
+# ... "the window's rows FAINT_DARK_SIDE or more from its centre" with chroma at full
+# resolution; with 4:2:0 chroma one row more: the laser's channel carries the chroma's rows,
+# two image rows each and smeared once more by the encoder, so a stripe 1-2 px wide lifts it
+# three rows from its centre (random rig 212: a red stripe over green soil, its red 14 -> 52,
+# still 29 three rows off, refused by its own skirt)
+FAINT_DARK_SIDE = 3
 
 HSV_SHIFT = 12
 
@@ -245,7 +251,8 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
     ``ch`` rises on average at least ``FAINT_RISE * min_peak`` above the surface (the mean of
     the window's two end rows on each side) and reaches ``min_value`` on one of them (or its
     rise is ``FAINT_DARK_RISE`` of the surface's level and ``FAINT_DARK_CLEAR`` x the spread of
-    the window's rows 3 or more from its centre, each central row above them all: dark soil),
+    the window's rows ``FAINT_DARK_SIDE`` or more from its centre, one more with 4:2:0 chroma,
+    each central row above them all: dark soil),
     and each other channel (``o1``, ``o2``) rises on average by at most ``FAINT_TINT`` x the
     laser channel's rise x the surface's ratio of that channel to the laser's; the other laser's
     channel (``1 - ch``) not clipped (``FAINT_CLIP``) on more of the window's rows than
@@ -280,11 +287,11 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
         return False
     if top < min_value:
         # dark soil: the surface in this laser's channel, its darkest and brightest over every
-        # row of the window 3 or more from its centre
+        # row of the window FAINT_DARK_SIDE or more from its centre (one more with 4:2:0 chroma)
         lo = np.inf
         hi = -np.inf
         for j in range(n):
-            if abs(j - k) >= 3:
+            if abs(j - k) >= FAINT_DARK_SIDE + sh:
                 r = rr[j]
                 v = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))[ch]
                 lo = min(lo, v)

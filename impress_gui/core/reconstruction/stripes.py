@@ -753,7 +753,8 @@ def _guide() -> dict:
     k = kernels()
     return {"link": k.GUIDE_LINK, "reach": k.GUIDE_REACH, "dev": k.GUIDE_DEV,
             "weak": k.WEAK_SHARE, "faint": (k.FAINT_SHARE, k.FAINT_RISE, k.FAINT_TINT, k.FAINT_CLIP,
-                                            k.FAINT_DARK_RISE, k.FAINT_DARK_CLEAR)}
+                                            k.FAINT_DARK_RISE, k.FAINT_DARK_CLEAR,
+                                            k.FAINT_DARK_SIDE)}
 
 
 def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
@@ -763,8 +764,9 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     laser's channel rises on average at least ``kernels.FAINT_RISE * min_peak`` above the
     surface (the mean of the window's two end rows on each side) and reaches ``min_value`` on
     one of them (or rises by ``kernels.FAINT_DARK_RISE`` of the surface's level and
-    ``kernels.FAINT_DARK_CLEAR`` x the spread of the window's rows 3 or more from its centre,
-    each central row above them all: a dim laser on dark soil), and each other channel rises on average by at most ``kernels.FAINT_TINT`` x
+    ``kernels.FAINT_DARK_CLEAR`` x the spread of the window's rows ``kernels.FAINT_DARK_SIDE``
+    or more from its centre, one more with 4:2:0 chroma, each central row above them all: a dim
+    laser on dark soil), and each other channel rises on average by at most ``kernels.FAINT_TINT`` x
     the laser channel's rise x the surface's ratio of that channel to the laser's (a brighter
     speck of red soil adds light of the soil's own colour); the other laser's channel is not
     clipped (``kernels.FAINT_CLIP``) on more of the window's rows than the laser's own (a
@@ -773,7 +775,7 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     adds mostly red, which moves the luma by a third of it: a consumer camera's photograph of
     one, pinkish on white, shows 10-20 grey levels of luma where the red channel rises by
     20-40. The numpy reference of the compiled ``kernels._faint``."""
-    _, rise, tint, clip, dark, clear = _guide()["faint"]
+    _, rise, tint, clip, dark, clear, side_rows = _guide()["faint"]
     n = rr.shape[0]
     k = n // 2
     c, (o1, o2) = _CH[name], _OTHERS[name]
@@ -786,7 +788,9 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     up = mid[0] / 3.0 + mid[1] / 3.0 + mid[2] / 3.0 - bg
     best = up[:, c]
     bc = np.maximum(bg[:, c], 1.0)
-    side = np.stack([rgb(rr[j])[:, c] for j in range(n) if abs(j - k) >= 3])
+    # the rows FAINT_DARK_SIDE or more from the centre, one more with subsampled chroma
+    reach = side_rows + (1 if planes.chroma_step > 1 else 0)
+    side = np.stack([rgb(rr[j])[:, c] for j in range(n) if abs(j - k) >= reach])
     lo, hi = side.min(axis=0), side.max(axis=0)
     ok = (best >= rise * min_peak) & ((mid[..., c].max(axis=0) >= min_value)
                                       | ((best >= dark * bg[:, c]) & (best >= clear * (hi - lo))
