@@ -321,9 +321,9 @@ def _score(y, cr, sh, c, r, sign):
 
 
 @_jit
-def _candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, first, gap, step):
-    """Another candidate row of column ``c``'s band (every second row from ``r0``; rows within
-    ``gap`` of ``first`` skipped; first of equal maxima; -1 when there is none).
+def _candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, ex_lo, ex_hi, step):
+    """Another candidate row of column ``c``'s band (every second row from ``r0``; the rows
+    ``ex_lo .. ex_hi - 1`` skipped; first of equal maxima; -1 when there is none).
 
     ``step`` 0: the first pass's candidate again, the best :func:`_score`. ``step`` > 0: the
     row whose score rises most above the higher of the scores ``step`` rows above and below it
@@ -335,7 +335,7 @@ def _candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, first, gap, step):
     best = none
     row = -1
     for r in range(lo, hi, 2):
-        if abs(r - first) <= gap:
+        if ex_lo <= r < ex_hi:
             continue
         v = _score(y, cr, sh, c, r, sign)
         if step > 0:
@@ -347,25 +347,6 @@ def _candidate(y, cr, sh, c, b0, band_height, r0, r1, sign, first, gap, step):
             if m == none:
                 continue
             v -= m
-        if v > best:
-            best = v
-            row = r
-    return row
-
-
-@_jit
-def _candidate_outside(y, cr, sh, c, b0, band_height, r0, r1, sign, ex_lo, ex_hi):
-    """The best :func:`_score` of column ``c``'s band (every second row from ``r0``) outside
-    the rows ``ex_lo .. ex_hi - 1`` (first of equal maxima; -1 when there is none): the
-    third candidate of :func:`detect_stripe`, in this laser's own rows."""
-    lo = max(r0, b0 + ((b0 - r0) & 1))
-    hi = min(r1, b0 + band_height)
-    best = -(1 << 30)
-    row = -1
-    for r in range(lo, hi, 2):
-        if ex_lo <= r < ex_hi:
-            continue
-        v = _score(y, cr, sh, c, r, sign)
         if v > best:
             best = v
             row = r
@@ -777,13 +758,13 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
                 # hide this laser's in the column; the best candidate of the band away from it
                 # (more than 2k rows) is tested the same way
                 second = _candidate(y, cr, sh, c, band_start[c], band_height, r0, r1, sign,
-                                    coarse, 2 * k, 0)
+                                    coarse - 2 * k, coarse + 2 * k + 1, 0)
             else:
                 # not a peak: a bright surface (a light target face) can outscore the stripe
                 # on darker ground; the row rising most above its surroundings is tested,
                 # its halo required to lean to this laser's colour everywhere
                 second = _candidate(y, cr, sh, c, band_start[c], band_height, r0, r1, sign,
-                                    coarse, k, RIDGE_STEP)
+                                    coarse - k, coarse + k + 1, RIDGE_STEP)
             if second >= 0:
                 row, top, why = _peak_at(y, cb, cr, sh, c, second, band_start[c], band, laser,
                                          peak, colour, hsv, rr, sig, why0 == 2, False)
@@ -792,9 +773,8 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
                 # laser's stripe, still in that laser's band (a white block under it: random
                 # rig 212); the best candidate of this laser's own rows, outside that band
                 # (widened by the half window), is tested the same way
-                third = _candidate_outside(y, cr, sh, c, band_start[c], band_height, r0, r1,
-                                           sign, band[2][c] - k,
-                                           band[2][c] + band[3][c] + k)
+                third = _candidate(y, cr, sh, c, band_start[c], band_height, r0, r1, sign,
+                                   band[2][c] - k, band[2][c] + band[3][c] + k, 0)
                 if third >= 0:
                     row, top, why = _peak_at(y, cb, cr, sh, c, third, band_start[c], band,
                                              laser, peak, colour, hsv, rr, sig, False, False)
@@ -816,7 +796,7 @@ def detect_stripe(frame, band, laser, peak, colour, hsv, out):
         for c in range(w):
             if weak[c] and math.isnan(rows_out[c]):
                 second = _candidate(y, cr, sh, c, band_start[c], band_height, r0, r1, sign,
-                                    first[c], k, RIDGE_STEP)
+                                    first[c] - k, first[c] + k + 1, RIDGE_STEP)
                 if second >= 0:
                     row, top, _ = _peak_at(y, cb, cr, sh, c, second, band_start[c], band,
                                            laser, peak, colour, hsv, rr, sig, True, False)
