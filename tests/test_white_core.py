@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from impress_gui.core.formats.video import Planes
+from impress_gui.core.reconstruction.compiled import kernels
 from impress_gui.core.reconstruction.stripes import StripeParams, detect_planes, detect_planes_numpy
 
 # Frame 150 of random rig 13 at 1920x1080 (simulator key c757d6f4f7), cropped to the green
@@ -177,13 +178,48 @@ def test_white_core_rule_keeps_the_second_candidate_and_a_local_share(fn):
     rows = fn("green", Planes.from_rgb(np.clip(rgb, 0, 255).astype(np.uint8)), *band,
               StripeParams(), None, away).rows
     assert np.isfinite(rows).all() and np.abs(rows - 42.0).max() < 0.5
-    # a coloured stripe (30 columns) continued by a white line (70 columns): the white line's
-    # columns are kept only within kernels.WHITE_HALF (48) columns of enough colour
-    stripe = np.arange(w) < 30
+    # a coloured stripe (kernels.WHITE_HALF_WIDE columns) continued by a white line twice as
+    # long: the white line's columns are kept only within WHITE_HALF_WIDE columns of enough
+    # colour
+    half = kernels().WHITE_HALF_WIDE
+    w = 3 * half
+    band = (np.zeros(w, np.int64), 60)
+    away = (np.full(w, 300, np.int64), 40)
+    stripe = np.arange(w) < half
     rgb = np.full((60, w, 3), (190.0, 200.0, 160.0))
     rgb += g(30.4, 0.9) * np.where(stripe[:, None], (20.0, 120.0, 40.0), (120.0, 120.0, 120.0))
     rows = fn("green", Planes.from_rgb(np.clip(rgb, 0, 255).astype(np.uint8)), *band,
               StripeParams(), None, away).rows
-    assert np.isfinite(rows[:30]).all()
-    kept = np.flatnonzero(np.isfinite(rows[30:])) + 30
-    assert 0 < len(kept) < 40 and kept.max() < 30 + 48
+    assert np.isfinite(rows[:half]).all()
+    kept = np.flatnonzero(np.isfinite(rows[half:])) + half
+    assert 0 < len(kept) < 2 * half and kept.max() < 2 * half
+
+
+@pytest.mark.parametrize("fn", DETECTORS)
+def test_a_green_core_clipped_on_soil_near_full_scale_in_green(fn):
+    """Random rig 224 at 1080p: on mottled soil whose green is already near full scale, (197,
+    246, 209), the green stripe's core clips green and lifts red and blue to 230-254 only:
+    luma about 247, under the 250 of a white core, 20 grey levels above the soil (a weak peak),
+    over patches 100-300 columns wide. Such a core is a white core (its luma within
+    kernels.WHITE_LUMA_DROP of full scale), confirmed by the coloured columns within
+    kernels.WHITE_HALF_WIDE columns on its chain; before, the patches were holes (fill 98.25 %)."""
+    half = kernels().WHITE_HALF_WIDE
+    w = 60 + 200 + 60  # the patch between coloured columns
+    band = (np.zeros(w, np.int64), 60)
+    away = (np.full(w, 300, np.int64), 40)
+    patch = (np.arange(w) >= 60) & (np.arange(w) < 260)
+    yy = np.arange(60)[:, None, None].astype(float)
+    core = np.exp(-0.5 * ((yy - 30.4) / 1.2) ** 2)
+    soil = np.where(patch[:, None], (197.0, 246.0, 209.0), (190.0, 200.0, 160.0))[None]
+    add = np.where(patch[:, None], (35.0, 60.0, 40.0), (20.0, 120.0, 40.0))[None]
+    planes = Planes.from_rgb(np.clip(np.broadcast_to(soil, (60, w, 3)) + core * add, 0, 255)
+                             .astype(np.uint8))
+    top = planes.y[30, patch].astype(int) - planes.y[20, patch].astype(int)
+    assert 10 <= top.min() and top.max() < 25  # a weak peak
+    rows = fn("green", planes, *band, StripeParams(), None, away).rows
+    assert np.isfinite(rows).all() and np.abs(rows - 30.4).max() < 0.5
+    # without the white-core rule the colour tests take the coloured columns only
+    off = fn("green", planes, *band, StripeParams(white_core=False), None, away).rows
+    assert np.array_equal(np.isfinite(off), ~patch)
+    # the patch's middle lies more than 48 columns (the former reach) from any coloured column
+    assert half > 100

@@ -53,6 +53,19 @@ GUIDE_DEV = 1.0  # px: the peak found there must lie this close to the row predi
 # found columns at least this share of which the colour tests accepted
 WHITE_SHARE = 0.2
 WHITE_HALF = 48  # columns either side (on the chain) over which that share is counted
+# ... or over this many: a patch of bright soil where the stripe clips white can be 100-300
+# columns wide (random rig 224 at 1080p, mottled soil of luma 225-235: 48 columns left the
+# green stripe's middle out in every such patch); the near count alone keeps its columns
+# where a long chain has colour only here and there (random rig 13's speckled red stripe)
+WHITE_HALF_WIDE = 160
+# a white core: this laser's channel and the luma at full scale (stripes.BLOOM_LEVEL); on a
+# surface whose own channel is within WHITE_SOIL_DROP of full scale, the luma at most
+# WHITE_LUMA_DROP under it: there the laser cannot lift its own channel, and a green laser
+# clipped in green lifts red and blue to 235-254 only, luma 249 (random rig 224: (197, 246,
+# 209) -> (235, 255, 254); with the luma at 250 the stripe was lost there, fill 98.25 %).
+# Elsewhere the lower luma took white speckle for cores (random rig 13's red stripe).
+WHITE_SOIL_DROP = 20.0
+WHITE_LUMA_DROP = 10.0
 # ... and may be weaker than min_peak, down to this share of it (a stripe clipped white on the
 # brightest soil: 10-25 grey levels above it; random rig 13 at 1080p)
 WEAK_SHARE = 0.4
@@ -495,14 +508,25 @@ def _peak_at(y, cb, cr, sh, c, coarse, b0, band, laser, peak, colour, hsv, rr, s
 def _saturated_core(y, cb, cr, sh, c, cc, rr, k, ch, level):
     """Whether column ``c``'s window has, within 2 rows of its centre, this laser's channel and
     the luma (0.299 R + 0.587 G + 0.114 B) at least ``level`` (``stripes.BLOOM_LEVEL``: at
-    full scale): a core clipped white, not a bright piece of soil of this laser's colour."""
+    full scale): a core clipped white, not a bright piece of soil of this laser's colour. Where
+    the surface (the window's two end rows on each side) is itself within ``WHITE_SOIL_DROP``
+    of full scale in this laser's channel, the luma need only reach ``level -
+    WHITE_LUMA_DROP``."""
+    low = level
+    bg = 0.0
+    n = 2 * k + 1
+    for j in (0, 1, n - 2, n - 1):
+        r = rr[j]
+        bg += 0.25 * _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))[ch]
+    if bg >= level - WHITE_SOIL_DROP:
+        low = level - WHITE_LUMA_DROP
     chan = False
     white = False
     for j in range(k - 2, k + 3):
         r = rr[j]
         px = _rgb(float(y[r, c]), float(cb[r >> sh, cc]), float(cr[r >> sh, cc]))
         chan = chan or px[ch] >= level
-        white = white or 0.299 * px[0] + 0.587 * px[1] + 0.114 * px[2] >= level
+        white = white or 0.299 * px[0] + 0.587 * px[1] + 0.114 * px[2] >= low
     return chan and white
 
 
@@ -599,8 +623,8 @@ def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, streng
 def _drop_white(rows, strength, white, start, last):
     """For :func:`_confirm_white`: in the chain of found columns ``start..last``, drop each
     white or vouched column (``white`` 1 or 2) with less than ``WHITE_SHARE`` of the found
-    columns within ``WHITE_HALF`` columns of it (in the chain; vouched ones not counted)
-    accepted by the colour tests."""
+    columns within ``WHITE_HALF`` columns of it, and within ``WHITE_HALF_WIDE``, (in the chain;
+    vouched ones not counted) accepted by the colour tests."""
     keep = np.empty(last - start + 1, np.bool_)
     for j in range(start, last + 1):
         keep[j - start] = True
@@ -608,11 +632,17 @@ def _drop_white(rows, strength, white, start, last):
             continue
         found = 0
         coloured = 0
-        for i in range(max(start, j - WHITE_HALF), min(last, j + WHITE_HALF) + 1):
+        near_found = 0
+        near_coloured = 0
+        for i in range(max(start, j - WHITE_HALF_WIDE), min(last, j + WHITE_HALF_WIDE) + 1):
             if not math.isnan(rows[i]) and white[i] != 2:
                 found += 1
                 coloured += white[i] == 0
-        keep[j - start] = found > 0 and coloured >= WHITE_SHARE * found
+                if abs(i - j) <= WHITE_HALF:
+                    near_found += 1
+                    near_coloured += white[i] == 0
+        keep[j - start] = ((near_found > 0 and near_coloured >= WHITE_SHARE * near_found)
+                           or (found > 0 and coloured >= WHITE_SHARE * found))
     for j in range(start, last + 1):
         if not keep[j - start]:
             rows[j] = np.nan

@@ -90,8 +90,9 @@ class StripeParams:
     blooming: bool = True
     # with the other laser's band known, outside that band (widened by the half window), a
     # peak the colour tests and the blooming test refuse is kept when its core is clipped
-    # white (this laser's channel and the luma at full scale: BLOOM_LEVEL; bright soil of this
-    # laser's colour saturates the channel, not the luma) and its halo does not lean to the
+    # white (this laser's channel and the luma at full scale, BLOOM_LEVEL, the luma within
+    # kernels.WHITE_LUMA_DROP of it on soil near full scale in that channel; bright soil of
+    # this laser's colour saturates the channel, not the luma) and its halo does not lean to the
     # other laser's colour by
     # max_wrong_lean or more (a 4:2:0 halo a row or two wide often has no lean): on bright soil
     # both lasers' stripes saturate to the same near white, (255, 255, 230), and only their
@@ -576,10 +577,16 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
         if _white_lean(params, other) < np.inf and (ok & ~colour & ~inside).any():
             # away from the other laser's band, a core saturated in this laser's channel whose
             # halo does not clearly lean to the other laser's colour (StripeParams.white_core)
+            from impress_gui.core.reconstruction.compiled import kernels as compiled
+
             core5 = rgb[1:6]
             luma = 0.299 * core5[..., 0] + 0.587 * core5[..., 1] + 0.114 * core5[..., 2]
+            # on a surface near full scale in this laser's channel, a lower luma
+            ends = planes.rgb(rr[[0, 1, -2, -1]], cols[None, :], np.float64)[..., _CH[name]]
+            low = np.where(0.25 * ends.sum(axis=0) >= BLOOM_LEVEL - compiled().WHITE_SOIL_DROP,
+                           BLOOM_LEVEL - compiled().WHITE_LUMA_DROP, BLOOM_LEVEL)
             sat = ((core5[..., _CH[name]] >= BLOOM_LEVEL).any(axis=0)
-                   & (luma >= BLOOM_LEVEL).any(axis=0))
+                   & (luma >= low).any(axis=0))
             colour |= ~colour & sat & ~inside & (lean > -_white_lean(params, other))
         wl = _white_lean(params, other)
         vouch = vouched & ~colour & ~weak & (lean > -wl) & (wl < np.inf)
@@ -706,8 +713,8 @@ def detect_planes_numpy(name: str, planes: Planes, band_start: np.ndarray, band_
 def confirmed_by_colour(rows: np.ndarray, white: np.ndarray,
                         vouched: np.ndarray | None = None) -> np.ndarray:
     """Per column: whether, on its chain of found columns and within ``kernels.WHITE_HALF``
-    columns of it, at least ``kernels.WHITE_SHARE`` of the found columns were accepted by the
-    colour tests (``~white``). A chain continues
+    columns of it (or within ``kernels.WHITE_HALF_WIDE``), at least ``kernels.WHITE_SHARE`` of
+    the found columns were accepted by the colour tests (``~white``). A chain continues
     from one found column to the next when they are at most ``kernels.GUIDE_REACH`` columns
     apart and their rows differ by at most ``kernels.GUIDE_LINK`` per column between them. The
     white-core rule's columns (``StripeParams.white_core``) are kept only where this holds: a
@@ -728,7 +735,7 @@ def confirmed_by_colour(rows: np.ndarray, white: np.ndarray,
     chain = np.concatenate([[0], np.cumsum(~cont)])
     from impress_gui.core.reconstruction.compiled import kernels
 
-    half, share = kernels().WHITE_HALF, kernels().WHITE_SHARE
+    share = kernels().WHITE_SHARE
     w = len(rows)
     found = np.isfinite(rows)
     counted = found if vouched is None else found & ~vouched
@@ -738,11 +745,12 @@ def confirmed_by_colour(rows: np.ndarray, white: np.ndarray,
     breaks = np.flatnonzero(~cont)
     first = cols[np.concatenate([[0], breaks + 1])]
     last = cols[np.concatenate([breaks, [len(cols) - 1]])]
-    lo = np.maximum(first[chain], cols - half)
-    hi = np.minimum(last[chain], cols + half) + 1
-    hi = np.minimum(hi, w)
-    n = pf[hi] - pf[lo]
-    out[cols] = (n > 0) & ((pc[hi] - pc[lo]) >= share * n)
+    for half in (kernels().WHITE_HALF, kernels().WHITE_HALF_WIDE):  # near, or wide
+        lo = np.maximum(first[chain], cols - half)
+        hi = np.minimum(last[chain], cols + half) + 1
+        hi = np.minimum(hi, w)
+        n = pf[hi] - pf[lo]
+        out[cols] |= (n > 0) & ((pc[hi] - pc[lo]) >= share * n)
     return out
 
 
