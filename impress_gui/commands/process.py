@@ -101,6 +101,10 @@ def run(args: argparse.Namespace) -> int:
     if any(fl.values()):
         print("  floating pieces dropped (cells): "
               + ", ".join(f"{k} {v}" for k, v in fl.items()))
+    ov = st.get("overreach_cells_dropped") or {}
+    if any(ov.values()):
+        print("  cells reaching past an edge dropped: "
+              + ", ".join(f"{k} {v}" for k, v in ov.items()))
     for w in meta["warnings"]:
         print(f"  WARNING: {w}")
     return 0

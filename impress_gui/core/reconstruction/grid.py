@@ -94,6 +94,11 @@ class HeightAccumulator:
         self._pair = np.zeros(0, bool)
         self._chain = False
         self._splat: Any = None  # the compiled kernel, looked up on first use
+        # a chain's ends (a point found with nothing joined to it on one side along the
+        # scan): the cell each end was added to, and on which side of the point that cell's
+        # centre lies (:meth:`chain_ends`, :func:`drop_overreach`)
+        self._ends: list[np.ndarray] = []
+        self._travel = 0.0  # sum of the joined points' moves along the grid's rows
 
     def reset_chain(self) -> None:
         """The next profile is filled towards nothing before it (a frame without a stripe, a
@@ -127,6 +132,7 @@ class HeightAccumulator:
                 bridge &= np.abs(h - lh) <= self.max_step_mm  # never across a step
             pair |= bridge
         s = self.spec
+        self._record_ends(x, y, valid, pair)
         self._splat(self.sum, self.count, s.x0_mm, s.y0_mm, s.pixel_mm, x, y, h, valid,
                     lx, ly, lh, pair, self._chain, float(self.max_gap_mm), float(self.max_step_mm))
         np.copyto(lx, x, where=valid)
@@ -137,9 +143,53 @@ class HeightAccumulator:
         self._prev_valid[:] = valid
         self._chain = True
 
+    def _record_ends(self, x, y, valid, pair) -> None:
+        """Note the chains that end with the previous profile (its points this profile does
+        not join, as :func:`~impress_gui.core.reconstruction.kernels.splat_heights` decides)
+        and those that start with this one (its points joined to nothing before)."""
+        lx, ly = self._last[0], self._last[1]  # type: ignore[index]
+        with np.errstate(invalid="ignore"):
+            near = np.hypot(x - lx, y - ly) <= self.max_gap_mm
+        joined = (valid & pair & near) if self._chain else np.zeros(np.shape(x), bool)
+        if joined.any():
+            self._travel += float(np.sum(y[joined] - ly[joined]))
+        ends = self._prev_valid & ~(joined & (self._age == 1))
+        starts = valid & ~joined
+        self._note(ends, lx, ly, 1)
+        self._note(starts, x, y, -1)
+
+    def _note(self, sel, px, py, kind: int) -> None:
+        if not sel.any():
+            return
+        g = self.spec.pixel_mm
+        yi = (py[sel] - self.spec.y0_mm) / g
+        ci = np.rint(yi)
+        cj = np.rint((px[sel] - self.spec.x0_mm) / g)
+        side = np.sign(ci - yi)
+        self._ends.append(np.stack([ci, cj, side, np.full(ci.shape, kind)]).astype(np.int32))
+
+    def chain_ends(self) -> tuple[np.ndarray, int]:
+        """The chains' ends, ``(4, n)``: cell row, cell column, the side (+1 / -1 / 0) along
+        the grid's rows on which the cell's centre lies from the point, and +1 for a chain's
+        last point, -1 for its first; and the direction (+1 / -1 / 0) in which joined points
+        moved along the rows, overall. The last profile's points count as ends (the scan
+        ends there)."""
+        parts = list(self._ends)
+        if self._last is not None:
+            parts.append(self._final_ends())
+        e = np.concatenate(parts, axis=1) if parts else np.zeros((4, 0), np.int32)
+        return e, int(np.sign(self._travel))
+
+    def _final_ends(self) -> np.ndarray:
+        n = len(self._ends)
+        self._note(self._prev_valid, self._last[0], self._last[1], 1)  # type: ignore[index]
+        return self._ends.pop() if len(self._ends) > n else np.zeros((4, 0), np.int32)
+
     def release(self) -> None:
         """Free the sums and counts (after the maps were made from them): nothing may be
         added or averaged afterwards."""
+        if self._last is not None:  # the chains that end with the scan
+            self._ends.append(self._final_ends())
         self.sum = np.zeros((0, self.spec.shape[1]), np.float32)
         self.count = np.zeros((0, self.spec.shape[1]), np.uint16)
         self._last = None
@@ -363,4 +413,53 @@ def drop_floating(maps: list[np.ndarray], step_mm: float, max_cells: int, radius
         idx = np.concatenate(d) if d else np.zeros(0, np.intp)
         h[np.unravel_index(idx, h.shape)] = np.nan
         out.append(int(idx.size))
+    return out
+
+
+def drop_overreach(maps: dict[str, np.ndarray], ends: dict[str, tuple[np.ndarray, int]],
+                   step_mm: float) -> dict[str, int]:
+    """Set to NaN, in place, each laser's cells that hold a chain's end reaching across an
+    edge; the cells dropped per laser.
+
+    A point adds its height to its nearest cell, so where a laser's data end (the stripe
+    leaves a surface into its shadow, or enters it from one) the last cell can have its
+    centre up to half a cell beyond the last point. On open ground that is harmless; at an
+    edge the point is on the higher surface and the cell's centre past the edge, on the
+    lower one: the map held the higher surface a cell too far (issue 18, random rig 200: a
+    block's top 30.7 mm where its ground is, the edges across the scan a cell late on every
+    rig that has them). Such a cell is dropped when its centre lies beyond the chain's end
+    (after a chain's last point along the direction its points moved in, before its first
+    one against it), this laser has nothing in the next cell on that side, and the other
+    laser has there a height more than ``step_mm`` from the cell's. ``ends``: per laser,
+    :meth:`HeightAccumulator.chain_ends`."""
+    out = dict.fromkeys(maps, 0)
+    keep_vals = {n: m.copy() for n, m in maps.items()}  # the decisions read the maps as given
+    for n, (e, direction) in ends.items():
+        h = maps[n]
+        if direction == 0 or e.shape[1] == 0 or len(maps) < 2:
+            continue
+        ci, cj, side, kind = e
+        beyond = (side != 0) & (side == kind * direction)
+        ci, cj, side = ci[beyond].astype(np.int64), cj[beyond].astype(np.int64), \
+            side[beyond].astype(np.int64)
+        nb = ci + side
+        rows, cols = h.shape
+        ok = (ci >= 0) & (ci < rows) & (cj >= 0) & (cj < cols) & (nb >= 0) & (nb < rows)
+        ci, cj, nb = ci[ok], cj[ok], nb[ok]
+        if not ci.size:
+            continue
+        flat = np.unique(np.stack([ci, cj, nb]), axis=1)
+        ci, cj, nb = flat
+        own = keep_vals[n]
+        v = own[ci, cj]
+        drop = np.isfinite(v) & ~np.isfinite(own[nb, cj])
+        for m, other in keep_vals.items():
+            if m == n:
+                continue
+            o = other[nb, cj]
+            with np.errstate(invalid="ignore"):
+                hit = drop & np.isfinite(o) & (np.abs(v - o) > step_mm)
+            sel = (ci[hit], cj[hit])
+            out[n] += int(np.count_nonzero(np.isfinite(h[sel])))
+            h[sel] = np.nan
     return out

@@ -39,6 +39,7 @@ from impress_gui.core.reconstruction.grid import (
     HeightAccumulator,
     drop_floating,
     drop_islands,
+    drop_overreach,
     fuse_rows,
 )
 from impress_gui.core.reconstruction.stripes import (
@@ -180,6 +181,10 @@ def _stripe_uv(cal: SceneCalibration, size: tuple[int, int], name: str, height_m
     uv = _line_uv(cal, name, height_mm, w / cal.intrinsics.fx, n_points)
     return uv[(uv[:, 0] >= 0) & (uv[:, 0] < w)]
 
+
+#: drop the cells a laser's chain end reaches across an edge (grid.drop_overreach; False only
+#: to compare with the code before 2026-12-06's eighth session)
+DROP_OVERREACH = True
 
 #: leave out the points of a laser's line past the lens's fold radius (:meth:`Intrinsics.
 #: fold_radius`) when projecting it (False only to compare with the code before 2026-12-06)
@@ -760,13 +765,14 @@ def _process(run: _Run) -> Reconstruction:
     report(run.progress, 0.93, "finishing the maps and the texture")
     finisher.finish()
     finisher.release()  # the accumulators' memory, before the steps below add theirs
-    islands, floating = _drop_islands(run, finisher)
+    islands, floating, overreach = _drop_islands(run, finisher)
     end_cells = _texture_ends(run, tab, finisher, warnings)
     stats = _stats(run, tab, tally, finisher, loop_s, t_finish)
     warnings += _lost_laser_warnings(tally, stats)
     stats["texture_end_cells_filled"] = end_cells
     stats["island_cells_dropped"] = islands
     stats["floating_cells_dropped"] = floating
+    stats["overreach_cells_dropped"] = overreach
     if bright is not None:
         stats["ground_near_full_share"] = round(bright, 4)
     report(run.progress, 1.0, "done")
@@ -929,18 +935,20 @@ def _drop_shared_light(kern, detect: dict[str, StripeDetector], tab: _Tables, pl
     return out
 
 
-def _drop_islands(run: _Run, finisher: RowFinisher) -> tuple[dict[str, int], dict[str, int]]:
+def _drop_islands(run: _Run, finisher: RowFinisher
+                  ) -> tuple[dict[str, int], dict[str, int], dict[str, int]]:
     """Drop the small islands of each laser's map (:func:`~impress_gui.core.reconstruction.
     grid.drop_islands`), then the floating pieces (:func:`~impress_gui.core.reconstruction.
-    grid.drop_floating`), and fuse the maps again if any were found; the cells dropped per
+    grid.drop_floating`), then the cells a chain's end reaches across an edge
+    (:func:`~impress_gui.core.reconstruction.grid.drop_overreach`), and fuse the maps again if any were found; the cells dropped per
     laser by each step. (The texture was sampled during the loop at the fused heights then:
     a dropped piece's cells keep the colour sampled at its height.)"""
     p = run.params
     names = finisher.names
     islands = dict.fromkeys(names, 0)
     floating = dict.fromkeys(names, 0)
-    if p.island_max_cells <= 0 and p.floating_max_cells <= 0:
-        return islands, floating
+    if p.island_max_cells <= 0 and p.floating_max_cells <= 0 and not DROP_OVERREACH:
+        return islands, floating, dict.fromkeys(names, 0)
     report(run.progress, 0.94, "dropping small islands of heights")
     last = [time.perf_counter()]
 
@@ -960,12 +968,15 @@ def _drop_islands(run: _Run, finisher: RowFinisher) -> tuple[dict[str, int], dic
                                 p.floating_max_cells, radius, p.floating_support,
                                 progress=lambda f: step("floating pieces of heights", f))
         floating = dict(zip(names, dropped))
-    if any(islands.values()) or any(floating.values()):
+    # after the islands: the other laser's heights beside a chain's end are the final ones
+    over = drop_overreach(finisher.per, {n: finisher.acc[n].chain_ends() for n in names},
+                          p.max_step_mm) if DROP_OVERREACH else dict.fromkeys(names, 0)
+    if any(islands.values()) or any(floating.values()) or any(over.values()):
         report(run.progress, 0.945, "fusing the maps again without the islands")
         g, r = (finisher.per[n] for n in names)
         fuse_rows(g, r, finisher.tol, finisher.fused, finisher.diff, finisher.contrib, 0,
                   g.shape[0], weight_green=finisher.weight_green)
-    return islands, floating
+    return islands, floating, over
 
 
 def _texture_ends(run: _Run, tab: _Tables, finisher: RowFinisher, warnings: list[str]) -> int:
