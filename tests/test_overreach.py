@@ -95,6 +95,21 @@ def test_a_shadow_on_level_ground_and_a_cell_before_the_point_are_kept():
     assert np.all(maps["green"][33] == 3.0)
 
 
+def test_a_cell_the_other_laser_holds_at_the_same_height_is_kept():
+    """Green's last point past the edge (cell 33's centre beyond it, red's ground in cell 34),
+    but red holds cell 33 at green's height too: two lasers agree on it, and it stays."""
+    top = np.where(np.arange(80)[:, None] <= 33, 3.0, np.nan) * np.ones((1, 40))
+    ends = {"green": (np.array([[33] * 40, list(range(40)), [1] * 40, [1] * 40], np.int32), 1),
+            "red": (np.zeros((4, 0), np.int32), 1)}
+    for red_33, dropped in ((3.1, 0), (np.nan, 40), (0.0, 40)):
+        red = np.full((80, 40), np.nan)
+        red[33] = red_33
+        red[34:] = 0.0
+        maps = {"green": top.copy(), "red": red}
+        assert drop_overreach(maps, ends, STEP) == {"green": dropped, "red": 0}
+        assert np.isfinite(maps["green"][33]).all() == (dropped == 0)
+
+
 @pytest.mark.parametrize("gap", ["reset", "missed"])
 def test_a_missed_profile_or_a_reset_chain_ends_the_chain_where_it_was_last_found(gap):
     """The chains' ends are those the splatting kernel makes: a profile that joins the last
