@@ -95,13 +95,15 @@ def test_a_shadow_on_level_ground_and_a_cell_before_the_point_are_kept():
     assert np.all(maps["green"][33] == 3.0)
 
 
-def test_a_cell_the_other_laser_holds_at_the_same_height_is_kept():
+def test_a_cell_the_other_laser_holds_is_kept():
     """Green's last point past the edge (cell 33's centre beyond it, red's ground in cell 34),
-    but red holds cell 33 at green's height too: two lasers agree on it, and it stays."""
+    but red holds cell 33 too: at green's height (the two agree) or at another (the fusion's
+    local consensus decides between them; at random rig 212's walls green's was the right
+    one, red's a wall face's): it stays."""
     top = np.where(np.arange(80)[:, None] <= 33, 3.0, np.nan) * np.ones((1, 40))
     ends = {"green": (np.array([[33] * 40, list(range(40)), [1] * 40, [1] * 40], np.int32), 1),
             "red": (np.zeros((4, 0), np.int32), 1)}
-    for red_33, dropped in ((3.1, 0), (np.nan, 40), (0.0, 40)):
+    for red_33, dropped in ((3.1, 0), (0.0, 0), (8.0, 0), (np.nan, 40)):
         red = np.full((80, 40), np.nan)
         red[33] = red_33
         red[34:] = 0.0

@@ -430,9 +430,10 @@ def drop_overreach(maps: dict[str, np.ndarray], ends: dict[str, tuple[np.ndarray
     rig that has them). Such a cell is dropped when its centre lies beyond the chain's end
     (after a chain's last point along the direction its points moved in, before its first
     one against it), this laser has nothing in the next cell on that side, the other laser
-    has there a height more than ``step_mm`` from the cell's, and the other laser does not
-    hold the cell itself within ``step_mm`` of it (two lasers agreeing on it). ``ends``: per
-    laser,
+    has there a height more than ``step_mm`` from the cell's, and the other laser has nothing
+    in the cell itself (where it has, the two agree, or they disagree and the fusion takes
+    the one nearer the local consensus: at random rig 212's walls this laser's height was the
+    right one there, the other's a wall face's). ``ends``: per laser,
     :meth:`HeightAccumulator.chain_ends`."""
     out = dict.fromkeys(maps, 0)
     keep_vals = {n: m.copy() for n, m in maps.items()}  # the decisions read the maps as given
@@ -460,10 +461,9 @@ def drop_overreach(maps: dict[str, np.ndarray], ends: dict[str, tuple[np.ndarray
                 continue
             o, here = other[nb, cj], other[ci, cj]
             with np.errstate(invalid="ignore"):
-                # the other laser's height beyond is a step away, and it does not hold this
-                # cell at this laser's height itself
-                hit = drop & np.isfinite(o) & (np.abs(v - o) > step_mm) \
-                    & ~(np.abs(v - here) <= step_mm)
+                # the other laser's height beyond is a step away, and it has nothing in this
+                # cell (where it has, the two agree or the fusion's local consensus decides)
+                hit = drop & np.isfinite(o) & (np.abs(v - o) > step_mm) & ~np.isfinite(here)
             sel = (ci[hit], cj[hit])
             out[n] += int(np.count_nonzero(np.isfinite(h[sel])))
             h[sel] = np.nan
