@@ -166,6 +166,10 @@ class HeightAccumulator:
         ci = np.rint(yi)
         cj = np.rint((px[sel] - self.spec.x0_mm) / g)
         side = np.sign(ci - yi)
+        d = np.sign(self._travel)
+        if d:  # only the cells past a chain's end in the direction the scan runs are needed
+            keep = side == kind * d
+            ci, cj, side = ci[keep], cj[keep], side[keep]
         self._ends.append(np.stack([ci, cj, side, np.full(ci.shape, kind)]).astype(np.int32))
 
     def chain_ends(self) -> tuple[np.ndarray, int]:
