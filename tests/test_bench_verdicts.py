@@ -66,3 +66,36 @@ def test_rigs_without_any_edge_crossing_do_not_fail_the_edge_point(bench):
     ok, msg = _by_text(bench.verdicts(rows, draws=0, with_fill=False))[
         "feature-edge error <= 0.05 mm"]
     assert ok and msg == "no edge crossed on these rigs"
+
+
+def test_an_edge_left_in_a_gap_is_placed_at_the_gap_middle(bench):
+    """The crossings across the scan in a gap (not an acceptance point): a wall between cells
+    7 and 8 (truth) with cell 8 left empty reads half a cell off, with cells 7 and 8 empty
+    exact; no gap, a gap of three cells or one at the window's end are not counted there,
+    and the plain crossing leaves every gap out."""
+    import numpy as np
+
+    t = np.array([5.0] * 8 + [0.0] * 8)
+
+    def with_nan(cells):
+        h = t.copy()
+        h[cells] = np.nan
+        return h
+
+    assert bench._crossings(t, with_nan([8])) == []
+    assert bench._crossings(t, with_nan([8]), 2, t) == [0.5]
+    assert bench._crossings(t, with_nan([7, 8]), 2, t) == [0.0]
+    assert bench._crossings(t, with_nan([6, 7, 8]), 2, t) == []
+    assert bench._crossings(t, with_nan([4]), 2, t) == []  # the window's first cell
+    assert bench._crossings(t, t, 2, t) == [] and bench._crossings(t, t) == [0.0]
+    # the truth looked up without the map's holes fills the truth's own NaN
+    assert bench._crossings(np.where(np.isnan(with_nan([8])), np.nan, t), with_nan([8]), 2,
+                            t) == [0.5]
+    # a map holding the higher level one cell too far: one cell off (the plain crossing)
+    late = t.copy()
+    late[8] = 5.0
+    assert bench._crossings(t, late) == [1.0]
+    grid_t = np.tile(t[:, None], (1, 8))
+    got = bench.edge_errors_mm(np.tile(with_nan([8])[:, None], (1, 8)), grid_t, 0.1, grid_t)
+    assert got["edge_gap_n_y"] == 2 and abs(got["edge_gap_y_mm"] - 0.05) < 1e-12
+    assert got["edge_n_y"] == 0
