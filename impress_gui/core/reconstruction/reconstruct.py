@@ -969,8 +969,11 @@ def _drop_islands(run: _Run, finisher: RowFinisher
                                 progress=lambda f: step("floating pieces of heights", f))
         floating = dict(zip(names, dropped))
     # after the islands: the other laser's heights beside a chain's end are the final ones
+    # (only where the camera moved one way: with the travel going back and forth a chain's
+    # "past its end" has no one direction)
     over = drop_overreach(finisher.per, {n: finisher.acc[n].chain_ends() for n in names},
-                          p.max_step_mm) if DROP_OVERREACH else dict.fromkeys(names, 0)
+                          p.max_step_mm) if DROP_OVERREACH and finisher.direction \
+        else dict.fromkeys(names, 0)
     if any(islands.values()) or any(floating.values()) or any(over.values()):
         report(run.progress, 0.945, "fusing the maps again without the islands")
         g, r = (finisher.per[n] for n in names)
