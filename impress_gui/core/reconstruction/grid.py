@@ -440,7 +440,7 @@ def drop_overreach(maps: dict[str, np.ndarray], ends: dict[str, tuple[np.ndarray
     right one there, the other's a wall face's). ``ends``: per laser,
     :meth:`HeightAccumulator.chain_ends`."""
     out = dict.fromkeys(maps, 0)
-    keep_vals = {n: m.copy() for n, m in maps.items()}  # the decisions read the maps as given
+    drops = {}  # decided on the maps as given, then applied (no copy of the maps)
     for n, (e, direction) in ends.items():
         h = maps[n]
         if direction == 0 or e.shape[1] == 0 or len(maps) < 2:
@@ -452,23 +452,19 @@ def drop_overreach(maps: dict[str, np.ndarray], ends: dict[str, tuple[np.ndarray
         nb = ci + side
         rows, cols = h.shape
         ok = (ci >= 0) & (ci < rows) & (cj >= 0) & (cj < cols) & (nb >= 0) & (nb < rows)
-        ci, cj, nb = ci[ok], cj[ok], nb[ok]
-        if not ci.size:
-            continue
-        flat = np.unique(np.stack([ci, cj, nb]), axis=1)
-        ci, cj, nb = flat
-        own = keep_vals[n]
-        v = own[ci, cj]
-        drop = np.isfinite(v) & ~np.isfinite(own[nb, cj])
-        for m, other in keep_vals.items():
+        ci, cj, nb = np.unique(np.stack([ci[ok], cj[ok], nb[ok]]), axis=1)
+        v = h[ci, cj]
+        hit = np.isfinite(v) & ~np.isfinite(h[nb, cj])
+        for m, other in maps.items():
             if m == n:
                 continue
             o, here = other[nb, cj], other[ci, cj]
             with np.errstate(invalid="ignore"):
                 # the other laser's height beyond is a step away, and it has nothing in this
                 # cell (where it has, the two agree or the fusion's local consensus decides)
-                hit = drop & np.isfinite(o) & (np.abs(v - o) > step_mm) & ~np.isfinite(here)
-            sel = (ci[hit], cj[hit])
-            out[n] += int(np.count_nonzero(np.isfinite(h[sel])))
-            h[sel] = np.nan
+                hit &= np.isfinite(o) & (np.abs(v - o) > step_mm) & ~np.isfinite(here)
+        drops[n] = (ci[hit], cj[hit])
+    for n, sel in drops.items():
+        out[n] = int(sel[0].size)
+        maps[n][sel] = np.nan
     return out

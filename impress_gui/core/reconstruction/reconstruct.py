@@ -940,8 +940,8 @@ def _drop_islands(run: _Run, finisher: RowFinisher
     """Drop the small islands of each laser's map (:func:`~impress_gui.core.reconstruction.
     grid.drop_islands`), then the floating pieces (:func:`~impress_gui.core.reconstruction.
     grid.drop_floating`), then the cells a chain's end reaches across an edge
-    (:func:`~impress_gui.core.reconstruction.grid.drop_overreach`), and fuse the maps again if any were found; the cells dropped per
-    laser by each step. (The texture was sampled during the loop at the fused heights then:
+    (:func:`~impress_gui.core.reconstruction.grid.drop_overreach`), and fuse the maps again
+    if any were found; the cells dropped per laser by each step. (The texture was sampled during the loop at the fused heights then:
     a dropped piece's cells keep the colour sampled at its height.)"""
     p = run.params
     names = finisher.names
