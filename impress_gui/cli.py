@@ -132,7 +132,49 @@ class Terminated(KeyboardInterrupt):
         super().__init__(self.name)
 
 
+#: after a terminate signal, the longest the command may take to clean up (s): the clean-up
+#: waits for the files being written to finish (a few seconds); past this it is stuck (a lock
+#: the signal's exception left held, a worker that never returns) and the process removes its
+#: half-written files itself and exits (:func:`_force_exit_after`)
+TERMINATE_GRACE_S = 60.0
+
+_watchdog_started = False
+
+
+def _force_exit_after(grace_s: float, signum: int) -> None:
+    """In its own thread: if the process is still running ``grace_s`` after a terminate
+    signal, remove every half-written file and folder it has open and exit with 128 + the
+    signal's number, without Python's clean-up (which is what hangs)."""
+    import os
+    import time
+
+    from impress_gui.core.base import workfiles
+
+    time.sleep(grace_s)
+    workfiles.remove_all()
+    name = signal.Signals(signum).name
+    try:
+        sys.stderr.write(f"impress: stopped by {name}; the clean-up did not finish within "
+                         f"{grace_s:.0f} s, so the half-written output was removed and the "
+                         "command ended\n")
+        sys.stderr.flush()
+    finally:
+        os._exit(128 + signum)
+
+
 def _on_terminate(signum, frame) -> None:
+    """Raise :class:`Terminated` in the main thread (the clean-up of Ctrl-C follows), and make
+    sure the command ends even when that clean-up cannot: a watchdog thread forces the exit
+    :data:`TERMINATE_GRACE_S` later. An exception raised at an arbitrary moment can land inside
+    a lock's acquisition and leave it held (a full-suite run once waited 120 s for a command
+    that never exited): nothing may hang."""
+    import threading
+
+    global _watchdog_started
+    if not _watchdog_started:
+        _watchdog_started = True
+        threading.Thread(target=_force_exit_after, args=(TERMINATE_GRACE_S, signum),
+                         name="impress-terminate-watchdog", daemon=True).start()
     raise Terminated(signum)
 
 

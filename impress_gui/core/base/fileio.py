@@ -135,6 +135,7 @@ def atomic_output(path: str | os.PathLike, mode: str = "wb") -> Iterator[Any]:
     On any exception the temporary file is removed and ``path`` keeps its previous content;
     an operating-system error (full disk, read-only folder, no permission) becomes
     :class:`~impress_gui.core.base.outdir.WriteError` ``E-WRITE`` naming ``path``."""
+    from impress_gui.core.base import workfiles
     from impress_gui.core.base.outdir import write_error
 
     path = Path(path)
@@ -142,21 +143,25 @@ def atomic_output(path: str | os.PathLike, mode: str = "wb") -> Iterator[Any]:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+        workfiles.note(tmp)
         with os.fdopen(fd, mode) as fh:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
+        workfiles.done(tmp)
     except OSError as exc:
         if tmp is not None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+            workfiles.done(tmp)
         raise write_error(path, exc) from None
     except BaseException:
         if tmp is not None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+            workfiles.done(tmp)
         raise
 
 

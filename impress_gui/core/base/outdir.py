@@ -25,7 +25,7 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from impress_gui.core.base import codes
+from impress_gui.core.base import codes, workfiles
 from impress_gui.core.base.errors import ImpressError
 
 MARK_FILE = ".impress-output.json"
@@ -242,9 +242,11 @@ class OutputFolder:
             _clear_work_folder(self.tmp)
             # a writability probe now (the work folder is made and removed): a read-only or
             # full place fails before any work, and a run killed before writing leaves nothing
+            workfiles.note(self.tmp)
             self.tmp.mkdir()
             (self.tmp / MARK_FILE).write_bytes(mark_bytes(kind))
             shutil.rmtree(self.tmp)
+            workfiles.done(self.tmp)
         self._begun = False
 
     def begin(self) -> Path:
@@ -252,6 +254,7 @@ class OutputFolder:
         if not self._begun:
             with writing(self.final.parent, "create the folder"):
                 _clear_work_folder(self.tmp)
+                workfiles.note(self.tmp)
                 self.tmp.mkdir()
                 (self.tmp / MARK_FILE).write_bytes(mark_bytes(self.kind))
             self._begun = True
@@ -269,6 +272,7 @@ class OutputFolder:
 
     def abort(self) -> None:
         shutil.rmtree(self.tmp, ignore_errors=True)
+        workfiles.done(self.tmp)
 
     def commit(self) -> Path:
         """Mark, fsync and swap the finished folder into place; return the final path."""
@@ -288,6 +292,7 @@ class OutputFolder:
                 else:
                     self.final.rmdir()
             self.tmp.rename(self.final)
+            workfiles.done(self.tmp)
             if old is not None:
                 shutil.rmtree(old)
         return self.final
