@@ -611,12 +611,22 @@ class StripeObservations:
                        f"ground beside the target joined the faces' points{other_note}")
 
 
+def stripe_window(t_c: int, speed_mm_s: float, fps: float, plane_span: int,
+                  plane_travel_mm: float, frame_count: int) -> tuple[int, int]:
+    """The frames ``lo..hi-1`` around calibration frame ``t_c`` its stripe is gathered from:
+    ``plane_travel_mm`` of travel before and after it (at most ``plane_span`` frames each)."""
+    span = max(3, min(plane_span, int(round(plane_travel_mm / max(speed_mm_s, 1e-6) * fps))))
+    return max(0, t_c - span), min(frame_count, t_c + span + 1)
+
+
 def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: TargetModel,
                     picks: Picks, pose: PoseSolution, fps: float, plane_frames: int,
                     plane_span: int, plane_travel_mm: float,
                     progress: ProgressCallback | None = None,
                     cancel: CancelToken | None = None) -> StripeObservations:
-    """Detect the green stripe around frame t1 and the red one around t2 on the target."""
+    """Detect the green stripe around frame t1 and the red one around t2 on the target
+    (``times``: each frame's time of travel at constant speed, see
+    :meth:`.motion.Ramps.travel_times`)."""
     cancel = cancel or CancelToken()
     rot_b, r_o, t_o = pose.rotation, pose.target_rotation, pose.target_translation_mm
     v_true = pose.implied_speed_mm_s  # the travel between frames that matches the target's pose
@@ -627,8 +637,8 @@ def observe_stripes(video, times: np.ndarray, intrinsics: Intrinsics, target: Ta
     for i, (name, t_c) in enumerate(frames.items()):
         cancel.check()
         report(progress, 0.15 + 0.3 * i, f"{name} stripe on the target")
-        span = max(3, min(plane_span, int(round(plane_travel_mm / max(v_true, 1e-6) * fps))))
-        lo, hi = max(0, t_c - span), min(video.frame_count, t_c + span + 1)
+        lo, hi = stripe_window(t_c, v_true, fps, plane_span, plane_travel_mm,
+                               video.frame_count)
         wanted = sorted(set(np.linspace(lo, hi - 1, max(1, plane_frames)).astype(int)) | {t_c})
         for v in variants:
             found[v][name] = []

@@ -26,10 +26,16 @@ from impress_gui.core.base import codes
 from impress_gui.core.base.errors import CalibrationError, FormatError
 from impress_gui.core.base.fileio import float_array, read_json, require, write_json
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report, sub_progress
+from impress_gui.core.calibration import motion
 from impress_gui.core.calibration.aids import check_stripe_points, three_point_planes
 from impress_gui.core.calibration.geometry import Intrinsics, Plane
 from impress_gui.core.calibration.picks import Picks
-from impress_gui.core.calibration.planes import LaserPlaneFit, observe_stripes, refine_tilt
+from impress_gui.core.calibration.planes import (
+    LaserPlaneFit,
+    observe_stripes,
+    refine_tilt,
+    stripe_window,
+)
 from impress_gui.core.calibration.solve import (
     SPEED_WARN_FRACTION,
     level_across,
@@ -347,14 +353,21 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
         check_stripe_points(picks, intrinsics, video.frame_count)
     fps = float(fps or video.fps)
     times = video.times_s if fps == video.fps else np.arange(video.frame_count) / fps
-    dt = float(times[picks.t2] - times[picks.t1])
     # the corners were marked on frames t1 and t2: both must decode without damage
     for k in (picks.t1, picks.t2):
         video.read(k)
     _refuse_damaged(video, (picks.t1, picks.t2))
+    warnings_ramp: list[str] = []
+    if plane_method == "stripe-fit":
+        # each frame at the time of its travel at constant speed: the frames in the rail's
+        # ramps (where the stripes' frames reach the video's ends) moved by the picture's motion
+        report(progress, 0.01, "the rail's ramps in the picture's motion")
+        times, warnings_ramp = _travel_times(video, times, picks, speed_mm_s, fps, plane_span,
+                                             plane_travel_mm, cancel)
+    dt = float(times[picks.t2] - times[picks.t1])
     report(progress, 0.05, "motion direction and pose")
     pose = solve_pose(intrinsics, target, picks, speed_mm_s, dt)
-    implied, warnings = pose.implied_speed_mm_s, list(pose.warnings)
+    implied, warnings = pose.implied_speed_mm_s, list(pose.warnings) + warnings_ramp
     if pose.readout_ms_estimated is not None:
         # the picks showed a rolling shutter the intrinsics did not give: the stripes, the
         # calibration file and the reconstruction use the readout estimated
@@ -427,6 +440,30 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
         warnings=tuple(warnings), inputs=dict(inputs or {}),
         cross_tilt_deg=float(np.degrees(pose.cross_tilt_rad)),
     )
+
+
+def _travel_times(video, times: np.ndarray, picks: Picks, speed_mm_s: float, fps: float,
+                  plane_span: int, plane_travel_mm: float, cancel: CancelToken
+                  ) -> tuple[np.ndarray, list[str]]:
+    """``times`` with the frames in the rail's ramps moved to the time of their travel at
+    constant speed (:mod:`.motion`), measured only at an end of the video the stripes' frames
+    reach into; and a warning for a calibration frame in a ramp."""
+    n = video.frame_count
+    reach = int(np.ceil(motion.SEARCH_S * fps))
+    windows = [stripe_window(t, speed_mm_s, fps, plane_span, plane_travel_mm, n)
+               for t in (picks.t1, picks.t2)]
+    ends = (min(lo for lo, _ in windows) < reach, max(hi for _, hi in windows) > n - reach)
+    if not any(ends):
+        return times, []
+    ramps = motion.measure_ramps(video, fps, cancel, ends)
+    warnings = [
+        f"W-PICK-IN-RAMP: calibration frame {k} ({name}) lies in the rail's acceleration or "
+        "deceleration ramp, where the speed is not constant: its travel was taken from the "
+        "picture's motion (a few hundredths of a millimetre uncertain); choose frames between "
+        f"{int(np.ceil(ramps.constant_from))} and {int(np.floor(ramps.constant_until))} for "
+        "the best calibration"
+        for name, k in (("t1", picks.t1), ("t2", picks.t2)) if not ramps.at_constant_speed(k)]
+    return ramps.travel_times(times, fps), warnings
 
 
 def plane_residual_warnings(planes: dict[str, LaserPlaneFit]) -> list[str]:
