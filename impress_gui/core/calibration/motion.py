@@ -175,10 +175,12 @@ def _fit_ramp(d: np.ndarray, lag: int) -> tuple[float, float, float, float]:
         i = np.unravel_index(int(np.argmin(cost)), cost.shape)
         return float(a[i]), float(b[i]), float(v[i]), float(cost[i])
 
-    for _ in range(3):
+    for fit in range(3):
         a, b, _, _ = search(np.arange(-3.0, k, 0.25), np.arange(0.0, k, 0.25))
         a, b, v, cost = search(np.arange(a - 0.3, a + 0.31, 0.02),
                                np.arange(max(0.0, b - 0.3), b + 0.31, 0.02))
+        if fit == 2:
+            break  # the share explained below is of the shifts this fit used
         res = d - v * (_ramp_curve(t + lag, a, b) - _ramp_curve(t, a, b))
         spread = 1.4826 * float(np.median(np.abs(res[keep]))) + 1e-6
         keep = np.abs(res) <= max(4 * spread, 0.2)
