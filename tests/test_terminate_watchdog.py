@@ -33,13 +33,16 @@ STUCK = textwrap.dedent("""
     forever = threading.Event()
     worker = threading.Thread(target=forever.wait)
     worker.start()
-    with atomic_output(sys.argv[1] + "/calibration.json") as fh:
-        fh.write(b"half")
-        print("ready", flush=True)
-        try:
-            time.sleep(120)
-        finally:
-            worker.join()  # the stuck clean-up
+    try:  # as the command's main() does: an interruption prints no traceback
+        with atomic_output(sys.argv[1] + "/calibration.json") as fh:
+            fh.write(b"half")
+            try:  # the signal may come as soon as "ready" is out
+                print("ready", flush=True)
+                time.sleep(120)
+            finally:
+                worker.join()  # the stuck clean-up
+    except KeyboardInterrupt:
+        pass
 """)
 
 
