@@ -244,8 +244,9 @@ def _other_band(other: Band | None, w: int) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"the other laser's band has {len(start)} columns, the frame {w}",
                          code=codes.E_SIZE_MISMATCH)
     rows = np.asarray(height, np.int64)
-    return (np.ascontiguousarray(start, dtype=np.int64),
-            np.full(w, int(rows), np.int64) if rows.ndim == 0 else np.array(rows))
+    # copies: a detector may narrow its own per frame (StripeDetector.narrow_other)
+    return (np.array(start, dtype=np.int64),
+            np.full(w, int(rows), np.int64) if rows.ndim == 0 else np.array(rows, np.int64))
 
 
 def _bloom_lean(params: StripeParams, other: Band | None) -> float:
@@ -370,6 +371,10 @@ class StripeDetector:
         self._other, self._ground = other, ground
         self._own: list = []
         self.own_rows_taken = 0  # columns changed by prefer_own_rows, over all calls
+        # the other laser's band as the kernel reads it (narrow_other may rewrite it per frame)
+        # and as it was given
+        self._o_band = self._args[0][2:4]
+        self._o_given = (self._o_band[0].copy(), self._o_band[1].copy())
         if params.prefer_own_rows and other is not None and ground is not None \
                 and len(band_start):
             import dataclasses
@@ -380,6 +385,17 @@ class StripeDetector:
                                                      int(params.half_window_px),
                                                      int(np.max(band_start)) + band_height):
                 self._own.append((StripeDetector(name, start, height, alone, lut, other), lo, hi))
+
+    def narrow_other(self, other_rows: np.ndarray, margin: int) -> None:
+        """Where the other laser's stripe was found in this frame (``other_rows``, NaN where
+        not), its band becomes the rows within ``margin`` of it; elsewhere the band given.
+        For a detector of its own (the kernel reads the band from these arrays)."""
+        start, height = self._o_band
+        found = np.isfinite(other_rows)
+        np.copyto(start, self._o_given[0])
+        np.copyto(height, self._o_given[1])
+        start[found] = np.floor(other_rows[found]).astype(np.int64) - margin
+        height[found] = 2 * margin + 2
 
     def __call__(self, planes: Planes) -> StripeResult:
         if planes.y.shape[1] != len(self.result.rows):
