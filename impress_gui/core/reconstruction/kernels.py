@@ -1035,6 +1035,29 @@ def prune_weak_runs(rows, strength, tol_px, long_cols, ratio, run_id, scratch):
     return dropped
 
 
+@_kernel("int64(float64[:], float32[:], float64, int64)")
+def drop_short_runs(rows, strength, tol_px, min_run):
+    """Drop the stripe pieces shorter than ``min_run`` columns (in place: rows NaN, strength
+    0; returns the columns dropped). A piece is a maximal run of consecutive columns whose rows
+    continue into each other within ``tol_px``; single columns are left (:func:`stripe_profile`
+    never takes them). The numpy reference:
+    :func:`impress_gui.core.reconstruction.stripes.drop_short_runs_numpy`."""
+    n = rows.shape[0]
+    if min_run <= 2 or n == 0:
+        return 0
+    dropped = 0
+    a = 0
+    for c in range(1, n + 1):
+        if c == n or not (abs(rows[c] - rows[c - 1]) <= tol_px):  # NaN breaks the run
+            if 2 <= c - a < min_run:
+                for q in range(a, c):
+                    rows[q] = np.nan
+                    strength[q] = 0.0
+                    dropped += 1
+            a = c
+    return dropped
+
+
 @_jit
 def _add(total, count, x0, y0, g, x, y, v):
     j = int(np.rint((x - x0) / g))
@@ -1119,7 +1142,7 @@ from impress_gui.core.reconstruction.grid_kernels import (  # noqa: E402
     texture_rows,
 )
 
-__all__ = ["detect_stripe", "triangulate", "upsample", "stripe_profile", "splat_heights", "sample_rgb",
+__all__ = ["drop_short_runs", "detect_stripe", "triangulate", "upsample", "stripe_profile", "splat_heights", "sample_rgb",
            "hsv_tables", "fuse_rows", "mean_colours", "mean_heights", "resolve_conflicts",
            "texture_rows", "band_rays"]
 

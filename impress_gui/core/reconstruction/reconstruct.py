@@ -711,6 +711,7 @@ class _Tally:
     shared_cols: dict[str, int] = field(default_factory=dict)  # the other laser's light dropped
     beyond_cols: dict[str, int] = field(default_factory=dict)  # rows beyond the height range
     narrow_cols: dict[str, int] = field(default_factory=dict)  # found by the narrowed look
+    short_cols: dict[str, int] = field(default_factory=dict)  # pieces too short dropped
     own_rows: dict[str, int] = field(default_factory=dict)  # columns taken from own rows
     unlit: dict[str, int] = field(default_factory=dict)  # columns re-estimated, soil subtracted
     seen: int = 0  # frames read
@@ -805,6 +806,8 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
     tally.shared_cols = dict.fromkeys(LASERS, 0)
     tally.beyond_cols = dict.fromkeys(LASERS, 0)
     tally.narrow_cols = dict.fromkeys(LASERS, 0)
+    tally.short_cols = dict.fromkeys(LASERS, 0)
+    min_run = min_run_columns(w) if DROP_SHORT_RUNS else 0
     overlap = {n: _bands_overlap(tab, n) for n in LASERS}
     long_cols = long_run_columns(w)
     run_id, scratch = np.empty(w, np.int64), np.empty(w)
@@ -851,6 +854,8 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
                 tally.weak_cols[name] += kern.prune_weak_runs(res.rows, res.strength,
                                                               CONNECT_PX, long_cols, ratio,
                                                               run_id, scratch)
+                tally.short_cols[name] += kern.drop_short_runs(res.rows, res.strength,
+                                                               CONNECT_PX, min_run)
             for name, n in _drop_shared_light(kern, detect, tab, plane, s_k, shared).items():
                 tally.shared_cols[name] += n
         for name in LASERS:
@@ -1200,6 +1205,8 @@ def _stats(run: _Run, tab: _Tables, tally: _Tally, finisher: RowFinisher, loop_s
         # columns found by a second look with the other laser's band narrowed to its stripe
         # (NARROW_OTHER)
         "stripe_columns_other_band_narrowed": tally.narrow_cols,
+        # columns of stripe pieces too short to be a stripe (min_run_columns), dropped
+        "stripe_columns_short_pieces_dropped": tally.short_cols,
         # columns whose stripe, found in the other laser's band, gave way to one in the
         # laser's own rows nearer the ground (stripes.StripeParams.prefer_own_rows)
         "stripe_columns_from_own_rows": tally.own_rows,
@@ -1273,6 +1280,21 @@ BRIDGE_COLUMNS = 8
 #: be at least ``ProcessParams.weak_run_ratio`` as strong
 LONG_RUN_FRACTION = 1.0 / 60.0
 MIN_LONG_RUN = 8
+
+
+#: the shortest stripe piece kept, in columns at 1920 px (:func:`min_run_columns`;
+#: :func:`~impress_gui.core.reconstruction.kernels.drop_short_runs`)
+MIN_RUN_1920 = 3
+#: drop the pieces shorter than :func:`min_run_columns` (off only to compare with the code
+#: before)
+DROP_SHORT_RUNS = True
+
+
+def min_run_columns(width: int) -> int:
+    """The shortest stripe piece kept in an image ``width`` pixels wide: ``MIN_RUN_1920``
+    scaled to the width, never below the two columns a piece has at least (so at 1280 px and
+    below nothing more is dropped)."""
+    return max(2, math.ceil(MIN_RUN_1920 * width / 1920))
 
 
 def long_run_columns(width: int) -> int:

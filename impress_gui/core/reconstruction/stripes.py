@@ -1065,6 +1065,32 @@ def prune_weak_runs_numpy(rows: np.ndarray, strength: np.ndarray, tol_px: float,
     return int(drop.sum())
 
 
+def drop_short_runs_numpy(rows: np.ndarray, strength: np.ndarray, tol_px: float,
+                          min_run: int) -> int:
+    """The readable numpy reference of the compiled
+    :func:`~impress_gui.core.reconstruction.kernels.drop_short_runs` (the tests check they
+    agree): stripe pieces of two to ``min_run - 1`` columns are dropped in place.
+
+    Why: in a laser's shadow (past a wall, where its light lands out of the camera's view)
+    the detector still reports each column's best candidate; most are scattered, but an edge
+    of the scene - a block's top edge in the picture, moving with the carriage - gives two
+    neighbouring columns that agree. Next to the stripe's last true row such a pair joins the
+    chain on the block's top and draws the top past its wall (random rig 13 at 1080p: a pair
+    2.4 px from the stripe's row in the frame after the stripe left the top, read 0.8 mm
+    above it and 0.5 mm past the wall). A stripe is a curve: at 1080p a true piece that short
+    is rare, and its cells are filled from the neighbouring frames."""
+    n = len(rows)
+    if n == 0 or min_run <= 2:
+        return 0
+    link = np.abs(np.diff(rows)) <= tol_px  # NaN never links
+    run_id = np.concatenate([[0], np.cumsum(~link)])
+    length = np.bincount(run_id)[run_id]
+    drop = (length >= 2) & (length < min_run)
+    rows[drop] = np.nan
+    strength[drop] = 0.0
+    return int(drop.sum())
+
+
 def shared_light(rows_a: np.ndarray, rows_b: np.ndarray, conflict: np.ndarray,
                  tol_px: float) -> tuple[np.ndarray, np.ndarray]:
     """Where the two lasers' detectors took the same light, which of them took the other's:
