@@ -9,6 +9,7 @@ surface.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -56,6 +57,15 @@ def short_runs(flags: np.ndarray, max_len: int) -> np.ndarray:
     return np.cumsum(marks[:-1]) > 0
 
 
+#: across a step between two consecutive frames, fill each end's height at most half the
+#: carriage's travel between them towards the other end (off only to compare with the code
+#: before, which split the strip at its middle however long): a surface's last point lies
+#: within one frame's travel of its edge, so its half is the edge's best place; a strip longer
+#: than a frame's travel is a shadow or a wrong far end, and its middle is left to the other
+#: laser or empty
+STEP_REACH = True
+
+
 class HeightAccumulator:
     """Sum and count of heights per cell, filled between consecutive profiles.
 
@@ -70,7 +80,8 @@ class HeightAccumulator:
     groove floor spans many columns, and is left a hole rather than covered with a lid.
 
     Nor is a step bridged (a height change beyond ``max_step_mm``). Between consecutive
-    profiles, a step's strip is split between its two ends. Across a missed profile that guess
+    profiles, a step's strip is split between its two ends, each reaching at most half the
+    carriage's travel between the two frames when it is given (:data:`STEP_REACH`). Across a missed profile that guess
     would span two frames' travel. At an edge, the missed frame is where the stripe left the
     higher surface, and the point after it is often wrong: bridged, it drew the higher surface
     up to a millimetre past the edge (issue 18, random rig 13 at 1080p: the edge error
@@ -99,15 +110,19 @@ class HeightAccumulator:
         # centre lies (:meth:`chain_ends`, :func:`drop_overreach`)
         self._ends: list[np.ndarray] = []
         self._travel = 0.0  # sum of the joined points' moves along the grid's rows
+        self._last_travel = math.nan  # the carriage's travel at the previous profile (mm)
 
     def reset_chain(self) -> None:
         """The next profile is filled towards nothing before it (a frame without a stripe, a
         damaged frame)."""
         self._chain = False
 
-    def add_profile(self, x, y, h, valid) -> None:
+    def add_profile(self, x, y, h, valid, travel_mm: float = math.nan) -> None:
         """Add one frame's (upsampled) profile; fill towards the previous profile (see the
-        class and :func:`impress_gui.core.reconstruction.kernels.splat_heights`)."""
+        class and :func:`impress_gui.core.reconstruction.kernels.splat_heights`). With the
+        carriage's travel of this frame (``travel_mm``, and of the previous profile's frame
+        given the same way), a step's strip is filled at most half the travel between the two
+        frames from either end (:data:`STEP_REACH`)."""
         if self._splat is None:
             from impress_gui.core.reconstruction.compiled import kernels
 
@@ -133,8 +148,11 @@ class HeightAccumulator:
             pair |= bridge
         s = self.spec
         self._record_ends(x, y, valid, pair)
+        reach = 0.5 * abs(travel_mm - self._last_travel) if STEP_REACH else math.nan
         self._splat(self.sum, self.count, s.x0_mm, s.y0_mm, s.pixel_mm, x, y, h, valid,
-                    lx, ly, lh, pair, self._chain, float(self.max_gap_mm), float(self.max_step_mm))
+                    lx, ly, lh, pair, self._chain, float(self.max_gap_mm), float(self.max_step_mm),
+                    reach if reach > 0 else -1.0)
+        self._last_travel = travel_mm
         np.copyto(lx, x, where=valid)
         np.copyto(ly, y, where=valid)
         np.copyto(lh, h, where=valid)

@@ -1068,16 +1068,18 @@ def _add(total, count, x0, y0, g, x, y, v):
 
 
 @_kernel(
-    "void(float32[:, :], uint16[:, :], float64, float64, float64, float64[:], float64[:], float64[:], boolean[:], float64[:], float64[:], float64[:], boolean[:], boolean, float64, float64)"
+    "void(float32[:, :], uint16[:, :], float64, float64, float64, float64[:], float64[:], float64[:], boolean[:], float64[:], float64[:], float64[:], boolean[:], boolean, float64, float64, float64)"
 )
 def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev, max_gap,
-                  max_step):
+                  max_step, reach):
     """Add one upsampled profile to the per-cell sums and counts, filling the strip towards
     the previous profile: each point pairs with the same point of the previous profile (the
     accumulator passes where each point was last found) when both are valid and closer than
     ``max_gap``; the segment between them is sampled at most one
     cell apart along each axis, so it leaves no cell out (linear heights, or the nearer end's
-    across a step). Unpaired points are added alone."""
+    across a step). Across a step each end's height reaches at most ``reach`` (mm) along the
+    segment when ``reach`` is positive: the middle of a longer strip is left empty. Unpaired
+    points are added alone."""
     hgt, wid = count.shape
     ig = 1.0 / g
     for i in range(x.shape[0]):
@@ -1101,6 +1103,8 @@ def splat_heights(total, count, x0, y0, g, x, y, h, v, px, py, ph, pv, has_prev,
                 continue
             t = m / n
             if step:
+                if reach > 0.0 and min(t, 1.0 - t) * gap > reach:
+                    continue  # farther than a frame's half travel from either end
                 hv = ph[i] if t < 0.5 else h[i]
             else:
                 hv = ph[i] + t * (h[i] - ph[i])

@@ -880,7 +880,7 @@ def _frame_loop(run: _Run, tab: _Tables, kern, acc: dict[str, HeightAccumulator]
             tally.found_frames[name] += 1
             tally.found_cols[name] += int(n_ok)
             pr.used()
-            acc[name].add_profile(*up)
+            acc[name].add_profile(up[0], up[1], up[2], up[3], travel_mm=s_k)
             finisher.check_range(name, s_k, pr.y_range)
         if unlit is not None:
             if bad:
