@@ -74,6 +74,7 @@ LONG_FILES = (
     "test_tilt_refinement.py",
     "test_validate.py",
     "test_uncertainty.py",
+    "test_ramp_motion.py",
     "test_gui_check.py",
     "test_hostile_inputs.py",
     "test_gui_viewer.py",

@@ -23,6 +23,9 @@ from impress_gui.core.reconstruction.grid import GridSpec
 #: trials per ensemble: the ensembles compared share their seed (the same standard draws,
 #: scaled), so the comparisons below hold with few; 6 keeps the file near a minute
 TRIALS = 6
+#: trials where a tenfold plane residual is compared with the calibration's own (a spread
+#: 10-18 times larger; 3 trials keep that above the 1.5 asked, measured 17.5 and 11.8)
+ROUGH_TRIALS = 3
 
 
 def test_budget_combines_by_root_sum_square_and_expands_with_k2():
@@ -136,8 +139,8 @@ def test_calibration_monte_carlo_grows_with_the_plane_residuals(flat):
                                             point_sd_mm=10 * f.point_sd_mm + 0.07,
                                             face_sd_mm=10 * f.face_sd_mm)
                                  for n, f in cal.planes.items()})
-    smooth = CU.calibration_ensemble(cal, target, 0.05, n=TRIALS, stripe_model="conservative")
-    worse = CU.calibration_ensemble(rough, target, 0.05, n=TRIALS, stripe_model="conservative")
+    smooth = CU.calibration_ensemble(cal, target, 0.05, n=ROUGH_TRIALS, stripe_model="conservative")
+    worse = CU.calibration_ensemble(rough, target, 0.05, n=ROUGH_TRIALS, stripe_model="conservative")
     assert worse.summary["green_plane_offset_sd_mm"] > smooth.summary["green_plane_offset_sd_mm"]
     assert _spread(worse)[0] > 1.5 * _spread(smooth)[0]
     # an older calibration without the split: half the plane's residual variance each
@@ -147,17 +150,17 @@ def test_calibration_monte_carlo_grows_with_the_plane_residuals(flat):
     f = old.planes["green"]
     assert CU.stripe_sigmas(f, f.rms_mm)[:2] == (f.rms_mm / math.sqrt(2),
                                                  f.rms_mm / math.sqrt(2))
-    older = CU.calibration_ensemble(old, target, 0.05, n=TRIALS, stripe_model="conservative")
+    older = CU.calibration_ensemble(old, target, 0.05, n=ROUGH_TRIALS, stripe_model="conservative")
     assert _spread(older)[0] > 1.5 * _spread(smooth)[0]
     # the stripes as the calibration measured them ("measured", the default): the spread
     # grows with the recorded split (on random rigs 2-3 times smaller than "conservative"'s)
     assert CU.DEFAULT_STRIPE_MODEL == "measured"
-    meas = CU.calibration_ensemble(cal, target, 0.05, n=TRIALS)
-    meas_rough = CU.calibration_ensemble(rough, target, 0.05, n=TRIALS, stripe_model="measured")
+    meas = CU.calibration_ensemble(cal, target, 0.05, n=ROUGH_TRIALS)
+    meas_rough = CU.calibration_ensemble(rough, target, 0.05, n=ROUGH_TRIALS, stripe_model="measured")
     assert meas is not smooth and 0 < _spread(meas)[0]
     assert _spread(meas_rough)[0] > 1.5 * _spread(meas)[0]
     with pytest.raises(ValueError):
-        CU.calibration_ensemble(cal, target, 0.05, n=TRIALS, stripe_model="other")
+        CU.calibration_ensemble(cal, target, 0.05, n=ROUGH_TRIALS, stripe_model="other")
 
 
 def test_stripe_noise_separates_offsets_per_frame_from_point_noise():
