@@ -65,15 +65,32 @@ PLANE_REFUSE_MM = 1.0
 #: a tilt refined by more than this (deg) from the picks' tilt has the stripes gathered again
 #: with the refined pose, then refined once more (their crops followed the picks' pose)
 REGATHER_TILT_DEG = 0.25
+#: the click noise (px) the tilt refinement assumes for the corner picks is what their own fit
+#: shows - the pose's reprojection RMS x sqrt(24/15) (24 coordinates, 9 pose parameters) -
+#: never more than CLICK_SIGMA_PX (a user's clicks; the stripes then set the tilt) and never
+#: less than PICKS_SIGMA_FLOOR_PX. Picks consistent to a ten-thousandth of a pixel (the
+#: simulator's exact ones, a fitted corner detector's) then hold the tilt the stripes would
+#: pull 0.01-0.016 deg off (random rigs 229, 249); clicks as users make them (0.2-0.5 px) weigh
+#: what they did before (issue 18, 2026-12-07)
+CLICK_SIGMA_PX = 0.5
+PICKS_SIGMA_FLOOR_PX = 1e-4
 
 
-def _opt_float(doc: dict, key: str, where: str, top: float = 100.0) -> float:
-    """An optional number of a laser plane's record within 0..``top`` (mm); NaN when absent."""
+def picks_sigma_px(reprojection_rms_px: float) -> float:
+    """The click noise (px) the picks' own pose fit implies (see :data:`CLICK_SIGMA_PX`)."""
+    rms = float(reprojection_rms_px)
+    if not np.isfinite(rms):
+        return CLICK_SIGMA_PX
+    return float(np.clip(rms * np.sqrt(24.0 / 15.0), PICKS_SIGMA_FLOOR_PX, CLICK_SIGMA_PX))
+
+
+def _opt_float(doc: dict, key: str, where: str, top: float = 100.0, unit: str = "mm") -> float:
+    """An optional number of a record within 0..``top`` (``unit``); NaN when absent."""
     if key not in doc:
         return float("nan")
     v = float(require(doc, key, float, where))
     if not np.isfinite(v) or not 0 <= v <= top:
-        raise FormatError(f"{where}{key} must be a number from 0 to {top:g} mm, not {v!r}",
+        raise FormatError(f"{where}{key} must be a number from 0 to {top:g} {unit}, not {v!r}",
                           code=codes.E_VALUE)
     return v
 
@@ -104,6 +121,9 @@ class SceneCalibration:
     #: (:func:`~impress_gui.core.calibration.solve.level_across`; informational: ``rotation``
     #: includes it; 0 in files written before the levelling, whose frame is the unlevelled one)
     cross_tilt_deg: float = 0.0
+    #: the click noise (px) the tilt refinement weighed the corner picks with
+    #: (:func:`picks_sigma_px`); NaN where the tilt was not refined or in older files
+    tilt_click_sigma_px: float = float("nan")
 
     # ----- derived -------------------------------------------------------------------------
     def corners_fit_mm(self, target: TargetModel) -> np.ndarray:
@@ -159,6 +179,8 @@ class SceneCalibration:
                             "translation_mm": self.target_translation_mm.tolist()},
             "implied_speed_mm_s": self.implied_speed_mm_s,
             "reprojection_rms_px": self.reprojection_rms_px,
+            **({"tilt_click_sigma_px": self.tilt_click_sigma_px}
+               if np.isfinite(self.tilt_click_sigma_px) else {}),
             "laser_planes": {
                 n: {"normal": f.plane.normal.tolist(), "offset_mm": f.plane.offset_mm,
                     "rms_mm": f.rms_mm, "n_points": f.n_points, "frames": list(f.frames),
@@ -238,6 +260,7 @@ class SceneCalibration:
                 planes=planes, warnings=tuple(str(w) for w in doc.get("warnings", [])),
                 inputs=dict(doc.get("inputs", {})),
                 cross_tilt_deg=float(doc.get("cross_tilt_deg", 0.0)),
+                tilt_click_sigma_px=_opt_float(doc, "tilt_click_sigma_px", where, unit="px"),
             )
         except (TypeError, ValueError, AttributeError, OverflowError, KeyError, IndexError):
             raise FormatError(f"{where}damaged calibration (a field has the wrong kind of "
@@ -326,7 +349,7 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
                     speed_mm_s: float, fps: float | None = None,
                     plane_frames: int = DEFAULT_PLANE_FRAMES,
                     plane_span: int = 300, plane_travel_mm: float = 25.0,
-                    refine_with_stripes: bool = True, click_sigma_px: float = 0.5,
+                    refine_with_stripes: bool = True, click_sigma_px: float | None = None,
                     progress: ProgressCallback | None = None,
                     cancel: CancelToken | None = None, inputs: dict | None = None,
                     plane_method: str = "stripe-fit") -> SceneCalibration:
@@ -335,7 +358,9 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
     ``plane_method``: ``"stripe-fit"`` fits each laser plane to its stripe on the target's
     faces (and refines the tilt with them); ``"three-point"`` is the seed's fallback, each
     plane through three stripe points the user picked on target edges (``picks.stripe_points``),
-    with no stripe detection and the pose from the corner picks alone."""
+    with no stripe detection and the pose from the corner picks alone. ``click_sigma_px``: the
+    picks' noise the tilt refinement weighs them with; None: what their own fit shows
+    (:func:`picks_sigma_px`)."""
     cancel = cancel or CancelToken()
     if plane_method not in PLANE_METHODS:
         raise CalibrationError(f"unknown laser plane method {plane_method!r} (known: "
@@ -367,6 +392,8 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
     dt = float(times[picks.t2] - times[picks.t1])
     report(progress, 0.05, "motion direction and pose")
     pose = solve_pose(intrinsics, target, picks, speed_mm_s, dt)
+    if click_sigma_px is None:
+        click_sigma_px = picks_sigma_px(pose.reprojection_rms_px)
     implied, warnings = pose.implied_speed_mm_s, list(pose.warnings) + warnings_ramp
     if pose.readout_ms_estimated is not None:
         # the picks showed a rolling shutter the intrinsics did not give: the stripes, the
@@ -439,6 +466,8 @@ def calibrate_scene(video, intrinsics: Intrinsics, target: TargetModel, picks: P
         reprojection_rms_px=pose.reprojection_rms_px, planes=planes,
         warnings=tuple(warnings), inputs=dict(inputs or {}),
         cross_tilt_deg=float(np.degrees(pose.cross_tilt_rad)),
+        tilt_click_sigma_px=float(click_sigma_px) if plane_method == "stripe-fit"
+        and refine_with_stripes else float("nan"),
     )
 
 
