@@ -104,6 +104,29 @@ def test_only_the_ends_asked_for_are_measured():
     assert np.array_equal(eff[60:], np.arange(60, n))
 
 
+def test_failed_matches_do_not_make_the_carriage_rest():
+    """Random rig 0 at 1080p (a 20.4-frame ramp from rest at frame 0, a 10-frame lag): 13 of
+    the first 25 lags matched something still in the picture - about 1 px across the motion
+    and nothing along it - and one more gave 0.2 px along for 3.5. The fit took the carriage
+    for resting 20 frames and ramping 9 (calibration frame 21's travel 1.6 mm off, the
+    implied speed 1.9 % high, corner residuals 0.97 mm). Shifts across the motion are left
+    out and no residual counts for more than 1 px: the ramp is found where it is."""
+    lag, ramp, speed = 10, 20.4, 1.215  # px per frame at constant speed, at half size
+    k = np.arange(76, dtype=float)
+    along = speed * (motion._ramp_curve(k + lag, 0.0, ramp) - motion._ramp_curve(k, 0.0, ramp))
+    shifts = np.column_stack([np.random.default_rng(1).normal(0, 0.04, k.size), along])
+    failed = [7, 9, 10, 11, 12, 13, 14, 15, 16, 17, 21, 22, 24]
+    shifts[failed] = np.column_stack([np.linspace(-0.7, -1.2, len(failed)),
+                                      np.full(len(failed), 0.05)])
+    shifts[1] = (-0.245, 0.222)  # along the motion's direction enough to pass the test
+    a, b = motion._ramp_fit(shifts, lag)
+    assert a == pytest.approx(0.0, abs=0.5) and a + b == pytest.approx(ramp, abs=0.5)
+    # without the failed matches the same ramp (the tests above: the fit is unchanged there)
+    clean = np.column_stack([np.zeros(k.size), along])
+    a0, b0 = motion._ramp_fit(clean, lag)
+    assert (a0, a0 + b0) == pytest.approx((0.0, ramp), abs=0.1)
+
+
 def test_the_stripe_window():
     # 25 mm at 20 mm/s and 25 fps: 31 frames either side, within the video
     assert stripe_window(11, 20.0, 25.0, 300, 25.0, 300) == (0, 43)
