@@ -26,7 +26,7 @@ corrected travel is within 0.1 mm of the truth, in the other three within 0.18 m
 last frames: no fit; rig 212's: a ramp too short to be one, :data:`MIN_RAMP_FRAMES`).
 Shifts across the motion (failed matches) are left out of the fit and no residual counts for
 more than :data:`RESIDUAL_CAP_PX` (random rig 0's start: frame 0's travel 6.4 -> 0.06 mm off;
-the 34 other rigs cached at 1080p measured the same ramps as before, to 0.1 frame).
+the 36 other rigs cached at 1080p measured the same ramps as before, to 0.1 frame).
 """
 
 from __future__ import annotations

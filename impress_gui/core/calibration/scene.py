@@ -39,6 +39,7 @@ from impress_gui.core.calibration.planes import (
 from impress_gui.core.calibration.solve import (
     SPEED_WARN_FRACTION,
     level_across,
+    picks_scatter_px,
     project_points,
     solve_pose,
     vanishing_point,
@@ -78,10 +79,10 @@ PICKS_SIGMA_FLOOR_PX = 1e-4
 
 def picks_sigma_px(reprojection_rms_px: float) -> float:
     """The click noise (px) the picks' own pose fit implies (see :data:`CLICK_SIGMA_PX`)."""
-    rms = float(reprojection_rms_px)
-    if not np.isfinite(rms):
+    est = picks_scatter_px(reprojection_rms_px)
+    if not np.isfinite(est):
         return CLICK_SIGMA_PX
-    return float(np.clip(rms * np.sqrt(24.0 / 15.0), PICKS_SIGMA_FLOOR_PX, CLICK_SIGMA_PX))
+    return float(np.clip(est, PICKS_SIGMA_FLOOR_PX, CLICK_SIGMA_PX))
 
 
 def _opt_float(doc: dict, key: str, where: str, top: float = 100.0, unit: str = "mm") -> float:

@@ -5,6 +5,7 @@ roll, tilt, target pose and travel by the reprojection error of all twelve picks
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -22,6 +23,13 @@ from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.target import TargetModel
 
 SPEED_WARN_FRACTION = 0.01
+
+
+def picks_scatter_px(reprojection_rms_px: float) -> float:
+    """The click noise (px, one coordinate) the picks' reprojection RMS implies: the RMS x
+    sqrt(24/15) (24 coordinates, 9 pose parameters); NaN when the RMS is not a number."""
+    rms = float(reprojection_rms_px)
+    return rms * math.sqrt(24.0 / 15.0) if math.isfinite(rms) else math.nan
 
 
 def vanishing_point(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:

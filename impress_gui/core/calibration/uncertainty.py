@@ -60,7 +60,12 @@ import numpy as np
 from impress_gui.core.base.errors import CalibrationError, InputError
 from impress_gui.core.calibration.picks import Picks
 from impress_gui.core.calibration.planes import StripeObservations, points_on_ground, refine_tilt
-from impress_gui.core.calibration.solve import SPEED_WARN_FRACTION, level_across, solve_pose
+from impress_gui.core.calibration.solve import (
+    SPEED_WARN_FRACTION,
+    level_across,
+    picks_scatter_px,
+    solve_pose,
+)
 from impress_gui.core.calibration.target import CORNER_NAMES, TargetModel
 
 
@@ -198,7 +203,7 @@ class CalibrationEnsemble:
 def click_sigma(cal) -> tuple[float, str]:
     """The click noise (px) assumed for a calibration and where it comes from."""
     rms = float(cal.reprojection_rms_px)
-    est = rms * math.sqrt(24.0 / 15.0) if math.isfinite(rms) else 0.0
+    est = picks_scatter_px(rms) if math.isfinite(rms) else 0.0
     if est > DEFAULT_CLICK_SIGMA_PX:
         return est, (f"from the picks' reprojection RMS {rms:.3f} px x sqrt(24/15) "
                      "(24 coordinates, 9 pose parameters)")
