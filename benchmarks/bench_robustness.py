@@ -24,6 +24,12 @@ there for the columns) plus:
   surface or has left it, and occlusions). On a short render with the lasers' stripes far
   apart along the scan that share is a third or more, and there the map has the noise of that
   laser alone (docs/accuracy.md, "Where the fused error comes from").
+- ``lasers' difference across the map`` (per-rig line; not an acceptance point): the
+  reconstruction's own check of the calibration (``stats["laser_agreement"]``,
+  :mod:`impress_gui.core.reconstruction.agreement`): how much the green minus red height
+  difference changes across the map's x and with height; over 0.05 mm the product warns
+  (``W-LASERS-DIVERGE``). With ``--true-planes`` the truth's view of the same: each laser's
+  ground twist.
 - ``noise mae``: with ``--click-noise PX`` (default 0.5 px) and ``--draws N`` (default 5), the
   corner picks get Gaussian noise of that standard deviation per coordinate, the scan is
   calibrated and reconstructed again per draw; the worst fused MAE over the draws, against the
@@ -45,6 +51,15 @@ the global-shutter renders; the intrinsics file carries it, as a lab's would).
 readout: the calibration estimates it from the picks where they show it and otherwise takes
 the camera for a global shutter (each rig's line says which); ``--readout global`` takes the
 camera for a global shutter (readout recorded as 0), as before the readout was modelled.
+
+``--true-planes`` also reconstructs every rig with the simulator's own laser planes put in
+the calibration's place (everything else as calibrated), and prints per rig each laser's bias,
+height-scale error and MAE that way, and on both ways the ground's error against the map's x
+(``twist``: mm per 100 mm, the slope of a line fitted to each laser's height error on the bare
+ground, truth 0, against x; a plane turned about an axis in it across the stripe reads high on
+one side of the picture and low on the other). Then the bias and height-scale failures the
+planes explain (gone with the true planes) and those they do not (the detector's on the soil).
+It costs one reconstruction more per rig.
 
 ``--cache-key`` reuses renders cached under another simulator key (only when the simulator's
 output for random rigs is unchanged since, e.g. after adding options whose defaults render the
@@ -212,6 +227,12 @@ def measure(seed: int, w: int, h: int, with_fill: bool, draws: int, noise_px: fl
         t_full = truth_for_reconstruction(d, rec.spec, np.nan_to_num(rec.height_mm),
                                           cal.reference_depth, cal.rotation)
         row.update(edge_errors_mm(rec.height_mm, t, rec.spec.pixel_mm, t_full))
+        agree = rec.stats.get("laser_agreement") or {}
+        row["agree_x"] = agree.get("x_mm_per_100mm", float("nan"))
+        row["agree_across"] = agree.get("across_mm", float("nan"))
+        row["agree_height"] = agree.get("with_height_mm", float("nan"))
+        if TRUE_PLANES:
+            row.update(true_plane_figures(d, cal, rec))
         row["warnings"] = list(cal.warnings) + list(rec.warnings)
         worst = worst_cell = float("nan")
         refused = 0
@@ -309,6 +330,79 @@ def verdicts(rows: list[dict], draws: int, with_fill: bool) -> list[tuple[str, b
 PROCESS: dict = {}
 
 
+#: also reconstruct with the simulator's own planes (``--true-planes``)
+TRUE_PLANES = False
+#: the per-laser figures :func:`true_plane_figures` repeats with the true planes
+TRUE_PLANE_KEYS = ("bias_g", "bias_r", "slope_g", "slope_r", "mae_g", "mae_r", "mae_f")
+
+
+def ground_twist(height: np.ndarray, truth: np.ndarray, x0_mm: float, pixel_mm: float) -> float:
+    """The height error on the bare ground (cells whose truth is 0, errors under
+    ``R.WILD_MM``) against the map's x: the slope of a straight line fitted to it, mm per
+    100 mm of x (NaN with fewer than 100 such cells or less than 10 mm of x between them).
+    ``height`` and ``truth`` are one map's grids, x along their columns from ``x0_mm`` in
+    steps of ``pixel_mm``."""
+    e = height - truth
+    ok = np.isfinite(e) & (np.abs(truth) < 1e-3) & (np.abs(e) < R.WILD_MM)
+    if ok.sum() < 100:
+        return float("nan")
+    x = (x0_mm + pixel_mm * np.nonzero(ok)[1]).astype(np.float64)
+    if np.ptp(x) < 10.0:
+        return float("nan")
+    b, _ = np.polyfit(x, e[ok].astype(np.float64), 1)
+    return 100.0 * float(b)
+
+
+def true_plane_figures(scan_dir: Path, cal, rec) -> dict:
+    """``--true-planes``: each laser's ground twist (:func:`ground_twist`) as calibrated
+    (``twist_g``, ``twist_r``), then the scan reconstructed with the simulator's planes in
+    the calibration's place: the figures of :data:`TRUE_PLANE_KEYS` prefixed ``tp_`` and the
+    twists (``tp_twist_g``, ``tp_twist_r``)."""
+    from dataclasses import replace
+
+    from impress_gui.core.formats.video import open_video
+    from impress_gui.core.reconstruction.reconstruct import ProcessParams, reconstruct
+    from impress_gui.sim.truth import true_laser_plane, truth_for_reconstruction
+
+    truth = json.loads((scan_dir / "truth.json").read_text())
+    planes = {n: replace(f, plane=true_laser_plane(truth, n, cal.rotation).oriented_like(f.plane))
+              for n, f in cal.planes.items()}
+    cal_t = replace(cal, planes=planes)
+    with open_video(scan_dir / truth["video"]) as v:
+        rec_t = reconstruct(v, cal_t, ProcessParams(**PROCESS))
+    out: dict = {}
+    for prefix, c, r in (("", cal, rec), ("tp_", cal_t, rec_t)):
+        for name in ("green", "red"):
+            h = r.per_laser_mm[name]
+            t = truth_for_reconstruction(scan_dir, r.spec, h, c.reference_depth, c.rotation)
+            out[f"{prefix}twist_{name[0]}"] = ground_twist(h, t, r.spec.x0_mm, r.spec.pixel_mm)
+    hf = R.height_figures(scan_dir, cal_t, rec_t, False)
+    out.update({f"tp_{k}": hf[k] for k in TRUE_PLANE_KEYS})
+    return out
+
+
+def planes_explain(rows: list[dict]) -> list[str]:
+    """``--true-planes``: for the bias and height-scale points, the rigs outside them as
+    calibrated, split into those the true planes bring inside (the calibrated planes are the
+    cause) and those still outside with the true planes (the detector's heights on the soil)."""
+    lines = []
+    for keys, lim, text in ((("bias_g", "bias_r"), ACCEPT["bias"], "height bias"),
+                            (("slope_g", "slope_r"), ACCEPT["slope_pct"], "height-scale error")):
+        planes, detector = [], []
+        for r in rows:
+            for k in keys:
+                v, vt = abs(float(r.get(k, np.nan))), abs(float(r.get(f"tp_{k}", np.nan)))
+                if not (np.isfinite(v) and v > lim):
+                    continue
+                label = f"{r['seed']} {'green' if k.endswith('_g') else 'red'}"
+                (planes if np.isfinite(vt) and vt <= lim else detector).append(
+                    f"{label} ({r[k]:+.4f} -> {r.get(f'tp_{k}', np.nan):+.4f})")
+        lines.append(f"{text} outside the limit as calibrated: within it with the true planes: "
+                     f"{', '.join(planes) or 'none'}; still outside with them: "
+                     f"{', '.join(detector) or 'none'}")
+    return lines
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="24", help="how many seeds (0..N-1) or a comma list")
@@ -330,7 +424,12 @@ def main() -> None:
     ap.add_argument("--stripe-follows-soil", action="store_true",
                     help="rigs rendered with each stripe pixel's light following the soil it "
                     "sees (impress simulate --stripe-follows-soil; cached apart)")
+    ap.add_argument("--true-planes", action="store_true",
+                    help="also reconstruct with the simulator's laser planes in the "
+                    "calibration's place, and print which failures the planes explain")
     args = ap.parse_args()
+    global TRUE_PLANES
+    TRUE_PLANES = args.true_planes
     if args.no_unlit_soil:
         PROCESS["unlit_soil"] = False
     global READOUT
@@ -359,9 +458,18 @@ def main() -> None:
               f"{row.get('edge_gap_n_y', 0)}), "
               f"noise MAE {row['noise_mae']:.4f} mm (cell {row.get('noise_mae_cell', np.nan):.4f},"
               f" refused {row.get('noise_refused', 0)}/{args.draws}); "
+              f"lasers' difference across the map {row.get('agree_across', np.nan):.4f} mm "
+              f"({row.get('agree_x', np.nan):+.4f} mm per 100 mm), with height "
+              f"{row.get('agree_height', np.nan):.4f} mm; "
               + (f"readout {row.get('readout', '-')} (click-noise draws: "
                  f"{', '.join(row.get('noise_readout', [])) or '-'}); " if args.readout_ms else "")
               + "; ".join(row["warnings"]), flush=True)
+        if args.true_planes and "tp_mae_f" in row:
+            print("    with the true planes: " + ", ".join(
+                f"{k} {row[k]:+.4f} -> {row[f'tp_{k}']:+.4f}" for k in TRUE_PLANE_KEYS)
+                + "; ground twist mm/100 mm g/r "
+                f"{row['twist_g']:+.4f}/{row['twist_r']:+.4f} -> "
+                f"{row['tp_twist_g']:+.4f}/{row['tp_twist_r']:+.4f}", flush=True)
         if args.json:
             args.json.write_text(json.dumps(rows, indent=1))
     R.print_table(rows)
@@ -383,6 +491,10 @@ def main() -> None:
         refused = sum(r.get("noise_refused", 0) for r in rows)
         print(f"click-noise draws refused by the calibration: {refused} of "
               f"{args.draws * len(rows)}")
+    if args.true_planes:
+        print()
+        for line in planes_explain(rows):
+            print(line)
     print("\nacceptance (issue 18):")
     for text, ok, figure in verdicts(rows, args.draws, not args.no_fill):
         print(f"  {'PASS' if ok else 'FAIL'}  {text}: {figure}")

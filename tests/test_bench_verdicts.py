@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -99,3 +100,38 @@ def test_an_edge_left_in_a_gap_is_placed_at_the_gap_middle(bench):
     got = bench.edge_errors_mm(np.tile(with_nan([8])[:, None], (1, 8)), grid_t, 0.1, grid_t)
     assert got["edge_gap_n_y"] == 2 and abs(got["edge_gap_y_mm"] - 0.05) < 1e-12
     assert got["edge_n_y"] == 0
+
+
+def test_ground_twist_reads_the_slope_of_the_ground_error_across_the_map(bench):
+    # a map 200 mm wide whose bare ground (truth 0) reads 0.02 mm per 100 mm high to the
+    # right, a constant 0.005 mm low besides; a block (truth 5 mm) with a wild error and a
+    # wild ground cell must not count
+    x0, px = -100.0, 0.5
+    x = x0 + px * np.arange(401)
+    truth = np.zeros((40, 401), np.float32)
+    truth[10:20, 100:150] = 5.0
+    height = (truth + 0.0002 * x[None, :] - 0.005).astype(np.float32)
+    height[10:20, 100:150] += 0.7  # off on the block: not ground
+    height[3, 7] = 3.0  # a wild point on the ground
+    height[30:, :] = np.nan  # no data
+    assert bench.ground_twist(height, truth, x0, px) == pytest.approx(0.02, abs=1e-5)
+    # the other way round, and none with too little ground or x
+    assert bench.ground_twist(-height, truth, x0, px) == pytest.approx(-0.02, abs=1e-5)
+    assert np.isnan(bench.ground_twist(height[:, :10], truth[:, :10], x0, px))
+    narrow = np.full_like(height, np.nan)
+    narrow[:, 200:210] = height[:, 200:210]
+    assert np.isnan(bench.ground_twist(narrow, truth, x0, px))
+
+
+def test_the_true_planes_split_the_failures_into_the_planes_and_the_detector(bench):
+    rows = [_rig(250, bias_r=-0.0109, slope_r=0.0666, tp_bias_r=-0.0026, tp_slope_r=0.0308),
+            _rig(61, slope_g=-0.0581, tp_slope_g=-0.0675, tp_bias_g=0.0009),
+            _rig(5, bias_g=0.002, tp_bias_g=0.02)]  # inside as calibrated: not listed
+    bias, scale = bench.planes_explain(rows)
+    assert "within it with the true planes: 250 red (-0.0109 -> -0.0026); " in bias
+    assert bias.endswith("still outside with them: none")
+    assert "within it with the true planes: 250 red (+0.0666 -> +0.0308); " in scale
+    assert scale.endswith("still outside with them: 61 green (-0.0581 -> -0.0675)")
+    # a rig without the true-plane figures is still outside
+    _, scale = bench.planes_explain([_rig(9, slope_r=0.09)])
+    assert scale.endswith("still outside with them: 9 red (+0.0900 -> +nan)")

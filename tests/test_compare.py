@@ -481,8 +481,11 @@ RENDER_TIMEOUT_S = 1200
 
 
 def _run(*args: str) -> None:
-    subprocess.run([sys.executable, "-m", "impress_gui", *args], check=True,
-                   capture_output=True, timeout=RENDER_TIMEOUT_S, cwd=ROOT)
+    r = subprocess.run([sys.executable, "-m", "impress_gui", *args], capture_output=True,
+                       timeout=RENDER_TIMEOUT_S, cwd=ROOT)
+    # the command's own coded line, not only its exit status, when it fails
+    assert r.returncode == 0, (f"impress {args[0]} exited {r.returncode}: "
+                               f"{r.stderr.decode(errors='replace')[-2000:]}")
 
 
 def _source_key(args: list[str], *, calibration: bool = False) -> str:

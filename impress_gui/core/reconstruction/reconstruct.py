@@ -31,6 +31,7 @@ from impress_gui.core.base.errors import (
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.calibration.scene import SceneCalibration, check_plane_distances
 from impress_gui.core.formats.video import VideoSource
+from impress_gui.core.reconstruction.agreement import agreement_warnings, laser_agreement
 from impress_gui.core.reconstruction.compiled import kernels as _kernels
 from impress_gui.core.reconstruction.finish import RowFinisher, TextureInputs, stripe_footprint
 from impress_gui.core.reconstruction.grid import (
@@ -777,6 +778,11 @@ def _process(run: _Run) -> Reconstruction:
     end_cells = _texture_ends(run, tab, finisher, warnings)
     stats = _stats(run, tab, tally, finisher, loop_s, t_finish)
     warnings += _lost_laser_warnings(tally, stats)
+    # the lasers' difference across the map: a plane turned in the calibration shows there
+    agreement = laser_agreement(finisher.per["green"], finisher.per["red"], tab.spec)
+    stats["laser_agreement"] = (None if agreement is None
+                                else {k: round(v, 5) for k, v in agreement.items()})
+    warnings += agreement_warnings(agreement)
     stats["texture_end_cells_filled"] = end_cells
     stats["island_cells_dropped"] = islands
     stats["floating_cells_dropped"] = floating

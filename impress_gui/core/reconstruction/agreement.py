@@ -1,0 +1,106 @@
+"""The two lasers' agreement across the map: a check of the calibration without ground truth.
+
+Both lasers sweep the same surface, so where both measured a cell their heights differ only by
+noise, unless a laser plane is off. A plane turned about an axis in it across its stripe (a
+"twist": the calibration's target and the ground beside it span a few centimetres of the
+stripe, the map the whole picture) makes that laser read high on one side of the picture and
+low on the other; a plane turned about the stripe scales its heights. The surface itself
+cancels in the difference, so a straight fit of the difference against the map's x, y and
+height shows each (random rigs 203 and 250 at 1080p: the red plane's twist, 0.020 and
+-0.012 mm per 100 mm of x against the simulator's truth, shows as the lasers' difference;
+docs/accuracy.md, "The lasers' agreement across the map").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from impress_gui.core.reconstruction.grid import GridSpec
+
+#: the difference is sampled on every STEP-th row and column (the map's cells are 0.1 mm; a
+#: fit of three slopes needs far fewer than all of them, and the difference of two full maps
+#: would cost a map's memory)
+STEP = 4
+#: fewer cells where both lasers measured than this: no figures
+MIN_CELLS = 500
+#: a cell whose difference lies further than this from the fit (mm; and than 5 robust SDs) is
+#: left out of the next round (an edge one laser saw and the other did not)
+OUTLIER_MM = 0.05
+#: the lasers' difference changing by more than this (mm) across the map's cells where both
+#: measured, along x or with height, is warned of (W-LASERS-DIVERGE)
+DIVERGE_MM = 0.05
+
+
+def laser_agreement(green: np.ndarray, red: np.ndarray, spec: GridSpec) -> dict | None:
+    """The green minus red height difference where both maps hold a value, fitted as
+    ``a + b x + c y + e h`` (``h`` the lasers' mean height; x, y in mm about the cells'
+    centre) with outliers left out: ``cells`` (sampled), ``offset_mm`` (a, at the centre),
+    ``x_mm_per_100mm``, ``y_mm_per_100mm`` (b, c per 100 mm), ``height_pct`` (e in %),
+    ``x_span_mm``, ``height_span_mm`` (the extents of the cells the fit kept), ``across_mm``,
+    ``with_height_mm`` (the change the slopes make over those extents) and ``rms_mm`` (the
+    difference about the fit). None when too few cells or too little extent."""
+    g = np.asarray(green[::STEP, ::STEP], np.float64)
+    r = np.asarray(red[::STEP, ::STEP], np.float64)
+    ok = np.isfinite(g) & np.isfinite(r)
+    if ok.sum() < MIN_CELLS:
+        return None
+    i, j = np.nonzero(ok)
+    x = spec.x0_mm + spec.pixel_mm * STEP * j
+    y = spec.y0_mm + spec.pixel_mm * STEP * i
+    d = (g - r)[ok]
+    h = 0.5 * (g + r)[ok]
+    x_span, h_span = float(np.ptp(x)), float(np.ptp(h))
+    if x_span < 10.0:
+        return None
+    cols = [np.ones_like(d), x - x.mean(), y - y.mean()]
+    use_h = h_span >= 1.0  # a flat map: the height's slope is not determined
+    if use_h:
+        cols.append(h - h.mean())
+    a = np.column_stack(cols)
+    keep = np.abs(d - np.median(d)) <= max(OUTLIER_MM, 5 * 1.4826 * _mad(d))
+    coef = np.zeros(a.shape[1])
+    for _ in range(3):
+        if keep.sum() < MIN_CELLS:
+            return None
+        coef = np.linalg.lstsq(a[keep], d[keep], rcond=None)[0]
+        res = d - a @ coef
+        keep = np.abs(res) <= max(OUTLIER_MM, 5 * 1.4826 * _mad(res[keep]))
+    res = (d - a @ coef)[keep]
+    # the extents of the cells the fit kept (an edge one laser alone saw is not the surface)
+    x_span, h_span = float(np.ptp(x[keep])), float(np.ptp(h[keep]))
+    b, c = float(coef[1]), float(coef[2])
+    e = float(coef[3]) if use_h else 0.0
+    return {"cells": int(keep.sum()), "offset_mm": float(coef[0]),
+            "x_mm_per_100mm": 100.0 * b, "y_mm_per_100mm": 100.0 * c,
+            "height_pct": 100.0 * e, "x_span_mm": x_span,
+            "height_span_mm": h_span, "across_mm": abs(b) * x_span,
+            "with_height_mm": abs(e) * h_span, "rms_mm": float(np.sqrt(np.mean(res ** 2)))}
+
+
+def _mad(v: np.ndarray) -> float:
+    return float(np.median(np.abs(v - np.median(v)))) if v.size else 0.0
+
+
+def agreement_warnings(agreement: dict | None) -> list[str]:
+    """W-LASERS-DIVERGE when the lasers' difference changes by more than :data:`DIVERGE_MM`
+    across the map or with height."""
+    if agreement is None:
+        return []
+    out = []
+    if agreement["across_mm"] > DIVERGE_MM:
+        out.append(
+            f"W-LASERS-DIVERGE: the green and red heights differ by "
+            f"{agreement['across_mm']:.3f} mm more at one side of the map than at the other "
+            f"({agreement['x_mm_per_100mm']:+.4f} mm per 100 mm across the scan, over "
+            f"{agreement['x_span_mm']:.0f} mm): a laser plane of the calibration is turned "
+            "(the target spans only part of the picture); heights far from where the target "
+            "stood may be off by up to that much. Calibrate again with the target nearer the "
+            "middle of the picture, or compare with a known object there")
+    if agreement["with_height_mm"] > DIVERGE_MM:
+        out.append(
+            f"W-LASERS-DIVERGE: the green and red heights differ by "
+            f"{agreement['with_height_mm']:.3f} mm more at the top of the surface than at its "
+            f"bottom ({agreement['height_pct']:+.3f} % of the height, over "
+            f"{agreement['height_span_mm']:.1f} mm): a laser plane's angle in the calibration "
+            "is off; depths are scaled by up to that much")
+    return out
