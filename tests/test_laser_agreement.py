@@ -118,3 +118,18 @@ def test_a_turned_red_plane_is_seen_as_the_truth_sees_it(flat_scan, flat_calibra
             assert abs(slopes["red"]) > 0.03 and warned  # the turn is there, and seen
         else:
             assert abs(a["x_mm_per_100mm"]) < 0.01 and not warned, a
+
+
+def test_a_long_map_is_sampled_more_sparsely_and_reads_the_same(monkeypatch):
+    import impress_gui.core.reconstruction.agreement as ag
+
+    rng = np.random.default_rng(5)
+    true = _surface(rng)
+    x = SPEC.x0_mm + SPEC.pixel_mm * np.arange(SPEC.shape[1])
+    green = true + 0.02 * (x[None, :] / 100.0)
+    full = laser_agreement(green, true, SPEC)
+    monkeypatch.setattr(ag, "MAX_SAMPLES", 10_000)  # 1.2 M cells: every 11th row and column
+    sparse = laser_agreement(green, true, SPEC)
+    assert sparse["cells"] < 0.2 * full["cells"]
+    assert sparse["x_mm_per_100mm"] == pytest.approx(0.02, abs=0.001)
+    assert full["x_mm_per_100mm"] == pytest.approx(0.02, abs=0.0005)

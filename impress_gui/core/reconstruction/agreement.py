@@ -17,10 +17,12 @@ import numpy as np
 
 from impress_gui.core.reconstruction.grid import GridSpec
 
-#: the difference is sampled on every STEP-th row and column (the map's cells are 0.1 mm; a
-#: fit of three slopes needs far fewer than all of them, and the difference of two full maps
-#: would cost a map's memory)
+#: the difference is sampled on every STEP-th row and column at least (the map's cells are
+#: 0.1 mm; a fit of three slopes needs far fewer than all of them, and the difference of two
+#: full maps would cost a map's memory), more sparsely on a map so large that more than
+#: MAX_SAMPLES cells would be sampled (a tire track's 1.75 m)
 STEP = 4
+MAX_SAMPLES = 1_000_000
 #: fewer cells where both lasers measured than this: no figures
 MIN_CELLS = 500
 #: a cell whose difference lies further than this from the fit (mm; and than 5 robust SDs) is
@@ -39,14 +41,15 @@ def laser_agreement(green: np.ndarray, red: np.ndarray, spec: GridSpec) -> dict 
     ``x_span_mm``, ``height_span_mm`` (the extents of the cells the fit kept), ``across_mm``,
     ``with_height_mm`` (the change the slopes make over those extents) and ``rms_mm`` (the
     difference about the fit). None when too few cells or too little extent."""
-    g = np.asarray(green[::STEP, ::STEP], np.float64)
-    r = np.asarray(red[::STEP, ::STEP], np.float64)
+    step = max(STEP, int(np.ceil(np.sqrt(green.size / MAX_SAMPLES))))
+    g = np.asarray(green[::step, ::step], np.float64)
+    r = np.asarray(red[::step, ::step], np.float64)
     ok = np.isfinite(g) & np.isfinite(r)
     if ok.sum() < MIN_CELLS:
         return None
     i, j = np.nonzero(ok)
-    x = spec.x0_mm + spec.pixel_mm * STEP * j
-    y = spec.y0_mm + spec.pixel_mm * STEP * i
+    x = spec.x0_mm + spec.pixel_mm * step * j
+    y = spec.y0_mm + spec.pixel_mm * step * i
     d = (g - r)[ok]
     h = 0.5 * (g + r)[ok]
     x_span, h_span = float(np.ptp(x)), float(np.ptp(h))
