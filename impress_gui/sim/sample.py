@@ -10,7 +10,7 @@ from pathlib import Path
 from impress_gui import __version__
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report, sub_progress
 
-SAMPLE_VERSION = 4  # bump when the sample's recipe changes, to rebuild caches
+SAMPLE_VERSION = 5  # bump when the sample's recipe changes, to rebuild caches (5: the calibration's Gaussian row estimate)
 #: set to 1 (tests only) for a tiny, fast sample instead of the README's one
 SMALL_ENV = "IMPRESS_SAMPLE_SMALL"
 
