@@ -1177,11 +1177,12 @@ def half_max_midpoints(luma: np.ndarray, rows: np.ndarray, half_window: int) -> 
 
 
 def gauss_rows(luma: np.ndarray, rows: np.ndarray, half_window: int,
-               clip_level: float = 250.0) -> np.ndarray:
+               clip_level: float | None = None) -> np.ndarray:
     """Each found column's stripe row re-estimated by a Gaussian on a constant floor fitted to
     the luma profile (:func:`gauss_refine`) in a window of ``2 * half_window + 1`` rows around
-    the row found (``rows``: sub-pixel, NaN = none; band-relative); rows at ``clip_level`` or
-    above are left out of the fit (a clipped core says nothing of where the profile peaks).
+    the row found (``rows``: sub-pixel, NaN = none; band-relative); rows at ``clip_level``
+    (default :data:`BLOOM_LEVEL`) or above are left out of the fit (a clipped core says nothing
+    of where the profile peaks).
 
     A stripe's profile is nearly Gaussian: the fit follows its phase within the pixel where
     the centre of mass and the half-maximum crossings lock to whole pixels (on a narrow stripe
@@ -1198,7 +1199,8 @@ def gauss_rows(luma: np.ndarray, rows: np.ndarray, half_window: int,
     rr = centre[None, :] + np.arange(-k, k + 1)[:, None]
     win = luma[rr, cols[None, :]].astype(np.float64)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        fit, width = gauss_refine(rr.astype(np.float64), win, out[cols], win >= clip_level)
+        clipped = win >= (BLOOM_LEVEL if clip_level is None else clip_level)
+        fit, width = gauss_refine(rr.astype(np.float64), win, out[cols], clipped)
     ok = (width > 0) & np.isfinite(fit)
     out[cols[ok]] = fit[ok]
     return out
