@@ -326,7 +326,7 @@ def verdicts(rows: list[dict], draws: int, with_fill: bool) -> list[tuple[str, b
     return out
 
 
-#: processing parameters other than the defaults (``--no-unlit-soil``)
+#: processing parameters other than the defaults (``--no-unlit-soil``, ``--no-reconcile-lasers``)
 PROCESS: dict = {}
 
 
@@ -410,6 +410,8 @@ def main() -> None:
     ap.add_argument("--draws", type=int, default=5, help="click-noise draws per rig (0: none)")
     ap.add_argument("--no-unlit-soil", action="store_true",
                     help="reconstruct without ProcessParams.unlit_soil (on by default)")
+    ap.add_argument("--no-reconcile-lasers", action="store_true",
+                    help="reconstruct without ProcessParams.reconcile_lasers (on by default)")
     ap.add_argument("--click-noise", type=float, default=0.5, help="pick noise, px (1 sigma)")
     ap.add_argument("--no-fill", action="store_true", help="skip the fill figure")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
@@ -432,6 +434,8 @@ def main() -> None:
     TRUE_PLANES = args.true_planes
     if args.no_unlit_soil:
         PROCESS["unlit_soil"] = False
+    if args.no_reconcile_lasers:
+        PROCESS["reconcile_lasers"] = False
     global READOUT
     READOUT = args.readout
     if args.cache_key:

@@ -164,9 +164,11 @@ def test_a_manifest_names_the_estimate_and_switches_the_unlit_soil(tmp_path):
     manifest = tmp_path / "m.json"
     manifest.write_text(json.dumps({"format": "impress.batch", "version": 1, "scans": [
         {"name": "a", "video": "v.mp4", "calibration": "c.json",
-         "parameters": {"subpixel": "half-max", "unlit_soil": False}}]}))
+         "parameters": {"subpixel": "half-max", "unlit_soil": False,
+                        "reconcile_lasers": False}}]}))
     params = _params(load_manifest(manifest)[0])
     assert params.subpixel == "half-max" and params.unlit_soil is False  # (on by default)
+    assert params.reconcile_lasers is False  # (on by default)
 
 
 @pytest.mark.parametrize("scans, code", [
@@ -202,6 +204,8 @@ def test_a_manifest_names_the_estimate_and_switches_the_unlit_soil(tmp_path):
        "parameters": {"subpixel": True}}], "E-BATCH"),
     ([{"name": "a", "video": "v.mp4", "calibration": "c.json",
        "parameters": {"unlit_soil": "yes"}}], "E-BATCH"),
+    ([{"name": "a", "video": "v.mp4", "calibration": "c.json",
+       "parameters": {"reconcile_lasers": 1}}], "E-BATCH"),
 ])
 def test_bad_manifests_are_refused(scans, code, tmp_path, capsys):
     manifest = tmp_path / "m.json"

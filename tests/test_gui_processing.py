@@ -203,9 +203,12 @@ def test_heightmap_grows_in_a_preview_during_the_run(qtbot, tab, scan, tmp_path,
     assert shown[-1] > shown[0] > 0
 
 
-def test_the_unlit_soil_switch_reaches_the_parameters_and_the_project(qtbot, tab):
-    box = tab.params.unlit_soil
-    assert box.isChecked() and tab.params.params().unlit_soil is True  # on by default
+@pytest.mark.parametrize("box_name, key", [("unlit_soil", "unlit_soil"),
+                                           ("reconcile", "reconcile_lasers")])
+def test_the_on_by_default_switches_reach_the_parameters_and_the_project(qtbot, tab,
+                                                                        box_name, key):
+    box = getattr(tab.params, box_name)
+    assert box.isChecked() and getattr(tab.params.params(), key) is True  # on by default
     scroll = box.parent()
     while scroll is not None and not hasattr(scroll, "ensureWidgetVisible"):
         scroll = scroll.parent()
@@ -215,14 +218,14 @@ def test_the_unlit_soil_switch_reaches_the_parameters_and_the_project(qtbot, tab
     qtbot.waitUntil(lambda: box.visibleRegion().contains(at), timeout=2000)
     with qtbot.waitSignal(tab.params.changed, timeout=2000):
         QTest.mouseClick(box, Qt.MouseButton.LeftButton, pos=at)
-    assert not box.isChecked() and tab.params.params().unlit_soil is False
-    tab.params.set_params({"unlit_soil": False})
-    assert tab.params.params().unlit_soil is False
-    tab.params.set_params({"unlit_soil": True})
-    assert tab.params.params().unlit_soil is True
+    assert not box.isChecked() and getattr(tab.params.params(), key) is False
+    tab.params.set_params({key: False})
+    assert getattr(tab.params.params(), key) is False
+    tab.params.set_params({key: True})
+    assert getattr(tab.params.params(), key) is True
     # a project saved before the switch existed was processed without it: reopened, it is off
     tab.params.set_params({"method": "combined"})
-    assert tab.params.params().unlit_soil is False
+    assert getattr(tab.params.params(), key) is False
 
 
 def test_a_reopened_project_keeps_its_floating_pieces_setting(tab):

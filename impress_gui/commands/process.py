@@ -61,6 +61,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "before its centre is estimated: dim stripes on grainy soil (on by "
                    "default; --no-unlit-soil leaves the stripe's profile as the frame shows "
                    "it; see docs/accuracy.md, 'Dim stripes on grainy soil')")
+    p.add_argument("--reconcile-lasers", action=argparse.BooleanOptionalAction, default=True,
+                   help="share the part of the two lasers' difference that runs across the "
+                   "map between their maps, so that the scan's ends one laser saw alone read "
+                   "what the pair reads (on by default; --no-reconcile-lasers keeps each "
+                   "laser's map as its calibrated plane makes it; see docs/measuring-guide.md)")
     p.add_argument("--no-texture", action="store_true", help="skip the texture")
     p.add_argument("--fps", type=float, default=None, help="override the frame rate")
 
@@ -77,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
                            island_max_cells=args.island_cells,
                            island_step_mm=args.island_step_mm,
                            floating_max_cells=args.floating_cells,
-                           unlit_soil=args.unlit_soil)
+                           unlit_soil=args.unlit_soil,
+                           reconcile_lasers=args.reconcile_lasers)
     progress = progress_printer()
 
     from impress_gui.core.reconstruction.pipeline import process_files

@@ -39,7 +39,7 @@ GB_PER_JOB = 2.5
 SUMMARY_FILES = ("summary.csv", "summary.json")
 #: processing parameters a manifest may set (the others keep their defaults)
 PARAM_KEYS = ("method", "frame_start", "frame_stop", "grid_mm", "min_peak", "subpixel", "texture",
-              "unlit_soil", "fps")
+              "unlit_soil", "reconcile_lasers", "fps")
 
 
 @dataclass(frozen=True)
@@ -53,7 +53,8 @@ class BatchItem:
 #: the type each manifest parameter must have (bool is not a number here)
 PARAM_TYPES = {"method": (str,), "frame_start": (int, type(None)), "frame_stop": (int, type(None)),
                "grid_mm": (int, float), "min_peak": (int, float), "subpixel": (str,),
-               "texture": (bool,), "unlit_soil": (bool,), "fps": (int, float, type(None))}
+               "texture": (bool,), "unlit_soil": (bool,), "reconcile_lasers": (bool,),
+               "fps": (int, float, type(None))}
 
 
 def _control(text: str) -> bool:

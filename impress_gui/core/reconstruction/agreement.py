@@ -31,6 +31,13 @@ OUTLIER_MM = 0.05
 #: the lasers' difference changing by more than this (mm) across the map's cells where both
 #: measured, along x or with height, is warned of (W-LASERS-DIVERGE)
 DIVERGE_MM = 0.05
+#: a difference that reaches more than this (mm) over the cells the fit kept is not
+#: reconciled: beyond a plane turned by a tenth of a degree (0.08 deg on the flat preset at
+#: 640x360: 1.0 mm across 278 mm), the fit is more likely taken by something other than the
+#: planes; the warning then stands alone
+RECONCILE_MAX_MM = 2.0
+#: rows of a map corrected at a time (the working memory is a block, not a map)
+BLOCK_ROWS = 1024
 
 
 def laser_agreement(green: np.ndarray, red: np.ndarray, spec: GridSpec) -> dict | None:
@@ -77,7 +84,53 @@ def laser_agreement(green: np.ndarray, red: np.ndarray, spec: GridSpec) -> dict 
             "x_mm_per_100mm": 100.0 * b, "y_mm_per_100mm": 100.0 * c,
             "height_pct": 100.0 * e, "x_span_mm": x_span,
             "height_span_mm": h_span, "across_mm": abs(b) * x_span,
-            "with_height_mm": abs(e) * h_span, "rms_mm": float(np.sqrt(np.mean(res ** 2)))}
+            "with_height_mm": abs(e) * h_span, "rms_mm": float(np.sqrt(np.mean(res ** 2))),
+            # where the fit is centred and the extents it holds over (the reconciliation
+            # evaluates it there: :func:`reconcile`)
+            "x_centre_mm": float(x.mean()), "height_centre_mm": float(h.mean()),
+            "x_min_mm": float(x[keep].min()), "x_max_mm": float(x[keep].max()),
+            "height_min_mm": float(h[keep].min()), "height_max_mm": float(h[keep].max())}
+
+
+def reconcile(per: dict[str, np.ndarray], spec: GridSpec, agreement: dict | None,
+              weight_green: float, block_rows: int = BLOCK_ROWS) -> dict | None:
+    """Bring each laser's map, in place, to the two lasers' weighted consensus across the
+    map: the part of their fitted difference (:func:`laser_agreement`) that runs along x,
+    ``D = a + b (x - x0)``, is shared between the lasers in proportion to their expected
+    error, green taking ``1 - weight_green`` of it and red ``weight_green`` (the fusion's
+    inverse-variance weight, ``reconstruct.fusion_weight``): green ``-= (1 - w) D``, red
+    ``+= w D``. Where both lasers measured, their weighted mean, the fused height, is
+    unchanged; where one alone did (the scan's ends, its shadows), its height moves to what
+    the pair would have read there. A laser plane turned about an axis across its stripe
+    (the calibration's target spans a few centimetres of the picture: random rigs 203 and
+    250 at 1080p, red 0.011 mm low on average) no longer makes the cells one laser saw alone
+    read high on one side of the picture and low on the other.
+
+    The difference's change with height and along y is not shared: the target's faces of
+    known heights fix each plane's height scale, and that term of the fit also takes what
+    the two lasers see differently on a surface's slopes (random rig 254: the fit's height
+    term 0.05 % where the planes differ by 0.006 %); along y no plane error runs. x is held to
+    the extent the fit kept (no extrapolation). Returns what was done (``green_share``;
+    ``largest_mm``, the largest shift of either map over that extent) or None when there is
+    no fit or the difference changes by more than :data:`RECONCILE_MAX_MM` over it."""
+    if agreement is None:
+        return None
+    a = float(agreement["offset_mm"])
+    b = float(agreement["x_mm_per_100mm"]) / 100.0
+    x0 = float(agreement["x_centre_mm"])
+    x_lo, x_hi = float(agreement["x_min_mm"]), float(agreement["x_max_mm"])
+    largest = max(abs(a + b * (x_lo - x0)), abs(a + b * (x_hi - x0)))  # a straight line
+    if not np.isfinite(largest) or largest > RECONCILE_MAX_MM:
+        return None
+    w = float(weight_green)
+    # the difference per column (float32, as the maps)
+    d = (a + b * (np.clip(spec.xs(), x_lo, x_hi) - x0)).astype(np.float32)
+    for name, k in (("green", -(1.0 - w)), ("red", w)):
+        m = per[name]
+        step = (np.float32(k) * d)[None, :]
+        for lo in range(0, m.shape[0], block_rows):
+            m[lo:lo + block_rows] += step  # NaN stays NaN
+    return {"green_share": round(1.0 - w, 5), "largest_mm": round(largest * max(w, 1.0 - w), 5)}
 
 
 def _mad(v: np.ndarray) -> float:

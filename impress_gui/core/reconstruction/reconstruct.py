@@ -31,7 +31,11 @@ from impress_gui.core.base.errors import (
 from impress_gui.core.base.progress import CancelToken, ProgressCallback, report
 from impress_gui.core.calibration.scene import SceneCalibration, check_plane_distances
 from impress_gui.core.formats.video import VideoSource
-from impress_gui.core.reconstruction.agreement import agreement_warnings, laser_agreement
+from impress_gui.core.reconstruction.agreement import (
+    agreement_warnings,
+    laser_agreement,
+    reconcile,
+)
 from impress_gui.core.reconstruction.compiled import kernels as _kernels
 from impress_gui.core.reconstruction.finish import RowFinisher, TextureInputs, stripe_footprint
 from impress_gui.core.reconstruction.grid import (
@@ -102,6 +106,11 @@ class ProcessParams:
     # on grainy soil"): on by default since 2026-12-04 (0.7 of the unlit texture taken out:
     # better on 17 of 24 random rigs, worse on none)
     unlit_soil: bool = True
+    # the part of the two lasers' difference that runs across the map (a laser plane turned
+    # about an axis across its stripe) shared between their maps by the fusion's weights
+    # (agreement.reconcile; docs/accuracy.md, "The lasers reconciled across the map"): on by
+    # default since 2026-12-07
+    reconcile_lasers: bool = True
 
     def validate(self) -> None:
         if self.method not in METHODS:
@@ -775,13 +784,21 @@ def _process(run: _Run) -> Reconstruction:
     finisher.finish()
     finisher.release()  # the accumulators' memory, before the steps below add theirs
     islands, floating, overreach = _drop_islands(run, finisher)
+    # the lasers' difference across the map: a plane turned in the calibration shows there;
+    # each laser's map is then brought to the pair's weighted consensus
+    agreement = laser_agreement(finisher.per["green"], finisher.per["red"], tab.spec)
+    reconciled = (reconcile(finisher.per, tab.spec, agreement, finisher.weight_green)
+                  if params.reconcile_lasers else None)
+    if reconciled is not None:
+        _fuse_again(run, finisher, "with the lasers reconciled")
+    elif any(islands.values()) or any(floating.values()) or any(overreach.values()):
+        _fuse_again(run, finisher, "without the islands")
     end_cells = _texture_ends(run, tab, finisher, warnings)
     stats = _stats(run, tab, tally, finisher, loop_s, t_finish)
     warnings += _lost_laser_warnings(tally, stats)
-    # the lasers' difference across the map: a plane turned in the calibration shows there
-    agreement = laser_agreement(finisher.per["green"], finisher.per["red"], tab.spec)
     stats["laser_agreement"] = (None if agreement is None
                                 else {k: round(v, 5) for k, v in agreement.items()})
+    stats["lasers_reconciled"] = reconciled
     warnings += agreement_warnings(agreement)
     stats["texture_end_cells_filled"] = end_cells
     stats["island_cells_dropped"] = islands
@@ -1026,8 +1043,8 @@ def _drop_islands(run: _Run, finisher: RowFinisher
     """Drop the small islands of each laser's map (:func:`~impress_gui.core.reconstruction.
     grid.drop_islands`), then the floating pieces (:func:`~impress_gui.core.reconstruction.
     grid.drop_floating`), then the cells a chain's end reaches across an edge
-    (:func:`~impress_gui.core.reconstruction.grid.drop_overreach`), and fuse the maps again
-    if any were found; the cells dropped per laser by each step. (The texture was sampled during the loop at the fused heights then:
+    (:func:`~impress_gui.core.reconstruction.grid.drop_overreach`); the cells dropped per
+    laser by each step (the caller fuses the maps again if any were found). (The texture was sampled during the loop at the fused heights then:
     a dropped piece's cells keep the colour sampled at its height.)"""
     p = run.params
     names = finisher.names
@@ -1060,12 +1077,16 @@ def _drop_islands(run: _Run, finisher: RowFinisher
     over = drop_overreach(finisher.per, {n: finisher.acc[n].chain_ends() for n in names},
                           p.max_step_mm) if DROP_OVERREACH and finisher.direction \
         else dict.fromkeys(names, 0)
-    if any(islands.values()) or any(floating.values()) or any(over.values()):
-        report(run.progress, 0.945, "fusing the maps again without the islands")
-        g, r = (finisher.per[n] for n in names)
-        fuse_rows(g, r, finisher.tol, finisher.fused, finisher.diff, finisher.contrib, 0,
-                  g.shape[0], weight_green=finisher.weight_green)
     return islands, floating, over
+
+
+def _fuse_again(run: _Run, finisher: RowFinisher, what: str) -> None:
+    """Fuse the two lasers' maps again after they were changed (islands dropped, the lasers
+    reconciled)."""
+    report(run.progress, 0.945, f"fusing the maps again {what}")
+    g, r = (finisher.per[n] for n in finisher.names)
+    fuse_rows(g, r, finisher.tol, finisher.fused, finisher.diff, finisher.contrib, 0,
+              g.shape[0], weight_green=finisher.weight_green)
 
 
 def _texture_ends(run: _Run, tab: _Tables, finisher: RowFinisher, warnings: list[str]) -> int:

@@ -96,6 +96,12 @@ class ParamsPanel(QGroupBox):
         self.unlit_soil.setToolTip(
             "Before the stripe's centre is estimated, take out the soil under it as earlier "
             "frames saw it, unlit: grainy soil no longer moves a dim stripe's centre")
+        self.reconcile = QCheckBox("Reconcile the two lasers across the map")
+        self.reconcile.setChecked(d.reconcile_lasers)
+        self.reconcile.setToolTip(
+            "Share the part of the green and red heights' difference that runs across the "
+            "map between the two lasers' maps: the scan's ends one laser saw alone read "
+            "what the pair reads where both measured")
         self.auto_rois = QCheckBox("Automatic regions of interest (from the calibration)")
         self.auto_rois.setChecked(True)
         self.h_lo = _dspin(-200, 200, d.height_range_mm[0], 5, 0)
@@ -123,6 +129,8 @@ class ParamsPanel(QGroupBox):
         g.addWidget(self.texture, row, 0, 1, 4)
         row += 1
         g.addWidget(self.unlit_soil, row, 0, 1, 4)
+        row += 1
+        g.addWidget(self.reconcile, row, 0, 1, 4)
         row += 1
         g.addWidget(self.auto_rois, row, 0, 1, 4)
         row += 1
@@ -152,7 +160,7 @@ class ParamsPanel(QGroupBox):
             *[s for ab in self.roi.values() for s in ab],
         ):
             w.valueChanged.connect(lambda _v: self.changed.emit())
-        for w in (self.texture, self.unlit_soil, self.auto_rois):
+        for w in (self.texture, self.unlit_soil, self.reconcile, self.auto_rois):
             w.toggled.connect(lambda _on: self.changed.emit())
         self.auto_rois.toggled.connect(self._enable_rois)
         self._enable_rois(True)
@@ -200,6 +208,7 @@ class ParamsPanel(QGroupBox):
             weak_run_ratio=self.weak_ratio.value(),
             texture=self.texture.isChecked(),
             unlit_soil=self.unlit_soil.isChecked(),
+            reconcile_lasers=self.reconcile.isChecked(),
             floating_max_cells=self.floating_cells,
         )
 
@@ -224,6 +233,8 @@ class ParamsPanel(QGroupBox):
             self.texture.setChecked(doc["texture"])
         # a project saved before the option existed was processed without it
         self.unlit_soil.setChecked(doc.get("unlit_soil") is True)
+        # and without reconciling the lasers (2026-12-07)
+        self.reconcile.setChecked(doc.get("reconcile_lasers") is True)
         # and without dropping floating pieces (2026-12-06)
         fc = doc.get("floating_max_cells")
         self.floating_cells = fc if type(fc) is int and 0 <= fc <= 10000 else 0
