@@ -228,6 +228,11 @@ def test_the_on_by_default_switches_reach_the_parameters_and_the_project(qtbot, 
     assert getattr(tab.params.params(), key) is False
 
 
+def test_the_weak_pieces_ratio_is_shown_as_a_share_not_in_millimetres(tab):
+    box = tab.params.weak_ratio
+    assert "mm" not in box.text() and box.value() == tab.params.params().weak_run_ratio
+
+
 def test_a_reopened_project_keeps_its_floating_pieces_setting(tab):
     """The floating pieces' step (not shown in the panel) is on by default, and a project
     keeps what it was processed with: one saved before the step existed reopens without it."""

@@ -85,7 +85,7 @@ class ParamsPanel(QGroupBox):
         self.fuse_tol.setToolTip("Green and red heights closer than this are averaged")
         self.max_step = _dspin(0.05, 20.0, d.max_step_mm, 0.1)
         self.max_step.setToolTip("Larger jumps between neighbouring points are edges")
-        self.weak_ratio = _dspin(0.0, 0.95, d.weak_run_ratio, 0.05, 2)
+        self.weak_ratio = _dspin(0.0, 0.95, d.weak_run_ratio, 0.05, 2, suffix="")  # a share
         self.weak_ratio.setToolTip(
             "Short stripe pieces weaker than this share of the frame's stripe are dropped "
             "(soil of the laser's colour is not the stripe); 0 keeps every piece")
