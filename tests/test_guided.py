@@ -107,6 +107,48 @@ def test_guided_pass_on_a_synthetic_stripe():
         assert np.isfinite(guided).all()
 
 
+@pytest.mark.parametrize("width", [2, 3, 4])
+def test_guided_pass_puts_short_mistaken_pieces_back_on_the_stripe(width):
+    """A piece of 2-4 continuing columns of bright soil off the stripe, the stripe continuing
+    on both sides (random rig 254's red stripe at 1080p): searched again at the stripe's row
+    and put back on it; a piece one column longer than kernels.GUIDE_SHORT is left alone."""
+    w, h = 120, 80
+    rows = 30.3 + 0.05 * np.arange(w)
+    starts = (20, 50, 85)
+    blobs = [(c + i, r) for c, r in zip(starts, (60, 8, 64)) for i in range(width)]
+    long_blob = [(100 + i, 12) for i in range(5)]
+    planes = _stripe_frame(rows, w, h, blobs + long_blob)
+    band = (np.zeros(w, np.int64), h)
+    other = (np.full(w, 200, np.int64), 40)
+    for fn in (detect_planes, detect_planes_numpy):
+        plain = fn("red", planes, *band, StripeParams(guided=False), None, other).rows
+        assert all(abs(plain[c] - r) < 1.5 for c, r in blobs + long_blob)
+        guided = fn("red", planes, *band, StripeParams(guided=True), None, other).rows
+        on = np.ones(w, bool)
+        on[100:105] = False
+        assert np.nanmax(np.abs(guided[on] - rows[on])) < 0.3
+        assert np.isfinite(guided).all()
+        # five columns: a piece of its own (a narrow feature), not searched again
+        assert np.abs(guided[100:105] - 12).max() < 1.5
+
+
+def test_guided_pass_keeps_a_short_piece_with_no_stripe_at_the_row_predicted():
+    """A real narrow feature: the stripe itself leaves its line for three columns (a ridge or
+    a groove 3 columns wide); nothing lies at the row the sides predict, so the piece keeps
+    its rows."""
+    w, h = 120, 80
+    rows = 30.3 + 0.05 * np.arange(w)
+    rows[60:63] = 45.0
+    planes = _stripe_frame(rows, w, h)
+    band = (np.zeros(w, np.int64), h)
+    other = (np.full(w, 200, np.int64), 40)
+    pred = guided_prediction(rows)
+    assert np.isfinite(pred[60:63]).all()  # searched again ...
+    for fn in (detect_planes, detect_planes_numpy):
+        got = fn("red", planes, *band, StripeParams(guided=True), None, other).rows
+        assert np.abs(got - rows).max() < 0.3  # ... and kept
+
+
 def test_guided_pass_does_not_bridge_a_step():
     """Across a step of the stripe (a wall) nothing is predicted, so nothing is invented."""
     w = 120
@@ -134,6 +176,33 @@ def test_guided_prediction():
     # within reach of both, rows continuous across the gap (6.6 rows over 8 columns)
     assert np.isnan(p[8]) and np.isnan(p[14])
     assert p[9] == pytest.approx(13.4 + 6.6 * 2 / 8)
+
+
+def test_guided_prediction_of_short_pieces():
+    base = 10.0 + 0.1 * np.arange(40)
+    r = base.copy()
+    r[10:13] = 30.0  # a piece of 3 continuing columns off the line: predicted from 9 and 13
+    r[20:25] = 50.0  # 5 columns (more than GUIDE_SHORT): a piece of its own
+    r[30:32] = base[30:32] + 1.5  # 2 columns, continuing within GUIDE_LINK: not searched again
+    r[33] = np.nan
+    p = guided_prediction(r)
+    np.testing.assert_allclose(p[10:13], base[10:13])
+    assert np.isnan(p[20:25]).all()
+    assert np.isnan(p[[19, 25]]).all()  # a long piece's neighbours are linked themselves
+    assert np.isnan(p[30:32]).all()
+    assert p[33] == pytest.approx(base[33])  # a missed column, as before
+    # the sides' rows not continuous across the piece (a step): no prediction
+    s = base.copy()
+    s[10:13] = 30.0
+    s[13:] += 20.0
+    assert np.isnan(guided_prediction(s)[10:13]).all()
+    # a side within GUIDE_REACH of the piece's nearer end only
+    g = base.copy()
+    g[12:16] = 30.0
+    g[6:12] = np.nan  # the left side's last column 5: 7 columns from the piece
+    assert np.isnan(guided_prediction(g)[12:16]).all()
+    g[6], g[0] = base[6], np.nan  # ... 6 columns (the side still 6 columns long)
+    np.testing.assert_allclose(guided_prediction(g)[12:16], base[12:16])
 
 
 # ----- the accumulator -------------------------------------------------------------------------

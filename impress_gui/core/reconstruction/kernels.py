@@ -49,6 +49,13 @@ REFINE_ITERATIONS = 4
 GUIDE_LINK = 2.0  # px: rows of neighbouring columns continuing into each other
 GUIDE_REACH = 6  # columns searched either side for a continuing neighbour
 GUIDE_DEV = 1.0  # px: the peak found there must lie this close to the row predicted
+# ... and a short piece of continuing columns (at most GUIDE_SHORT) whose row the longer
+# pieces on both sides (more than GUIDE_SHORT columns, within GUIDE_REACH) continue across
+# but not into it is searched again the same way at their row (random rig 254 at 1080p: the
+# red detector took 2-4 column pieces of reddish soil 10-370 px off the stripe, 7,300 of them
+# over the scan, flanked by the stripe on both sides; they were dropped later as islands and
+# left holes); the piece keeps its rows where no peak is found there
+GUIDE_SHORT = 4
 # the white-core rule's columns (stripes.StripeParams.white_core) stay only on a chain of
 # found columns at least this share of which the colour tests accepted
 WHITE_SHARE = 0.2
@@ -565,14 +572,32 @@ def _blooming(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_value, level, min_
 
 
 @_jit
+def _run_longer(rows, linked, j, w):
+    """Whether linked column ``j``'s piece of continuing columns is longer than
+    ``GUIDE_SHORT`` (for :func:`_guided`)."""
+    n = 1
+    i = j
+    while i > 0 and abs(rows[i] - rows[i - 1]) <= GUIDE_LINK and n <= GUIDE_SHORT:
+        i -= 1
+        n += 1
+    i = j
+    while i + 1 < w and abs(rows[i + 1] - rows[i]) <= GUIDE_LINK and n <= GUIDE_SHORT:
+        i += 1
+        n += 1
+    return n > GUIDE_SHORT
+
+
+@_jit
 def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, strength, linked,
             pred, white, weak):
     """The guided pass of :func:`detect_stripe` (``stripes.guided_prediction`` and
     ``detect_planes_numpy``): every column whose row does not continue into a neighbour's
     (within ``GUIDE_LINK``) and has columns that do within ``GUIDE_REACH`` on both sides,
     whose rows are continuous across it, is tested again at the row interpolated between them;
-    the peak found is kept if it lies within ``GUIDE_DEV`` of that row. The predictions come
-    from the first pass's rows only."""
+    the peak found is kept if it lies within ``GUIDE_DEV`` of that row. So is each column of a
+    short piece (at most ``GUIDE_SHORT`` continuing columns) between longer pieces within
+    ``GUIDE_REACH`` of its ends whose rows are continuous across it and predict a row more than
+    ``GUIDE_LINK`` from the piece's. The predictions come from the first pass's rows only."""
     band_start, band_height = band[0], band[1]
     w = rows.shape[0]
     for c in range(w):
@@ -598,6 +623,33 @@ def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, streng
         if left < 0 or right < 0 or abs(rows[right] - rows[left]) > GUIDE_LINK * (right - left):
             continue
         pred[c] = rows[left] + (rows[right] - rows[left]) * (c - left) / (right - left)
+    # short pieces between longer ones: each piece's length, then its columns' predictions
+    c = 0
+    while c < w:
+        if not linked[c]:
+            c += 1
+            continue
+        d = c
+        while d + 1 < w and abs(rows[d + 1] - rows[d]) <= GUIDE_LINK:
+            d += 1
+        if d - c + 1 <= GUIDE_SHORT:
+            left = -1
+            for j in range(c - 1, max(c - GUIDE_REACH, 0) - 1, -1):
+                if linked[j] and _run_longer(rows, linked, j, w):
+                    left = j
+                    break
+            right = -1
+            for j in range(d + 1, min(d + GUIDE_REACH, w - 1) + 1):
+                if linked[j] and _run_longer(rows, linked, j, w):
+                    right = j
+                    break
+            if left >= 0 and right >= 0 and \
+                    abs(rows[right] - rows[left]) <= GUIDE_LINK * (right - left):
+                for i in range(c, d + 1):
+                    p = rows[left] + (rows[right] - rows[left]) * (i - left) / (right - left)
+                    if abs(rows[i] - p) > GUIDE_LINK:
+                        pred[i] = p
+        c = d + 1
     for c in range(w):
         p = pred[c]
         if math.isnan(p):

@@ -80,7 +80,10 @@ class StripeParams:
     # columns (issue 18, random rig 13); there a peak the colour tests refuse is kept when its
     # halo does not lean to the other laser's colour by the white-core rule's limit (the
     # position vouches for it: rig 13's green stripe, gone grey on bright soil, 4.4 -> 3.3 %
-    # of its columns missed at 1080p, none taken off the stripe)
+    # of its columns missed at 1080p, none taken off the stripe). A short piece of continuing
+    # columns (at most kernels.GUIDE_SHORT) off the row that longer pieces on both sides
+    # continue across is searched again the same way (random rig 254's red stripe at 1080p:
+    # 2-4 column pieces of reddish soil, later dropped as islands; fill 98.5 -> 99.1 %)
     guided: bool = True
     # with the other laser's band known, a peak the colour tests refuse is kept when its core
     # saturates this laser's channel and its light leans to this laser's colour (the
@@ -776,6 +779,7 @@ def _guide() -> dict:
 
     k = kernels()
     return {"link": k.GUIDE_LINK, "reach": k.GUIDE_REACH, "dev": k.GUIDE_DEV,
+            "short": k.GUIDE_SHORT,
             "weak": k.WEAK_SHARE, "faint": (k.FAINT_SHARE, k.FAINT_RISE, k.FAINT_TINT, k.FAINT_CLIP,
                                             k.FAINT_DARK_RISE, k.FAINT_DARK_CLEAR,
                                             k.FAINT_DARK_SIDE)}
@@ -830,10 +834,13 @@ def guided_prediction(rows: np.ndarray) -> np.ndarray:
     """The rows the guided pass tests (NaN: none): for each column whose row does not continue
     into a neighbour's within ``kernels.GUIDE_LINK``, the row interpolated between the nearest
     columns that do, within ``kernels.GUIDE_REACH`` on either side, when their rows are
-    continuous across it (at most ``GUIDE_LINK`` per column). The numpy reference of the
-    compiled ``kernels._guided``."""
+    continuous across it (at most ``GUIDE_LINK`` per column); and for each column of a short
+    piece of continuing columns (at most ``kernels.GUIDE_SHORT``) the row interpolated
+    between the nearest columns of longer pieces within ``GUIDE_REACH`` of its ends, when
+    their rows are continuous across it and that row lies more than ``GUIDE_LINK`` from the
+    column's. The numpy reference of the compiled ``kernels._guided``."""
     g = _guide()
-    link, reach = g["link"], g["reach"]
+    link, reach, short = g["link"], g["reach"], g["short"]
     w = len(rows)
     with np.errstate(invalid="ignore"):
         near = np.abs(np.diff(rows)) <= link
@@ -851,8 +858,27 @@ def guided_prediction(rows: np.ndarray) -> np.ndarray:
     rl, rr = rows[li], rows[ri]
     with np.errstate(invalid="ignore", divide="ignore"):
         ok &= np.abs(rr - rl) <= link * (ri - li)
-        pred = rl + (rr - rl) * (idx - li) / np.where(ok, ri - li, 1)
-    return np.where(ok, pred, np.nan)
+        pred = np.where(ok, rl + (rr - rl) * (idx - li) / np.where(ok, ri - li, 1), np.nan)
+    # pieces of continuing columns: each column's piece, its first and last column and length
+    start = np.ones(w, bool)
+    start[1:] = ~near
+    piece = np.cumsum(start) - 1
+    first = np.flatnonzero(start)
+    last = np.concatenate([first[1:] - 1, [w - 1]])
+    length = (last - first + 1)[piece]
+    anchor = linked & (length > short)
+    sp = linked & (length <= short)
+    la = np.maximum.accumulate(np.where(anchor, idx, -1))  # at or before (a short one is not)
+    ra = np.minimum.accumulate(np.where(anchor, idx, w)[::-1])[::-1]
+    c0, d0 = first[piece], last[piece]
+    ok2 = sp & (la >= 0) & (la >= c0 - reach) & (ra < w) & (ra <= d0 + reach)
+    li, ri = np.where(ok2, la, 0), np.where(ok2, ra, 0)
+    rl, rr = rows[li], rows[ri]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ok2 &= np.abs(rr - rl) <= link * (ri - li)
+        p2 = rl + (rr - rl) * (idx - li) / np.where(ok2, ri - li, 1)
+        ok2 &= np.abs(rows - p2) > link
+    return np.where(ok2, p2, pred)
 
 
 def run_through(over: np.ndarray, at: np.ndarray) -> np.ndarray:
