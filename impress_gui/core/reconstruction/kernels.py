@@ -572,22 +572,6 @@ def _blooming(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_value, level, min_
 
 
 @_jit
-def _run_longer(rows, linked, j, w):
-    """Whether linked column ``j``'s piece of continuing columns is longer than
-    ``GUIDE_SHORT`` (for :func:`_guided`)."""
-    n = 1
-    i = j
-    while i > 0 and abs(rows[i] - rows[i - 1]) <= GUIDE_LINK and n <= GUIDE_SHORT:
-        i -= 1
-        n += 1
-    i = j
-    while i + 1 < w and abs(rows[i + 1] - rows[i]) <= GUIDE_LINK and n <= GUIDE_SHORT:
-        i += 1
-        n += 1
-    return n > GUIDE_SHORT
-
-
-@_jit
 def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, strength, linked,
             pred, white, weak):
     """The guided pass of :func:`detect_stripe` (``stripes.guided_prediction`` and
@@ -623,24 +607,29 @@ def _guided(y, cb, cr, sh, band, laser, peak, colour, hsv, rr, sig, rows, streng
         if left < 0 or right < 0 or abs(rows[right] - rows[left]) > GUIDE_LINK * (right - left):
             continue
         pred[c] = rows[left] + (rows[right] - rows[left]) * (c - left) / (right - left)
-    # short pieces between longer ones: each piece's length, then its columns' predictions
+    # short pieces between longer ones: each column's piece length, then the short pieces'
+    # columns' predictions
+    length = np.empty(w, np.int64)
     c = 0
     while c < w:
-        if not linked[c]:
-            c += 1
-            continue
         d = c
         while d + 1 < w and abs(rows[d + 1] - rows[d]) <= GUIDE_LINK:
             d += 1
-        if d - c + 1 <= GUIDE_SHORT:
+        for i in range(c, d + 1):
+            length[i] = d - c + 1
+        c = d + 1
+    c = 0
+    while c < w:
+        d = c + length[c] - 1
+        if linked[c] and length[c] <= GUIDE_SHORT:
             left = -1
             for j in range(c - 1, max(c - GUIDE_REACH, 0) - 1, -1):
-                if linked[j] and _run_longer(rows, linked, j, w):
+                if length[j] > GUIDE_SHORT:
                     left = j
                     break
             right = -1
             for j in range(d + 1, min(d + GUIDE_REACH, w - 1) + 1):
-                if linked[j] and _run_longer(rows, linked, j, w):
+                if length[j] > GUIDE_SHORT:
                     right = j
                     break
             if left >= 0 and right >= 0 and \
