@@ -41,7 +41,7 @@ there for the columns) plus:
 Then median and worst over the rigs (the edge error also over the crossings across the scan
 alone), and each acceptance point of the issue as PASS/FAIL with the figure that decides it.
 
-Usage: .venv/bin/python benchmarks/bench_robustness.py [--seeds 24 | --seeds 3,7,11]
+Usage: .venv/bin/python benchmarks/bench_robustness.py [--seeds 24 | --seeds 3,7,11,200-205]
        [--resolution 1920x1080] [--draws 5] [--click-noise 0.5] [--no-fill] [--json out.json]
        [--cache-key KEY] [--readout-ms MS [--readout given|unknown|global]]
 
@@ -403,9 +403,27 @@ def planes_explain(rows: list[dict]) -> list[str]:
     return lines
 
 
+def parse_seeds(text: str) -> list[int]:
+    """``--seeds``: a bare number N is a count (the seeds 0..N-1, as the benchmark's tables
+    were run); a comma list holds seeds and inclusive ranges ``A-B`` (``254,`` is the one rig
+    254, ``200-205,212`` seven rigs)."""
+    text = text.strip()
+    if "," not in text and "-" not in text:
+        return list(range(int(text)))
+    seeds: list[int] = []
+    for part in (p.strip() for p in text.split(",")):
+        if not part:
+            continue
+        lo, sep, hi = part.partition("-")
+        seeds.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
+    return seeds
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", default="24", help="how many seeds (0..N-1) or a comma list")
+    ap.add_argument("--seeds", default="24",
+                    help="a count N (the seeds 0..N-1) or a comma list of seeds and ranges "
+                         "A-B (one rig: '254,')")
     ap.add_argument("--resolution", default="1920x1080")
     ap.add_argument("--draws", type=int, default=5, help="click-noise draws per rig (0: none)")
     ap.add_argument("--no-unlit-soil", action="store_true",
@@ -442,10 +460,9 @@ def main() -> None:
         R.SIM_KEY = args.cache_key
     R.READOUT_MS = args.readout_ms
     R.STRIPE_FOLLOWS_SOIL = args.stripe_follows_soil
-    seeds = ([int(s) for s in args.seeds.split(",") if s] if "," in args.seeds
-             else list(range(int(args.seeds))))
+    seeds = parse_seeds(args.seeds)
     w, h = (int(v) for v in args.resolution.lower().split("x"))
-    print(f"random rigs {seeds} at {w}x{h}; exact picks; {args.draws} draws of "
+    print(f"{len(seeds)} random rig{'s' if len(seeds) != 1 else ''} {seeds} at {w}x{h}; exact picks; {args.draws} draws of "
           f"{args.click_noise} px click noise; default processing", flush=True)
     rows = []
     for s in seeds:

@@ -135,3 +135,12 @@ def test_the_true_planes_split_the_failures_into_the_planes_and_the_detector(ben
     # a rig without the true-plane figures is still outside
     _, scale = bench.planes_explain([_rig(9, slope_r=0.09)])
     assert scale.endswith("still outside with them: 9 red (+0.0900 -> +nan)")
+
+
+def test_seeds_a_count_a_list_and_ranges(bench):
+    # a bare number is a count (the tables' commands); a trailing comma makes it one rig
+    assert bench.parse_seeds("3") == [0, 1, 2]
+    assert bench.parse_seeds("254,") == [254]
+    assert bench.parse_seeds("3,7,11") == [3, 7, 11]
+    assert bench.parse_seeds("200-202,212") == [200, 201, 202, 212]
+    assert bench.parse_seeds("60-61") == [60, 61]
