@@ -185,7 +185,12 @@ TERMINATE_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if h
 
 def _interrupted_line(who: str, exc: KeyboardInterrupt) -> tuple[str, int]:
     """The line printed and the exit status of an interruption: 130 for Ctrl-C, 128 + the
-    signal's number for a terminate signal."""
+    signal's number for a terminate signal. What the interruption's own clean-up left of the
+    half-written files this process noted (one that landed between a work folder's making and
+    the clean-up's taking charge of it) is removed first."""
+    from impress_gui.core.base import workfiles
+
+    workfiles.remove_all()
     if isinstance(exc, Terminated):
         return (f"{who}: stopped by {exc.name}; nothing half-written was kept",
                 128 + exc.signum)

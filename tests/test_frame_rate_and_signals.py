@@ -71,3 +71,38 @@ def test_a_few_frames_are_not_taken_for_a_scan(flat_scan, flat_calibration, tmp_
     enough = process_files(flat_scan / "scan.mp4", flat_calibration, tmp_path / "enough",
                            ProcessParams(**{**PARAMS, "frame_stop": 50}))
     assert not [w for w in enough["warnings"] if w.startswith("W-FEW-FRAMES")]
+
+
+def test_a_signal_inside_the_writability_probe_leaves_no_folder(tmp_path, monkeypatch):
+    """The probe makes the hidden work folder, writes its mark and removes it; a terminate
+    signal landing between (its exception raised there) left the folder behind while the
+    command said nothing half-written was kept (found by polling for the folder)."""
+    from impress_gui import cli
+    from impress_gui.core.base import outdir, workfiles
+
+    def interrupted(kind):
+        raise cli.Terminated(signal.SIGTERM)
+
+    monkeypatch.setattr(outdir, "mark_bytes", interrupted)
+    try:
+        outdir.OutputFolder(tmp_path / "out", "reconstruction")
+    except cli.Terminated:
+        pass
+    else:
+        raise AssertionError("the probe's interruption did not reach the caller")
+    assert list(tmp_path.iterdir()) == [] and workfiles.open_paths() == []
+
+
+def test_an_interruption_removes_what_this_process_left_half_written(tmp_path):
+    """Whatever the clean-up of an interruption missed (noted, never done) is removed before
+    the command says nothing half-written was kept."""
+    from impress_gui import cli
+    from impress_gui.core.base import workfiles
+
+    left = tmp_path / ".out.partial-1"
+    left.mkdir()
+    (left / "part.bin").write_bytes(b"x")
+    workfiles.note(left)
+    line, status = cli._interrupted_line("impress process", cli.Terminated(signal.SIGTERM))
+    assert "nothing half-written was kept" in line and status == 128 + signal.SIGTERM
+    assert not left.exists() and workfiles.open_paths() == []

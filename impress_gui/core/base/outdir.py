@@ -243,10 +243,15 @@ class OutputFolder:
             # a writability probe now (the work folder is made and removed): a read-only or
             # full place fails before any work, and a run killed before writing leaves nothing
             workfiles.note(self.tmp)
-            self.tmp.mkdir()
-            (self.tmp / MARK_FILE).write_bytes(mark_bytes(kind))
-            shutil.rmtree(self.tmp)
-            workfiles.done(self.tmp)
+            try:
+                self.tmp.mkdir()
+                (self.tmp / MARK_FILE).write_bytes(mark_bytes(kind))
+                shutil.rmtree(self.tmp)
+            except BaseException:  # a failure, or a signal landing inside the probe
+                shutil.rmtree(self.tmp, ignore_errors=True)
+                raise
+            finally:
+                workfiles.done(self.tmp)
         self._begun = False
 
     def begin(self) -> Path:
