@@ -35,18 +35,44 @@ def load_benchmark(name: str):
     return mod
 
 
+@pytest.hookimpl(trylast=True)  # after the tmp_path and xdist plugins' own configuration
 def pytest_configure(config):
     # PySide6 6.12.0 loses a reference to True on every emit (the pinned 6.11.3 does not);
     # the guard only acts when that bug is present
     from impress_gui.ui.pyside_fix import guard
 
     guard()
+    # the flat scan most files share, rendered while the kernels below compile (on a clean
+    # clone that takes the controller half a minute on one core, the workers not yet started)
+    _prerender_flat_scan(config)
     # numba's cache of the compiled kernels, filled once before any test (a window starts the
-    # same compilation in a child process; a test would otherwise wait for it)
+    # same compilation in a child process; a test would otherwise wait for it): by the run's
+    # first process (pytest-xdist's controller configures itself before it starts a worker)
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        _compile_kernels()
+
+
+def _compile_kernels() -> None:
+    """Fill numba's cache: ``kernels`` imported in a child process, and the grid's kernels in a
+    second one meanwhile (``kernels`` imports them after its own - on a clean clone 9 of its
+    35 s - and then finds them in the cache)."""
     import subprocess
     import sys
 
-    subprocess.run([sys.executable, "-c", "import impress_gui.core.reconstruction.kernels"], check=True)
+    grid = subprocess.Popen([sys.executable, "-c",
+                             "import impress_gui.core.reconstruction.grid_kernels"])
+    try:
+        subprocess.run([sys.executable, "-c", "import impress_gui.core.reconstruction.kernels"],
+                       check=True)
+    finally:
+        grid.wait()
+
+
+def pytest_unconfigure(config):
+    proc = _PRERENDER.pop("proc", None)
+    if proc is not None and proc.poll() is None:  # the run ended before the scan was needed
+        proc.terminate()
+        proc.wait(timeout=60)
 
 
 #: the test files that take longest on a clean clone (they render and reconstruct scans),
@@ -68,27 +94,34 @@ def pytest_configure(config):
 #: test_validate moved ahead of it. Later that day (the simulator's scenes built two to three
 #: times faster, the same bytes): tilt_refinement 118, compare 114, uncertainty 82, simulator
 #: 52, gui_viewer 51 s (validate 39 s with its renders cached locally, about 80 s on a clean
-#: clone); the clean-clone suite 9:54-10:01.
+#: clone); the clean-clone suite 9:54-10:01. On 7 December 2026 (the suite 12:15-12:40 on a
+#: clean clone) the flat scan came to be rendered while the kernels compile (conftest's
+#: ``pytest_configure``), test_low_fill to read the blocks scan and test_sim_outputs_safety
+#: to render a coarse scene (both seconds now), compare's scans at twice the speed, validate's
+#: run with 10 trials; CPU seconds of single files then (their shared scans left out): tilt
+#: 113, compare 90, ramp_motion 63, validate 62, gui_viewer 61 (rendering the blocks), batch
+#: 61, cast 60 (rendering the letter), gui_check 50, simulator 45, random_rig 43, uncertainty
+#: 41, gui_calibration 39, hostile_inputs 35, demo 34 (test_architecture's mypy ~30 s on a
+#: clean clone, among the short files). The clean-clone suite then 10:09 on a quiet machine
+#: (46 s before the first test; the two workers' last tests ended 5 s apart).
 LONG_FILES = (
     "test_compare.py",
     "test_tilt_refinement.py",
     "test_validate.py",
-    "test_uncertainty.py",
     "test_ramp_motion.py",
-    "test_gui_check.py",
-    "test_hostile_inputs.py",
     "test_gui_viewer.py",
-    "test_simulator.py",
     "test_cast.py",
-    "test_bright_ground.py",
-    "test_random_rig.py",
-    "test_cross_level.py",
-    "test_sim_outputs_safety.py",
-    "test_low_fill.py",
-    "test_gui_calibration.py",
     "test_batch.py",
-    "test_calibration_blooming.py",
+    "test_uncertainty.py",
+    "test_gui_check.py",
+    "test_simulator.py",
+    "test_random_rig.py",
+    "test_hostile_inputs.py",
+    "test_gui_calibration.py",
     "test_demo.py",
+    "test_bright_ground.py",
+    "test_cross_level.py",
+    "test_calibration_blooming.py",
     "test_calibrate_camera.py",
     "test_cast_acceptance.py",
     "test_video.py",
@@ -157,21 +190,63 @@ def shared_folder(tmp_path_factory, name: str, build) -> Path:
     every pytest-xdist worker of the run: the first to need it builds it (under a file lock),
     the others wait for it and reuse it. Not kept between runs (each run makes it afresh)."""
     import fcntl
-    import shutil
 
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         root = root.parent  # the run's folder, above each worker's own
     root = root / "shared"
     root.mkdir(exist_ok=True)
-    final, done = root / name, root / f"{name}.complete"
     with open(root / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        if not done.exists():
-            shutil.rmtree(final, ignore_errors=True)
-            build(final)
-            done.write_text("ok\n")
+        return _build_once(root, name, build)
+
+
+def _build_once(root: Path, name: str, build) -> Path:
+    """``root / name`` built by ``build`` unless it is complete (the caller holds its lock)."""
+    import shutil
+
+    final, done = root / name, root / f"{name}.complete"
+    if not done.exists():
+        shutil.rmtree(final, ignore_errors=True)
+        build(final)
+        done.write_text("ok\n")
     return final
+
+
+#: the scan of the ``flat_scan`` fixture
+FLAT_SCAN = dict(preset="flat", length_mm=100.0, width=640, height=360)
+_PRERENDER: dict = {}
+
+
+def _render_flat_scan(out: Path) -> Path:
+    return simulate_scan(out, **FLAT_SCAN)
+
+
+def _prerender_flat_scan(config) -> None:
+    """In the controller of a whole-suite run on pytest-xdist workers: render ``flat_scan``
+    into the run's shared folder in a child process, which holds the folder's lock (taken here,
+    before any worker starts) until the scan is complete; a worker asking for it waits there,
+    or builds it itself should the child have failed (its output: ``flat-scan.prerender.log``).
+    The render needs no compiled kernel: it runs beside their compilation."""
+    import fcntl
+    import subprocess
+    import sys
+
+    if (os.environ.get("PYTEST_XDIST_WORKER") or not config.pluginmanager.has_plugin("dsession")
+            or config.args_source is not pytest.Config.ArgsSource.TESTPATHS):
+        return
+    root = config._tmp_path_factory.getbasetemp() / "shared"
+    root.mkdir(exist_ok=True)
+    code = ("import sys; from pathlib import Path; sys.path.insert(0, sys.argv[1]); "
+            "import conftest; conftest._build_once(Path(sys.argv[2]), 'flat-scan', "
+            "conftest._render_flat_scan)")
+    with open(root / "flat-scan.lock", "w") as lock, \
+            open(root / "flat-scan.prerender.log", "w") as log:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # the child's copy keeps it until the child ends
+        _PRERENDER["proc"] = subprocess.Popen(
+            [sys.executable, "-c", code, str(Path(__file__).parent), str(root)],
+            pass_fds=(lock.fileno(),), stdin=subprocess.DEVNULL, stdout=log,
+            stderr=subprocess.STDOUT)
 
 
 def simulate_scan(out: Path, **kw) -> Path:
@@ -205,8 +280,7 @@ def calibrate_scan(scan: Path, out: Path, video: Path | None = None) -> Path:
 def flat_scan(tmp_path_factory) -> Path:
     """A short simulated scan of the flat preset at 640x360 (H.264), with its ground truth
     (rendered once per run, shared by the workers)."""
-    return shared_folder(tmp_path_factory, "flat-scan", lambda out: simulate_scan(
-        out, preset="flat", length_mm=100.0, width=640, height=360))
+    return shared_folder(tmp_path_factory, "flat-scan", _render_flat_scan)
 
 
 @pytest.fixture(scope="session")
@@ -228,6 +302,21 @@ def flat_recon(flat_scan, flat_calibration, tmp_path_factory) -> Path:
         process_files(flat_scan / "scan.mp4", flat_calibration, out, ProcessParams())
 
     return shared_folder(tmp_path_factory, "flat-recon", build)
+
+
+@pytest.fixture(scope="session")
+def board_views(tmp_path_factory) -> Path:
+    """20 views of a 9x6 board with 25 mm squares through the simulator's 640x360 camera
+    (seed 7), as ``sim.checkerboard.write_views`` writes them: the folder of the views (PNG
+    frames; ``board_truth.json`` beside it). Made once per run for test_calibrate_camera and
+    the calibration tab's checkerboard dialog (test_gui_calibration); they only read it."""
+    def build(out: Path) -> None:
+        from impress_gui.sim.checkerboard import Board, write_views
+        from impress_gui.sim.rig import default_intrinsics
+
+        write_views(out, default_intrinsics(640, 360), Board(9, 6, 25.0), n_views=20, seed=7)
+
+    return shared_folder(tmp_path_factory, "board-views", build) / "frames"
 
 
 @pytest.fixture(scope="session")

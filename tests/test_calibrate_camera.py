@@ -49,10 +49,11 @@ def truth() -> Intrinsics:
 
 
 @pytest.fixture(scope="module")
-def frames_dir(tmp_path_factory, truth):
-    out = tmp_path_factory.mktemp("board")
-    path = write_views(out, truth, BOARD, n_views=20, seed=7)
-    return path
+def frames_dir(board_views):
+    """20 views of BOARD through the true camera (seed 7): conftest's ``board_views``, made
+    once per run (the calibration tab's test reads the same set)."""
+    assert BOARD == Board(9, 6, 25.0) and (W, H) == (640, 360)  # the views' board and camera
+    return board_views
 
 
 @pytest.fixture(scope="module")

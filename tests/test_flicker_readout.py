@@ -252,8 +252,10 @@ def test_the_simulator_films_the_lamp_with_its_camera(tmp_path, capsys):
     from impress_gui.cli import main
 
     out = tmp_path / "scan"
+    # a coarse scene (0.5 mm grid): the lamp's video is checked, not the scan's relief
     code = main(["simulate", str(out), "--preset", "flat", "--length-mm", "60", "--resolution",
-                 "320x180", "--speed", "40", "--fps", "25", "--lamp-video", "100"])
+                 "320x180", "--speed", "40", "--fps", "25", "--grid-mm", "0.5",
+                 "--lamp-video", "100"])
     text = capsys.readouterr().out
     assert code == 0, text
     assert "lamp.mp4" in text and "100 Hz flicker" in text

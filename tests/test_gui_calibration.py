@@ -327,15 +327,13 @@ def test_a_bad_intrinsics_file_is_refused_with_its_reason(qtbot, tab, tmp_path):
 
 # ----- checkerboard calibration from the tab -------------------------------------------------------
 @pytest.fixture(scope="session")
-def board_views(tmp_path_factory):
+def board_views(board_views):
     """20 views of a 9x6 board with 25 mm squares through the simulator's 640x360 camera (the
-    set tests/test_calibrate_camera.py checks the core with), and the true intrinsics."""
-    from impress_gui.sim.checkerboard import Board, write_views
+    set tests/test_calibrate_camera.py checks the core with: conftest's ``board_views``, made
+    once per run), and the true intrinsics."""
     from impress_gui.sim.rig import default_intrinsics
 
-    truth = default_intrinsics(640, 360)
-    out = tmp_path_factory.mktemp("board")
-    return write_views(out, truth, Board(9, 6, 25.0), n_views=20, seed=7), truth
+    return board_views, default_intrinsics(640, 360)
 
 
 def open_checkerboard_dialog(qtbot, tab):

@@ -234,11 +234,13 @@ def test_no_step_is_shown_until_both_bands_are_placed(qtbot):
     v = make_viewer(qtbot, recon_data_from_arrays(spec, h))
     try:
         v.set_mode("ruler")
-        for x in (5.0, 35.0):
-            pt = v.map.map_to_viewport(x, 15.0)
-            with qtbot.waitSignal(v.profile_changed, timeout=10000, raising=x == 35.0):
-                QTest.mouseClick(v.map.viewport(), Qt.MouseButton.LeftButton,
-                                 Qt.KeyboardModifier.NoModifier, pt)
+        # the first click starts the ruler (no profile, nothing to wait for: waiting for one
+        # took the signal's whole 10 s timeout), the second ends it and brings the profile
+        QTest.mouseClick(v.map.viewport(), Qt.MouseButton.LeftButton,
+                         Qt.KeyboardModifier.NoModifier, v.map.map_to_viewport(5.0, 15.0))
+        with qtbot.waitSignal(v.profile_changed, timeout=10000):
+            QTest.mouseClick(v.map.viewport(), Qt.MouseButton.LeftButton,
+                             Qt.KeyboardModifier.NoModifier, v.map.map_to_viewport(35.0, 15.0))
         assert v.profile is not None and v.profile.length_mm == pytest.approx(30.0, abs=0.1)
         pp = v.profile_plot
 

@@ -26,10 +26,13 @@ def test_fold_radius_is_where_the_radial_distortion_stops_growing():
 def test_every_stripe_point_drawn_is_seen_along_its_own_ray(fixed):
     """Random rig 15 (k1 -0.164, k2 -0.079): every laser point the renderer keeps for frame 300
     lies where the camera's pixel ray through its image position meets it (its pixel
-    undistorts back to its own direction); without the fold radius some do not."""
+    undistorts back to its own direction); without the fold radius some do not. (The scene on
+    a 0.2 mm grid: the lens and the lasers decide, not the soil's fine relief; measured on it
+    and on the default 0.1 mm grid alike: 6e-15 with the fold radius, 0.98 without; the
+    scene's build 1 s instead of 5.)"""
     from impress_gui.sim.simulate import SimConfig, _make_renderer
 
-    renderer, _ = _make_renderer(SimConfig.random(15, 640, 360))
+    renderer, _ = _make_renderer(SimConfig.random(15, 640, 360, grid_mm=0.2))
     if not fixed:
         renderer.fold_radius = float("inf")
     k = 300

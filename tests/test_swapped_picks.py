@@ -43,7 +43,11 @@ def test_swapped_picks_are_refused_with_the_hint(tmp_path):
     refused, naming the red plane and the swap; the picks as made calibrate. (Swapping the
     frames together with their corners is another choice of frames, valid where both stripes
     cross the target in both - this scan calibrates so - and refused as E-PLANE-UNDETERMINED
-    where they do not.)"""
+    where they do not.) The scene on a 0.5 mm grid: the frames and picks decide, not the
+    soil's fine relief (measured 7 December 2026 on it and on the default 0.1 mm grid alike:
+    the planes as picked 115 mm from the camera, swapped the red one 0.0 mm and refused;
+    without the refusal that calibration passes with a red plane 0.05 mm from the camera;
+    the render 5 s instead of 12)."""
     from impress_gui.core.calibration.geometry import Intrinsics
     from impress_gui.core.calibration.picks import Picks
     from impress_gui.core.calibration.scene import calibrate_scene
@@ -51,7 +55,7 @@ def test_swapped_picks_are_refused_with_the_hint(tmp_path):
     from impress_gui.core.formats.video import open_video
 
     scan = simulate_scan(tmp_path / "scan", preset="flat", length_mm=60.0, width=320,
-                         height=180)
+                         height=180, grid_mm=0.5)
     truth = json.loads((scan / "truth.json").read_text())
     p = Picks.load(scan / "picks.json")
 

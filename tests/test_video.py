@@ -9,14 +9,19 @@ from impress_gui.core.base.errors import VideoError
 from impress_gui.core.formats.video import open_video
 from impress_gui.sim.simulate import SimConfig, simulate
 
+#: a short, coarse scene (0.5 mm grid): what is read is the video, not the scene's relief
+#: (measured 7 December 2026: H.264 against PNG frames a mean |difference| of 3.6-4.3 on it,
+#: 3.9-4.5 on the default 0.1 mm grid; the renders 4 s instead of 16)
+TINY = dict(preset="flat", length_mm=60.0, width=320, height=180, speed_mm_s=40.0, ramp_s=0.1,
+            grid_mm=0.5)
+
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     out = {}
     for fmt in ("mts", "frames"):
         d = tmp_path_factory.mktemp(fmt)
-        simulate(SimConfig(preset="flat", length_mm=60.0, width=320, height=180,
-                           video_format=fmt, speed_mm_s=40.0, ramp_s=0.1), d)
+        simulate(SimConfig(video_format=fmt, **TINY), d)
         out[fmt] = d
     return out
 
@@ -74,8 +79,7 @@ def test_damaged_inputs(tmp_path, tiny):
 def test_keyframes_read_on_their_own_equal_sequential_decoding(tmp_path, tiny, fmt):
     if fmt == "mp4":
         d = tmp_path / "mp4"
-        simulate(SimConfig(preset="flat", length_mm=60.0, width=320, height=180,
-                           speed_mm_s=40.0, ramp_s=0.1), d)
+        simulate(SimConfig(**TINY), d)
         path = d / "scan.mp4"
     else:
         path = tiny["mts"] / "scan.mts"
