@@ -131,3 +131,30 @@ def test_a_red_stripe_saturated_on_orange_soil_is_found_and_not_taken_for_green(
                 without = detect_band(laser, f, 0, off, None).found.mean()
                 assert with_rescue <= without + 0.02, (soil, laser, power)
     assert detect_band("green", rgb, 0, StripeParams(), None).found.mean() < 0.05
+
+
+def test_a_faint_stripe_found_in_short_weak_pieces_is_kept_when_they_chain():
+    # random rig 214 at 1080p: a dim red stripe on green soil found in pieces of a few
+    # columns with gaps of one to three between them, each piece far weaker than the frame's
+    # stripe on lighter soil; the pieces continue into each other across the gaps
+    # (kernels.WEAK_CHAIN_GAP), a chain as long as a long piece: the stripe, kept
+    rows, strength = _stripe()
+    gaps = [201, 205, 206, 211, 214, 215, 216, 222, 226, 233, 236, 240, 241]
+    strength[200:245] = 12.0
+    rows[gaps] = np.nan
+    out, _, n = _both(rows, strength, long_run_columns(640))
+    assert n == 0
+    np.testing.assert_array_equal(out, rows)
+    # the same pieces with gaps of four columns do not chain: dropped as before
+    rows2, strength2 = _stripe()
+    strength2[300:350] = 12.0
+    for c in range(300, 350, 7):
+        rows2[c:c + 4] = np.nan
+    out2, _, n2 = _both(rows2, strength2, long_run_columns(640))
+    assert n2 == np.isfinite(rows2[300:350]).sum() and np.isnan(out2[300:350]).all()
+    # and a weak piece beside the chain but off its rows is dropped
+    rows3, strength3 = rows.copy(), strength.copy()
+    rows3[207:210] = rows3[207:210] + 9.0
+    strength3[207:210] = 12.0
+    out3, _, n3 = _both(rows3, strength3, long_run_columns(640))
+    assert n3 == 3 and np.isnan(out3[207:210]).all()

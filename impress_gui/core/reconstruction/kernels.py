@@ -85,7 +85,10 @@ WEAK_SHARE = 0.4
 # FAINT_TINT x the surface's own ratio of those channels (a brighter speck of red soil adds
 # light of the soil's colour)
 # (``_faint``; ``stripes`` reads these from here)
-FAINT_SHARE = 0.3
+# (FAINT_SHARE was 0.3: a red stripe on green soil moves the luma by 4-5 grey levels where its
+# red rises by 11-16, random rig 214 at 1080p; the colour and clear-of-the-surface tests below
+# are what refuse the soil's own variation)
+FAINT_SHARE = 0.2
 FAINT_RISE = 0.6
 FAINT_TINT = 0.8
 # ... and not where the other laser's channel is clipped (reaches FAINT_CLIP) on more of the
@@ -113,6 +116,11 @@ FAINT_DARK_CLEAR = 2.0
 # three rows from its centre (random rig 212: a red stripe over green soil, its red 14 -> 52,
 # still 29 three rows off, refused by its own skirt)
 FAINT_DARK_SIDE = 3
+# ... and on that dark path the laser's channel need rise on average by only FAINT_DARK_MIN x
+# min_peak (not FAINT_RISE x): the clear-of-the-surface test above is what tells a stripe from
+# the surface's own variation there (random rig 214 at 1080p: a red stripe on green soil, red
+# 17 -> 33, luma 4-5 grey levels: the red rise of the columns the detector lost there 11-15)
+FAINT_DARK_MIN = 0.4
 
 HSV_SHIFT = 12
 
@@ -302,10 +310,10 @@ def _faint(y, cb, cr, sh, c, cc, rr, n, k, ch, o1, o2, min_peak, min_value):
     bg = (bg0, bg1, bg2)
     rise = (m0 - bg0, m1 - bg1, m2 - bg2)
     best = rise[ch]
-    if not (best >= FAINT_RISE * min_peak
-            and (top >= min_value or best >= FAINT_DARK_RISE * bg[ch])):
+    light = best >= FAINT_RISE * min_peak and top >= min_value
+    if not (light or (best >= FAINT_DARK_MIN * min_peak and best >= FAINT_DARK_RISE * bg[ch])):
         return False
-    if top < min_value:
+    if not light:
         # dark soil: the surface in this laser's channel, its darkest and brightest over every
         # row of the window FAINT_DARK_SIDE or more from its centre (one more with 4:2:0 chroma)
         lo = np.inf
@@ -1020,6 +1028,14 @@ def stripe_profile(rows, tol_px, min_cols, band_start, rays, normal, offset, tra
     return n_ok
 
 
+# a weak stripe piece is kept where it lies on a chain of at least the long pieces' length:
+# columns joined across gaps of at most this many missing columns, the rows either side within
+# the pieces' own link (random rig 214 at 1080p: a dim red stripe on green soil, found in 95 %
+# of its columns but in pieces of a few columns each, all dropped as weak: the map's largest
+# hole, 1.6 % of the red map)
+WEAK_CHAIN_GAP = 3
+
+
 @_kernel("int64(float64[:], float32[:], float64, int64, float64, int64[:], float64[:])")
 def prune_weak_runs(rows, strength, tol_px, long_cols, ratio, run_id, scratch):
     """Drop the short, weak pieces of a detected stripe (in place; returns the columns dropped).
@@ -1028,7 +1044,10 @@ def prune_weak_runs(rows, strength, tol_px, long_cols, ratio, run_id, scratch):
     ``tol_px`` (as :func:`stripe_profile` links them). The frame's typical stripe strength is
     the median strength over the runs at least ``long_cols`` long; a run shorter than that
     whose mean strength is below ``ratio`` times it is dropped (rows NaN, strength 0). With no
-    long run nothing is dropped. ``run_id`` and ``scratch`` are work arrays as long as ``rows``.
+    long run nothing is dropped, nor a run on a *chain* of at least ``long_cols`` found columns
+    (consecutive found columns joined across gaps of at most ``WEAK_CHAIN_GAP`` missing columns
+    where their rows lie within ``tol_px``: the stripe, broken where it is faint). ``run_id``
+    and ``scratch`` are work arrays as long as ``rows``.
     The numpy reference: :func:`impress_gui.core.reconstruction.stripes.prune_weak_runs_numpy`."""
     n = rows.shape[0]
     if n == 0 or ratio <= 0.0:
@@ -1055,11 +1074,31 @@ def prune_weak_runs(rows, strength, tol_px, long_cols, ratio, run_id, scratch):
     if m == 0 or n_runs == 1:
         return 0
     ref = np.median(scratch[:m])
+    # chains: the finite columns joined across gaps of at most WEAK_CHAIN_GAP missing columns
+    # where the rows either side lie within tol_px; a run on a chain of at least long_cols
+    # finite columns is kept
+    chain = np.full(n, -1, np.int64)
+    size = np.zeros(n, np.int64)
+    last = -1
+    cid = -1
+    for c in range(n):
+        if math.isnan(rows[c]):
+            continue
+        if not (last >= 0 and c - last <= WEAK_CHAIN_GAP + 1
+                and abs(rows[c] - rows[last]) <= tol_px):
+            cid += 1
+        chain[c] = cid
+        size[cid] += 1
+        last = c
     dropped = 0
     a = 0
     for c in range(1, n + 1):
         if c == n or run_id[c] != run_id[a]:
-            if c - a < long_cols:
+            on_long = False
+            for q in range(a, c):
+                if chain[q] >= 0 and size[chain[q]] >= long_cols:
+                    on_long = True
+            if c - a < long_cols and not on_long:
                 total = 0.0
                 count = 0
                 for q in range(a, c):

@@ -782,7 +782,7 @@ def _guide() -> dict:
             "short": k.GUIDE_SHORT,
             "weak": k.WEAK_SHARE, "faint": (k.FAINT_SHARE, k.FAINT_RISE, k.FAINT_TINT, k.FAINT_CLIP,
                                             k.FAINT_DARK_RISE, k.FAINT_DARK_CLEAR,
-                                            k.FAINT_DARK_SIDE)}
+                                            k.FAINT_DARK_SIDE, k.FAINT_DARK_MIN)}
 
 
 def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
@@ -803,7 +803,7 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     adds mostly red, which moves the luma by a third of it: a consumer camera's photograph of
     one, pinkish on white, shows 10-20 grey levels of luma where the red channel rises by
     20-40. The numpy reference of the compiled ``kernels._faint``."""
-    _, rise, tint, clip, dark, clear, side_rows = _guide()["faint"]
+    _, rise, tint, clip, dark, clear, side_rows, dark_min = _guide()["faint"]
     n = rr.shape[0]
     k = n // 2
     c, (o1, o2) = _CH[name], _OTHERS[name]
@@ -820,9 +820,9 @@ def faint_light(name: str, planes: Planes, rr: np.ndarray, cols: np.ndarray,
     reach = side_rows + (1 if planes.chroma_step > 1 else 0)
     side = np.stack([rgb(rr[j])[:, c] for j in range(n) if abs(j - k) >= reach])
     lo, hi = side.min(axis=0), side.max(axis=0)
-    ok = (best >= rise * min_peak) & ((mid[..., c].max(axis=0) >= min_value)
-                                      | ((best >= dark * bg[:, c]) & (best >= clear * (hi - lo))
-                                         & (mid[..., c].min(axis=0) > hi)))
+    ok = ((best >= rise * min_peak) & (mid[..., c].max(axis=0) >= min_value)) | (
+        (best >= dark_min * min_peak) & (best >= dark * bg[:, c]) & (best >= clear * (hi - lo))
+        & (mid[..., c].min(axis=0) > hi))
     for o in (o1, o2):
         ok &= ~(up[:, o] * bc > tint * best * bg[:, o])
     win = rgb(rr)  # (n, N, 3)
@@ -1065,7 +1065,10 @@ def prune_weak_runs_numpy(rows: np.ndarray, strength: np.ndarray, tol_px: float,
                          long_cols: int, ratio: float) -> int:
     """The readable numpy reference of the compiled
     :func:`~impress_gui.core.reconstruction.kernels.prune_weak_runs` (the tests check they
-    agree): short stripe pieces much weaker than the frame's long pieces are dropped in place.
+    agree): short stripe pieces much weaker than the frame's long pieces are dropped in place,
+    unless they lie on a chain of found columns at least ``long_cols`` long (joined across gaps
+    of at most ``kernels.WEAK_CHAIN_GAP`` columns, rows within ``tol_px``: a faint stripe found
+    in pieces).
 
     Why: where a laser's stripe is faint or broken, the strongest laser-coloured pixel of a
     column can be a patch of soil of the laser's hue, a few columns wide and hundreds of rows
@@ -1084,7 +1087,18 @@ def prune_weak_runs_numpy(rows: np.ndarray, strength: np.ndarray, tol_px: float,
     if not long_run.any() or len(length) == 1:
         return 0
     ref = np.median(strength[long_run].astype(np.float64))
-    weak = (length < long_cols) & (count > 0) & (total < ratio * ref * count)
+    # chains: found columns joined across gaps of at most WEAK_CHAIN_GAP missing columns, their
+    # rows within tol_px - the stripe broken where it is faint; a run on a long chain is kept
+    from impress_gui.core.reconstruction.compiled import kernels
+
+    cols = np.flatnonzero(finite)
+    joined = (np.diff(cols) <= kernels().WEAK_CHAIN_GAP + 1) & (
+        np.abs(np.diff(rows[cols])) <= tol_px)
+    chain = np.concatenate([[0], np.cumsum(~joined)]) if cols.size else np.zeros(0, np.int64)
+    on_long = np.zeros(n, bool)
+    on_long[cols] = (np.bincount(chain) >= long_cols)[chain]
+    run_on_long = np.bincount(run_id, weights=on_long) > 0
+    weak = (length < long_cols) & (count > 0) & (total < ratio * ref * count) & ~run_on_long
     drop = weak[run_id] & finite
     rows[drop] = np.nan
     strength[drop] = 0.0
