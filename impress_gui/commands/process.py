@@ -37,10 +37,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="region of interest rows, e.g. green=600:800 (default automatic)")
     p.add_argument("--min-peak", type=float, default=25.0,
                    help="minimum stripe peak above background, grey levels of luma (light of "
-                   "the laser's colour counts down to 0.3 of it)")
+                   "the laser's colour counts down to 0.2 of it)")
     p.add_argument("--weak-run-ratio", type=float, default=0.5,
-                   help="drop short stripe pieces weaker than this share of the frame's stripe "
-                   "(0 keeps every piece; default 0.5)")
+                   help="drop short stripe pieces weaker than this share of the frame's stripe, "
+                   "unless they continue a longer piece across gaps of a few columns (0 keeps "
+                   "every piece; default 0.5)")
     p.add_argument("--subpixel", choices=("half-max", "window"), default="window",
                    help="the stripe centre's sub-pixel estimate: 'window' (default: the centre "
                    "of mass above half maximum refined in a window, far less locked to the "

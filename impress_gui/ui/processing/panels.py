@@ -88,7 +88,9 @@ class ParamsPanel(QGroupBox):
         self.weak_ratio = _dspin(0.0, 0.95, d.weak_run_ratio, 0.05, 2, suffix="")  # a share
         self.weak_ratio.setToolTip(
             "Short stripe pieces weaker than this share of the frame's stripe are dropped "
-            "(soil of the laser's colour is not the stripe); 0 keeps every piece")
+            "(soil of the laser's colour is not the stripe), unless they continue a longer "
+            "piece across gaps of a few columns (a faint stripe found in pieces); 0 keeps "
+            "every piece")
         self.texture = QCheckBox("Registered texture")
         self.texture.setChecked(d.texture)
         self.unlit_soil = QCheckBox("Subtract the soil seen unlit")
