@@ -22,16 +22,18 @@ from impress_gui.core.formats.video import open_video  # noqa: E402
 from impress_gui.sim.simulate import SimConfig, _make_renderer  # noqa: E402
 
 KEY = "190eb977a3"
-common.SIM_KEY = R.SIM_KEY = KEY
 COLS = (0, 960)
 
 
-def main(frame: int, out: str) -> None:
+def main(frame: int, out: str, key: str = KEY, cols: tuple[int, int] = COLS) -> None:
+    """Crop frame ``frame`` of rig 214's cached render (simulator key ``key``), image
+    columns ``cols`` (even), around the red stripe; write ``out``."""
+    common.SIM_KEY = R.SIM_KEY = key
     w, h = 1920, 1080
     d = R.scan_for(214, w, h)
     t = json.loads((d / "truth.json").read_text())
     renderer, _ = _make_renderer(SimConfig(**t["config"]))
-    c0, c1 = COLS
+    c0, c1 = cols
     truth = {}
     for laser in renderer.rig.lasers:
         uv = renderer.laser_points(laser, frame).uv_px
